@@ -1,0 +1,151 @@
+"""Generate the student notebooks in ``labs/`` from the instructor notebooks in ``solutions/``.
+
+Workflow: edit and run only ``solutions/NN_name.ipynb`` (complete code, with
+outputs), then run ``kfkit make-labs`` to regenerate ``labs/NN_name.ipynb``.
+Never edit ``labs/`` by hand; ``kfkit make-labs --check`` (CI) fails when a
+lab is stale, missing, or has no solution.
+
+Markers (the ones nbgrader uses), each on a line of its own:
+
+* code cells: the lines from ``### BEGIN SOLUTION`` to ``### END SOLUTION``
+  (inclusive) become ``# YOUR CODE HERE`` and ``raise NotImplementedError()``,
+  indented like the BEGIN line. A cell may hold several blocks.
+* markdown cells: the same markers around a model answer; the block becomes
+  ``YOUR ANSWER HERE``.
+* cells tagged ``solution-only`` (instructor notes, checks of the model
+  answer) are left out of the lab entirely.
+
+The labs carry no outputs and no run state, so they are byte-identical
+whoever regenerates them.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import nbformat
+
+BEGIN = "### BEGIN SOLUTION"
+END = "### END SOLUTION"
+CODE_STUB = ["# YOUR CODE HERE", "raise NotImplementedError()"]
+ANSWER_STUB = ["YOUR ANSWER HERE"]
+SOLUTION_ONLY_TAG = "solution-only"
+RUN_STATE_KEYS = ("execution", "collapsed", "scrolled")
+NOTEBOOK_METADATA_KEPT = ("kernelspec", "language_info")
+
+
+class AuthoringError(ValueError):
+    """A solution notebook cannot be turned into a lab (bad solution markers)."""
+
+
+def strip_solutions(nb: nbformat.NotebookNode, name: str | None = None) -> nbformat.NotebookNode:
+    """Return the student version of solution notebook ``nb`` (``nb`` is not modified).
+
+    ``name`` (e.g. the notebook path) is only used in error messages.
+    """
+    where = f"{name}: " if name else ""
+    lab = copy.deepcopy(nb)
+    lab.metadata = nbformat.NotebookNode(
+        {key: lab.metadata[key] for key in NOTEBOOK_METADATA_KEPT if key in lab.metadata}
+    )
+    cells = []
+    for index, cell in enumerate(lab.cells):
+        if SOLUTION_ONLY_TAG in cell.metadata.get("tags", []):
+            pass
+        stub = {"code": CODE_STUB, "markdown": ANSWER_STUB}.get(cell.cell_type)
+        if stub:
+            cell.source = _replace_blocks(cell.source, stub, f"{where}cell index {index}")
+        if cell.cell_type == "code":
+            cell.outputs = []
+            cell.execution_count = None
+        for key in RUN_STATE_KEYS:
+            cell.metadata.pop(key, None)
+        cells.append(cell)
+    lab.cells = cells
+    _check_clean(lab, where)
+    return lab
+
+
+def _replace_blocks(source: str, stub: list[str], where: str) -> str:
+    """Replace every BEGIN..END block in ``source`` by ``stub`` at the BEGIN line's indentation."""
+    out: list[str] = []
+    begin_line = None  # 1-based line number of the open BEGIN marker
+    for number, line in enumerate(source.split("\n"), start=1):
+        if BEGIN in line:
+            if begin_line is not None:
+                raise AuthoringError(
+                    f"{where}, line {number}: nested '{BEGIN}' (the block opened on line {begin_line} is not closed)"
+                )
+            begin_line = number
+            indent = line[: len(line) - len(line.lstrip())]
+            out.extend(indent + stub_line for stub_line in stub)
+        elif END in line:
+            if begin_line is None:
+                raise AuthoringError(f"{where}, line {number}: '{END}' without '{BEGIN}'")
+            begin_line = None
+        elif begin_line is None:
+            out.append(line)
+    if begin_line is not None:
+        raise AuthoringError(f"{where}, line {begin_line}: '{BEGIN}' without '{END}'")
+    return "\n".join(out)
+
+
+def _check_clean(lab: nbformat.NotebookNode, where: str) -> None:
+    """Refuse a lab that would leak a solution marker or an output to students."""
+    text = nbformat.writes(lab, version=4)
+    for marker in ("BEGIN SOLUTION", "END SOLUTION"):
+        if marker in text:
+            raise AuthoringError(
+                f"{where}the lab would still contain '{marker}' (markers must be "
+                f"'{BEGIN}' / '{END}' lines in code or markdown cells)"
+            )
+    if any(cell.get("outputs") for cell in lab.cells):
+        raise AuthoringError(f"{where}the lab would still contain outputs")
+
+
+def _render_lab(solution_path: str | Path) -> str:
+    """Return the lab file contents for one solution notebook (deterministic text)."""
+    nb = nbformat.read(solution_path, as_version=4)
+    return nbformat.writes(strip_solutions(nb, name=str(solution_path)), version=4) + "\n"
+
+
+def make_labs(solutions_dir: str | Path, labs_dir: str | Path, check: bool = False) -> list[str]:
+    """Regenerate ``labs_dir`` from ``solutions_dir``.
+
+    With ``check=False``, write the labs that changed, delete lab notebooks that
+    have no solution, and return the paths written or removed. With
+    ``check=True``, write nothing and return the problems found (empty: up to
+    date). Paths are shown as ``<labs dir name>/<file>``, e.g. ``labs/01_x.ipynb``.
+    """
+    solutions_dir, labs_dir = Path(solutions_dir), Path(labs_dir)
+    solutions = sorted(solutions_dir.glob("*.ipynb"))
+    wanted = {path.name for path in solutions}
+    changes: list[str] = []
+    problems: list[str] = []
+
+    for solution in solutions:
+        lab = labs_dir / solution.name
+        shown = f"{labs_dir.name}/{lab.name}"
+        text = _render_lab(solution)
+        if not lab.exists():
+            problems.append(f"{shown} is missing")
+        elif lab.read_bytes() == text.encode("utf-8"):
+            pass
+        else:
+            problems.append(f"{shown} is stale: regenerate with 'kfkit make-labs'")
+        if not check:
+            labs_dir.mkdir(parents=True, exist_ok=True)
+            lab.write_bytes(text.encode("utf-8"))
+            changes.append(shown)
+
+    for orphan in sorted(labs_dir.glob("*.ipynb")):
+        if orphan.name in wanted:
+            pass
+        shown = f"{labs_dir.name}/{orphan.name}"
+        problems.append(f"{shown} has no solution in {solutions_dir.name}/")
+        if not check:
+            orphan.unlink()
+            changes.append(shown)
+
+    return problems if check else changes

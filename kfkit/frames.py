@@ -1,0 +1,121 @@
+"""Frames, rotations and angles in the kit's conventions.
+
+Navigation frame NED (x north, y east, z down); body frame FRD (x forward, y right,
+z down). Euler angles are ZYX ("3-2-1": yaw ψ, then pitch θ, then roll φ) and
+
+    R_nb = Rz(ψ) · Ry(θ) · Rx(φ)        maps body → NED,   R_bn = R_nbᵀ,
+
+which equals ``scipy.spatial.transform.Rotation.from_euler('ZYX', [ψ, θ, φ]).as_matrix()``.
+All angles are radians. Functions accept scalars or arrays and broadcast like NumPy.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: Standard gravity, m/s².
+G = 9.80665
+
+#: Reference geomagnetic field in London, NED, µT (WMM, 2025: north 19.5, east 0.3,
+#: down 45.0). Magnetic declination there is atan2(0.3, 19.5) ≈ +0.9° (east of true north).
+MAG_FIELD_LONDON = (19.5, 0.3, 45.0)
+
+#: Mounting matrix M_bs (body ← sensor) for a sensor whose z axis points up when the
+#: board lies flat (it reads +1 g on z): y and z are flipped, x stays forward.
+MOUNT_Z_UP = np.diag([1.0, -1.0, -1.0])
+
+#: Mounting matrix for a sensor already aligned with the body frame (FRD).
+MOUNT_IDENTITY = np.eye(3)
+
+
+def wrap_angle(a):
+    """Wrap angles to (−π, π] (rad)."""
+    a = np.asarray(a, dtype=float)
+    w = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+    return w if w.ndim else float(w)
+
+
+def euler_to_dcm(roll, pitch, yaw):
+    """R_nb = Rz(yaw) Ry(pitch) Rx(roll), body → NED.
+
+    Scalars give a (3, 3) matrix; arrays of N angles give (N, 3, 3).
+    """
+    roll, pitch, yaw = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (roll, pitch, yaw)))
+    cf, sf = np.cos(roll), np.sin(roll)
+    ct, st = np.cos(pitch), np.sin(pitch)
+    cp, sp = np.cos(yaw), np.sin(yaw)
+    R = np.empty(roll.shape + (3, 3))
+    R[..., 0, 0] = ct * cp
+    R[..., 0, 1] = sf * st * cp - cf * sp
+    R[..., 0, 2] = cf * st * cp + sf * sp
+    R[..., 1, 0] = ct * sp
+    R[..., 1, 1] = sf * st * sp + cf * cp
+    R[..., 1, 2] = cf * st * sp - sf * cp
+    R[..., 2, 0] = -st
+    R[..., 2, 1] = sf * ct
+    R[..., 2, 2] = cf * ct
+    return R
+
+
+def dcm_to_euler(R):
+    """(roll, pitch, yaw) from R_nb (3×3 or N×3×3), the inverse of :func:`euler_to_dcm`.
+
+    φ = atan2(R₃₂, R₃₃), θ = −asin(R₃₁), ψ = atan2(R₂₁, R₁₁). At θ = ±90° (gimbal lock)
+    only φ ∓ ψ is defined; the split returned there is arbitrary but R is reproduced.
+    """
+    R = np.asarray(R, dtype=float)
+    roll = np.arctan2(R[..., 2, 1], R[..., 2, 2])
+    pitch = -np.arcsin(np.clip(R[..., 2, 0], -1.0, 1.0))
+    yaw = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    if R.ndim == 2:
+        return float(roll), float(pitch), float(yaw)
+    return roll, pitch, yaw
+
+
+def accel_tilt(f_b):
+    """Roll and pitch (rad) from a specific-force vector f_b (m/s², body FRD).
+
+    At rest f_b = R_bn·[0, 0, −g], so  φ = atan2(−f_y, −f_z),  θ = atan2(f_x, √(f_y² + f_z²)).
+    Valid only when the linear acceleration is small compared with g.
+    Accepts (3,) → two floats, or (N, 3) → two arrays.
+    """
+    f = np.asarray(f_b, dtype=float)
+    if f.shape[-1] != 3:
+        raise ValueError(f"accel_tilt expects specific force with 3 components on the last axis, got shape {f.shape}")
+    fx, fy, fz = f[..., 0], f[..., 1], f[..., 2]
+    roll = np.arctan2(-fy, -fz)
+    pitch = np.arctan2(fx, np.hypot(fy, fz))
+    if f.ndim == 1:
+        return float(roll), float(pitch)
+    return roll, pitch
+
+
+def euler_rates_to_body_rates(euler, euler_dot):
+    """Body angular rate ω_b = [p, q, r] (rad/s) from Euler angles and their rates (ZYX).
+
+        p = φ̇ − ψ̇ sin θ
+        q = θ̇ cos φ + ψ̇ sin φ cos θ
+        r = −θ̇ sin φ + ψ̇ cos φ cos θ
+
+    ``euler`` and ``euler_dot`` are (..., 3) arrays ordered [roll, pitch, yaw].
+    """
+    e = np.asarray(euler, dtype=float)
+    ed = np.asarray(euler_dot, dtype=float)
+    phi, theta = e[..., 0], e[..., 1]
+    dphi, dtheta, dpsi = ed[..., 0], ed[..., 1], ed[..., 2]
+    p = dphi - dpsi * np.sin(theta)
+    q = dtheta * np.cos(phi) + dpsi * np.sin(phi) * np.cos(theta)
+    r = -dtheta * np.sin(phi) + dpsi * np.cos(phi) * np.cos(theta)
+    return np.stack([p, q, r], axis=-1)
+
+
+def mount_matrix(spec):
+    """A 3×3 mounting matrix M_bs from a nested list (as stored in recording metadata).
+
+    Checks that it is a proper rotation (orthonormal, det +1).
+    """
+    M = np.asarray(spec, dtype=float)
+    if M.shape != (3, 3):
+        raise ValueError(f"a mounting matrix must be 3×3, got shape {M.shape}")
+    if not np.allclose(M @ M.T, np.eye(3), atol=1e-9) or not np.isclose(np.linalg.det(M), 1.0):
+        raise ValueError(f"a mounting matrix must be a rotation (orthonormal, det +1), got {M.tolist()}")
+    return M

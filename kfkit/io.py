@@ -1,0 +1,220 @@
+"""The kit's recording format: load, validate, save.
+
+A recording is a CSV file with one header comment line holding JSON metadata, a
+column-name line, then one row per sample::
+
+    # kfkit-recording v1 {"board": "nucleo-iks02a1", "rate_hz": 104.0, "sensors": {...}, "mount": {...}, ...}
+    t,seq,ax,ay,az,gx,gy,gz,mx,my,mz,true_roll,true_pitch,true_yaw
+    0.000000,0,12,-35,8190,3,-2,1,,,,0.0,0.0,0.0
+
+- ``t`` is seconds (float) from the recording's start and must increase strictly.
+- Raw sensor columns hold integer counts as the board sent them; the metadata's
+  ``sensors`` entry gives each sensor's sensitivity (SI per count) and ``mount`` its
+  mounting matrix M_bs (body ← sensor). Magnetometer cells may be empty: no new sample.
+- Simulated recordings add ``true_roll``, ``true_pitch``, ``true_yaw`` (rad).
+
+Loading fails with :class:`RecordingError` naming the file and line.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .frames import mount_matrix
+
+MAGIC = "# kfkit-recording v1 "
+VERSION_PREFIX = "# kfkit-recording "
+REQUIRED_COLUMNS = ("t", "seq")
+INT_COLUMNS = frozenset({"seq", "ax", "ay", "az", "gx", "gy", "gz"})
+OPTIONAL_INT_COLUMNS = frozenset({"mx", "my", "mz"})  # empty cell = no new sample (NaN)
+SENSOR_COLUMNS = {"acc": ("ax", "ay", "az"), "gyr": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
+TRUTH_COLUMNS = ("true_roll", "true_pitch", "true_yaw")
+
+
+class RecordingError(ValueError):
+    """A recording file that does not follow the format; the message names file and line."""
+
+    def __init__(self, path, line: int | None, message: str):
+        where = f"{path}" if line is None else f"{path}, line {line}"
+        super().__init__(f"{where}: {message}")
+        self.path, self.line = path, line
+
+
+@dataclass
+class Recording:
+    """Metadata plus named columns (NumPy arrays, one value per sample)."""
+
+    meta: dict
+    data: dict[str, np.ndarray]
+    path: Path | None = field(default=None, compare=False)
+
+    @property
+    def columns(self) -> list[str]:
+        return list(self.data)
+
+    @property
+    def t(self) -> np.ndarray:
+        """Sample times, s."""
+        return self.data["t"]
+
+    @property
+    def rate_hz(self) -> float:
+        return float(self.meta["rate_hz"])
+
+    def __len__(self) -> int:
+        return len(self.data["t"])
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.data[name]
+        except KeyError:
+            raise KeyError(f"recording {self.path or ''} has no column {name!r}; columns: {', '.join(self.data)}") from None
+
+    def counts(self, sensor: str) -> np.ndarray:
+        """Raw counts of ``sensor`` ('acc', 'gyr' or 'mag') as an (N, 3) array, sensor frame."""
+        return np.column_stack([self[c] for c in SENSOR_COLUMNS[sensor]]).astype(float)
+
+    def sensor_si(self, sensor: str) -> np.ndarray:
+        """``sensor`` in SI units, sensor frame: counts · sensitivity, (N, 3)."""
+        return self.counts(sensor) * float(self.meta["sensors"][sensor]["sensitivity"])
+
+    def body(self, sensor: str) -> np.ndarray:
+        """``sensor`` in SI units, body frame FRD: x_b = M_bs · x_s, (N, 3)."""
+        return self.sensor_si(sensor) @ mount_matrix(self.meta["mount"][sensor]).T
+
+    def truth(self) -> np.ndarray:
+        """True [roll, pitch, yaw] (rad) as (N, 3); only simulated recordings have it."""
+        missing = [c for c in TRUTH_COLUMNS if c not in self.data]
+        if missing:
+            raise KeyError(f"recording {self.path or ''} has no truth columns ({', '.join(missing)}): only simulated recordings do")
+        return np.column_stack([self.data[c] for c in TRUTH_COLUMNS])
+
+    def head(self, seconds: float) -> "Recording":
+        """The first ``seconds`` of the recording (a new Recording sharing metadata)."""
+        keep = self.t < self.t[0] + seconds
+        return Recording(dict(self.meta), {k: v[keep] for k, v in self.data.items()}, self.path)
+
+
+def _format_cell(name: str, value) -> str:
+    if name in INT_COLUMNS:
+        return str(int(value))
+    if name in OPTIONAL_INT_COLUMNS:
+        return "" if math.isnan(value) else str(int(value))
+    if name == "t":
+        return f"{value:.6f}"
+    return f"{value:.9g}"
+
+
+def format_header(meta: dict, columns) -> str:
+    """The two header lines (metadata comment and column names), newline-terminated."""
+    return f"{MAGIC}{json.dumps(meta, ensure_ascii=False)}\n{','.join(columns)}\n"
+
+
+def format_row(columns, values) -> str:
+    """One CSV row, newline-terminated, in the format's number formatting."""
+    return ",".join(_format_cell(c, v) for c, v in zip(columns, values)) + "\n"
+
+
+def recording_text(rec: Recording) -> str:
+    """The file contents of ``rec`` in the recording format (deterministic text)."""
+    cols = rec.columns
+    rows = zip(*(rec.data[c].tolist() for c in cols))
+    return format_header(rec.meta, cols) + "".join(format_row(cols, row) for row in rows)
+
+
+def save_recording(rec: Recording, path) -> Path:
+    """Write ``rec`` to ``path`` in the recording format."""
+    path = Path(path)
+    path.write_text(recording_text(rec), encoding="utf-8", newline="\n")
+    return path
+
+
+def _parse_header(path, line: str) -> dict:
+    if not line.startswith(VERSION_PREFIX):
+        shown = line[:60].rstrip("\n")
+        raise RecordingError(path, 1, f"expected the header '{MAGIC.strip()} {{…json…}}', got {shown!r}: is this a kfkit recording?")
+    if not line.startswith(MAGIC):
+        version = line[len(VERSION_PREFIX):].split(" ", 1)[0]
+        raise RecordingError(path, 1, f"unsupported recording version {version!r}; this kfkit reads v1")
+    try:
+        meta = json.loads(line[len(MAGIC):])
+    except json.JSONDecodeError as e:
+        raise RecordingError(path, 1, f"the metadata is not valid JSON ({e.msg} at column {e.colno + len(MAGIC)})") from None
+    if not isinstance(meta, dict) or "rate_hz" not in meta:
+        raise RecordingError(path, 1, "the metadata must be a JSON object with at least 'rate_hz'")
+    return meta
+
+
+def _parse_columns(path, line: str) -> list[str]:
+    cols = [c.strip() for c in line.rstrip("\r\n").split(",")]
+    missing = [c for c in REQUIRED_COLUMNS if c not in cols]
+    if missing or not line.strip():
+        raise RecordingError(path, 2, f"the column line must name at least {', '.join(REQUIRED_COLUMNS)}; got {line.strip()!r}")
+    dupes = sorted({c for c in cols if cols.count(c) > 1})
+    if dupes:
+        raise RecordingError(path, 2, f"duplicate column names: {', '.join(dupes)}")
+    return cols
+
+
+def _parse_cell(path, lineno: int, col: str, text: str):
+    if col in OPTIONAL_INT_COLUMNS and text == "":
+        return math.nan
+    if col in INT_COLUMNS or col in OPTIONAL_INT_COLUMNS:
+        try:
+            return int(text)
+        except ValueError:
+            raise RecordingError(path, lineno, f"column {col!r}: {text!r} is not an integer count") from None
+    try:
+        value = float(text)
+    except ValueError:
+        raise RecordingError(path, lineno, f"column {col!r}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise RecordingError(path, lineno, f"column {col!r}: {text!r} is not a finite number")
+    return value
+
+
+def load_recording(path) -> Recording:
+    """Read and validate a recording; raises :class:`RecordingError` naming file and line."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"no recording at {path}") from None
+    except UnicodeDecodeError as e:
+        raise RecordingError(path, None, f"not a text file ({e.reason} at byte {e.start})") from None
+    lines = text.split("\n")
+    if len(lines) < 2 or not lines[0]:
+        raise RecordingError(path, 1, "the file is empty: expected a metadata header line")
+    meta = _parse_header(path, lines[0])
+    cols = _parse_columns(path, lines[1])
+    truncated_tail = not text.endswith("\n")
+    rows = lines[2:] if truncated_tail else lines[2:-1]
+    columns: list[list] = [[] for _ in cols]
+    t_col, t_prev = cols.index("t"), None
+    for i, raw in enumerate(rows):
+        lineno = i + 3
+        cells = raw.rstrip("\r").split(",")
+        if len(cells) != len(cols):
+            last = i == len(rows) - 1
+            if last and truncated_tail:
+                raise RecordingError(path, lineno, f"the last line is cut short ({len(cells)} of {len(cols)} fields, no newline): "
+                                     f"the capture was probably interrupted; the {i} complete rows before it are intact")
+            raise RecordingError(path, lineno, f"expected {len(cols)} fields ({','.join(cols)}), got {len(cells)}")
+        values = [_parse_cell(path, lineno, c, s.strip()) for c, s in zip(cols, cells)]
+        for column, v in zip(columns, values):
+            column.append(v)
+        t = values[t_col]
+        if t_prev is not None and t <= t_prev:
+            raise RecordingError(path, lineno, f"time does not increase: t = {t} s after t = {t_prev} s")
+        t_prev = t
+    if not rows:
+        raise RecordingError(path, 3, "the recording holds no samples")
+    data = {}
+    for c, column in zip(cols, columns):
+        dtype = np.int64 if c in INT_COLUMNS else float
+        data[c] = np.asarray(column, dtype=dtype)
+    return Recording(meta, data, path)

@@ -1,0 +1,182 @@
+import nbformat
+import pytest
+from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook, new_output
+
+from kfkit.authoring import AuthoringError, make_labs, strip_solutions
+
+FUNCTION_SOLUTION = """\
+import math
+
+def predict(x, dt):
+    \"\"\"Constant-velocity prediction.\"\"\"
+    ### BEGIN SOLUTION
+    pos, vel = x
+    return (pos + vel * dt, vel)
+    ### END SOLUTION
+
+def rms(values):
+    if values:
+        ### BEGIN SOLUTION
+        return math.sqrt(sum(v * v for v in values) / len(values))
+        ### END SOLUTION
+    return 0.0
+"""
+
+
+def solution_notebook():
+    nb = new_notebook(metadata={
+        "kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"},
+        "language_info": {"name": "python", "version": "3.11.7"},
+        "widgets": {"application/vnd.jupyter.widget-state+json": {"state": {}}},
+    })
+    code = new_code_cell(
+        "import numpy as np\n### BEGIN SOLUTION\nK = 0.5\n### END SOLUTION\nprint(K)",
+        execution_count=3,
+        outputs=[new_output("stream", name="stdout", text="0.5\n")],
+        metadata={"tags": ["kalman-gain"], "scrolled": True, "collapsed": False,
+                  "execution": {"iopub.status.idle": "2024-01-01T00:00:00Z"}},
+    )
+    functions = new_code_cell(FUNCTION_SOLUTION, execution_count=4)
+    answer = new_markdown_cell(
+        "**Question:** why does P shrink?\n\n### BEGIN SOLUTION\nEach update adds information.\n### END SOLUTION"
+    )
+    instructor = new_code_cell("assert K == 0.5", metadata={"tags": ["solution-only"]})
+    nb.cells = [code, functions, answer, instructor]
+    return nb
+
+
+def write_nb(path, nb):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    nbformat.write(nb, str(path))
+
+
+def test_single_block_replaced_and_outputs_cleared():
+    lab = strip_solutions(solution_notebook())
+    cell = lab.cells[0]
+    assert cell.source == "import numpy as np\n# YOUR CODE HERE\nraise NotImplementedError()\nprint(K)"
+    assert cell.outputs == []
+    assert cell.execution_count is None
+    assert cell.metadata == {"tags": ["kalman-gain"]}
+    assert lab.cells[1].execution_count is None
+
+
+def test_solution_notebook_is_not_modified():
+    nb = solution_notebook()
+    strip_solutions(nb)
+    assert "K = 0.5" in nb.cells[0].source
+    assert nb.cells[0].outputs
+    assert "widgets" in nb.metadata
+
+
+def test_indented_blocks_compile_and_raise():
+    source = strip_solutions(solution_notebook()).cells[1].source
+    assert "    # YOUR CODE HERE\n    raise NotImplementedError()\n" in source
+    assert "        # YOUR CODE HERE\n        raise NotImplementedError()\n    return 0.0" in source
+    assert "sqrt" not in source and "pos + vel" not in source
+    namespace = {}
+    exec(compile(source, "lab-cell", "exec"), namespace)
+    with pytest.raises(NotImplementedError):
+        namespace["predict"]((0.0, 1.0), 0.1)
+    with pytest.raises(NotImplementedError):
+        namespace["rms"]([1.0])
+    assert namespace["rms"]([]) == 0.0
+
+
+def test_markdown_answer_replaced():
+    source = strip_solutions(solution_notebook()).cells[2].source
+    assert source == "**Question:** why does P shrink?\n\nYOUR ANSWER HERE"
+
+
+def test_solution_only_cells_dropped_and_ids_kept():
+    nb = solution_notebook()
+    lab = strip_solutions(nb)
+    assert [cell.id for cell in lab.cells] == [cell.id for cell in nb.cells[:3]]
+    assert all("solution-only" not in cell.metadata.get("tags", []) for cell in lab.cells)
+
+
+def test_notebook_metadata_keeps_only_kernel_and_language():
+    lab = strip_solutions(solution_notebook())
+    assert set(lab.metadata) == {"kernelspec", "language_info"}
+
+
+@pytest.mark.parametrize("source, line, words", [
+    ("x = 1\n### BEGIN SOLUTION\nx = 2", 2, "without"),
+    ("x = 1\ny = 2\n### END SOLUTION", 3, "without"),
+    ("### BEGIN SOLUTION\nx = 1\n    ### BEGIN SOLUTION\nx = 2\n### END SOLUTION", 3, "nested"),
+])
+def test_malformed_markers_name_cell_and_line(source, line, words):
+    nb = new_notebook(cells=[new_markdown_cell("intro"), new_code_cell(source)])
+    with pytest.raises(AuthoringError, match=rf"solutions/01_x\.ipynb: cell index 1, line {line}: .*{words}"):
+        strip_solutions(nb, name="solutions/01_x.ipynb")
+
+
+def test_malformed_markdown_markers_raise():
+    nb = new_notebook(cells=[new_markdown_cell("### BEGIN SOLUTION\nanswer")])
+    with pytest.raises(AuthoringError, match="cell index 0, line 1"):
+        strip_solutions(nb)
+
+
+def test_leftover_marker_is_refused():
+    nb = new_notebook(cells=[new_code_cell("# BEGIN SOLUTION\nx = 1\n# END SOLUTION")])
+    with pytest.raises(AuthoringError, match="BEGIN SOLUTION"):
+        strip_solutions(nb)
+
+
+def test_make_labs_writes_then_check_is_clean(tmp_path):
+    write_nb(tmp_path / "solutions" / "01_gain.ipynb", solution_notebook())
+    (tmp_path / "solutions" / ".ipynb_checkpoints").mkdir()
+    write_nb(tmp_path / "solutions" / ".ipynb_checkpoints" / "01_gain-checkpoint.ipynb", solution_notebook())
+
+    written = make_labs(tmp_path / "solutions", tmp_path / "labs")
+
+    assert written == ["labs/01_gain.ipynb"]
+    assert sorted(p.name for p in (tmp_path / "labs").iterdir()) == ["01_gain.ipynb"]
+    text = (tmp_path / "labs" / "01_gain.ipynb").read_text(encoding="utf-8")
+    assert "K = 0.5" not in text and "SOLUTION" not in text and '"outputs": []' in text
+    assert text.endswith("}\n")
+    assert make_labs(tmp_path / "solutions", tmp_path / "labs", check=True) == []
+    assert make_labs(tmp_path / "solutions", tmp_path / "labs") == []
+
+
+def test_edited_solution_makes_lab_stale(tmp_path):
+    solution = tmp_path / "solutions" / "01_gain.ipynb"
+    nb = solution_notebook()
+    write_nb(solution, nb)
+    make_labs(tmp_path / "solutions", tmp_path / "labs")
+    nb.cells[0].source = nb.cells[0].source.replace("print(K)", "print(K * 2)")
+    write_nb(solution, nb)
+    before = (tmp_path / "labs" / "01_gain.ipynb").read_bytes()
+
+    problems = make_labs(tmp_path / "solutions", tmp_path / "labs", check=True)
+
+    assert problems == ["labs/01_gain.ipynb is stale: regenerate with 'kfkit make-labs'"]
+    assert (tmp_path / "labs" / "01_gain.ipynb").read_bytes() == before
+    assert make_labs(tmp_path / "solutions", tmp_path / "labs") == ["labs/01_gain.ipynb"]
+    assert "print(K * 2)" in (tmp_path / "labs" / "01_gain.ipynb").read_text(encoding="utf-8")
+
+
+def test_missing_and_orphan_labs(tmp_path):
+    write_nb(tmp_path / "solutions" / "01_gain.ipynb", solution_notebook())
+    write_nb(tmp_path / "labs" / "99_old.ipynb", new_notebook())
+    (tmp_path / "labs" / "README.md").write_text("keep me")
+
+    problems = make_labs(tmp_path / "solutions", tmp_path / "labs", check=True)
+
+    assert problems == [
+        "labs/01_gain.ipynb is missing",
+        "labs/99_old.ipynb has no solution in solutions/",
+    ]
+    assert not (tmp_path / "labs" / "01_gain.ipynb").exists()
+    assert make_labs(tmp_path / "solutions", tmp_path / "labs") == ["labs/01_gain.ipynb", "labs/99_old.ipynb"]
+    assert sorted(p.name for p in (tmp_path / "labs").iterdir()) == ["01_gain.ipynb", "README.md"]
+
+
+def test_output_is_byte_deterministic(tmp_path):
+    write_nb(tmp_path / "solutions" / "01_gain.ipynb", solution_notebook())
+    write_nb(tmp_path / "solutions" / "02_more.ipynb", solution_notebook())
+    make_labs(tmp_path / "solutions", tmp_path / "a")
+    make_labs(tmp_path / "solutions", tmp_path / "b")
+    for name in ("01_gain.ipynb", "02_more.ipynb"):
+        first = (tmp_path / "a" / name).read_bytes()
+        assert first == (tmp_path / "b" / name).read_bytes()
+        assert b"YOUR CODE HERE" in first
