@@ -52,7 +52,7 @@ def strip_solutions(nb: nbformat.NotebookNode, name: str | None = None) -> nbfor
     cells = []
     for index, cell in enumerate(lab.cells):
         if SOLUTION_ONLY_TAG in cell.metadata.get("tags", []):
-            pass
+            continue
         stub = {"code": CODE_STUB, "markdown": ANSWER_STUB}.get(cell.cell_type)
         if stub:
             cell.source = _replace_blocks(cell.source, stub, f"{where}cell index {index}")
@@ -131,7 +131,7 @@ def make_labs(solutions_dir: str | Path, labs_dir: str | Path, check: bool = Fal
         if not lab.exists():
             problems.append(f"{shown} is missing")
         elif lab.read_bytes() == text.encode("utf-8"):
-            pass
+            continue
         else:
             problems.append(f"{shown} is stale: regenerate with 'kfkit make-labs'")
         if not check:
@@ -141,7 +141,7 @@ def make_labs(solutions_dir: str | Path, labs_dir: str | Path, check: bool = Fal
 
     for orphan in sorted(labs_dir.glob("*.ipynb")):
         if orphan.name in wanted:
-            pass
+            continue
         shown = f"{labs_dir.name}/{orphan.name}"
         problems.append(f"{shown} has no solution in {solutions_dir.name}/")
         if not check:
