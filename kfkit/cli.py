@@ -23,7 +23,8 @@ def _make_labs(args) -> int:
         print("labs/ is up to date" if not report else f"{len(report)} problem(s): run 'kfkit make-labs'")
         return 1 if report else 0
     for line in report:
-        print(f"wrote {line}")
+        print(f"updated {line}")
+    print(f"{len(report)} lab notebook(s) written or removed" if report else "labs/ was already up to date")
     return 0
 
 

@@ -101,6 +101,11 @@ def run_kf(kf: KalmanFilter, zs, us=None) -> FilterRun:
 
 # --- Lab 01: scalar roll filter -----------------------------------------------------------
 
+def integrate_rate(rate, dt, x0=0.0):
+    """Dead reckoning: x_k = x0 + Σ_{i≤k} ω_i·dt (rad), the KF's prediction with no updates."""
+    return x0 + np.cumsum(np.asarray(rate, dtype=float) * dt)
+
+
 def roll_kf_predict(x, P, omega, dt, q):
     """Scalar roll prediction: x⁻ = x + ω·dt (rad),  P⁻ = P + q (rad²)."""
     return x + omega * dt, P + q

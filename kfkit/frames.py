@@ -66,6 +66,12 @@ def dcm_to_euler(R):
     roll = np.arctan2(R[..., 2, 1], R[..., 2, 2])
     pitch = -np.arcsin(np.clip(R[..., 2, 0], -1.0, 1.0))
     yaw = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    # Gimbal lock (cos θ ≈ 0): the entries above are rounding noise, so take ψ = 0 and
+    # φ from R₁₂ = sinθ·sinφ, R₂₂ = cosφ, which hold there when ψ = 0.
+    lock = np.hypot(R[..., 0, 0], R[..., 1, 0]) < 1e-8
+    if np.any(lock):
+        roll = np.where(lock, np.arctan2(-np.sign(R[..., 2, 0]) * R[..., 0, 1], R[..., 1, 1]), roll)
+        yaw = np.where(lock, 0.0, yaw)
     if R.ndim == 2:
         return float(roll), float(pitch), float(yaw)
     return roll, pitch, yaw
@@ -79,7 +85,7 @@ def accel_tilt(f_b):
     Accepts (3,) → two floats, or (N, 3) → two arrays.
     """
     f = np.asarray(f_b, dtype=float)
-    if f.shape[-1] != 3:
+    if f.ndim == 0 or f.shape[-1] != 3:
         raise ValueError(f"accel_tilt expects specific force with 3 components on the last axis, got shape {f.shape}")
     fx, fy, fz = f[..., 0], f[..., 1], f[..., 2]
     roll = np.arctan2(-fy, -fz)

@@ -193,16 +193,18 @@ def load_recording(path) -> Recording:
     cols = _parse_columns(path, lines[1])
     truncated_tail = not text.endswith("\n")
     rows = lines[2:] if truncated_tail else lines[2:-1]
+    while rows and not truncated_tail and not rows[-1].strip():
+        rows.pop()  # blank lines at the end (a hand-edited file) carry no samples
     columns: list[list] = [[] for _ in cols]
     t_col, t_prev = cols.index("t"), None
     for i, raw in enumerate(rows):
         lineno = i + 3
+        if truncated_tail and i == len(rows) - 1:
+            # Every writer ends a row with a newline: without one, even a full field count may hide a cut number.
+            raise RecordingError(path, lineno, f"the last line is cut short (no newline at the end): the capture was "
+                                 f"probably interrupted; the {i} rows before it are complete: delete this line to load them")
         cells = raw.rstrip("\r").split(",")
         if len(cells) != len(cols):
-            last = i == len(rows) - 1
-            if last and truncated_tail:
-                raise RecordingError(path, lineno, f"the last line is cut short ({len(cells)} of {len(cols)} fields, no newline): "
-                                     f"the capture was probably interrupted; the {i} complete rows before it are intact")
             raise RecordingError(path, lineno, f"expected {len(cols)} fields ({','.join(cols)}), got {len(cells)}")
         values = [_parse_cell(path, lineno, c, s.strip()) for c, s in zip(cols, cells)]
         for column, v in zip(columns, values):

@@ -1,10 +1,13 @@
 """Sensor specifications and the counts ↔ SI conversion.
 
 Each figure cites its datasheet. Units inside the kit are SI: m/s², rad/s, µT.
-Noise densities are one-sided amplitude spectral densities of white noise; a sensor
-sampled at ``rate_hz`` then has a per-sample standard deviation
+Noise densities N (unit/√Hz) are treated as the density of continuous white noise sampled
+at ``rate_hz``, giving a per-sample standard deviation
 
-    σ = N · √rate_hz        (N in unit/√Hz, the convention the Allan deviation reads back at τ = 1 s).
+    σ = N · √rate_hz
+
+the convention in which the Allan deviation reads N back at τ = 1 s. (Reading N as a one-sided
+density band-limited at Nyquist would give N·√(rate_hz/2), √2 smaller.)
 
 Boards bundle sensors with their mounting matrices M_bs (body ← sensor); see :data:`BOARDS`.
 """
@@ -61,7 +64,8 @@ class SensorSpec:
     def to_counts(self, x):
         """SI → counts: round to the nearest LSB and saturate at full scale."""
         counts = np.rint(np.asarray(x, dtype=float) / self.sensitivity)
-        return np.clip(counts, -self.max_count - 1, self.max_count).astype(np.int64)
+        lowest = max(INT16_MIN, -int(np.floor(self.full_scale / self.sensitivity)))  # −FS, or the int16 limit
+        return np.clip(counts, lowest, self.max_count).astype(np.int64)
 
     def metadata(self) -> dict:
         """What a recording stores so that its counts can be converted back."""

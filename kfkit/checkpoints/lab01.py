@@ -1,0 +1,115 @@
+"""Checkpoints of lab 01 (1D roll Kalman filter)."""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import datasets
+from ..filters import integrate_rate, roll_kf, roll_kf_predict, roll_kf_update
+from ..frames import G, accel_tilt, wrap_angle
+from ..metrics import angle_error, rmse
+from . import Case, Checkpoint, compare, register
+
+STILL_SECONDS = 5.0  # the bundled recording starts with the board at rest
+
+
+def _accel_roll_cases(rng):
+    cases = []
+    for roll in np.concatenate([[0.0, np.pi / 2, -np.pi / 2, 3.0, -3.0], rng.uniform(-np.pi, np.pi, 7)]):
+        f = np.array([0.0, -G * np.sin(roll), -G * np.cos(roll)]) * rng.uniform(0.8, 1.2)
+        cases.append(Case({"ay": f[1], "az": f[2]}, roll))
+    rolls = rng.uniform(-np.pi, np.pi, 20)
+    cases.append(Case({"ay": -G * np.sin(rolls), "az": -G * np.cos(rolls)}, rolls, "an array of 20 samples"))
+    return cases
+
+
+def _judge_accel_roll(case, got):
+    problem = compare(case.expected, got, atol=1e-9)
+    if problem is None:
+        return None
+    try:
+        off = np.abs(wrap_angle(np.asarray(got, dtype=float) - case.expected))
+    except (TypeError, ValueError):
+        return problem
+    if np.allclose(off, np.pi, atol=1e-6):
+        return problem + " — exactly 180° off"
+    if np.allclose(wrap_angle(np.asarray(got, dtype=float) + case.expected), 0.0, atol=1e-9):
+        return problem + " — the sign is flipped"
+    return problem
+
+
+def _predict_cases(rng):
+    return [Case(args, roll_kf_predict(**args)) for args in (
+        {"x": rng.uniform(-1, 1), "P": rng.uniform(1e-6, 1e-2), "omega": rng.normal(0, 1), "dt": rng.choice([0.01, 1 / 104, 0.005]),
+         "q": 10 ** rng.uniform(-9, -3)} for _ in range(12))]
+
+
+def _update_cases(rng):
+    return [Case(args, roll_kf_update(**args)) for args in (
+        {"x": rng.uniform(-1, 1), "P": 10 ** rng.uniform(-6, -1), "z": rng.uniform(-1, 1), "r": 10 ** rng.uniform(-6, -1)}
+        for _ in range(12))]
+
+
+def _run_cases(rng):
+    cases = []
+    for _ in range(6):
+        n, dt = int(rng.integers(5, 60)), 1 / 104
+        args = {"gyro_rate": rng.normal(0, 0.5, n), "roll_acc": rng.normal(0, 0.3, n), "dt": dt,
+                "q": 10 ** rng.uniform(-8, -3), "r": 10 ** rng.uniform(-5, -1), "x0": rng.uniform(-0.5, 0.5),
+                "P0": 10 ** rng.uniform(-3, 0)}
+        ref = roll_kf(**{k: v for k, v in args.items() if k not in ("gyro_rate", "roll_acc")},
+                      gyro_rate=args["gyro_rate"], accel_roll=args["roll_acc"])
+        cases.append(Case(args, (ref.x, ref.P, ref.y, ref.S), f"a random sequence of {n} samples"))
+    return cases
+
+
+TUNED_Q = 1e-7  # rad², what the lab's sliders find on the bundled recording
+
+
+def bundled_inputs():
+    """Lab 01's inputs from the bundled recording: t, raw gyro x rate, accel roll, true roll, rest mask."""
+    rec = datasets.load("01_roll_sine")
+    roll_acc, _ = accel_tilt(rec.body("acc"))
+    return rec.t, rec.body("gyr")[:, 0], roll_acc, rec["true_roll"], rec.t < STILL_SECONDS
+
+
+def _beats_cases(rng):
+    t, gyro, roll_acc, truth, still = bundled_inputs()
+    dt = float(t[1] - t[0])
+    x0 = float(np.mean(roll_acc[still]))
+    args = {"gyro_rate": gyro, "roll_acc": roll_acc, "dt": dt, "q": TUNED_Q,
+            "r": float(np.var(roll_acc[still])), "x0": x0, "P0": float(np.var(roll_acc[still]))}
+    single = {"accel only": rmse(angle_error(roll_acc, truth), 0.0),
+              "gyro only": rmse(angle_error(integrate_rate(gyro, dt, x0), truth), 0.0)}
+    return [Case(args, {"truth": truth, "single": single}, "the bundled recording 01_roll_sine")]
+
+
+def _judge_beats(case, got):
+    try:
+        x = np.asarray(got[0], dtype=float)
+    except (TypeError, ValueError, IndexError):
+        return f"expected (x, P, y, S) arrays, got {type(got).__name__}"
+    if x.shape != case.expected["truth"].shape:
+        return f"expected {case.expected['truth'].size} roll estimates, got shape {x.shape}"
+    ours = rmse(angle_error(x, case.expected["truth"]), 0.0)
+    worse = {k: v for k, v in case.expected["single"].items() if ours >= v}
+    if worse:
+        return (f"KF RMSE {np.degrees(ours):.2f}° is not below " +
+                " and ".join(f"{k} ({np.degrees(v):.2f}°)" for k, v in worse.items()))
+    return None
+
+
+register(
+    Checkpoint("01.accel_roll", "accel_roll", _accel_roll_cases, _judge_accel_roll, points=1,
+               hint="at rest f_y = −g·sin φ and f_z = −g·cos φ; which two numbers does atan2 need so that "
+                    "level (f_z = −g) gives 0, not 180°?"),
+    Checkpoint("01.kf_predict", "kf_predict", _predict_cases, lambda c, got: compare(c.expected, got), points=1,
+               hint="the gyro rate moves the roll forward by ω·dt, and the uncertainty only grows (by q)."),
+    Checkpoint("01.kf_update", "kf_update", _update_cases, lambda c, got: compare(c.expected, got), points=2,
+               hint="y = z − x, S = P + r, K = P/S; the new P is smaller than both P and r. Return (x, P, y, S)."),
+    Checkpoint("01.run_kf", "run_kf", _run_cases, lambda c, got: compare(c.expected, got, rtol=1e-6, atol=1e-9), points=2,
+               hint="start from x0, P0; at every sample predict with gyro_rate[k], then update with roll_acc[k]; "
+                    "store x, P, y, S after each update and return four arrays."),
+    Checkpoint("01.kf_beats_sensors", "run_kf", _beats_cases, _judge_beats, points=2, what="bundled recording",
+               hint="with a tuned q and r from the accel-roll noise at rest the fused estimate beats each sensor "
+                    "alone; if 01.run_kf passes, look at how x0 and P0 are used."),
+)

@@ -1,0 +1,112 @@
+"""kfkit.datasets: bundled recordings match their simulations, loading, and physics sanity."""
+import numpy as np
+import pytest
+
+from kfkit import datasets
+from kfkit.frames import accel_tilt, wrap_angle
+
+NAME = "01_roll_sine"
+SHAKES = ((22.0, 25.0), (42.0, 45.0))  # shake windows of the bundled recording, s
+
+
+@pytest.fixture(scope="module")
+def roll_sine():
+    return datasets.load(NAME)
+
+
+def in_shakes(t, margin=0.0):
+    return np.any([(t >= a - margin) & (t < b + margin) for a, b in SHAKES], axis=0)
+
+
+# --- shipped files and regeneration -------------------------------------------------------
+
+def test_shipped_data_matches_the_simulations():
+    assert datasets.regenerate(check=True) == []
+
+
+def test_regenerate_writes_every_bundled_file(tmp_path):
+    written = datasets.regenerate(directory=tmp_path)
+    assert written == [str(tmp_path / f"{name}.csv") for name in datasets.BUNDLED]
+    assert datasets.regenerate(check=True, directory=tmp_path) == []
+
+
+def test_check_reports_a_changed_byte_with_its_line(tmp_path):
+    datasets.regenerate(directory=tmp_path)
+    path = tmp_path / f"{NAME}.csv"
+    lines = path.read_text(encoding="utf-8").split("\n")
+    lines[99] = lines[99][:-1] + ("7" if lines[99][-1] != "7" else "8")  # line 100, last character
+    path.write_text("\n".join(lines), encoding="utf-8")
+    [report] = datasets.regenerate(check=True, directory=tmp_path)
+    assert str(path) in report and "line 100" in report
+
+
+def test_check_reports_a_missing_file(tmp_path):
+    datasets.regenerate(directory=tmp_path)
+    (tmp_path / f"{NAME}.csv").unlink()
+    [report] = datasets.regenerate(check=True, directory=tmp_path)
+    assert str(tmp_path / f"{NAME}.csv") in report and "missing" in report
+
+
+def test_check_reports_a_truncated_file(tmp_path):
+    datasets.regenerate(directory=tmp_path)
+    path = tmp_path / f"{NAME}.csv"
+    lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
+    path.write_text("".join(lines[:50]), encoding="utf-8")
+    [report] = datasets.regenerate(check=True, directory=tmp_path)
+    assert str(path) in report and "line counts differ" in report
+
+
+def test_loaded_matches_built(roll_sine):
+    built = datasets.build(NAME)
+    assert roll_sine.meta == built.meta and roll_sine.columns == built.columns
+    for c in ("seq", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz"):
+        np.testing.assert_array_equal(roll_sine[c], built[c])
+
+
+@pytest.mark.parametrize("func", [datasets.load, datasets.build])
+def test_unknown_name_lists_the_available(func):
+    with pytest.raises(ValueError, match=f"'nope'.*{NAME}"):
+        func("nope")
+
+
+def test_kfkit_data_overrides_the_folder(tmp_path, monkeypatch):
+    monkeypatch.setenv("KFKIT_DATA", str(tmp_path))
+    assert datasets.data_dir() == tmp_path
+    with pytest.raises(FileNotFoundError, match="kfkit data regenerate") as err:
+        datasets.load(NAME)
+    assert str(tmp_path) in str(err.value)
+    datasets.regenerate()  # default folder follows KFKIT_DATA
+    assert len(datasets.load(NAME)) == 60 * 104
+
+
+# --- physics sanity on the bundled roll recording -----------------------------------------
+
+def test_roll_sine_basic_shape(roll_sine):
+    assert roll_sine.rate_hz == 104.0 and len(roll_sine) == 6240
+    truth = roll_sine.truth()
+    assert np.abs(truth[:, 0]).max() == pytest.approx(np.radians(30.0), abs=np.radians(0.5))
+    assert np.all(truth[:, 1:] == 0)
+
+
+def test_accel_tilt_follows_true_roll_outside_shakes(roll_sine):
+    roll_acc, pitch_acc = accel_tilt(roll_sine.body("acc"))
+    err = np.degrees(wrap_angle(roll_acc - roll_sine["true_roll"]))
+    calm = ~in_shakes(roll_sine.t, margin=0.2)
+    assert np.sqrt(np.mean(err[calm] ** 2)) < 3.0
+    assert np.sqrt(np.mean(np.degrees(pitch_acc[calm]) ** 2)) < 3.0
+    # the shakes are there, and fool the accelerometer far more
+    assert np.sqrt(np.mean(err[in_shakes(roll_sine.t)] ** 2)) > 3 * np.sqrt(np.mean(err[calm] ** 2))
+
+
+def test_gyro_x_integrates_to_the_roll_change(roll_sine):
+    p = roll_sine.body("gyr")[:, 0]
+    roll = roll_sine["true_roll"]
+    per = 104  # 1 s
+    starts = range(0, len(p) - per, per)
+    gyro_change = np.array([np.trapezoid(p[k:k + per + 1], dx=1 / 104) for k in starts])
+    true_change = np.array([roll[k + per] - roll[k] for k in starts])
+    assert np.abs(gyro_change - true_change).max() < np.radians(1.0)  # zero-rate level ±1 °/s typ.
+    # removing the bias seen at rest (first 5 s) leaves its random walk, 1e-4 rad/s/√s:
+    # within 60 s it drifts less than 4·1e-4·√60 ≈ 0.003 rad/s (0.18 °/s)
+    bias = p[roll_sine.t < 5.0].mean()
+    assert np.abs(gyro_change - bias - true_change).max() < np.radians(0.25)

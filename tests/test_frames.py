@@ -1,0 +1,223 @@
+"""kfkit.frames against independent oracles (scipy Rotation, finite differences)."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from kfkit.frames import (G, accel_tilt, dcm_to_euler, euler_rates_to_body_rates, euler_to_dcm,
+                          mount_matrix, wrap_angle)
+
+HALF_PI = np.pi / 2
+
+
+def scipy_dcm(roll, pitch, yaw):
+    """Oracle: R_nb = Rz(yaw) Ry(pitch) Rx(roll) via scipy's intrinsic ZYX."""
+    return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).as_matrix()
+
+
+def random_euler(rng, n, max_pitch=HALF_PI):
+    return (rng.uniform(-np.pi, np.pi, n), rng.uniform(-max_pitch, max_pitch, n), rng.uniform(-np.pi, np.pi, n))
+
+
+def near_lock_pitch(rng, n):
+    """Pitches within 1e-6 rad of ±90°, exactly ±90° included."""
+    sign = rng.choice([-1.0, 1.0], n)
+    offset = rng.uniform(0.0, 1e-6, n)
+    offset[:4] = 0.0
+    return sign * (HALF_PI - offset)
+
+
+def test_G_is_standard_gravity():
+    assert G == 9.80665
+
+
+# --- euler_to_dcm -------------------------------------------------------------------------
+
+def test_euler_to_dcm_matches_scipy_vectorised():
+    rng = np.random.default_rng(1)
+    roll, pitch, yaw = random_euler(rng, 300)
+    R = euler_to_dcm(roll, pitch, yaw)
+    assert R.shape == (300, 3, 3)
+    np.testing.assert_allclose(R, scipy_dcm(roll, pitch, yaw), atol=1e-12)
+
+
+def test_euler_to_dcm_matches_scipy_near_gimbal_lock():
+    rng = np.random.default_rng(2)
+    roll, _, yaw = random_euler(rng, 200)
+    pitch = near_lock_pitch(rng, 200)
+    np.testing.assert_allclose(euler_to_dcm(roll, pitch, yaw), scipy_dcm(roll, pitch, yaw), atol=1e-12)
+
+
+def test_euler_to_dcm_scalar_form():
+    R = euler_to_dcm(0.3, -0.2, 1.1)
+    assert R.shape == (3, 3)
+    np.testing.assert_allclose(R, scipy_dcm(0.3, -0.2, 1.1)[0], atol=1e-12)
+
+
+def test_euler_to_dcm_maps_body_to_ned():
+    # Yaw 90° (heading east): body forward (x_b) points east in NED.
+    np.testing.assert_allclose(euler_to_dcm(0.0, 0.0, HALF_PI) @ [1, 0, 0], [0, 1, 0], atol=1e-15)
+    # Pitch +90° (nose up): body forward points up, i.e. −z in NED.
+    np.testing.assert_allclose(euler_to_dcm(0.0, HALF_PI, 0.0) @ [1, 0, 0], [0, 0, -1], atol=1e-15)
+    # Roll +90° (right wing down): body right (y_b) points down.
+    np.testing.assert_allclose(euler_to_dcm(HALF_PI, 0.0, 0.0) @ [0, 1, 0], [0, 0, 1], atol=1e-15)
+
+
+def test_euler_to_dcm_broadcasts_scalars_with_arrays():
+    yaw = np.linspace(-1, 1, 5)
+    R = euler_to_dcm(0.2, 0.1, yaw)
+    assert R.shape == (5, 3, 3)
+    np.testing.assert_allclose(R, scipy_dcm(np.full(5, 0.2), np.full(5, 0.1), yaw), atol=1e-12)
+
+
+# --- dcm_to_euler -------------------------------------------------------------------------
+
+def test_dcm_to_euler_round_trip_away_from_gimbal_lock():
+    rng = np.random.default_rng(3)
+    angles = random_euler(rng, 300, max_pitch=np.radians(89.0))
+    back = dcm_to_euler(scipy_dcm(*angles))
+    for got, want in zip(back, angles):
+        np.testing.assert_allclose(wrap_angle(got - want), 0.0, atol=1e-9)
+
+
+def test_dcm_to_euler_matches_scipy_as_euler():
+    rng = np.random.default_rng(4)
+    R = scipy_dcm(*random_euler(rng, 300, max_pitch=np.radians(85.0)))
+    yaw, pitch, roll = Rotation.from_matrix(R).as_euler("ZYX").T
+    got_roll, got_pitch, got_yaw = dcm_to_euler(R)
+    np.testing.assert_allclose(wrap_angle(got_roll - roll), 0.0, atol=1e-9)
+    np.testing.assert_allclose(got_pitch, pitch, atol=1e-9)
+    np.testing.assert_allclose(wrap_angle(got_yaw - yaw), 0.0, atol=1e-9)
+
+
+def test_dcm_to_euler_near_gimbal_lock_reproduces_the_matrix():
+    rng = np.random.default_rng(5)
+    roll, _, yaw = random_euler(rng, 400)
+    R = scipy_dcm(roll, near_lock_pitch(rng, 400), yaw)  # not built by the code under test
+    angles = dcm_to_euler(R)
+    np.testing.assert_allclose(scipy_dcm(*angles), R, atol=1e-6)
+
+
+@pytest.mark.parametrize("pitch", [HALF_PI, -HALF_PI])
+def test_dcm_to_euler_exact_gimbal_lock_scalar(pitch):
+    R = scipy_dcm(0.7, pitch, -2.0)[0]
+    angles = dcm_to_euler(R)
+    assert all(isinstance(a, float) for a in angles)
+    assert angles[1] == pytest.approx(pitch, abs=1e-6)
+    np.testing.assert_allclose(scipy_dcm(*angles)[0], R, atol=1e-6)
+
+
+def test_dcm_to_euler_scalar_returns_floats():
+    out = dcm_to_euler(scipy_dcm(0.1, 0.2, 0.3)[0])
+    assert all(isinstance(a, float) for a in out)
+    np.testing.assert_allclose(out, [0.1, 0.2, 0.3], atol=1e-12)
+
+
+# --- accel_tilt ---------------------------------------------------------------------------
+
+def specific_force_at_rest(roll, pitch, yaw):
+    """f_b = R_bn · [0, 0, −g] with R_bn from scipy."""
+    return np.einsum("nji,j->ni", scipy_dcm(roll, pitch, yaw), [0.0, 0.0, -G])
+
+
+def test_accel_tilt_recovers_roll_and_pitch():
+    rng = np.random.default_rng(6)
+    roll, pitch, yaw = random_euler(rng, 300, max_pitch=np.radians(89.0))
+    got_roll, got_pitch = accel_tilt(specific_force_at_rest(roll, pitch, yaw))
+    assert got_roll.shape == got_pitch.shape == (300,)
+    np.testing.assert_allclose(wrap_angle(got_roll - roll), 0.0, atol=1e-9)
+    np.testing.assert_allclose(got_pitch, pitch, atol=1e-9)
+
+
+def test_accel_tilt_single_vector_returns_floats():
+    f = specific_force_at_rest([np.radians(-150.0)], [np.radians(40.0)], [1.0])[0]
+    roll, pitch = accel_tilt(f)
+    assert isinstance(roll, float) and isinstance(pitch, float)
+    assert roll == pytest.approx(np.radians(-150.0), abs=1e-9)
+    assert pitch == pytest.approx(np.radians(40.0), abs=1e-9)
+
+
+def test_accel_tilt_level_board():
+    assert accel_tilt([0.0, 0.0, -G]) == pytest.approx((0.0, 0.0), abs=1e-15)
+
+
+@pytest.mark.parametrize("bad", [np.zeros(2), np.zeros((5, 4)), 1.0])
+def test_accel_tilt_rejects_wrong_shape(bad):
+    with pytest.raises(ValueError, match="3 components"):
+        accel_tilt(bad)
+
+
+# --- wrap_angle ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("a", [np.pi, -np.pi])
+def test_wrap_angle_pi_maps_to_plus_pi(a):
+    assert wrap_angle(a) == np.pi
+
+
+@pytest.mark.parametrize("a, want", [(0.0, 0.0), (1.0, 1.0), (-1.0, -1.0), (3 * HALF_PI, -HALF_PI),
+                                     (-3 * HALF_PI, HALF_PI), (2 * np.pi, 0.0)])
+def test_wrap_angle_values(a, want):
+    assert wrap_angle(a) == pytest.approx(want, abs=1e-12)
+
+
+def test_wrap_angle_large_multiples():
+    rng = np.random.default_rng(7)
+    base = rng.uniform(-3.0, 3.0, 100)
+    k = rng.integers(-1000, 1000, 100)
+    got = wrap_angle(base + 2 * np.pi * k)
+    np.testing.assert_allclose(got, base, atol=1e-9)
+    assert np.all((got > -np.pi) & (got <= np.pi))
+
+
+def test_wrap_angle_return_types():
+    assert isinstance(wrap_angle(4.0), float)
+    out = wrap_angle([4.0, -4.0])
+    assert isinstance(out, np.ndarray) and out.shape == (2,)
+    np.testing.assert_allclose(out, [4.0 - 2 * np.pi, 2 * np.pi - 4.0])
+
+
+# --- euler_rates_to_body_rates ------------------------------------------------------------
+
+def vee_of_skew(W):
+    """ω from a (nearly) skew matrix Ω×, using its skew part."""
+    S = 0.5 * (W - W.T)
+    return np.array([S[2, 1], S[0, 2], S[1, 0]])
+
+
+def body_rate_by_finite_difference(euler, euler_dot, h=1e-6):
+    """Oracle: Ω× ≈ R_nbᵀ (R_nb(t+h) − R_nb(t−h)) / 2h, rotation from scipy."""
+    R = lambda e: scipy_dcm(*e)[0]  # noqa: E731
+    return vee_of_skew(R(euler).T @ (R(euler + h * euler_dot) - R(euler - h * euler_dot)) / (2 * h))
+
+
+def test_euler_rates_to_body_rates_matches_finite_difference():
+    rng = np.random.default_rng(8)
+    euler = np.column_stack(random_euler(rng, 200, max_pitch=np.radians(85.0)))
+    euler_dot = rng.normal(0.0, 2.0, (200, 3))
+    got = euler_rates_to_body_rates(euler, euler_dot)
+    assert got.shape == (200, 3)
+    want = np.array([body_rate_by_finite_difference(e, ed) for e, ed in zip(euler, euler_dot)])
+    np.testing.assert_allclose(got, want, atol=1e-6)
+
+
+def test_euler_rates_to_body_rates_single_sample():
+    e, ed = np.array([0.4, -0.3, 2.0]), np.array([0.5, -1.0, 0.7])
+    np.testing.assert_allclose(euler_rates_to_body_rates(e, ed), body_rate_by_finite_difference(e, ed), atol=1e-6)
+
+
+# --- mount_matrix -------------------------------------------------------------------------
+
+def test_mount_matrix_accepts_rotation_as_nested_list():
+    spec = Rotation.from_euler("ZYX", [0.3, 0.2, 0.1]).as_matrix().tolist()
+    np.testing.assert_allclose(mount_matrix(spec), spec)
+    np.testing.assert_array_equal(mount_matrix([[1, 0, 0], [0, -1, 0], [0, 0, -1]]), np.diag([1.0, -1.0, -1.0]))
+
+
+@pytest.mark.parametrize("bad, match", [
+    (np.diag([1.0, 1.0, -1.0]), "rotation"),           # reflection, det −1
+    (2 * np.eye(3), "rotation"),                        # not orthonormal
+    (np.eye(2), "3×3"),                                 # wrong shape
+    ([[1, 0, 0], [0, 1, 0]], "3×3"),
+])
+def test_mount_matrix_rejects_non_rotations(bad, match):
+    with pytest.raises(ValueError, match=match):
+        mount_matrix(bad)

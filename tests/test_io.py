@@ -1,0 +1,222 @@
+"""kfkit.io: recording round trip, validation messages (file + line), Recording helpers."""
+import math
+import re
+
+import numpy as np
+import pytest
+
+from kfkit.io import Recording, RecordingError, load_recording, recording_text, save_recording
+from kfkit.sim import simulate_imu, sine_roll
+
+HEADER = '# kfkit-recording v1 {"rate_hz": 100.0}\n'
+COLUMNS = "t,seq,ax,mx,true_roll\n"
+ROWS = ["0.00,0,10,5,0.1\n", "0.01,1,-3,,0.2\n", "0.02,2,7,6,0.3\n"]
+GOOD = HEADER + COLUMNS + "".join(ROWS)
+
+
+def write(tmp_path, content, name="rec.csv"):
+    path = tmp_path / name
+    (path.write_bytes if isinstance(content, bytes) else path.write_text)(content)
+    return path
+
+
+def load_error(path, line):
+    """Load ``path``, expecting a RecordingError at ``line`` whose message names file and line."""
+    with pytest.raises(RecordingError) as err:
+        load_recording(path)
+    msg = str(err.value)
+    assert str(path) in msg
+    assert err.value.line == line
+    if line is not None:
+        assert f"line {line}:" in msg
+    return msg
+
+
+def small_recording():
+    meta = {"board": "test", "rate_hz": 100.0, "description": "roll 30° ±, µT", "nested": {"a": [1, 2.5, None]}}
+    data = {
+        "t": np.arange(5) / 100.0,
+        "seq": np.arange(5, dtype=np.int64),
+        "ax": np.array([0, -32768, 32767, 5, -1], dtype=np.int64),
+        "mx": np.array([3.0, np.nan, -4.0, np.nan, 0.0]),
+        "true_roll": np.array([0.0, 1e-9, -np.pi, 0.123456789012, 7.0]),
+    }
+    return Recording(meta, data)
+
+
+# --- round trip ---------------------------------------------------------------------------
+
+def test_round_trip_preserves_meta_columns_dtypes_and_values(tmp_path):
+    rec = small_recording()
+    path = save_recording(rec, tmp_path / "r.csv")
+    back = load_recording(path)
+    assert back.meta == rec.meta
+    assert back.columns == rec.columns
+    assert back.path == path
+    for c in ("seq", "ax"):
+        assert back[c].dtype == np.int64
+        np.testing.assert_array_equal(back[c], rec[c])
+    assert back["mx"].dtype == float
+    np.testing.assert_array_equal(np.isnan(back["mx"]), np.isnan(rec["mx"]))
+    np.testing.assert_array_equal(back["mx"][~np.isnan(rec["mx"])], [3.0, -4.0, 0.0])
+    np.testing.assert_allclose(back.t, rec.t, atol=5e-7)
+    np.testing.assert_allclose(back["true_roll"], rec["true_roll"], rtol=1e-8)
+
+
+def test_round_trip_of_a_simulation_is_textually_stable(tmp_path):
+    rec = simulate_imu(sine_roll(duration=3.0), seed=5)
+    back = load_recording(save_recording(rec, tmp_path / "sim.csv"))
+    assert back.meta == rec.meta
+    for c in rec.columns:
+        assert back[c].dtype == rec[c].dtype, c
+    np.testing.assert_array_equal(back["ax"], rec["ax"])
+    np.testing.assert_array_equal(back["mx"], rec["mx"])  # NaNs in the same places
+    assert recording_text(back) == recording_text(rec)
+
+
+def test_saved_file_layout(tmp_path):
+    text = save_recording(small_recording(), tmp_path / "r.csv").read_text(encoding="utf-8")
+    lines = text.split("\n")
+    assert lines[0].startswith("# kfkit-recording v1 {")
+    assert lines[1] == "t,seq,ax,mx,true_roll"
+    assert lines[3].split(",")[3] == ""  # NaN magnetometer cell is empty
+    assert text.endswith("\n") and "\r" not in text
+
+
+def test_loads_hand_written_file_and_crlf(tmp_path):
+    for name, text in (("lf.csv", GOOD), ("crlf.csv", GOOD.replace("\n", "\r\n"))):
+        rec = load_recording(write(tmp_path, text.encode(), name))
+        assert rec.rate_hz == 100.0 and len(rec) == 3
+        np.testing.assert_array_equal(rec["ax"], [10, -3, 7])
+        assert math.isnan(rec["mx"][1]) and rec["mx"][2] == 6
+
+
+# --- bad input: header and column line ----------------------------------------------------
+
+@pytest.mark.parametrize("text, line, expect", [
+    ("", 1, ["empty"]),
+    ("t,seq,ax\n0,0,1\n", 1, ["header", "kfkit recording"]),
+    ('# kfkit-recording v2 {"rate_hz": 100}\n' + COLUMNS + ROWS[0], 1, ["'v2'", "v1"]),
+    ('# kfkit-recording v1 {"rate_hz": }\n' + COLUMNS + ROWS[0], 1, ["not valid JSON"]),
+    ('# kfkit-recording v1 {"board": "x"}\n' + COLUMNS + ROWS[0], 1, ["rate_hz"]),
+    ('# kfkit-recording v1 [1, 2]\n' + COLUMNS + ROWS[0], 1, ["JSON object", "rate_hz"]),
+    (HEADER, 2, ["column line", "t, seq"]),
+    (HEADER + "t,ax,ay\n0,1,2\n", 2, ["t, seq", "'t,ax,ay'"]),
+    (HEADER + "time,seq\n0,1\n", 2, ["t, seq"]),
+    (HEADER + "t,seq,ax,ax\n0,0,1,1\n", 2, ["duplicate", "ax"]),
+], ids=["empty", "not-a-recording", "version", "json", "no-rate", "not-object", "header-only-no-columns",
+        "no-seq", "no-t", "duplicate"])
+def test_bad_header_or_columns(tmp_path, text, line, expect):
+    msg = load_error(write(tmp_path, text), line)
+    for word in expect:
+        assert word in msg
+
+
+def test_header_only_has_no_samples(tmp_path):
+    assert "no samples" in load_error(write(tmp_path, HEADER + COLUMNS), 3)
+
+
+def test_not_utf8(tmp_path):
+    path = write(tmp_path, HEADER.encode() + COLUMNS.encode() + b"0.0,0,\xff\xfe,1,0\n")
+    assert "not a text file" in load_error(path, None)
+
+
+def test_missing_file(tmp_path):
+    path = tmp_path / "nowhere" / "rec.csv"
+    with pytest.raises(FileNotFoundError, match=re.escape(str(path))):
+        load_recording(path)
+
+
+# --- bad input: rows ----------------------------------------------------------------------
+
+def with_row(index, row):
+    """GOOD with data row ``index`` (0-based; file line index + 3) replaced."""
+    rows = list(ROWS)
+    rows[index] = row
+    return HEADER + COLUMNS + "".join(rows)
+
+
+@pytest.mark.parametrize("row_index, row, expect", [
+    (1, "0.01,1,-3,0.2\n", ["expected 5 fields", "got 4"]),
+    (2, "0.02,2,7,6,0.3,9\n", ["expected 5 fields", "got 6"]),
+    (1, "0.01,1,1.5,,0.2\n", ["'ax'", "'1.5'", "not an integer"]),
+    (0, "0.00,zero,10,5,0.1\n", ["'seq'", "not an integer"]),
+    (2, "0.02,2,7,6.5,0.3\n", ["'mx'", "not an integer"]),
+    (1, "0.01,1,-3,,abc\n", ["'true_roll'", "'abc'", "not a number"]),
+    (1, "0.01,1,nan,,0.2\n", ["'ax'", "'nan'"]),
+    (1, "nan,1,-3,,0.2\n", ["'t'", "not a finite number"]),
+    (2, "inf,2,7,6,0.3\n", ["'t'", "not a finite number"]),
+    (0, "0.00,0,10,5,-inf\n", ["'true_roll'", "not a finite number"]),
+    (2, "0.005,2,7,6,0.3\n", ["time does not increase", "0.005", "0.01"]),
+    (2, "0.01,2,7,6,0.3\n", ["time does not increase"]),
+], ids=["too-few", "too-many", "float-in-int", "text-in-seq", "float-in-mag", "text-in-float", "nan-in-ax",
+        "nan-t", "inf-t", "inf-float", "t-backwards", "t-repeated"])
+def test_bad_rows(tmp_path, row_index, row, expect):
+    msg = load_error(write(tmp_path, with_row(row_index, row)), row_index + 3)
+    for word in expect:
+        assert word in msg
+
+
+def test_truncated_last_line(tmp_path):
+    cut = GOOD[: GOOD.rindex("\n", 0, len(GOOD) - 1) + 1] + "0.02,2,7"  # last row cut mid-line
+    msg = load_error(write(tmp_path, cut), 5)
+    assert "cut short" in msg and "interrupted" in msg
+    assert "the 2 rows before it are complete" in msg and "delete this line" in msg
+
+
+def test_short_row_with_newline_is_not_called_truncated(tmp_path):
+    msg = load_error(write(tmp_path, GOOD + "0.03,3,7\n"), 6)
+    assert "expected 5 fields" in msg and "cut short" not in msg
+
+
+def test_last_line_without_newline_is_rejected_even_with_all_fields(tmp_path):
+    # "8075" cut to "80" keeps the field count: only the missing newline shows the cut.
+    with pytest.raises(RecordingError, match=r"line 5: the last line is cut short"):
+        load_recording(write(tmp_path, GOOD.rstrip("\n")))
+
+
+def test_blank_lines_at_the_end_are_ignored(tmp_path):
+    assert len(load_recording(write(tmp_path, GOOD + "\n\n"))) == 3
+
+
+# --- Recording helpers --------------------------------------------------------------------
+
+def test_truth_missing_raises_clear_keyerror():
+    rec = Recording({"rate_hz": 100.0}, {"t": np.arange(3) / 100.0, "seq": np.arange(3)})
+    with pytest.raises(KeyError, match="truth columns.*simulated"):
+        rec.truth()
+
+
+def test_truth_returns_n_by_3():
+    rec = simulate_imu(sine_roll(duration=1.0), seed=0)
+    truth = rec.truth()
+    assert truth.shape == (len(rec), 3)
+    np.testing.assert_array_equal(truth[:, 0], rec["true_roll"])
+
+
+def test_unknown_column_lists_columns():
+    with pytest.raises(KeyError, match="'nope'.*t, seq, ax, mx, true_roll"):
+        small_recording()["nope"]
+
+
+def test_head_keeps_the_first_seconds():
+    rec = small_recording()
+    first = rec.head(0.025)
+    assert len(first) == 3 and first.columns == rec.columns and first.meta == rec.meta
+    assert first.t.max() < 0.025
+    np.testing.assert_array_equal(first["ax"], rec["ax"][:3])
+    assert len(rec.head(10.0)) == len(rec)
+
+
+def test_counts_sensor_si_and_body():
+    n = 4
+    data = {"t": np.arange(n) / 10.0, "seq": np.arange(n),
+            "ax": np.array([1, 2, 3, 4]), "ay": np.array([10, 20, 30, 40]), "az": np.array([-5, 0, 5, 100])}
+    meta = {"rate_hz": 10.0, "sensors": {"acc": {"sensitivity": 0.5}},
+            "mount": {"acc": [[0, -1, 0], [1, 0, 0], [0, 0, 1]]}}  # 90° about z: not symmetric
+    rec = Recording(meta, data)
+    counts = np.column_stack([data["ax"], data["ay"], data["az"]])
+    np.testing.assert_array_equal(rec.counts("acc"), counts)
+    np.testing.assert_allclose(rec.sensor_si("acc"), 0.5 * counts)
+    x_s = 0.5 * counts
+    np.testing.assert_allclose(rec.body("acc"), np.column_stack([-x_s[:, 1], x_s[:, 0], x_s[:, 2]]))  # x_b = M_bs x_s
