@@ -61,7 +61,9 @@ def compare_angles(t, truth, estimates: dict, ax=None, ylabel="roll", title=None
                 alpha=0.85 if kind == "accel" else 1.0, lw=0.9 if kind == "accel" else 1.4, zorder=2 + i)
     ax.set_xlabel("time (s)")
     ax.set_ylabel(f"{ylabel} (°)")
-    ax.legend(loc="upper right", ncols=min(4, len(estimates) + 1))
+    lo, hi = ax.get_ylim()
+    ax.set_ylim(lo, hi + 0.25 * (hi - lo))  # headroom so the legend covers no data
+    ax.legend(loc="upper right", ncols=min(5, len(estimates) + 2))
     if title:
         ax.set_title(title)
     return fig
