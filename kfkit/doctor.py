@@ -124,15 +124,9 @@ def needs_dialout() -> bool:
     return dialout not in os.getgroups()
 
 
-def data_dir() -> Path:
-    """The bundled data folder: ``$KFKIT_DATA`` or ``data/`` at the repository root."""
-    override = os.environ.get("KFKIT_DATA")
-    if override:
-        return Path(override)
-    return Path(__file__).resolve().parents[1] / "data"
-
-
 def data_line() -> str:
+    from .datasets import data_dir  # imports numpy: only once the package lines are done
+
     folder = data_dir()
     if not folder.is_dir():
         return f"{FAIL} bundled data not found at {folder} (set KFKIT_DATA, or use a complete copy of the kit)"
