@@ -40,6 +40,13 @@ def _axes(ax, nrows=1, sharex=True, height=3.4):
     return fig, ax
 
 
+def legend_on_top(ax, ncols, fontsize=None, headroom=0.25):
+    """A one-row legend in the upper right, with y headroom so it covers no data."""
+    lo, hi = ax.get_ylim()
+    ax.set_ylim(lo, hi + headroom * (hi - lo))
+    ax.legend(loc="upper right", ncols=ncols, fontsize=fontsize)
+
+
 def mark_windows(ax, windows, label="sideways shake"):
     """Shade time windows [(t0, t1), …] (s) on ``ax``, labelled once in the legend."""
     for i, (t0, t1) in enumerate(windows):
@@ -61,9 +68,7 @@ def compare_angles(t, truth, estimates: dict, ax=None, ylabel="roll", title=None
                 alpha=0.85 if kind == "accel" else 1.0, lw=0.9 if kind == "accel" else 1.4, zorder=2 + i)
     ax.set_xlabel("time (s)")
     ax.set_ylabel(f"{ylabel} (°)")
-    lo, hi = ax.get_ylim()
-    ax.set_ylim(lo, hi + 0.25 * (hi - lo))  # headroom so the legend covers no data
-    ax.legend(loc="upper right", ncols=min(5, len(estimates) + 2))
+    legend_on_top(ax, ncols=min(5, len(estimates) + 2))
     if title:
         ax.set_title(title)
     return fig

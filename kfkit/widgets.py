@@ -12,7 +12,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from .metrics import angle_error, rmse
-from .plots import COLORS, STYLES
+from .plots import COLORS, STYLES, legend_on_top
 
 
 def _interactive_canvas(fig):
@@ -57,7 +57,7 @@ class TuningPanel:
         (self.line,) = self.ax.plot(self.t, np.zeros_like(self.t), color=COLORS["kf"], lw=1.4, label=label)
         (self.err_line,) = self.ax_err.plot(self.t, np.zeros_like(self.t), color=COLORS["kf"], lw=0.9)
         self.ax.set_ylabel(f"{ylabel} (°)")
-        self.ax.legend(loc="upper right", ncols=4, fontsize=8)
+        legend_on_top(self.ax, ncols=4, fontsize=8)
         self.ax_err.set_ylabel(f"{label} error (°)")
         self.ax_err.set_xlabel("time (s)")
         self.canvas = _interactive_canvas(fig)
