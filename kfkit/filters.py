@@ -122,14 +122,14 @@ def roll_kf_update(x, P, z, r):
     return x + K * y, (1.0 - K) * P, y, S
 
 
-def roll_kf(gyro_rate, accel_roll, dt, q, r, x0=None, P0=1.0) -> FilterRun:
+def roll_kf(gyro_rate, roll_acc, dt, q, r, x0=None, P0=1.0) -> FilterRun:
     """Run the lab 01 roll filter: gyro rate (rad/s) predicts, accelerometer roll (rad) corrects.
 
-    x0 defaults to the first accelerometer roll. NaN in ``accel_roll`` skips that update.
+    x0 defaults to the first accelerometer roll. NaN in ``roll_acc`` skips that update.
     A plain-Python loop on floats (no small-matrix overhead), so sliders can re-run it live.
     """
     omega = np.asarray(gyro_rate, dtype=float).tolist()
-    zs = np.asarray(accel_roll, dtype=float).tolist()
+    zs = np.asarray(roll_acc, dtype=float).tolist()
     N = len(zs)
     xs, Ps, ys, Ss = [0.0] * N, [0.0] * N, [np.nan] * N, [np.nan] * N
     x = zs[0] if x0 is None else float(x0)

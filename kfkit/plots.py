@@ -33,10 +33,11 @@ def apply_style():
     })
 
 
-def _axes(ax, nrows=1, sharex=True, height=3.4):
+def _axes(ax):
+    """``ax`` and its figure, or a new single-panel figure."""
     if ax is not None:
         return ax.figure, ax
-    fig, ax = plt.subplots(nrows, 1, sharex=sharex, figsize=(9.0, height * nrows ** 0.8))
+    fig, ax = plt.subplots(figsize=(9.0, 3.4))
     return fig, ax
 
 
@@ -117,13 +118,13 @@ def nis_plot(t, values, dof=1, window=None, ax=None, alpha=0.05):
     with np.errstate(invalid="ignore", divide="ignore"):
         average = np.convolve(valid, np.ones(window), "same") / counts
     ax.plot(t, average, color=COLORS["kf"], lw=1.5, label=f"{window}-sample average")
-    lo1, hi1 = chi2_bounds(dof, 1, alpha)
+    _, hi1 = chi2_bounds(dof, 1, alpha)
     lo, hi = chi2_bounds(dof, window, alpha)
     ax.axhline(hi1, color=COLORS["bound"], ls=":", lw=1, label=f"{100 * (1 - alpha):.0f} % bound, one step ({hi1:.2f})")
     ax.axhspan(lo, hi, color=COLORS["bound"], alpha=0.12, lw=0, label=f"{100 * (1 - alpha):.0f} % bounds, average")
     ax.axhline(dof, color=COLORS["truth"], lw=0.8, alpha=0.6)
     ax.set_yscale("log")
-    ax.set_ylim(1e-4, max(10 * hi1, np.nanmax(average) * 2 if np.isfinite(np.nanmax(average)) else hi1))
+    ax.set_ylim(1e-4, max(10 * hi1, 2 * np.nanmax(average, initial=0.0)))
     ax.set_xlabel("time (s)")
     ax.set_ylabel("NIS (–)")
     ax.legend(loc="lower right", ncols=2, fontsize=8)

@@ -57,6 +57,11 @@ class SensorSpec:
         """Largest count the output reaches (saturation), limited by the int16 register."""
         return int(min(INT16_MAX, np.floor(self.full_scale / self.sensitivity)))
 
+    @property
+    def min_count(self) -> int:
+        """Most negative count the output reaches: −full scale, or the int16 limit."""
+        return int(max(INT16_MIN, -np.floor(self.full_scale / self.sensitivity)))
+
     def to_si(self, counts):
         """Counts → SI: x = counts · sensitivity."""
         return counts_to_si(counts, self.sensitivity)
@@ -64,8 +69,7 @@ class SensorSpec:
     def to_counts(self, x):
         """SI → counts: round to the nearest LSB and saturate at full scale."""
         counts = np.rint(np.asarray(x, dtype=float) / self.sensitivity)
-        lowest = max(INT16_MIN, -int(np.floor(self.full_scale / self.sensitivity)))  # −FS, or the int16 limit
-        return np.clip(counts, lowest, self.max_count).astype(np.int64)
+        return np.clip(counts, self.min_count, self.max_count).astype(np.int64)
 
     def metadata(self) -> dict:
         """What a recording stores so that its counts can be converted back."""

@@ -61,7 +61,6 @@ class TuningPanel:
         self.ax_err.set_ylabel(f"{label} error (°)")
         self.ax_err.set_xlabel("time (s)")
         self.canvas = _interactive_canvas(fig)
-        self.rmse = float("nan")
         self._quiet = False
         self.redraw()
         for slider in self.sliders.values():
