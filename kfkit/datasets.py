@@ -7,7 +7,9 @@ The data folder is ``data/`` beside the ``kfkit`` package; ``KFKIT_DATA`` overri
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 
@@ -29,37 +31,49 @@ def _roll_sine() -> Recording:
     return sim.simulate_imu(motion, board="nucleo-iks02a1", seed=102)
 
 
-#: name → function building that recording
+@dataclass(frozen=True)
+class Bundled:
+    """How one bundled file is made, written and read (IMU recordings by default)."""
+
+    build: Callable[[], Any]
+    text: Callable[[Any], str] = recording_text
+    read: Callable[[Path], Any] = load_recording
+
+
+#: name → how to make it; the file is ``data/<name>.csv``
 BUNDLED = {
-    "01_roll_sine": _roll_sine,
+    "01_roll_sine": Bundled(_roll_sine),
 }
 
 
-def build(name: str) -> Recording:
-    """Build the bundled recording ``name`` from its seeded simulation."""
+def _entry(name: str) -> Bundled:
     try:
-        return BUNDLED[name]()
+        return BUNDLED[name]
     except KeyError:
         raise ValueError(f"no bundled recording {name!r}; available: {', '.join(BUNDLED)}") from None
 
 
-def load(name: str) -> Recording:
+def build(name: str):
+    """Build the bundled recording ``name`` from its seeded simulation."""
+    return _entry(name).build()
+
+
+def load(name: str):
     """Load the bundled recording ``name`` (e.g. '01_roll_sine') from the data folder."""
-    if name not in BUNDLED:
-        raise ValueError(f"no bundled recording {name!r}; available: {', '.join(BUNDLED)}")
+    entry = _entry(name)
     path = data_dir() / f"{name}.csv"
     if not path.exists():
         raise FileNotFoundError(f"bundled recording missing: {path}. Rebuild it with: python -m kfkit data regenerate")
-    return load_recording(path)
+    return entry.read(path)
 
 
 def regenerate(check: bool = False, directory=None) -> list[str]:
     """Rebuild every bundled recording; with ``check``, write nothing and list the files that differ."""
     folder = Path(directory) if directory is not None else data_dir()
     report = []
-    for name, make in BUNDLED.items():
+    for name, entry in BUNDLED.items():
         path = folder / f"{name}.csv"
-        text = recording_text(make())
+        text = entry.text(entry.build())
         if check:
             if not path.exists():
                 report.append(f"{path} is missing")

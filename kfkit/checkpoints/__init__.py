@@ -12,6 +12,7 @@ judging the raw output. Each lab registers its checkpoints in its own module (``
 from __future__ import annotations
 
 import importlib
+import pkgutil
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -65,7 +66,8 @@ class CheckResult:
         """check() has already printed the line; show nothing more in a notebook."""
 
 
-LABS = ("lab01",)
+#: one module per lab, ``labNN.py`` beside this file; each registers its checkpoints on import
+LABS = tuple(sorted(m.name for m in pkgutil.iter_modules(__path__) if m.name.startswith("lab")))
 REGISTRY: dict[str, Checkpoint] = {}
 
 
