@@ -12,6 +12,8 @@ column-name line, then one row per sample::
   ``sensors`` entry gives each sensor's sensitivity (SI per count) and ``mount`` its
   mounting matrix M_bs (body ← sensor). Magnetometer cells may be empty: no new sample.
 - Simulated recordings add ``true_roll``, ``true_pitch``, ``true_yaw`` (rad).
+- Guided captures and simulations label time windows in the metadata:
+  ``"phases": [{"label": "stationary", "start": 0.0, "end": 120.0}, …]`` (s, end excluded).
 
 Loading fails with :class:`RecordingError` naming the file and line.
 """
@@ -92,6 +94,22 @@ class Recording:
         if missing:
             raise KeyError(f"recording {self.path or ''} has no truth columns ({', '.join(missing)}): only simulated recordings do")
         return np.column_stack([self.data[c] for c in TRUTH_COLUMNS])
+
+    @property
+    def phases(self) -> list[dict]:
+        """Labelled windows ``{"label", "start", "end"}`` (s) from the metadata; [] if none."""
+        return list(self.meta.get("phases", []))
+
+    def phase(self, label: str) -> np.ndarray:
+        """Boolean mask of the samples inside any window labelled ``label`` (start ≤ t < end)."""
+        windows = [p for p in self.phases if p["label"] == label]
+        if not windows:
+            known = sorted({p["label"] for p in self.phases})
+            raise KeyError(f"recording {self.path or ''} has no phase {label!r}; phases: {', '.join(known) or 'none'}")
+        mask = np.zeros(len(self), dtype=bool)
+        for w in windows:
+            mask |= (self.t >= w["start"]) & (self.t < w["end"])
+        return mask
 
     def head(self, seconds: float) -> "Recording":
         """The first ``seconds`` of the recording (a new Recording sharing metadata)."""

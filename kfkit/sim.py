@@ -12,7 +12,7 @@ quantisation to the LSB and saturation at full scale. Every random draw is seede
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,6 +29,8 @@ class Motion:
     euler    (N, 3) [roll, pitch, yaw], rad (ZYX)
     omega_b  (N, 3) body angular rate [p, q, r], rad/s
     acc_n    (N, 3) linear acceleration of the board in NED (gravity excluded), m/s²
+    phases   labelled time windows [(start_s, end_s, label), …], e.g. (0, 10, "stationary");
+             the simulator copies them into the recording's metadata
     """
 
     t: np.ndarray
@@ -37,6 +39,7 @@ class Motion:
     omega_b: np.ndarray
     acc_n: np.ndarray
     description: str = ""
+    phases: list = field(default_factory=list)
 
 
 def sample_times(duration: float, rate_hz: float) -> np.ndarray:
@@ -156,4 +159,6 @@ def simulate_imu(motion: Motion, board="nucleo-iks02a1", seed=0, *, gyro_bias=No
         "sim": {"gyro_bias": np.asarray(gyro_bias, float).tolist(), "accel_bias": np.asarray(accel_bias, float).tolist(),
                 "field_n": list(map(float, field_n))},
     }
+    if motion.phases:
+        meta["phases"] = [{"label": label, "start": float(t0), "end": float(t1)} for t0, t1, label in motion.phases]
     return Recording(meta, data)

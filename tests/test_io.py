@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from kfkit.io import Recording, RecordingError, load_recording, recording_text, save_recording
-from kfkit.sim import simulate_imu, sine_roll
+from kfkit.sim import simulate_imu, sine_roll, stationary
 
 HEADER = '# kfkit-recording v1 {"rate_hz": 100.0}\n'
 COLUMNS = "t,seq,ax,mx,true_roll\n"
@@ -220,3 +220,13 @@ def test_counts_sensor_si_and_body():
     np.testing.assert_allclose(rec.sensor_si("acc"), 0.5 * counts)
     x_s = 0.5 * counts
     np.testing.assert_allclose(rec.body("acc"), np.column_stack([-x_s[:, 1], x_s[:, 0], x_s[:, 2]]))  # x_b = M_bs x_s
+
+
+def test_phase_windows_select_samples_and_survive_a_round_trip(tmp_path):
+    motion = stationary(3.0, 10.0)
+    motion.phases = [(0.0, 1.0, "still"), (2.0, 3.0, "still"), (1.0, 2.0, "turn")]
+    rec = load_recording(save_recording(simulate_imu(motion, seed=1), tmp_path / "p.csv"))
+    assert rec.phase("still").sum() == 20 and rec.phase("turn").sum() == 10
+    assert not (rec.phase("still") & rec.phase("turn")).any()
+    with pytest.raises(KeyError, match="no phase 'six'.*still, turn"):
+        rec.phase("six")
