@@ -1,0 +1,136 @@
+"""Each solution notebook, run in JupyterLab in Chromium: what the kernel-side tests cannot see.
+
+For every notebook: run all cells and wait for the kernel; no error or stderr output; no
+"Error displaying widget"; every ipympl figure shows a drawn canvas; and where the lab has a
+tuning panel, moving a slider changes the figure's pixels and the printed RMSE.
+"""
+from __future__ import annotations
+
+import io
+import json
+import time
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from kfkit.datasets import KIT_ROOT
+
+from .conftest import ARTIFACTS
+
+NOTEBOOKS = sorted(p.name for p in (KIT_ROOT / "solutions").glob("*.ipynb"))
+RUN_TIMEOUT_S = 180
+
+
+def _has_tuning_panel(name: str) -> bool:
+    nb = json.loads((KIT_ROOT / "solutions" / name).read_text(encoding="utf-8"))
+    return any("widgets.tune(" in "".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "code")
+
+
+def open_notebook(page, lab, name: str):
+    page.goto(lab.url(name))
+    page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=60_000)
+    page.wait_for_function("() => window.jupyterapp && window.jupyterapp.shell.currentWidget"
+                           " && window.jupyterapp.shell.currentWidget.sessionContext"
+                           " && window.jupyterapp.shell.currentWidget.sessionContext.session"
+                           " && window.jupyterapp.shell.currentWidget.sessionContext.session.kernel"
+                           " && window.jupyterapp.shell.currentWidget.sessionContext.session.kernel.status === 'idle'",
+                           timeout=60_000)
+
+
+def run_all(page):
+    """Run every cell through JupyterLab's own command; wait until nothing is queued or running.
+
+    JupyterLab stops a run at the first error, leaving later prompts empty; the caller decides
+    whether that is expected (see :func:`unexecuted_cells`).
+    """
+    page.evaluate("() => window.jupyterapp.commands.execute('notebook:run-all-cells')")
+    deadline = time.monotonic() + RUN_TIMEOUT_S
+    quiet_since = None
+    while time.monotonic() < deadline:
+        busy = page.evaluate("""() => {
+            const k = window.jupyterapp.shell.currentWidget.sessionContext.session.kernel;
+            const running = [...document.querySelectorAll('.jp-CodeCell .jp-InputPrompt')]
+                .some(p => p.textContent.includes('*'));
+            return k.status !== 'idle' || running;
+        }""")
+        if busy:
+            quiet_since = None
+        elif quiet_since is None:
+            quiet_since = time.monotonic()
+        elif time.monotonic() - quiet_since > 1.5:  # idle and nothing queued for 1.5 s: done, widgets drawn
+            return
+        page.wait_for_timeout(300)
+    pytest.fail(f"the notebook was still running after {RUN_TIMEOUT_S} s")
+
+
+def unexecuted_cells(page) -> int:
+    """Code cells with an empty prompt after a run (JupyterLab left them unrun)."""
+    return page.evaluate("""() => [...document.querySelectorAll('.jp-CodeCell .jp-InputPrompt')]
+        .filter(p => !/\\[\\d+\\]/.test(p.textContent)).length""")
+
+
+def error_outputs(page) -> list[str]:
+    return page.eval_on_selector_all(
+        ".jp-OutputArea-output[data-mime-type='application/vnd.jupyter.stderr']", "els => els.map(e => e.innerText.slice(0, 400))")
+
+
+def canvas_png(element) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(element.screenshot())).convert("L"), dtype=float)
+
+
+def screenshot(page, name: str, suffix: str):
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(ARTIFACTS / f"{name.removesuffix('.ipynb')}{suffix}.png"))
+
+
+@pytest.mark.parametrize("name", NOTEBOOKS)
+def test_notebook_runs_and_renders_in_jupyterlab(page, jupyter_lab, name):
+    open_notebook(page, jupyter_lab, name)
+    run_all(page)
+    screenshot(page, name, "-end")
+
+    assert error_outputs(page) == [], f"{name}: error or stderr output in the browser"
+    assert unexecuted_cells(page) == 0, f"{name}: some code cells did not run"
+    broken = page.get_by_text("Error displaying widget").count()
+    assert broken == 0, f"{name}: {broken} widget(s) show 'Error displaying widget'"
+
+    figures = page.locator(".jupyter-matplotlib")
+    for i in range(figures.count()):
+        canvas = figures.nth(i).locator("canvas").first
+        canvas.scroll_into_view_if_needed()
+        pixels = canvas_png(canvas)
+        assert pixels.std() > 5, f"{name}: ipympl figure {i} shows a blank canvas"
+
+    if _has_tuning_panel(name):
+        _check_slider_moves_figure(page, name)
+
+
+def _check_slider_moves_figure(page, name):
+    panel = page.locator(".widget-vbox:has(.jupyter-matplotlib):has(.widget-slider)").last
+    panel.scroll_into_view_if_needed()
+    canvas = panel.locator(".jupyter-matplotlib canvas").first
+    readout = panel.get_by_text("RMSE").first
+    before_png, before_text = canvas_png(canvas), readout.inner_text()
+    screenshot(page, name, "-panel")
+
+    handle = panel.locator(".widget-slider .noUi-handle").first
+    handle.focus()
+    for _ in range(8):
+        handle.press("ArrowRight")
+    page.wait_for_function("([el, old]) => el.innerText !== old", arg=[readout.element_handle(), before_text], timeout=20_000)
+    page.wait_for_timeout(1500)
+    after_png = canvas_png(canvas)
+    screenshot(page, name, "-panel-moved")
+    assert before_png.shape == after_png.shape
+    changed = np.mean(np.abs(before_png - after_png) > 10)
+    assert changed > 0.001, f"{name}: moving the slider changed {changed:.2%} of the figure's pixels"
+    assert readout.inner_text() != before_text
+
+
+def test_the_checks_see_errors_a_student_would_see(page, jupyter_lab):
+    """The detector above is not blind: a student notebook with unattempted exercises shows errors."""
+    name = sorted(p.name for p in (KIT_ROOT / "labs").glob("*.ipynb"))[0]
+    open_notebook(page, jupyter_lab, f"labs/{name}")
+    run_all(page)
+    assert any("NotImplementedError" in text for text in error_outputs(page))
