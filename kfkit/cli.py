@@ -3,6 +3,10 @@
     kfkit make-labs [--check]          solutions/ → labs/ (instructors)
     kfkit data regenerate [--check]    rebuild data/ from seeded simulations
     kfkit doctor                       check this environment and say what to fix
+    kfkit boards                       list the boards plugged in over USB
+    kfkit capture --port P --seconds S --out FILE   record from a board (or --port virtual)
+    kfkit demo tilt --port P|virtual   steer a car by tilting the board (mpu6050_tilt_kf's $ATT lines)
+    kfkit grade --lab NN --out gradebook.csv SUBMISSION…   grade notebooks in isolated kernels
 """
 from __future__ import annotations
 
@@ -50,6 +54,81 @@ def _doctor(args) -> int:
     return 0 if ok else 1
 
 
+def _boards(args) -> int:
+    from .capture import find_boards
+
+    boards = find_boards()
+    for b in boards:
+        print(b)
+    if not boards:
+        print("no USB serial boards found; `kfkit capture --port virtual` records from the virtual board")
+    return 0
+
+
+def _capture(args) -> int:
+    import json
+
+    from .capture import CaptureError, capture
+    from .capture.guided import protocol_capture_options, step_at
+
+    options, steps = {}, None
+    seconds = args.seconds
+    if args.protocol:
+        length, steps, options = protocol_capture_options(args.protocol, args.port, args.board, quick=args.quick,
+                                                          fast=args.fast)
+        seconds = seconds or length
+    elif args.port == "virtual":
+        options["virtual"] = {"board": args.board or "nucleo-iks02a1", "rate_hz": args.rate, "realtime": not args.fast}
+    seconds = seconds or 10.0
+
+    def progress(fraction, rec):
+        if args.json:
+            return
+        s = rec.stats
+        bar = "#" * int(30 * fraction)
+        prompt = f" | {step_at(steps, rec.elapsed)[3]}" if steps else ""
+        print(f"\r[{bar:<30}] {rec.elapsed:6.1f}/{seconds:.1f} s  samples {s.samples}  bad {s.bad_lines}  "
+              f"dropped {s.dropped}{prompt}"[:160], end="", file=sys.stderr, flush=True)
+
+    try:
+        rec = capture(args.port, seconds, args.out, baud=args.baud, progress=progress, **options)
+    except CaptureError as e:
+        if not args.json:
+            print(file=sys.stderr)
+        print(f"capture failed: {e}", file=sys.stderr)
+        return 2
+    stats = rec.meta["capture"]["stats"]
+    if args.json:
+        print(json.dumps({**stats, "out": str(args.out.resolve()), "port": rec.meta["capture"]["port"],
+                          "board": rec.meta.get("board")}))
+    else:
+        from .capture import CaptureStats
+
+        print(file=sys.stderr)
+        shown = CaptureStats(**{k: v if v is not None else float("nan") for k, v in stats.items() if k != "bad_lines"})
+        print(f"{shown}\nsaved {len(rec)} samples to {args.out}")
+    return 0
+
+
+def _demo(args) -> int:
+    from .capture import CaptureError
+    from .demo import run_tilt_demo
+
+    port = args.port
+    try:
+        if port == "auto":
+            from .capture import resolve_auto
+
+            board, why = resolve_auto()
+            port = board.port
+            print(why, file=sys.stderr)
+        run_tilt_demo(port, seconds=args.seconds, headless=args.headless, baud=args.baud)
+    except (CaptureError, ValueError, OSError) as e:
+        print(f"demo failed: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="kfkit", description="Kalman filter lab kit tools.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -68,6 +147,37 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("doctor", help="check versions, Jupyter extensions, serial ports and data")
     p.set_defaults(run=_doctor)
+
+    p = sub.add_parser("boards", help="list boards plugged in over USB (VID:PID) and what they probably are")
+    p.set_defaults(run=_boards)
+
+    p = sub.add_parser("capture", help="record from a board (protocol v1) into a recording file")
+    p.add_argument("--port", default="auto", help="device path, pyserial URL (loop://, socket://, hwgrep://), "
+                   "'auto' or 'virtual' (default: %(default)s)")
+    p.add_argument("--seconds", type=float, default=None, help="board time to record, s (default: 10, or the protocol's)")
+    p.add_argument("--out", type=Path, required=True, help="recording file to write (CSV, kit format)")
+    p.add_argument("--baud", type=int, default=115200, help="default: %(default)s")
+    p.add_argument("--json", action="store_true", help="print the statistics as one JSON object, no progress bar")
+    p.add_argument("--protocol", choices=["stationary", "six-faces", "tilt", "mag-rotations"],
+                   help="guided protocol: prompts, phase labels; with --port virtual the board plays it")
+    p.add_argument("--quick", action="store_true", help="short protocol durations (tests, demonstrations)")
+    p.add_argument("--board", choices=["nucleo-iks02a1", "mpu6050"], help="virtual board type")
+    p.add_argument("--fast", action="store_true", help="the virtual board runs faster than real time")
+    p.add_argument("--rate", type=float, default=None, help="virtual board rate, Hz (free recording)")
+    p.set_defaults(run=_capture)
+
+    p = sub.add_parser("demo", help="small demos to drive with a board")
+    demo_sub = p.add_subparsers(dest="demo", required=True)
+    p = demo_sub.add_parser("tilt", help="steer a car by tilting the board (firmware/mpu6050_tilt_kf, $ATT lines)")
+    p.add_argument("--port", default="auto", help="device path, pyserial URL, 'auto' or 'virtual' (default: %(default)s)")
+    p.add_argument("--baud", type=int, default=115200, help="default: %(default)s")
+    p.add_argument("--seconds", type=float, default=None, help="stop after this long (default: when the window closes)")
+    p.add_argument("--headless", action="store_true", help="no window: play for --seconds and print a summary")
+    p.set_defaults(run=_demo)
+
+    from .grading import add_parser as add_grade_parser
+
+    add_grade_parser(sub)
     return parser
 
 

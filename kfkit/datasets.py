@@ -13,7 +13,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from . import sim
+from . import sim, vehicle
 from .io import Recording, load_recording, recording_text
 
 KIT_ROOT = Path(__file__).resolve().parents[1]
@@ -31,6 +31,127 @@ def _roll_sine() -> Recording:
     return sim.simulate_imu(motion, board="nucleo-iks02a1", seed=102)
 
 
+# Lab 04 uses the same Nucleo as labs 02 and 03 (NUCLEO_UNIT below), so their calibration applies.
+def _attitude_tour() -> Recording:
+    """Lab 04: the Nucleo turned about all axes, slid on the table, 104 Hz, 60 s."""
+    return _nucleo(sim.attitude_tour(rate_hz=104.0, translate_accel=2.0, vibration_rms=0.1, seed=401), seed=402)
+
+
+def _gimbal_lock() -> Recording:
+    """Lab 04: the Nucleo's nose pitched up through vertical and back, then down through it, 104 Hz, 36 s."""
+    return _nucleo(sim.pitch_over(rate_hz=104.0), seed=403)
+
+
+def _mag_disturbance() -> Recording:
+    """Lab 04: heading sweeps with a steel object near the Nucleo for 12–20 s, 104 Hz, 30 s."""
+    motion = sim.yaw_sweeps(rate_hz=104.0)
+    return _nucleo(motion, seed=404, mag_disturbance=sim.mag_disturbance(motion))
+
+
+# Lab 05: one MPU6050 (GY-521) in one session, so its three recordings share the biases
+# (sensor frame, SI): gyro a few °/s, accelerometer 15–25 mg, inside the datasheet's tolerances.
+MPU6050_GYRO_BIAS = tuple(np.radians([-2.5, 1.8, 0.9]))  # rad/s
+MPU6050_ACCEL_BIAS = (0.20, -0.15, 0.25)  # m/s²
+MPU6050_ACCEL_SCALE = (1.015, 0.99, 1.01)  # sensitivity errors, within the datasheet's ±3 %
+
+
+def _mpu6050(motion, seed) -> Recording:
+    return sim.simulate_imu(motion, board="mpu6050", seed=seed, gyro_bias=MPU6050_GYRO_BIAS,
+                            accel_bias=MPU6050_ACCEL_BIAS, accel_scale=MPU6050_ACCEL_SCALE)
+
+
+def _tilt_protocol() -> Recording:
+    """Lab 05: the tilt protocol twice (pitch, roll, pitch, roll) on an MPU6050, 100 Hz, 36 s."""
+    return _mpu6050(sim.tilt_protocol(axes=("pitch", "roll", "pitch", "roll"), rate_hz=100.0, seed=501), seed=502)
+
+
+def _mpu6050_stationary() -> Recording:
+    """Lab 05: the MPU6050 lying flat and still for 10 s (gyro bias), 100 Hz."""
+    motion = sim.stationary(10.0, 100.0)
+    motion.phases = [(0.0, 10.0, "stationary")]
+    return _mpu6050(motion, seed=503)
+
+
+def _mpu6050_six_faces() -> Recording:
+    """Lab 05 (and the MPU6050's default calibration): the MPU6050 resting 5 s on each face, 100 Hz."""
+    return _mpu6050(sim.six_faces(rate_hz=100.0, seed=212), seed=213)
+
+
+# Labs 02 and 03: one Nucleo + X-NUCLEO-IKS02A1, so all its recordings share the same imperfections
+# (sensor frame, SI): biases inside the datasheet's typical offsets, accelerometer scale errors of a few
+# 0.1 %, and the hard/soft iron of the board's own parts (µT). The bias random walks are small, like a
+# sensor whose Allan minimum lies near a minute (gyro) and two minutes (accelerometer).
+NUCLEO_UNIT = {
+    "gyro_bias": tuple(np.radians([0.35, -0.60, 0.20])),  # rad/s
+    "accel_bias": (0.045, -0.060, 0.080),  # m/s²
+    "accel_scale": (1.004, 0.997, 1.006),
+    "gyro_bias_rw": 4.4e-6,  # rad/s/√s
+    "accel_bias_rw": 1.8e-5,  # m/s²/√s
+    "mag_hard_iron": (12.0, -8.0, 5.0),  # µT
+    "mag_soft_iron": ((1.08, 0.04, -0.02), (0.04, 0.95, 0.03), (-0.02, 0.03, 1.02)),
+}
+STATIONARY_RATE_HZ = 12.5  # lab 02's long rest: the ISM330DHCX's lowest ODR keeps 40 min small
+
+
+def _nucleo(motion, seed, **options) -> Recording:
+    unit = {k: (np.asarray(v) if k == "mag_soft_iron" else v) for k, v in NUCLEO_UNIT.items()}
+    rec = sim.simulate_imu(motion, board="nucleo-iks02a1", seed=seed, **unit, **options)
+    rec.meta["sim"].update(gyro_bias_rw=NUCLEO_UNIT["gyro_bias_rw"], accel_bias_rw=NUCLEO_UNIT["accel_bias_rw"])
+    return rec
+
+
+def _stationary_long() -> Recording:
+    """Lab 02: the Nucleo lying flat and still for 40 min at 12.5 Hz (bias, noise, Allan deviation)."""
+    motion = sim.stationary(2400.0, STATIONARY_RATE_HZ)
+    motion.phases = [(0.0, 2400.0, "stationary")]
+    return _nucleo(motion, seed=201)
+
+
+def _six_faces() -> Recording:
+    """Lab 02: the Nucleo resting 5 s on each of its six faces, 104 Hz."""
+    return _nucleo(sim.six_faces(rate_hz=104.0, seed=202), seed=203)
+
+
+def _axis_turns() -> Recording:
+    """Lab 03: flat, turned 90° about body x, y, z and back, 104 Hz."""
+    return _nucleo(sim.axis_turns(rate_hz=104.0), seed=301)
+
+
+def _mag_rotations() -> Recording:
+    """Lab 03: slow tumbling through all orientations for 60 s, 104 Hz (hard/soft-iron calibration)."""
+    return _nucleo(sim.mag_rotations(rate_hz=104.0, seed=302), seed=303)
+
+
+def _headings() -> Recording:
+    """Lab 03: turned through six headings flat, then tilted, 104 Hz."""
+    return _nucleo(sim.heading_steps(rate_hz=104.0), seed=304)
+
+
+def _calibration_nucleo():
+    """The Nucleo's default calibration: lab 02's and lab 03's analyses of their bundled recordings."""
+    from .calibration import calibrate
+    return calibrate(_stationary_long(), _six_faces(), _mag_rotations(),
+                     source="kfkit default: labs 02/03 analyses of 02_stationary, 02_six_faces, 03_mag_rotations")
+
+
+def _read_calibration(path):
+    from .calibration import Calibration
+    return Calibration.load(path)
+
+
+def _calibration_json(cal) -> str:
+    return cal.to_json()
+
+
+def _calibration_mpu6050():
+    """The MPU6050's default calibration: lab 02's analysis of a simulated 60 s rest and six faces
+    of the lab 05 board (same biases as its bundled recordings)."""
+    from .calibration import calibrate
+    still = _mpu6050(sim.stationary(60.0, 100.0), seed=211)
+    return calibrate(still, _mpu6050_six_faces(), source="kfkit default: lab 02's analysis of a simulated MPU6050 "
+                                          "(60 s at rest, six faces; lab 05's biases)")
+
+
 @dataclass(frozen=True)
 class Bundled:
     """How one bundled file is made, written and read (IMU recordings by default)."""
@@ -38,11 +159,43 @@ class Bundled:
     build: Callable[[], Any]
     text: Callable[[Any], str] = recording_text
     read: Callable[[Path], Any] = load_recording
+    suffix: str = ".csv"  # the file is data/<name><suffix>
+
+
+def _slalom_20kmh() -> Recording:
+    """Lab 06: from a crawl (1 m/s) up to 20 km/h, slalom through 10 cones 9 m apart, back to a crawl; 100 Hz."""
+    return vehicle.simulate_drive(vehicle.slalom(20.0, cone_spacing=9.0, peak_ay=3.0, start_kmh=3.6), seed=601)
+
+
+def _slalom_80kmh() -> Recording:
+    """Lab 06: slalom at 80 km/h through 10 cones 18 m apart; 100 Hz."""
+    return vehicle.simulate_drive(vehicle.slalom(80.0, cone_spacing=18.0, peak_ay=4.0), seed=602)
+
+
+def _lane_change() -> Recording:
+    """Lab 06: double lane change (3.5 m) at 60 km/h braking gently to 50 km/h; 100 Hz."""
+    return vehicle.simulate_drive(vehicle.lane_change(60.0, end_kmh=50.0), seed=603)
 
 
 #: name → how to make it; the file is ``data/<name>.csv``
 BUNDLED = {
     "01_roll_sine": Bundled(_roll_sine),
+    "05_tilt_protocol": Bundled(_tilt_protocol),
+    "05_stationary": Bundled(_mpu6050_stationary),
+    "05_six_faces": Bundled(_mpu6050_six_faces),
+    "04_attitude_tour": Bundled(_attitude_tour),
+    "04_gimbal_lock": Bundled(_gimbal_lock),
+    "04_mag_disturbance": Bundled(_mag_disturbance),
+    "06_slalom_20kmh": Bundled(_slalom_20kmh, text=vehicle.vehicle_text, read=vehicle.load_vehicle),
+    "06_slalom_80kmh": Bundled(_slalom_80kmh, text=vehicle.vehicle_text, read=vehicle.load_vehicle),
+    "06_lane_change": Bundled(_lane_change, text=vehicle.vehicle_text, read=vehicle.load_vehicle),
+    "02_stationary": Bundled(_stationary_long),
+    "02_six_faces": Bundled(_six_faces),
+    "03_axis_turns": Bundled(_axis_turns),
+    "03_mag_rotations": Bundled(_mag_rotations),
+    "03_headings": Bundled(_headings),
+    "calibration_nucleo-iks02a1": Bundled(_calibration_nucleo, text=_calibration_json, read=_read_calibration, suffix=".json"),
+    "calibration_mpu6050": Bundled(_calibration_mpu6050, text=_calibration_json, read=_read_calibration, suffix=".json"),
 }
 
 
@@ -61,7 +214,7 @@ def build(name: str):
 def load(name: str):
     """Load the bundled recording ``name`` (e.g. '01_roll_sine') from the data folder."""
     entry = _entry(name)
-    path = data_dir() / f"{name}.csv"
+    path = data_dir() / f"{name}{entry.suffix}"
     if not path.exists():
         raise FileNotFoundError(f"bundled recording missing: {path}. Rebuild it with: python -m kfkit data regenerate")
     return entry.read(path)
@@ -72,7 +225,7 @@ def regenerate(check: bool = False, directory=None) -> list[str]:
     folder = Path(directory) if directory is not None else data_dir()
     report = []
     for name, entry in BUNDLED.items():
-        path = folder / f"{name}.csv"
+        path = folder / f"{name}{entry.suffix}"
         text = entry.text(entry.build())
         if check:
             if not path.exists():

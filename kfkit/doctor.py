@@ -95,14 +95,14 @@ def describe_port(port) -> str:
 
 def serial_lines() -> list[str]:
     try:
-        from serial.tools import list_ports
-    except ImportError:
-        return [f"{WARN} cannot list serial ports: pyserial is not installed"]
-    ports = sorted(list_ports.comports(), key=lambda port: port.device)
+        from .capture.ports import find_boards  # USB serial ports only: built-in UARTs (/dev/ttyS0) are no boards
+        ports = find_boards()
+    except ImportError as e:
+        return [f"{WARN} cannot list serial ports: {e.name} is not installed"]
     if not ports:
         lines = [f"{WARN} no serial ports found (that is fine: the labs run on bundled data)"]
     else:
-        lines = [f"{OK} serial port {describe_port(port)}" for port in ports]
+        lines = [f"{OK} serial port {port.port}: {port.description} [{port.vid_pid}]" for port in ports]
     if needs_dialout():
         lines.append(
             f"{WARN} you are not in the 'dialout' group, so you cannot open serial ports: "

@@ -125,3 +125,50 @@ def mount_matrix(spec):
     if not np.allclose(M @ M.T, np.eye(3), atol=1e-9) or not np.isclose(np.linalg.det(M), 1.0):
         raise ValueError(f"a mounting matrix must be a rotation (orthonormal, det +1), got {M.tolist()}")
     return M
+
+
+def _mag_components(m_b):
+    m = np.asarray(m_b, dtype=float)
+    if m.ndim == 0 or m.shape[-1] != 3:
+        raise ValueError(f"expected a magnetic field with 3 components on the last axis (µT, body FRD), got shape {m.shape}")
+    return m[..., 0], m[..., 1], m[..., 2]
+
+
+def _heading(y, x, declination, scalar):
+    psi = wrap_angle(np.arctan2(y, x) + declination)
+    return float(psi) if scalar else psi
+
+
+def mag_heading(m_b, declination=0.0):
+    """Heading ψ (rad, (−π, π]) of a level board from its magnetometer (µT, body FRD).
+
+    Level, m_b = Rz(ψ)ᵀ m_n, so m_x = B_h cos ψ and m_y = −B_h sin ψ:  ψ = atan2(−m_y, m_x).
+    That is the magnetic heading; add the ``declination`` (rad, east positive) for true north.
+    Wrong by up to the tilt angle × tan(inclination) when the board is not level: see
+    :func:`tilt_compensated_heading`. Accepts (3,) → float or (N, 3) → (N,).
+    """
+    mx, my, _ = _mag_components(m_b)
+    return _heading(-my, mx, declination, np.ndim(mx) == 0)
+
+
+def tilt_compensated_heading(m_b, roll, pitch, declination=0.0):
+    """Heading ψ (rad, (−π, π]) from the magnetometer m_b (µT, body FRD) and roll φ, pitch θ (rad).
+
+    De-rotate by roll, then pitch, into the level frame:  m' = Ry(θ) Rx(φ) m_b = Rz(ψ)ᵀ m_n, i.e.
+
+        m'_x = m_x cos θ + (m_y sin φ + m_z cos φ) sin θ
+        m'_y = m_y cos φ − m_z sin φ
+
+    and ψ = atan2(−m'_y, m'_x) + declination (rad, east positive; 0 gives magnetic north).
+    """
+    mx, my, mz = _mag_components(m_b)
+    roll, pitch = np.asarray(roll, dtype=float), np.asarray(pitch, dtype=float)
+    sf, cf, st, ct = np.sin(roll), np.cos(roll), np.sin(pitch), np.cos(pitch)
+    mx_level = mx * ct + (my * sf + mz * cf) * st
+    my_level = my * cf - mz * sf
+    return _heading(-my_level, mx_level, declination, np.ndim(mx_level) == 0)
+
+
+def declination(field_n=MAG_FIELD_LONDON):
+    """Magnetic declination D = atan2(B_E, B_N) (rad, east positive) of a NED field (µT)."""
+    return float(np.arctan2(field_n[1], field_n[0]))

@@ -238,3 +238,100 @@ def load_recording(path) -> Recording:
         dtype = np.int64 if c in INT_COLUMNS else float
         data[c] = np.asarray(column, dtype=dtype)
     return Recording(meta, data, path)
+
+
+# --- public datasets ------------------------------------------------------------------------
+#: ENU → NED as a quaternion (w-x-y-z): R = [[0, 1, 0], [1, 0, 0], [0, 0, −1]] (swap x and y,
+#: negate z), a 180° turn about the axis (1, 1, 0)/√2. q_NED = Q_NED_ENU ⊗ q_ENU.
+Q_NED_ENU = (0.0, math.sqrt(0.5), math.sqrt(0.5), 0.0)
+BROAD_FIELDS = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "movement", "sampling_rate")
+
+
+def enu_to_ned_quat(q_enu):
+    """Quaternions (N, 4) w-x-y-z body → ENU to body → NED: q_NED = Q_NED_ENU ⊗ q_ENU."""
+    q = np.asarray(q_enu, dtype=float)
+    cw, cx, cy, cz = Q_NED_ENU
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([cw * w - cx * x - cy * y - cz * z, cw * x + cx * w + cy * z - cz * y,
+                     cw * y - cx * z + cy * w + cz * x, cw * z + cx * y - cy * x + cz * w], axis=-1)
+
+
+def load_broad(path) -> Recording:
+    """Read one BROAD trial (Laidig et al., "BROAD — a benchmark for robust inertial orientation
+    estimation", Data 6(7), 2021; CC BY 4.0) from its ``.mat`` file into a :class:`Recording`.
+
+    The file holds ``imu_gyr`` (rad/s), ``imu_acc`` (m/s², specific force), ``imu_mag`` (µT), all
+    (N, 3) in the IMU's own frame (z up: it reads +g when flat), ``opt_quat`` (N, 4) w-x-y-z, IMU →
+    ENU, already aligned to the IMU frame and to the magnetic ENU frame the dataset's own
+    evaluation compares filters in (NaN where the optical markers were not seen), ``movement``
+    (N, 1) the samples its error metrics use, and ``sampling_rate`` (Hz).
+
+    The recording's sensor columns are SI floats (sensitivity 1, identity mounting: body = the IMU
+    frame, so ``rec.body('gyr')`` etc. return the file's arrays); truth is converted to NED:
+    ``true_qw … true_qz`` (IMU → NED, NaN in gaps), ``true_roll/pitch/yaw`` from them, and the
+    ``movement`` column (bool). Errors name the file and the field.
+    """
+    import scipy.io  # lazy: only this reader needs it
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no BROAD trial at {path}")
+    try:
+        raw = scipy.io.loadmat(path)
+    except (ValueError, OSError, scipy.io.matlab.MatReadError) as e:
+        raise RecordingError(path, None, f"not a readable MATLAB .mat file ({e})") from None
+    missing = [f for f in BROAD_FIELDS if f not in raw]
+    if missing:
+        raise RecordingError(path, None, f"not a BROAD trial: missing field(s) {', '.join(missing)}; "
+                             f"expected {', '.join(BROAD_FIELDS)}")
+    arrays = {}
+    for name, width in (("imu_gyr", 3), ("imu_acc", 3), ("imu_mag", 3), ("opt_quat", 4)):
+        a = np.asarray(raw[name], dtype=float)
+        if a.ndim != 2 or a.shape[1] != width:
+            raise RecordingError(path, None, f"field {name!r} must have shape (N, {width}), got {a.shape}")
+        arrays[name] = a
+    n = len(arrays["imu_gyr"])
+    for name, a in arrays.items():
+        if len(a) != n:
+            raise RecordingError(path, None, f"field {name!r} has {len(a)} rows but imu_gyr has {n}")
+    movement = np.asarray(raw["movement"]).reshape(-1)
+    if movement.size != n:
+        raise RecordingError(path, None, f"field 'movement' has {movement.size} entries but imu_gyr has {n} rows")
+    rate = float(np.asarray(raw["sampling_rate"], dtype=float).reshape(-1)[0])
+    if not rate > 0:
+        raise RecordingError(path, None, f"field 'sampling_rate' must be positive, got {rate}")
+    for name in ("imu_gyr", "imu_acc"):
+        bad = np.flatnonzero(~np.isfinite(arrays[name]).all(axis=1))
+        if bad.size:
+            raise RecordingError(path, None, f"field {name!r} row {bad[0]} is not finite")
+
+    q_ned = enu_to_ned_quat(arrays["opt_quat"])
+    q_ned /= np.linalg.norm(q_ned, axis=1, keepdims=True)
+    from .filters.attitude import quat_to_euler  # late import: filters import this module
+
+    euler = quat_to_euler(q_ned)
+    data = {"t": np.arange(n) / rate, "seq": np.arange(n, dtype=np.int64) % 65536}
+    for prefix, key in (("g", "imu_gyr"), ("a", "imu_acc"), ("m", "imu_mag")):
+        for i, axis in enumerate("xyz"):
+            data[prefix + axis] = arrays[key][:, i]
+    for i, name in enumerate(("true_roll", "true_pitch", "true_yaw")):
+        data[name] = euler[:, i]
+    for i, name in enumerate(("true_qw", "true_qx", "true_qy", "true_qz")):
+        data[name] = q_ned[:, i]
+    data["movement"] = movement.astype(bool)
+    info = raw.get("info")
+    description = str(np.asarray(info).reshape(-1)[0]) if info is not None and np.size(info) else ""
+    identity = np.eye(3).tolist()
+    meta = {
+        "board": "broad-myon-aktos-t",
+        "rate_hz": rate,
+        "source": "BROAD",
+        "trial": path.stem,
+        "description": description,
+        "units": {"t": "s", "gyr": "rad/s", "acc": "m/s^2", "mag": "uT", "true_*": "rad; true_q*: w-x-y-z IMU → NED"},
+        "sensors": {"acc": {"sensitivity": 1.0, "unit": "m/s^2"}, "gyr": {"sensitivity": 1.0, "unit": "rad/s"},
+                    "mag": {"sensitivity": 1.0, "unit": "uT"}},
+        "mount": {"acc": identity, "gyr": identity, "mag": identity},
+        "license": "CC BY 4.0, Laidig et al., Data 6(7), 2021, doi:10.3390/data6070072",
+    }
+    return Recording(meta, data, path)

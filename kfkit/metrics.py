@@ -1,4 +1,5 @@
-"""Error and consistency metrics: RMSE, wrapped angle errors, NEES, NIS, chi-square bounds.
+"""Error and consistency metrics: RMSE, wrapped angle errors, NEES, NIS, chi-square bounds,
+BROAD attitude errors (total, heading, inclination).
 
 For a consistent filter the normalised estimation error squared
     NEES_k = e_kᵀ P_k⁻¹ e_k,   e_k = x̂_k − x_k            (n states)
@@ -61,3 +62,47 @@ def fraction_inside(values, dof, alpha=0.05):
     v = v[~np.isnan(v)]
     lo, hi = chi2_bounds(dof, 1, alpha)
     return float(np.mean((v >= lo) & (v <= hi)))
+
+
+def _quat_array(q, name):
+    q = np.asarray(q, dtype=float)
+    if q.ndim == 1:
+        q = q[None, :]
+    if q.ndim != 2 or q.shape[1] != 4:
+        raise ValueError(f"{name} must be quaternions w-x-y-z of shape (N, 4), got {q.shape}")
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def attitude_errors(q_est, q_true):
+    """BROAD orientation errors (Laidig et al., Data 6(7), 2021) between quaternions (N, 4), w-x-y-z,
+    body → navigation frame (both in the same navigation frame, NED or ENU: the result is the same).
+
+    The error quaternion expressed in the navigation frame, q_e = q_est ⊗ q_true⁻¹, gives
+        total        2·acos|w_e|              the whole rotation between the two attitudes
+        heading      2·atan|z_e / w_e|        its part about the vertical axis
+        inclination  2·acos√(w_e² + z_e²)     its part about horizontal axes (tilt error)
+    each (N,) in rad; NaN rows (e.g. gaps in optical truth) stay NaN.
+    """
+    qe, qt = _quat_array(q_est, "q_est"), _quat_array(q_true, "q_true")
+    if len(qe) != len(qt):
+        raise ValueError(f"q_est has {len(qe)} rows but q_true has {len(qt)}")
+    w1, x1, y1, z1 = qe.T
+    w2, x2, y2, z2 = qt.T * np.array([[1.0], [-1.0], [-1.0], [-1.0]])  # q_true⁻¹ (unit quaternion)
+    w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
+    z = w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2
+    total = 2.0 * np.arccos(np.clip(np.abs(w), 0.0, 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        heading = 2.0 * np.arctan(np.abs(z / w))
+    heading = np.where(w == 0, np.pi, heading)
+    inclination = 2.0 * np.arccos(np.clip(np.sqrt(w * w + z * z), 0.0, 1.0))
+    nan = np.isnan(w)
+    heading[nan] = np.nan
+    return total, heading, inclination
+
+
+def attitude_rmse(q_est, q_true, mask=None):
+    """RMSE (rad) of :func:`attitude_errors` over ``mask`` (e.g. BROAD's movement phases),
+    ignoring rows whose truth is NaN: dict with 'total', 'heading', 'inclination'."""
+    errors = attitude_errors(q_est, q_true)
+    keep = slice(None) if mask is None else np.asarray(mask, dtype=bool)
+    return {name: float(rmse(e[keep], 0.0)) for name, e in zip(("total", "heading", "inclination"), errors)}

@@ -1,4 +1,5 @@
-"""ipywidgets UIs: filter tuning with log-scale sliders.
+"""ipywidgets UIs: filter tuning with log-scale sliders; the 3-D attitude view (lab 04), replayed
+(``attitude_view``) or live from a recorder (``AttitudeView.live`` + ``LiveAttitude``).
 
 The tuning figure is an ipympl canvas created for this panel only, so the rest of a
 notebook keeps the inline backend (static PNGs that survive in saved outputs) while
@@ -6,11 +7,15 @@ this figure redraws in place without flicker when a slider moves.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import ipywidgets as W
 import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
+from .filters.attitude import quat_to_dcm
+from .frames import dcm_to_euler
 from .metrics import angle_error, rmse
 from .plots import COLORS, STYLES, legend_on_top
 
@@ -106,3 +111,386 @@ def tune(run, t, truth, sliders: dict, references: dict | None = None, ylabel="r
     Example: ``tune(lambda q, r: roll_kf(w, z, dt, q, r).x, t, truth, {"q": (1e-6, 1e-9, 1e-2), "r": (1e-3, 1e-6, 1)})``
     """
     return TuningPanel(run, t, truth, sliders, references, ylabel, label)
+
+
+# --- live 3-D attitude view (lab 04) --------------------------------------------------------
+
+def _enu(v_ned):
+    """NED vectors (…, 3) → display coordinates (east, north, up): a right-handed frame that
+    matplotlib draws upright (drawing NED with an inverted z axis would mirror it)."""
+    v = np.asarray(v_ned, dtype=float)
+    return np.stack([v[..., 1], v[..., 0], -v[..., 2]], axis=-1)
+
+
+class LiveAttitude:
+    """Keeps a filter running over a growing recording: ``update(rec)`` feeds the samples newer
+    than the last one it saw and returns the latest quaternion (w-x-y-z, body → NED), or None
+    before any sample. A time that goes backwards (board reset) restarts the filter.
+
+    method and tuning go to :class:`kfkit.filters.EulerAttitudeEKF` ("euler-ekf") or the
+    quaternion filter ("mekf"); ``calibration`` (a :class:`kfkit.calibration.Calibration`, labs
+    02/03) corrects the samples first.
+    """
+
+    def __init__(self, method="euler-ekf", calibration=None, **tuning):
+        self.method, self.tuning, self.calibration = method, tuning, calibration
+        self.filter, self.t_last, self.quat = None, -np.inf, None
+
+    def _new_filter(self, rate_hz):
+        from .filters.attitude import EulerAttitudeEKF, MultiplicativeEKF
+
+        kinds = {"euler-ekf": EulerAttitudeEKF, "mekf": MultiplicativeEKF}
+        if self.method not in kinds:
+            raise ValueError(f"LiveAttitude: method must be one of {', '.join(kinds)}, got {self.method!r}")
+        return kinds[self.method](rate_hz, **self.tuning)
+
+    def update(self, rec):
+        if rec is None or len(rec) == 0:
+            return self.quat
+        t = rec.t
+        if t[-1] < self.t_last:  # the board restarted its clock
+            self.filter, self.t_last = None, -np.inf
+        new = t > self.t_last
+        if not new.any():
+            return self.quat
+        if self.filter is None:
+            self.filter = self._new_filter(rec.rate_hz)
+        mag = rec.body("mag")[new] if "mag" in rec.meta.get("sensors", {}) else None
+        gyr, acc = rec.body("gyr")[new], rec.body("acc")[new]
+        if self.calibration is not None:
+            gyr, acc, mag = self.calibration.apply((gyr, acc) if mag is None else (gyr, acc, mag))
+        result = self.filter.run(gyr, acc, mag)
+        self.t_last, self.quat = float(t[new][-1]), result.quat[-1]
+        return self.quat
+
+
+class AttitudeView:
+    """A board drawn as a box with its body axes (x forward, y right, z down) in NED, on an
+    ipympl canvas. Updates move the existing artists (cheap); nothing is re-created.
+
+    - replay: ``AttitudeView(t, quat)`` with quaternions (N, 4, w-x-y-z, body → NED), a Play
+      button and a time slider; ``truth`` (N, 4) adds a wire-frame ghost of the true attitude.
+    - live: ``AttitudeView.live(source)``, ``source()`` returning the latest Recording (e.g.
+      ``lambda: recorder.recording(last_seconds=2)``), polled by a timer on the kernel's thread.
+    ``show(k)`` draws sample k; ``draw(q, t)`` draws any quaternion.
+    """
+
+    SIZE = (0.8, 0.5, 0.1)  # box length along body x, y, z (display units)
+    AXES = (("x forward", "kf"), ("y right", "bound"), ("z down", "band"))
+
+    def __init__(self, t=None, quat=None, truth=None, stride=None, title="board attitude"):
+        from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+        self.t = None if t is None else np.asarray(t, dtype=float)
+        self.quat = None if quat is None else np.asarray(quat, dtype=float)
+        self.truth = None if truth is None else np.asarray(truth, dtype=float)
+        fig = Figure(figsize=(5.2, 4.6), layout="constrained")
+        ax = fig.add_subplot(projection="3d")
+        self.ax, self.title = ax, title
+        lx, ly, lz = (s / 2 for s in self.SIZE)
+        self._corners = np.array([[sx * lx, sy * ly, sz * lz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+        self._faces = [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]]
+        colours = ["#dddddd"] * 6
+        colours[0] = "#999999"  # the top face (−z, "up" on the board) darker
+        self.box = Poly3DCollection(self._polys(np.eye(3)), facecolors=colours, edgecolors="#444444",
+                                    linewidths=0.6, alpha=0.55)
+        ax.add_collection3d(self.box)
+        self.ghost = None
+        if self.truth is not None:
+            self.ghost = Poly3DCollection(self._polys(np.eye(3)), facecolors=(0, 0, 0, 0), edgecolors=COLORS["truth"],
+                                          linewidths=0.8, linestyles="--")
+            ax.add_collection3d(self.ghost)
+        self.axis_lines, self.axis_labels = [], []
+        for name, kind in self.AXES:
+            (line,) = ax.plot([0, 0], [0, 0], [0, 0], color=COLORS[kind], lw=2.5, label=name)
+            self.axis_lines.append(line)
+            self.axis_labels.append(ax.text(0, 0, 0, name.split()[0], color=COLORS[kind], fontsize=10, weight="bold"))
+        self.ned_labels = []
+        for v, name in (([1, 0, 0], "north"), ([0, 1, 0], "east"), ([0, 0, 1], "down")):  # the NED frame, fixed
+            e = _enu(np.array(v, float)) * 0.95
+            ax.plot([0, e[0]], [0, e[1]], [0, e[2]], color="#888888", lw=0.8, ls=":")
+            self.ned_labels.append(ax.text(*(e * 1.08), name, color="#666666", fontsize=9))
+        ax.set_xlim(-0.9, 0.9), ax.set_ylim(-0.9, 0.9), ax.set_zlim(-0.9, 0.9)
+        ax.set_box_aspect((1, 1, 1), zoom=1.5)
+        ax.set_axis_off()  # no panes, ticks or grid: the NED tripod is the reference, and redraws cost half
+        ax.view_init(elev=22, azim=-120)
+        ax.legend(loc="upper left", fontsize=8, title="body axes", title_fontsize=8)
+        self.canvas = _interactive_canvas(fig)
+        self.status = W.HTML()
+        self.timer, self.source, self.estimator = None, None, None
+        controls = []
+        if self.quat is not None:
+            n = len(self.quat)
+            if self.t is None or len(self.t) != n:
+                raise ValueError(f"AttitudeView: t must have one time per quaternion ({n}), got "
+                                 f"{None if self.t is None else len(self.t)}")
+            if self.truth is not None and self.truth.shape != self.quat.shape:
+                raise ValueError(f"AttitudeView: truth must have the shape of quat {self.quat.shape}, got {self.truth.shape}")
+            rate = 1.0 / float(np.median(np.diff(self.t))) if n > 1 else 1.0
+            stride = stride or max(1, int(round(rate / 20)))  # 20 frames per second of recording
+            self.slider = W.IntSlider(0, min=0, max=n - 1, step=stride, description="sample",
+                                      continuous_update=True, layout=W.Layout(width="420px"))
+            self.play = W.Play(value=0, min=0, max=n - 1, step=stride, interval=50, description="play")
+            W.jslink((self.play, "value"), (self.slider, "value"))
+            self.slider.observe(lambda change: self.show(change["new"]), names="value")
+            controls = [W.HBox([self.play, self.slider])]
+            self.show(0)
+        else:
+            self.draw(np.array([1.0, 0.0, 0.0, 0.0]), None)
+        self.widget = W.VBox(controls + [self.status, self.canvas])
+
+    def _polys(self, R_nb):
+        corners = _enu(self._corners @ R_nb.T)
+        return [corners[f] for f in self._faces]
+
+    def draw(self, q, t=None, q_truth=None):
+        """Move the box, the axes and their labels to quaternion ``q`` (w-x-y-z, body → NED)."""
+        R = quat_to_dcm(q)
+        self.box.set_verts(self._polys(R))
+        if self.ghost is not None and q_truth is not None:
+            self.ghost.set_verts(self._polys(quat_to_dcm(q_truth)))
+        for i, (line, label) in enumerate(zip(self.axis_lines, self.axis_labels)):
+            tip = _enu(R[:, i]) * (0.85 if i == 0 else 0.65)
+            line.set_data_3d([0, tip[0]], [0, tip[1]], [0, tip[2]])
+            label.set_position_3d(tip * 1.12)
+        roll, pitch, yaw = np.degrees(dcm_to_euler(R))
+        when = "" if t is None else f"t = {t:6.2f} s &nbsp; "
+        self.status.value = f"{when}roll {roll:+6.1f}°, pitch {pitch:+5.1f}°, yaw {yaw:+6.1f}°"
+        self.canvas.draw_idle()
+
+    def show(self, k):
+        """Draw sample ``k`` of the replayed recording."""
+        k = int(k)
+        self.draw(self.quat[k], self.t[k], None if self.truth is None else self.truth[k])
+
+    @classmethod
+    def live(cls, source, estimator=None, interval_ms=100, start=True, **view_options):
+        """A view that polls ``source()`` (→ latest Recording) every ``interval_ms`` on the kernel's
+        main thread and draws the attitude that ``estimator.update(rec)`` returns (default: a
+        :class:`LiveAttitude`, Euler EKF). Start and stop buttons; ``poll()`` does one tick."""
+        view = cls(**view_options)
+        view.source, view.estimator = source, estimator or LiveAttitude()
+        view.timer = view.canvas.new_timer(interval=interval_ms)
+        view.timer.add_callback(view.poll)
+        run, stop = W.Button(description="start", icon="play"), W.Button(description="stop", icon="stop")
+        run.on_click(lambda _: view.timer.start())
+        stop.on_click(lambda _: view.timer.stop())
+        view.widget = W.VBox([W.HBox([run, stop]), view.status, view.canvas])
+        if start:
+            view.timer.start()
+        return view
+
+    def poll(self):
+        """One live tick: read the source, feed the estimator, redraw; returns the quaternion or None."""
+        rec = self.source()
+        q = self.estimator.update(rec)
+        if q is not None:
+            self.draw(q, float(rec.t[-1]))
+        return q
+
+    def _repr_mimebundle_(self, **kwargs):
+        return self.widget._repr_mimebundle_(**kwargs)
+
+
+def attitude_view(t, quat, truth=None, stride=None) -> AttitudeView:
+    """Replay quaternions (N, 4, w-x-y-z, body → NED) at times t (s) as a 3-D board; see :class:`AttitudeView`."""
+    return AttitudeView(t, quat, truth, stride)
+
+
+# --- capture panel (kfkit.capture) ----------------------------------------------------------------
+_LIVE_SENSORS = (("acc", "accelerometer (m/s²)", 1.0), ("gyr", "gyro (°/s)", 180.0 / np.pi), ("mag", "magnetometer (µT)", 1.0))
+_AXIS_COLORS = (COLORS["accel"], COLORS["band"], COLORS["kf"])  # x, y, z (Okabe–Ito)
+_AXIS_STYLES = ("-", "--", "-.")
+
+
+class CapturePanel:
+    """Record from a board or the virtual board: port, baud, guided protocol, duration, record/stop,
+    a progress bar, the live signals of the last ``window_s`` seconds, statistics and the saved file.
+
+    The live plot is redrawn by a timer of the figure's canvas (``canvas.new_timer``), which runs on
+    the kernel's main thread (ipykernel's event loop); the recorder's reader thread never draws.
+    ``record()``, ``stop()`` and ``refresh()`` do from code what the buttons and the timer do.
+    """
+
+    def __init__(self, out_dir="my_recordings", window_s=5.0, interval_ms=200, quick=False, fast=False):
+        from .capture import PROTOCOLS, find_boards
+
+        # quick: the protocols' short durations; fast: the virtual board runs faster than real time
+        self.out_dir, self.window_s, self.quick, self.fast = Path(out_dir), window_s, quick, fast
+        self.recorder, self.recording, self.steps = None, None, None
+        boards = find_boards()
+        options = [(str(b), b.port) for b in boards] + [("virtual board (simulated)", "virtual")]
+        style, wide = {"description_width": "initial"}, W.Layout(width="330px")
+        self.port = W.Dropdown(options=options, value=next((b.port for b in boards if b.known), "virtual"),
+                               description="port", style=style, layout=W.Layout(width="460px"))
+        self.board = W.Dropdown(options=["nucleo-iks02a1", "mpu6050"], description="virtual board", style=style)
+        self.baud = W.Dropdown(options=[115200, 230400, 460800, 921600, 9600], value=115200, description="baud", style=style)
+        self.protocol = W.Dropdown(options=[("free recording", None)] + [(p.title, name) for name, p in PROTOCOLS.items()],
+                                   description="protocol", style=style, layout=W.Layout(width="460px"))
+        self.seconds = W.BoundedFloatText(value=30.0, min=0.5, max=7200.0, step=1.0, description="duration (s)",
+                                          style=style, layout=W.Layout(width="200px"))
+        self.out = W.Text(value=str(self.out_dir / "capture.csv"), description="save as", style=style, layout=wide)
+        self.record_button = W.Button(description="record", icon="circle", button_style="danger")
+        self.stop_button = W.Button(description="stop", icon="stop", disabled=True)
+        self.progress = W.FloatProgress(value=0.0, min=0.0, max=1.0, description="0 %", style=style)
+        self.coverage = W.FloatProgress(value=0.0, min=0.0, max=1.0, description="sphere coverage",
+                                        style=style, layout=W.Layout(visibility="hidden"))
+        self.prompt, self.status = W.HTML(), W.HTML()
+        self.record_button.on_click(lambda _: self.record())
+        self.stop_button.on_click(lambda _: self.stop())
+        self.protocol.observe(lambda _: self._protocol_changed(), names="value")
+        self.port.observe(lambda _: self._port_changed(), names="value")
+
+        fig = Figure(figsize=(9.0, 5.4), layout="constrained")
+        self.axes = fig.subplots(3, 1, sharex=True)
+        self.lines = {}
+        for ax, (sensor, label, _) in zip(self.axes, _LIVE_SENSORS):
+            self.lines[sensor] = [ax.plot([], [], color=c, ls=ls, lw=1.0, label=f"{sensor} {axis}")[0]
+                                  for c, ls, axis in zip(_AXIS_COLORS, _AXIS_STYLES, "xyz")]
+            ax.set_ylabel(label, fontsize=8)
+            ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)  # beside the live data
+        self.axes[-1].set_xlabel("time (s)")
+        self.canvas = _interactive_canvas(fig)
+        self.timer = self.canvas.new_timer(interval=interval_ms)
+        self.timer.add_callback(self.refresh)
+        self._port_changed()
+        self._protocol_changed()
+        self.widget = W.VBox([
+            W.HBox([self.port, self.board]), W.HBox([self.protocol, self.baud]),
+            W.HBox([self.seconds, self.out, self.record_button, self.stop_button]),
+            W.HBox([self.progress, self.coverage]), self.prompt, self.canvas, self.status])
+
+    # -- settings ---------------------------------------------------------------------------------
+    def _port_changed(self):
+        virtual = self.port.value == "virtual"
+        self.board.layout.display = None if virtual else "none"
+        self.baud.layout.display = "none" if virtual else None
+
+    def _protocol_changed(self):
+        from .capture import PROTOCOLS, protocol_motion
+
+        name = self.protocol.value
+        self.coverage.layout.visibility = "visible" if name == "mag-rotations" else "hidden"
+        if name is None:
+            self.out.value = str(self.out_dir / "capture.csv")
+            return
+        p = PROTOCOLS[name]
+        self.board.value = p.board
+        motion = protocol_motion(name, self._rate(), quick=self.quick)
+        self.seconds.value = round(len(motion.t) / motion.rate_hz, 2)
+        self.out.value = str(self.out_dir / f"{p.dataset}.csv")
+
+    def _rate(self) -> float:
+        from .sensors import board
+
+        return board(self.board.value).rate_hz
+
+    # -- recording ----------------------------------------------------------------------------------
+    def record(self):
+        """Start recording with the panel's settings (the record button)."""
+        from .capture import CaptureError, Recorder
+        from .capture.guided import protocol_capture_options
+
+        if self.recorder is not None:
+            return
+        options, name = {}, self.protocol.value
+        self.steps = None
+        if name is not None:
+            _, self.steps, options = protocol_capture_options(name, self.port.value, self.board.value,
+                                                              quick=self.quick, fast=self.fast)
+        elif self.port.value == "virtual":
+            options["virtual"] = {"board": self.board.value, "realtime": not self.fast}
+        try:
+            self.recorder = Recorder(self.port.value, self.baud.value, self.out.value, seconds=self.seconds.value,
+                                     **options).start()
+        except CaptureError as e:
+            self.recorder = None
+            self._show_error(e)
+            return
+        self.recording = None
+        self.record_button.disabled, self.stop_button.disabled = True, False
+        self.status.value = f"recording from {self.recorder.description} …"
+        self.timer.start()
+
+    def stop(self):
+        """Stop now (the stop button); what arrived is saved."""
+        if self.recorder is not None:
+            self._finish()
+
+    def _finish(self):
+        from .capture import CaptureError
+
+        self.timer.stop()
+        rec, self.recorder = self.recorder, None
+        self.record_button.disabled, self.stop_button.disabled = False, True
+        try:
+            stats = rec.stop()
+        except CaptureError as e:
+            self._show_error(e)
+            stats = rec.stats
+        self.refresh_plot(rec)
+        if rec.error is None and rec.elapsed > 0 and rec.done.is_set():
+            self.progress.value, self.progress.description = 1.0, "100 %"
+        if rec.stats.samples:
+            self.recording = rec.recording()
+            saved = f"saved {len(self.recording)} samples to <code>{rec.out}</code>"
+        else:
+            saved = "nothing to save"
+        text = str(stats).replace("\n", "<br>")
+        if rec.error is None:
+            self.status.value = f"<b>done</b>: {saved}<br><pre style='line-height:1.2'>{text}</pre>"
+        else:
+            self.status.value += f"<br><pre style='line-height:1.2'>{text}</pre>"
+
+    def _show_error(self, error):
+        self.status.value = f"<b style='color:{COLORS['bound']}'>❌ {error}</b>"
+
+    def refresh(self):
+        """One timer tick: progress, prompt, statistics and the live plot; finish when done."""
+        rec = self.recorder
+        if rec is None:
+            return
+        fraction = min(rec.elapsed / self.seconds.value, 1.0)
+        self.progress.value, self.progress.description = fraction, f"{100 * fraction:.0f} %"
+        if self.steps:
+            from .capture.guided import step_at
+
+            start, end, _, prompt = step_at(self.steps, rec.elapsed)
+            self.prompt.value = f"<b>{prompt}</b> &nbsp; ({max(end - rec.elapsed, 0.0):.0f} s)"
+        s = rec.stats
+        self.status.value = (f"{rec.description}: {s.samples} samples, {s.bad_lines} bad lines, "
+                             f"{s.dropped} dropped, {s.resets} resets")
+        snapshot = self.refresh_plot(rec)
+        if snapshot is not None and self.protocol.value == "mag-rotations" and "mag" in snapshot.meta.get("sensors", {}):
+            from .capture import sphere_coverage
+
+            self.coverage.value = sphere_coverage(rec.recording().body("mag"))
+        if rec.done.is_set():
+            self._finish()
+
+    def refresh_plot(self, rec):
+        """Redraw the last ``window_s`` seconds of ``rec`` (a Recorder); returns the snapshot."""
+        snap = rec.recording(last_seconds=self.window_s)
+        if not len(snap) or "sensors" not in snap.meta:
+            return None
+        t = snap.t
+        for ax, (sensor, _, scale) in zip(self.axes, _LIVE_SENSORS):
+            if sensor not in snap.meta["sensors"]:
+                continue
+            values = snap.body(sensor) * scale
+            keep = np.isfinite(values[:, 0])
+            for i, line in enumerate(self.lines[sensor]):
+                line.set_data(t[keep], values[keep, i])
+            ax.relim()
+            ax.autoscale_view()
+        self.axes[-1].set_xlim(max(t[-1] - self.window_s, 0.0), max(t[-1], self.window_s))
+        self.canvas.draw_idle()
+        return snap
+
+    def _repr_mimebundle_(self, **kwargs):
+        return self.widget._repr_mimebundle_(**kwargs)
+
+
+def capture_panel(out_dir="my_recordings", window_s=5.0, interval_ms=200, quick=False, fast=False) -> CapturePanel:
+    """A :class:`CapturePanel`: pick a port (or the virtual board) and a guided protocol, press record."""
+    return CapturePanel(out_dir=out_dir, window_s=window_s, interval_ms=interval_ms, quick=quick, fast=fast)

@@ -26,7 +26,7 @@ def test_shipped_data_matches_the_simulations():
 
 def test_regenerate_writes_every_bundled_file(tmp_path):
     written = datasets.regenerate(directory=tmp_path)
-    assert written == [str(tmp_path / f"{name}.csv") for name in datasets.BUNDLED]
+    assert written == [str(tmp_path / f"{name}{entry.suffix}") for name, entry in datasets.BUNDLED.items()]
     assert datasets.regenerate(check=True, directory=tmp_path) == []
 
 
@@ -110,3 +110,28 @@ def test_gyro_x_integrates_to_the_roll_change(roll_sine):
     # within 60 s it drifts less than 4·1e-4·√60 ≈ 0.003 rad/s (0.18 °/s)
     bias = p[roll_sine.t < 5.0].mean()
     assert np.abs(gyro_change - bias - true_change).max() < np.radians(0.25)
+
+
+@pytest.mark.parametrize("name", ["04_attitude_tour", "04_gimbal_lock", "04_mag_disturbance"])
+def test_lab04_recordings_take_the_labs_02_03_calibration(name):
+    """Lab 04's files come from the board labs 02/03 calibrate: corrected, the field has the
+    reference norm and the specific force at rest is g along the true 'up' (physics, not the filter)."""
+    from scipy.spatial.transform import Rotation
+
+    from kfkit.calibration import Calibration, bundled_calibration_path
+
+    rec = datasets.load(name)
+    gyr, acc, mag = Calibration.load(bundled_calibration_path(rec.meta["board"])).apply(rec)
+    truth = rec.truth()
+    R_bn = Rotation.from_euler("ZYX", truth[:, ::-1]).inv()
+    field = np.array(rec.meta["sim"]["field_n"])
+    calm = ~rec.phase("mag_disturbance") if name == "04_mag_disturbance" else np.ones(len(rec), bool)
+    fresh = calm & ~np.isnan(mag[:, 0])
+    np.testing.assert_allclose(np.linalg.norm(mag[fresh], axis=1).mean(), np.linalg.norm(field), rtol=0.01)
+    np.testing.assert_allclose(mag[fresh], R_bn[fresh].apply(field), atol=2.0)  # µT: noise 0.3, residual iron
+    rest = rec.phase("stationary")
+    np.testing.assert_allclose(acc[rest].mean(axis=0), R_bn[rest].apply([0.0, 0.0, -9.80665]).mean(axis=0), atol=0.02)
+    assert np.abs(gyr[rest].mean(axis=0)).max() < np.radians(0.05)  # the calibrated gyro bias is gone
+    if name == "04_mag_disturbance":  # inside the window the field is 15 % stronger
+        inside = rec.phase("mag_disturbance") & ~np.isnan(mag[:, 0]) & (rec.t > 13.0) & (rec.t < 19.0)
+        assert np.linalg.norm(mag[inside], axis=1).mean() > 1.1 * np.linalg.norm(field)

@@ -221,3 +221,41 @@ def test_mount_matrix_accepts_rotation_as_nested_list():
 def test_mount_matrix_rejects_non_rotations(bad, match):
     with pytest.raises(ValueError, match=match):
         mount_matrix(bad)
+
+
+# --- magnetic heading (calibration helper) --------------------------------------------------
+
+def _field_in_body(yaw, pitch, roll, field_n=(19.5, 0.3, 45.0)):
+    """m_b = R_bn m_n with R_nb from scipy's Rotation (the oracle)."""
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).inv().apply(field_n)
+
+
+def test_tilt_compensated_heading_recovers_yaw_on_random_attitudes():
+    from kfkit.frames import declination, tilt_compensated_heading, wrap_angle
+    rng = np.random.default_rng(0)
+    yaw, pitch, roll = rng.uniform(-np.pi, np.pi, 500), rng.uniform(-1.5, 1.5, 500), rng.uniform(-np.pi, np.pi, 500)
+    m_b = _field_in_body(yaw, pitch, roll)
+    psi = tilt_compensated_heading(m_b, roll, pitch, declination=declination())
+    np.testing.assert_allclose(wrap_angle(psi - yaw), 0.0, atol=1e-9)
+    assert np.all((psi > -np.pi) & (psi <= np.pi))
+    magnetic = tilt_compensated_heading(m_b, roll, pitch)  # without declination: off by D = atan2(0.3, 19.5)
+    np.testing.assert_allclose(wrap_angle(yaw - magnetic), np.arctan2(0.3, 19.5), atol=1e-9)
+
+
+def test_flat_heading_is_right_level_and_wrong_tilted():
+    from kfkit.frames import mag_heading, wrap_angle
+    yaw = np.linspace(-3.1, 3.1, 13)
+    level = _field_in_body(yaw, 0 * yaw, 0 * yaw, field_n=(20.0, 0.0, 45.0))
+    np.testing.assert_allclose(wrap_angle(mag_heading(level) - yaw), 0.0, atol=1e-12)
+    assert mag_heading(level[3]) == pytest.approx(yaw[3])
+    tilted = _field_in_body(yaw, 0 * yaw + 0.3, 0 * yaw, field_n=(20.0, 0.0, 45.0))
+    assert np.max(np.abs(wrap_angle(mag_heading(tilted) - yaw))) > np.radians(20)
+
+
+def test_heading_rejects_wrong_shapes():
+    from kfkit.frames import mag_heading, tilt_compensated_heading
+    with pytest.raises(ValueError, match="3 components"):
+        mag_heading(np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="3 components"):
+        tilt_compensated_heading(1.0, 0.0, 0.0)

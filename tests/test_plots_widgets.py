@@ -49,3 +49,127 @@ def test_tuning_panel_reruns_and_redraws(signals):
     n = len(calls)
     panel.set(q=1e-5, r=1e-2)
     assert len(calls) == n + 1, "set() should re-run the filter once, not once per slider"
+
+
+# --- live 3-D attitude view (lab 04) --------------------------------------------------------
+
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+from kfkit import sim  # noqa: E402
+from kfkit.io import Recording  # noqa: E402
+
+
+def enu_from_ned(v):
+    return np.array([v[1], v[0], -v[2]])
+
+
+def scipy_quat(rotation):
+    """w-x-y-z from scipy's x-y-z-w."""
+    x, y, z, w = rotation.as_quat()
+    return np.array([w, x, y, z])
+
+
+def test_attitude_view_draws_the_body_axes_where_scipy_puts_them():
+    rots = Rotation.from_euler("ZYX", [[0, 0, 0], [30, 20, -40], [-120, 70, 10]], degrees=True)
+    quat = np.array([scipy_quat(r) for r in rots])
+    view = widgets.attitude_view(np.arange(3) * 0.01, quat, truth=quat, stride=1)
+    box, ghost, lines = view.box, view.ghost, list(view.axis_lines)
+    n_artists = len(view.ax.collections) + len(view.ax.lines)
+    for k, rot in enumerate(rots):
+        view.slider.value = k  # as a student's drag (or the Play button) would
+        for i, line in enumerate(view.axis_lines):
+            xs, ys, zs = line.get_data_3d()
+            tip = np.array([xs[1], ys[1], zs[1]])
+            want = enu_from_ned(rot.as_matrix()[:, i])  # body axis i in NED, drawn as (E, N, U)
+            np.testing.assert_allclose(tip / np.linalg.norm(tip), want, atol=1e-9)
+        yaw, pitch, roll = rot.as_euler("ZYX", degrees=True)
+        assert f"roll {roll:+6.1f}°" in view.status.value and f"yaw {yaw:+6.1f}°" in view.status.value
+    # updates move the same artists; nothing is added
+    assert view.box is box and view.ghost is ghost and list(view.axis_lines) == lines
+    assert len(view.ax.collections) + len(view.ax.lines) == n_artists
+    labels = [t.get_text() for t in view.ax.get_legend().get_texts()]
+    assert labels == ["x forward", "y right", "z down"]
+    assert [t.get_text() for t in view.ned_labels] == ["north", "east", "down"]
+    for text, ned in zip(view.ned_labels, np.eye(3)):  # each drawn where its NED axis points (E, N, U)
+        position = np.array(text.get_position_3d())
+        np.testing.assert_allclose(position / np.linalg.norm(position), enu_from_ned(ned))
+
+
+def test_attitude_view_rejects_mismatched_inputs():
+    q = np.tile([1.0, 0, 0, 0], (5, 1))
+    with pytest.raises(ValueError, match=r"one time per quaternion \(5\), got 4"):
+        widgets.attitude_view(np.arange(4.0), q)
+    with pytest.raises(ValueError, match=r"truth must have the shape of quat \(5, 4\), got \(3, 4\)"):
+        widgets.attitude_view(np.arange(5.0), q, truth=q[:3])
+
+
+def test_live_view_follows_a_growing_recording_and_a_reset():
+    angles = np.radians([25.0, -15.0, 60.0])  # roll, pitch, yaw
+    rec = sim.simulate_imu(sim.stationary(6.0, 104.0, *angles), seed=3, gyro_bias=[0, 0, 0])
+    arrived = {"n": 0}
+
+    def source():  # what recorder.recording(last_seconds=2) returns as samples arrive
+        n = arrived["n"]
+        keep = (rec.t < rec.t[max(n - 1, 0)] + 1e-9) & (rec.t >= rec.t[max(n - 1, 0)] - 2.0) if n else rec.t < -1
+        return Recording(rec.meta, {k: v[keep] for k, v in rec.data.items()})
+
+    fed = []
+    estimator = widgets.LiveAttitude()
+    update = estimator.update
+
+    def counting_update(r):
+        fed.append(len(r))
+        return update(r)
+
+    estimator.update = counting_update
+    view = widgets.AttitudeView.live(source, estimator=estimator, start=False)
+    assert view.poll() is None  # nothing has arrived yet
+    for n in range(52, len(rec) + 1, 52):  # half a second per tick
+        arrived["n"] = n
+        q = view.poll()
+    # fed in half-second pieces, the filter ends where one run over the whole recording ends
+    whole = filters.EulerAttitudeEKF(rec.rate_hz).run(rec.body("gyr"), rec.body("acc"), rec.body("mag"))
+    np.testing.assert_allclose(q, whole.quat[-1], atol=1e-9)
+    assert sum(fed) > len(rec)  # it was shown overlapping snapshots, yet used each sample once
+    true = Rotation.from_euler("ZYX", angles[::-1])
+    got = Rotation.from_quat(np.r_[q[1:], q[0]])
+    assert (true.inv() * got).magnitude() < np.radians(3.0)
+    assert estimator.t_last == pytest.approx(rec.t[-1])
+    yaw, pitch, roll = got.as_euler("ZYX", degrees=True)
+    assert f"t = {rec.t[-1]:6.2f} s" in view.status.value
+    assert f"roll {roll:+6.1f}°, pitch {pitch:+5.1f}°, yaw {yaw:+6.1f}°" in view.status.value
+    # a board reset: time starts again from zero, the filter starts again
+    arrived["n"] = 10
+    view.poll()
+    assert estimator.t_last == pytest.approx(rec.t[9])
+
+
+def test_live_attitude_applies_a_calibration_and_names_a_bad_method():
+    from kfkit.calibration import Calibration
+
+    bias = np.array([0.01, -0.02, 0.015])  # rad/s, body frame
+    rec = sim.simulate_imu(sim.stationary(3.0, 104.0, 0.2, -0.1, 1.0), seed=4, gyro_bias=np.diag([1.0, -1.0, -1.0]) @ bias)
+    cal = Calibration(gyro_bias=bias.tolist())
+    q = widgets.LiveAttitude(calibration=cal).update(rec)
+    gyr, acc, mag = cal.apply(rec)
+    np.testing.assert_allclose(q, filters.EulerAttitudeEKF(104.0).run(gyr, acc, mag).quat[-1], atol=1e-12)
+    assert not np.allclose(q, widgets.LiveAttitude().update(rec), atol=1e-6)  # the bias matters
+    with pytest.raises(ValueError, match="method must be one of euler-ekf, mekf, got 'ekf'"):
+        widgets.LiveAttitude("ekf").update(rec)
+
+
+def test_live_view_follows_the_virtual_board():
+    """End to end: a virtual board on a pty, the recorder's thread, polls from this thread."""
+    from kfkit import capture
+
+    angles = np.radians([17.0, -11.0, 57.0])
+    motion = sim.stationary(20.0, 104.0, *angles)
+    with capture.Recorder(capture.VirtualBoard(motion=motion, realtime=False, seed=1), seconds=8) as recorder:
+        view = widgets.AttitudeView.live(lambda: recorder.recording(last_seconds=2.0),
+                                         estimator=widgets.LiveAttitude("mekf"), start=False)
+        recorder.done.wait(30)
+        q = view.poll()
+    got = Rotation.from_quat(np.r_[q[1:], q[0]])
+    true = Rotation.from_euler("ZYX", angles[::-1])
+    assert (true.inv() * got).magnitude() < np.radians(3.0)  # heading from a learned field: magnetic north
+    assert view.estimator.t_last > 7.0

@@ -292,3 +292,188 @@ def test_seq_wraps_at_16_bits():
 def test_sample_times():
     np.testing.assert_array_equal(sample_times(1.0, 4.0), [0.0, 0.25, 0.5, 0.75])
     assert len(sample_times(60.0, 104.0)) == 6240
+
+
+# --- attitude motions (lab 04) --------------------------------------------------------------
+
+from kfkit import sim as _sim  # noqa: E402
+
+ATTITUDE_MOTIONS = {"attitude_tour": lambda: _sim.attitude_tour(vibration_rms=0.1, seed=1),
+                    "pitch_over": _sim.pitch_over, "yaw_sweeps": _sim.yaw_sweeps}
+
+
+def scipy_attitude(euler):
+    """R_nb as scipy Rotations from [roll, pitch, yaw] rows."""
+    return Rotation.from_euler("ZYX", np.asarray(euler)[:, ::-1])
+
+
+@pytest.mark.parametrize("name", ATTITUDE_MOTIONS)
+def test_integrating_the_body_rate_reproduces_the_attitude(name):
+    """Oracle: scipy rotations, R_{k+1} = R_k · exp([ω̄ Δt]×) with the mid-interval rate."""
+    m = ATTITUDE_MOTIONS[name]()
+    dt = 1.0 / m.rate_hz
+    steps = Rotation.from_rotvec(0.5 * (m.omega_b[1:] + m.omega_b[:-1]) * dt)
+    R = scipy_attitude(m.euler[:1])[0]
+    worst = 0.0
+    truth = scipy_attitude(m.euler)
+    for k, step in enumerate(steps, start=1):
+        R = R * step
+        worst = max(worst, (truth[k].inv() * R).magnitude())
+    assert worst < 0.01 * deg  # second-order integration error over the whole motion
+
+
+@pytest.mark.parametrize("name", ATTITUDE_MOTIONS)
+def test_body_rate_matches_finite_differences_of_the_attitude(name):
+    """ω_b ≈ log(R_kᵀ R_{k+1}) / Δt between neighbouring samples (central, so O(Δt²))."""
+    m = ATTITUDE_MOTIONS[name]()
+    R = scipy_attitude(m.euler)
+    dt = 1.0 / m.rate_hz
+    fd = (R[1:-1].inv() * R[2:]).as_rotvec() / (2 * dt) + (R[:-2].inv() * R[1:-1]).as_rotvec() / (2 * dt)
+    np.testing.assert_allclose(fd, m.omega_b[1:-1], atol=2e-3)  # rad/s; peak rates reach ~1 rad/s
+
+
+@pytest.mark.parametrize("name", ATTITUDE_MOTIONS)
+def test_attitude_motion_truth_is_canonical_and_rests_are_still(name):
+    m = ATTITUDE_MOTIONS[name]()
+    assert np.all(np.abs(m.euler[:, 1]) <= np.pi / 2 + 1e-12)
+    assert np.all(np.abs(m.euler[:, [0, 2]]) <= np.pi + 1e-12)
+    labels = {p[2] for p in m.phases}
+    assert "stationary" in labels
+    rec = simulate_imu(m, seed=0)
+    rest = rec.phase("stationary")
+    assert rest.sum() > 2 * m.rate_hz
+    np.testing.assert_array_equal(m.omega_b[rest], 0.0)
+    np.testing.assert_array_equal(m.acc_n[rest], 0.0)
+
+
+def test_attitude_tour_phases_and_motions():
+    m = _sim.attitude_tour()
+    rec = simulate_imu(m, seed=0)
+    assert {p["label"] for p in rec.phases} == {"stationary", "roll", "pitch", "yaw", "linear_acceleration", "tumble"}
+    spans = {label: np.ptp(m.euler[rec.phase(label)], axis=0) for label in ("roll", "pitch")}
+    assert spans["roll"][0] == pytest.approx(80 * deg) and spans["roll"][1:].max() < 1e-9
+    assert spans["pitch"][1] == pytest.approx(72 * deg) and spans["pitch"][[0, 2]].max() < 1e-9
+    yaw = m.euler[rec.phase("yaw"), 2]
+    assert np.any(np.abs(np.diff(yaw)) > np.pi), "the yaw turn should cross ±180°"
+    slide = rec.phase("linear_acceleration")
+    assert np.abs(m.acc_n[slide]).max() > 3.5 and np.all(m.acc_n[~slide] == 0.0)
+    np.testing.assert_array_equal(m.omega_b[slide], 0.0)  # sliding at constant attitude
+    dt = 1.0 / m.rate_hz  # integrate twice (trapezoid): the board ends at rest where it started
+    v = np.cumsum(m.acc_n[slide], axis=0) * dt
+    assert np.abs(v[-1]).max() < 1e-9 and np.abs(v.sum(axis=0) * dt).max() < 1e-3 and np.abs(v).max() < 1.0
+    # ‖f‖ = ‖a_n − g_n‖: a horizontal push changes the norm only to second order
+    f = np.linalg.norm(rec.body("acc"), axis=1)
+    assert np.abs(f[rec.phase("stationary")] - g).max() < 0.05
+    want = np.linalg.norm(m.acc_n - [0.0, 0.0, g], axis=1)
+    np.testing.assert_allclose(f[slide], want[slide], atol=0.05)
+    assert np.abs(f[slide] - g).max() > 0.4
+
+
+def test_pitch_over_goes_through_vertical():
+    m = _sim.pitch_over(peak=110 * deg, wobble=0.0, yaw0=30 * deg)
+    nose = scipy_attitude(m.euler).apply([1.0, 0.0, 0.0])  # body x in NED
+    assert nose[:, 2].min() < -np.cos(1 * deg) and nose[:, 2].max() > np.cos(1 * deg)  # straight up, straight down
+    hold = (m.t > 9.2) & (m.t < 10.8)  # held at 110° nose up: past vertical, the nose points backwards
+    want = Rotation.from_euler("ZYX", [30, 110, 0], degrees=True).as_euler("ZYX", degrees=True)  # scipy's canonical triple
+    got = np.degrees(m.euler[hold].mean(axis=0))[::-1]
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    assert got[1] == pytest.approx(70.0) and abs(got[2]) == pytest.approx(180.0)
+    near = simulate_imu(m, seed=0).phase("near_vertical")
+    np.testing.assert_array_equal(near, np.abs(nose[:, 2]) > np.cos(10 * deg))
+
+
+def test_mag_disturbance_field_and_its_effect():
+    m = stationary(20.0, 104.0, 10 * deg, -5 * deg, 40 * deg)
+    m.phases = [(5.0, 15.0, "mag_disturbance")]
+    field = np.array([-4.0, 6.0, -3.0])
+    d = _sim.mag_disturbance(m, field=field)
+    assert np.all(d[(m.t < 5.0) | (m.t >= 15.0)] == 0.0)
+    middle = (m.t >= 6.0) & (m.t < 14.0)  # after the 1 s fade-in, before the fade-out
+    np.testing.assert_allclose(d[middle], np.tile(field, (middle.sum(), 1)))
+    assert np.all(np.linalg.norm(d, axis=1) <= np.linalg.norm(field) + 1e-12)
+    rec = simulate_imu(m, seed=5, gyro_bias=[0, 0, 0], accel_bias=[0, 0, 0], mag_disturbance=d)
+    mag = rec.body("mag")
+    assert_mean_close(mag[middle], R_bn(10 * deg, -5 * deg, 40 * deg) @ (FIELD_N + field), "nucleo-iks02a1", "mag")
+    assert_mean_close(mag[m.t < 5.0], R_bn(10 * deg, -5 * deg, 40 * deg) @ FIELD_N, "nucleo-iks02a1", "mag")
+
+
+def test_no_mag_disturbance_draws_nothing_extra():
+    m = stationary(2.0, 104.0, 0.1, 0.2, 0.3)
+    plain = simulate_imu(m, seed=9)
+    zero = simulate_imu(m, seed=9, mag_disturbance=np.zeros((len(m.t), 3)))
+    for c in plain.columns:
+        np.testing.assert_array_equal(plain[c], zero[c])
+
+
+def test_bad_mag_disturbance_inputs_are_named():
+    m = stationary(2.0, 104.0)
+    with pytest.raises(ValueError, match="mag_disturbance must be one NED vector per sample, shape \\(208, 3\\); got \\(3,\\)"):
+        simulate_imu(m, mag_disturbance=np.ones(3))
+    with pytest.raises(ValueError, match="no phase 'mag_disturbance'"):
+        _sim.mag_disturbance(m)
+
+
+def test_euler_moves_are_smooth_steps():
+    t = sample_times(4.0, 1000.0)
+    euler, rate = _sim.euler_moves(t, [0.1, 0.0, 0.0], [(1.0, 3.0, 0, 0.5)])
+    assert euler[0, 0] == 0.1 and euler[-1, 0] == pytest.approx(0.6)
+    assert euler[t == 2.0, 0] == pytest.approx(0.35)  # halfway in time is halfway in angle (symmetric step)
+    np.testing.assert_allclose(rate[1:-1, 0], np.gradient(euler[:, 0], t)[1:-1], atol=1e-5)
+    assert rate[0, 0] == 0.0 and rate[-1, 0] == 0.0 and rate[:, 1:].max() == 0.0
+
+
+# --- calibration motions and imperfections (calibration helper) ------------------------------
+
+def test_imperfections_default_to_nothing_and_are_recorded():
+    from kfkit.sim import simulate_imu, stationary
+    plain = simulate_imu(stationary(2.0, 104.0), seed=5)
+    same = simulate_imu(stationary(2.0, 104.0), seed=5, accel_scale=None, mag_hard_iron=None)
+    assert plain.meta == same.meta and all(np.array_equal(plain.data[k], same.data[k], equal_nan=True) for k in plain.data)
+    iron = simulate_imu(stationary(2.0, 104.0), seed=5, accel_scale=[1.0, 1.0, 1.1], mag_hard_iron=[30.0, 0.0, 0.0],
+                        mag_soft_iron=2 * np.eye(3))
+    assert iron.meta["sim"]["mag_hard_iron"] == [30.0, 0.0, 0.0] and iron.meta["sim"]["accel_scale"][2] == 1.1
+    # soft iron doubles the field, hard iron adds 30 µT on sensor x (the same random draws otherwise)
+    fresh = ~np.isnan(plain["mx"])
+    m0, m1 = plain.sensor_si("mag")[fresh], iron.sensor_si("mag")[fresh]
+    np.testing.assert_allclose(m1.mean(0), 2 * m0.mean(0) + [30.0, 0, 0], atol=1.0)
+    # accel z reads g·1.1 (sensor z up reads +g when flat)
+    assert iron.sensor_si("acc")[:, 2].mean() == pytest.approx(1.1 * plain.sensor_si("acc")[:, 2].mean(), rel=1e-3)
+
+
+def test_six_faces_labels_the_axis_that_reads_plus_g():
+    from kfkit.frames import G
+    from kfkit.sim import simulate_imu, six_faces
+    m = six_faces(seed=2)
+    assert sorted(p[2] for p in m.phases) == sorted(["x_up", "x_down", "y_up", "y_down", "z_up", "z_down"])
+    rec = simulate_imu(m, seed=0, accel_bias=np.zeros(3), gyro_bias=np.zeros(3))
+    for label in ("x_up", "x_down", "y_up", "y_down", "z_up", "z_down"):
+        mask = rec.phase(label)
+        assert np.abs(rec.body("gyr")[mask]).max() < 0.02  # resting, not moving
+        f = rec.body("acc")[mask].mean(axis=0)
+        i = "xyz".index(label[0])
+        assert f[i] == pytest.approx(G if label.endswith("up") else -G, abs=0.02)
+
+
+def test_calibration_motions_rates_match_their_attitudes():
+    from scipy.spatial.transform import Rotation
+    from kfkit.sim import axis_turns, heading_steps, mag_rotations, six_faces
+    for m in (six_faces(), mag_rotations(duration=30.0), axis_turns(), heading_steps()):
+        R = Rotation.from_euler("ZYX", m.euler[:, ::-1])
+        step = (R[:-1].inv() * R[1:]).as_rotvec() * m.rate_hz  # body rate between samples, finite difference
+        np.testing.assert_allclose(step, (m.omega_b[1:] + m.omega_b[:-1]) / 2, atol=2e-3)
+
+
+def test_mag_rotations_cover_the_sphere_and_axis_turns_label_each_axis():
+    from scipy.spatial.transform import Rotation
+    from kfkit.sim import axis_turns, mag_rotations
+    m = mag_rotations()
+    u = Rotation.from_euler("ZYX", m.euler[:, ::-1]).inv().apply([19.5, 0.3, 45.0])
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    assert np.linalg.eigvalsh(np.cov(u.T)).min() > 0.15  # the field seen from all directions
+    assert m.phases == [(0.0, 60.0, "mag_rotations")]
+    turns = axis_turns()
+    for t0, t1, label in turns.phases:
+        inside = (turns.t >= t0) & (turns.t < t1)
+        axis = "xyz".index(label[-1])
+        others = [i for i in range(3) if i != axis]
+        assert np.abs(turns.omega_b[inside][:, axis]).max() > 0.3 and np.abs(turns.omega_b[inside][:, others]).max() < 1e-9

@@ -1,0 +1,252 @@
+"""Attitude filters: accuracy (BROAD total / heading / inclination RMSE) and speed vs peers, one run.
+
+    python benchmarks/bench_attitude.py            # bundled lab 04 simulations + BROAD trials if present
+    python benchmarks/bench_attitude.py --quick    # skip the BROAD trials
+
+Filters: kfkit's euler-ekf and mekf (defaults), ahrs 0.4.0's EKF and Madgwick, imufusion 1.3.3
+(x-io Fusion) and VQF 2.1.2 (the best published filter on BROAD; offline=False, i.e. causal),
+every one with its library defaults except where noted. All get the same body-frame data and
+their result is converted to a quaternion sensor → NED whose north is *magnetic* north:
+
+- kfkit: estimate_attitude() output is already that (field learned from the first samples).
+- ahrs EKF (frame='NED'): its NED model expects the accelerometer to read +g on a level board's
+  down axis (gravity, not specific force; checked on a static synthetic attitude), so it is
+  given −f; ``magnetic_ref`` = the dip angle learned from the data (the same information kfkit
+  uses). Output is sensor → NED.
+- ahrs Madgwick: earth frame NWU (x north, z up): q_NED = q_x(180°) ⊗ q_NWU.
+- imufusion: CONVENTION_NED, settings of the Fusion README (gain 0.5, gyroscope range 2000 °/s,
+  acceleration and magnetic rejection 10°, rejection timeout 5 s); gyro in °/s, acc in g.
+- VQF: earth frame ENU (x east, y north, z up): q_NED = Q_NED_ENU ⊗ q_ENU (kfkit.io).
+
+Truth: simulations' Euler angles turned into magnetic-north NED (yaw − declination); BROAD's
+opt_quat converted to NED by kfkit.io.load_broad (it is already aligned to the IMU and to the
+magnetic frame, so no offset is estimated), errors over its ``movement`` mask.
+Simulations are calibrated with the bundled default calibration before filtering (as lab 04 does).
+"""
+import argparse
+import glob
+import math
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from kfkit import datasets
+from kfkit.filters import estimate_attitude
+from kfkit.filters.attitude import (attitude_jacobian, attitude_measurement, euler_kinematics_jacobian, euler_process_noise,
+                                    euler_rates, euler_to_quat, learn_field, EULER_ACCEL_NOISE, EULER_MAG_NOISE,
+                                    EULER_GYRO_NOISE)
+from kfkit.frames import G, declination, wrap_angle
+from kfkit.io import enu_to_ned_quat, load_broad
+from kfkit.metrics import attitude_rmse
+
+BROAD_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"
+SIMULATIONS = ("04_attitude_tour", "04_gimbal_lock", "04_mag_disturbance")
+Q_NED_NWU = np.array([0.0, 1.0, 0.0, 0.0])  # 180° about x: NWU → NED
+
+
+def quat_mul(a, b):
+    """Hamilton product of (N, 4) or (4,) quaternions, w-x-y-z."""
+    a, b = np.broadcast_arrays(np.asarray(a, float), np.asarray(b, float))
+    w1, x1, y1, z1 = np.moveaxis(a, -1, 0)
+    w2, x2, y2, z2 = np.moveaxis(b, -1, 0)
+    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
+
+
+# ---- peers -----------------------------------------------------------------------------------
+def run_ahrs_ekf(gyr, acc, mag, rate):
+    from ahrs.filters import EKF
+    field = learn_field(acc, mag)
+    dip = math.degrees(math.atan2(field[2], field[0]))
+    mag = _fill_mag(mag)
+    return EKF(gyr=gyr, acc=-acc, mag=mag, frequency=rate, frame="NED", magnetic_ref=dip).Q
+
+
+def run_ahrs_madgwick(gyr, acc, mag, rate):
+    from ahrs.filters import Madgwick
+    return quat_mul(Q_NED_NWU, Madgwick(gyr=gyr, acc=acc, mag=_fill_mag(mag), frequency=rate).Q)
+
+
+def run_imufusion(gyr, acc, mag, rate):
+    import imufusion
+    ahrs = imufusion.Ahrs()
+    s = imufusion.AhrsSettings()
+    s.convention, s.gain, s.gyroscope_range = imufusion.CONVENTION_NED, 0.5, 2000.0
+    s.acceleration_rejection, s.magnetic_rejection = 10.0, 10.0
+    s.sample_rate, s.rejection_timeout = rate, 5.0 * rate
+    ahrs.set_settings(s)
+    gyr_dps, acc_g, mag = np.degrees(gyr), acc / G, _fill_mag(mag)
+    out = np.empty((len(gyr), 4))
+    for k in range(len(gyr)):
+        ahrs.update(gyr_dps[k], acc_g[k], mag[k])
+        out[k] = ahrs.get_quaternion()
+    return out
+
+
+def run_vqf(gyr, acc, mag, rate):
+    from vqf import VQF
+    c = np.ascontiguousarray
+    return enu_to_ned_quat(VQF(1.0 / rate).updateBatch(c(gyr), c(acc), c(_fill_mag(mag)))["quat9D"])
+
+
+def _fill_mag(mag):
+    """Peers want a magnetometer value every sample: hold the last one (kfkit uses NaN = no sample)."""
+    mag = np.array(mag, dtype=float)
+    for k in range(1, len(mag)):
+        if np.isnan(mag[k, 0]):
+            mag[k] = mag[k - 1]
+    return mag
+
+
+FILTERS = {
+    "euler-ekf": lambda g, a, m, r: estimate_attitude(g, a, m, r).quat,
+    "mekf": lambda g, a, m, r: estimate_attitude(g, a, m, r, method="mekf").quat,
+    "ahrs EKF": run_ahrs_ekf,
+    "ahrs Madgwick": run_ahrs_madgwick,
+    "imufusion": run_imufusion,
+    "VQF": run_vqf,
+}
+
+
+# ---- data ------------------------------------------------------------------------------------
+def simulated_cases():
+    from kfkit.calibration import Calibration, bundled_calibration_path
+    cal = Calibration.load(bundled_calibration_path("nucleo-iks02a1"))
+    for name in SIMULATIONS:
+        try:
+            rec = datasets.load(name)
+        except (ValueError, FileNotFoundError) as e:
+            print(f"(skipping {name}: {e})")
+            continue
+        gyr, acc, mag = cal.apply(rec)
+        truth = rec.truth().copy()
+        truth[:, 2] -= declination(rec.meta["sim"]["field_n"])  # magnetic-north NED
+        yield name, gyr, acc, mag, rec.rate_hz, euler_to_quat(truth), np.ones(len(rec), bool)
+
+
+def broad_cases():
+    for path in sorted(glob.glob(str(BROAD_DIR / "*.mat"))):
+        rec = load_broad(path)
+        q = np.column_stack([rec[c] for c in ("true_qw", "true_qx", "true_qy", "true_qz")])
+        yield rec.meta["trial"], rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz, q, rec["movement"]
+
+
+def accuracy(cases):
+    rows = []
+    for name, gyr, acc, mag, rate, q_true, mask in cases:
+        row = {}
+        for fname, run in FILTERS.items():
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    q = run(gyr, acc, mag, rate)
+            except ImportError as e:
+                print(f"({fname} not installed: {e})")
+                continue
+            row[fname] = {k: math.degrees(v) for k, v in attitude_rmse(q, q_true, mask).items()}
+        rows.append((name, row))
+        print(f"  done {name}", flush=True)
+    return rows
+
+
+def print_accuracy(title, rows, goal=True):
+    names = list(FILTERS)
+    for metric in ("total", "heading", "inclination"):
+        print(f"\n{title}: {metric} RMSE (°)\n")
+        print("| trial | " + " | ".join(names) + " |")
+        print("|---|" + "---:|" * len(names))
+        for trial, row in rows:
+            cells = [f"{row[n][metric]:.2f}" if n in row else "–" for n in names]
+            print(f"| {trial} | " + " | ".join(cells) + " |")
+    if not goal:
+        return
+    print(f"\n{title}: mekf goal — total RMSE below ahrs EKF and imufusion, within 1.5× of VQF\n")
+    print("| trial | mekf / ahrs EKF | mekf / imufusion | mekf / VQF | goal met |")
+    print("|---|---:|---:|---:|---|")
+    for trial, row in rows:
+        if not all(n in row for n in ("mekf", "ahrs EKF", "imufusion", "VQF")):
+            continue
+        m = row["mekf"]["total"]
+        r = [m / row[n]["total"] for n in ("ahrs EKF", "imufusion", "VQF")]
+        ok = r[0] < 1 and r[1] < 1 and r[2] <= 1.5
+        print(f"| {trial} | {r[0]:.2f} | {r[1]:.2f} | {r[2]:.2f} | {'yes' if ok else 'NO'} |")
+
+
+# ---- speed -----------------------------------------------------------------------------------
+def filterpy_euler_ekf(gyr, acc, mag, rate):
+    """The same 3-state Euler EKF on filterpy's ExtendedKalmanFilter (NumPy matrices per step)."""
+    from filterpy.kalman import ExtendedKalmanFilter
+
+    class EulerEKF(ExtendedKalmanFilter):
+        def predict_x(self, u=0):
+            self.x = self.x + euler_rates(self.x, u) * self.dt
+            self.x[2] = wrap_angle(self.x[2])
+
+    dt = 1.0 / rate
+    field = learn_field(acc, mag)
+    ekf = EulerEKF(dim_x=3, dim_z=6)
+    ekf.dt = dt
+    ekf.x = np.zeros(3)
+    ekf.P = np.diag(np.radians([5.0, 5.0, 10.0]) ** 2)
+    R6 = np.diag([EULER_ACCEL_NOISE ** 2] * 3 + [EULER_MAG_NOISE ** 2] * 3)
+    hx6, hj6 = (lambda x: attitude_measurement(x, field)), (lambda x: attitude_jacobian(x, field))
+    hx3, hj3 = (lambda x: attitude_measurement(x, field)[:3]), (lambda x: attitude_jacobian(x, field)[:3])
+    out = np.empty((len(gyr), 3))
+    for k in range(len(gyr)):
+        ekf.F = np.eye(3) + dt * euler_kinematics_jacobian(ekf.x, gyr[k])
+        ekf.Q = euler_process_noise(ekf.x, EULER_GYRO_NOISE, dt)
+        ekf.predict(u=gyr[k])
+        if np.isnan(mag[k, 0]):
+            ekf.update(acc[k], hj3, hx3, R=R6[:3, :3])
+        else:
+            ekf.update(np.r_[acc[k], mag[k]], hj6, hx6, R=R6)
+        out[k] = ekf.x
+    return out
+
+
+def speed():
+    from kfkit.calibration import Calibration, bundled_calibration_path
+    rec = datasets.load("04_attitude_tour")
+    gyr, acc, mag = Calibration.load(bundled_calibration_path("nucleo-iks02a1")).apply(rec)
+    rate, n = rec.rate_hz, len(rec)
+    contenders = {
+        "kfkit euler-ekf": lambda: estimate_attitude(gyr, acc, mag, rate),
+        "kfkit mekf": lambda: estimate_attitude(gyr, acc, mag, rate, method="mekf"),
+        "filterpy EKF (same Euler model)": lambda: filterpy_euler_ekf(gyr, acc, mag, rate),
+        "ahrs EKF": lambda: run_ahrs_ekf(gyr, acc, mag, rate),
+    }
+    times = {}
+    for name, fn in contenders.items():
+        best = math.inf
+        for _ in range(3):
+            t0 = time.perf_counter()
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                fn()
+            best = min(best, time.perf_counter() - t0)
+        times[name] = best
+    base = times["kfkit euler-ekf"]
+    print(f"\nSpeed on 04_attitude_tour ({n} samples, {n / rate:.0f} s at {rate:g} Hz), best of 3\n")
+    print("| filter | steps/s | time for 60 s at 100 Hz (ms) | time vs kfkit euler-ekf |")
+    print("|---|---:|---:|---:|")
+    for name, t in times.items():
+        print(f"| {name} | {n / t:,.0f} | {6000 * t / n * 1e3:.0f} | {t / base:.1f}× |")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="skip the BROAD trials")
+    args = parser.parse_args()
+    print_accuracy("Bundled lab 04 simulations", accuracy(simulated_cases()), goal=False)
+    if not args.quick:
+        if BROAD_DIR.exists() and glob.glob(str(BROAD_DIR / "*.mat")):
+            print_accuracy("BROAD trials (real IMU, optical truth; movement phases)", accuracy(broad_cases()))
+        else:
+            print(f"\n(no BROAD trials in {BROAD_DIR}: accuracy on real data skipped)")
+    speed()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,469 @@
+"""Recording from a port: a reader thread, statistics, the streamed file, snapshots.
+
+The reader thread only reads bytes, parses lines, appends rows under a lock and streams them
+to the output file (flushed every ``flush_s``, ≤ 1 s), so a board unplugged mid-capture leaves
+every received sample on disk. Live views poll :meth:`Recorder.recording` from their own
+(main-thread) timer; nothing on the reader thread plots.
+
+Time: ``t`` (s) is the board's ``t_us`` relative to the first sample, unwrapping the 32-bit
+``micros()`` (Δ = (t_us − t_us_prev) mod 2³²). ``t_us`` going backwards (Δ ≥ 2³¹) is a board
+reset: time then continues one nominal period after the last sample, and ``seq`` restarts.
+A ``seq`` gap (mod 2¹⁶) counts the missing samples as dropped, with their position.
+
+Magnetometer: the Nucleo sketch sends ``mx,my,mz`` on every line (the last reading repeated) and
+a last field ``mag_new`` (1 = a new reading, 0 = a repeat); rows with ``mag_new = 0`` get NaN
+magnetometer cells, the recording format's "no new sample".
+"""
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import sensors
+from ..io import Recording, format_header, format_row, save_recording
+from .ports import (BoardDisconnectedError, CaptureError, NoDataError, ProtocolVersionError, WrongBaudError,
+                    SKETCHES, open_port, resolve_auto)
+from .protocol import MICROS_MODULO, SEQ_MODULO, BadLine, Header, Message, Note, Sample, parse_line
+from .virtual import VirtualBoard
+
+DEFAULT_BAUD = 115200
+SENSOR_FIELDS = ("ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz")
+MAG_FLAG = "mag_new"  # Nucleo sketch: 1 = mx,my,mz is a new reading, 0 = the last one repeated
+_SPEC_AT_RANGE = {  # chip → (accel spec at ±g, gyro spec at ±°/s), for headers that name a range
+    "ISM330DHCX": (sensors.ism330dhcx_accel, sensors.ism330dhcx_gyro),
+    "MPU6050": (sensors.mpu6050_accel, sensors.mpu6050_gyro),
+}
+
+
+@dataclass
+class CaptureStats:
+    """What arrived. ``dropped`` = samples missing by ``seq`` (a line rejected for its checksum
+    is also a missing sample); ``drops`` = [(sample index, t s, how many)]; ``jitter_us`` = the
+    standard deviation of the board's sample interval (consecutive samples only)."""
+
+    samples: int = 0
+    bad_checksum: int = 0
+    malformed: int = 0
+    dropped: int = 0
+    drops: list = field(default_factory=list)
+    resets: int = 0
+    reset_positions: list = field(default_factory=list)
+    before_header: int = 0
+    messages: int = 0
+    bytes: int = 0
+    duration_s: float = 0.0
+    rate_hz: float = float("nan")
+    dt_mean_us: float = float("nan")
+    jitter_us: float = float("nan")
+    notes: list = field(default_factory=list)
+
+    @property
+    def bad_lines(self) -> int:
+        return self.bad_checksum + self.malformed
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d["bad_lines"] = self.bad_lines
+        return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in d.items()}
+
+    def __str__(self):
+        lines = [f"samples        {self.samples} in {self.duration_s:.2f} s (effective rate {self.rate_hz:.2f} Hz, "
+                 f"interval {self.dt_mean_us:.1f} µs ± {self.jitter_us:.1f} µs jitter)",
+                 f"bad lines      {self.bad_lines} ({self.bad_checksum} bad checksum, {self.malformed} malformed)",
+                 f"dropped        {self.dropped}" + (f" at samples {', '.join(f'{i} (t={t:.3f} s, {n})' for i, t, n in self.drops[:5])}"
+                                                   + (" …" if len(self.drops) > 5 else "") if self.drops else ""),
+                 f"board resets   {self.resets}" + (f" at samples {', '.join(map(str, self.reset_positions))}" if self.resets else "")]
+        return "\n".join(lines)
+
+
+def header_metadata(header: Header) -> dict:
+    """Recording metadata from a board header: sensitivities and mounts from ``kfkit.sensors``."""
+    meta = {"board": header.board, "rate_hz": header.rate_hz, "source": "capture",
+            "units": {"t": "s", "sensors": "counts (see sensors.*.sensitivity)"},
+            "protocol": {"version": header.version, "header": "#" + header.text}}
+    try:
+        b = sensors.board(header.board)
+    except ValueError:
+        meta["note"] = f"board {header.board!r} is not in kfkit.sensors.BOARDS: counts have no sensitivities"
+        return meta
+    acc, gyr = b.accel, b.gyro
+    ranges = _SPEC_AT_RANGE.get(acc.chip)
+    try:
+        if ranges and "accel_fs_g" in header.params:
+            acc = ranges[0](int(header.params["accel_fs_g"]))
+        if ranges and "gyro_fs_dps" in header.params:
+            gyr = ranges[1](int(header.params["gyro_fs_dps"]))
+    except (KeyError, ValueError):
+        raise CaptureError(f"the board header names a range kfkit does not know: {header.text}") from None
+    specs = {"acc": acc, "gyr": gyr}
+    if b.mag is not None and "mx" in header.fields:
+        specs["mag"] = b.mag
+    meta["sensors"] = {k: s.metadata() for k, s in specs.items()}
+    meta["mount"] = {k: b.mount[k] for k in specs}
+    if "mag_rate_hz" in header.params:
+        meta["mag_rate_hz"] = float(header.params["mag_rate_hz"])
+    return meta
+
+
+def _columns(header: Header) -> list[str]:
+    """Recording columns for a header: t, seq, then its sensor fields (t_us and mag_new are consumed)."""
+    return ["t", "seq", *(f for f in header.fields[2:] if f != MAG_FLAG)]
+
+
+class Recorder:
+    """Record from ``port`` on a reader thread; a context manager (``start``/``stop``).
+
+    port      device path, pyserial URL (loop://, socket://host:port, hwgrep://0483:374B),
+              "auto" (the single detected board), "virtual" (a new :class:`VirtualBoard`
+              built from ``virtual=dict(...)``) or a VirtualBoard
+    out       recording file streamed as samples arrive, rewritten with the final metadata
+              (statistics, phases) by ``stop()``
+    seconds   stop by itself once this much board time (s) has arrived (None: until stop())
+    phases    labelled windows [{"label", "start", "end"}] for the metadata; a virtual board
+              playing a motion with phases gives them by default
+    """
+
+    def __init__(self, port="auto", baud=DEFAULT_BAUD, out=None, *, seconds=None, phases=None, virtual=None,
+                 request_header=True, no_data_s=3.0, garbage_s=2.0, flush_s=0.5, read_timeout=0.05):
+        self.port, self.baud, self.seconds = port, int(baud), seconds
+        self.out = Path(out).resolve() if out is not None else None
+        self.phases = list(phases) if phases is not None else None
+        self.virtual_options = dict(virtual or {})
+        self.request_header, self.no_data_s, self.garbage_s = request_header, no_data_s, garbage_s
+        self.flush_s, self.read_timeout = min(flush_s, 1.0), read_timeout
+        self.board: VirtualBoard | None = None
+        self._own_board = False
+        self.stats = CaptureStats()
+        self.header: Header | None = None
+        self.meta: dict | None = None
+        self.columns: list[str] = []
+        self.messages: dict[str, list] = {}  # tag → [(sample index, values)]
+        self.error: CaptureError | None = None
+        self.description = ""
+        self._rows: list[tuple] = []
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self.done = threading.Event()  # set when the reader thread ends (stop, seconds reached, error)
+        self._thread = None
+        self._serial = None
+        self._file = None
+        self._reset_state()
+
+    def _reset_state(self):
+        self._prev = None  # (t_us, seq, t)
+        self._reached = False  # ``seconds`` of board time have arrived
+        self._dt_sum = self._dt_sq = 0.0
+        self._dt_n = 0
+        self._mag_index = None
+
+    # -- life cycle --------------------------------------------------------------------------------
+    def start(self) -> "Recorder":
+        if self._thread is not None:
+            raise CaptureError("this Recorder has already been started; make a new one for a new capture")
+        port = self.port
+        if isinstance(port, VirtualBoard) or port == "virtual":
+            if port == "virtual":
+                port, self._own_board = VirtualBoard(**self.virtual_options), True
+            self.board = port
+            if self.board.port is None:
+                self.board.start()
+                self._own_board = True
+            if self.phases is None and self.board.motion is not None and self.board.motion.phases:
+                self.phases = [{"label": lab, "start": float(a), "end": float(b)} for a, b, lab in self.board.motion.phases]
+            self.description = f"virtual board ({self.board.board.name}, {self.board.rate_hz:g} Hz) on {self.board.port}"
+            port = self.board.port
+        elif port == "auto":
+            found, why = resolve_auto()
+            port, self.description = found.port, why
+        else:
+            self.description = str(port)
+        self.device = port
+        try:
+            self._serial = open_port(port, self.baud, self.read_timeout)
+        except BaseException:
+            self._close_board()
+            raise
+        if self.request_header:
+            self._serial.write(b"h")
+        self._t_open = time.monotonic()
+        self._thread = threading.Thread(target=self._read_loop, name=f"kfkit-recorder {port}", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, raise_error=True) -> CaptureStats:
+        """Stop reading, close the port, write the final file; raise the capture's error if any."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(10.0)
+        if self._serial is not None:
+            self._serial.close()
+            self._serial = None
+        self._close_board()
+        self._update_rates()
+        self._finish_file()
+        if raise_error and self.error is not None:
+            raise self.error
+        return self.stats
+
+    def _close_board(self):
+        if self._own_board and self.board is not None:
+            self.board.close()
+
+    def wait(self, timeout=None) -> bool:
+        """Wait until the reader ends (``seconds`` reached or an error); True if it ended."""
+        return self.done.wait(timeout)
+
+    def check(self):
+        """Raise the capture's error now, if one happened (for polling loops)."""
+        if self.error is not None:
+            raise self.error
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, exc_type, *exc):
+        self.stop(raise_error=exc_type is None)
+
+    @property
+    def elapsed(self) -> float:
+        """Board time received so far, s."""
+        return self._prev[2] if self._prev else 0.0
+
+    # -- the reader thread ----------------------------------------------------------------------------
+    def _read_loop(self):
+        ser, buf = self._serial, b""
+        first_line = True
+        last_flush = time.monotonic()
+        try:
+            while not self._stop.is_set():
+                try:
+                    data = ser.read(max(1, ser.in_waiting))
+                except Exception as e:  # SerialException/OSError: the device went away
+                    self._fail(BoardDisconnectedError, f"the board disconnected ({self.device}: {e})")
+                    break
+                now = time.monotonic()
+                if data:
+                    self.stats.bytes += len(data)
+                    lines = (buf + data).split(b"\n")
+                    buf = lines.pop()
+                    for line in lines:
+                        if first_line:  # bytes before the first newline may be a partial line: parse, do not count
+                            first_line = False
+                            if isinstance(parse_line(line), BadLine):
+                                continue
+                        self._handle(line)
+                        if self._over():
+                            break
+                    if self._over():
+                        break
+                if self.header is None or self.stats.samples == 0:
+                    self._check_startup(now - self._t_open)
+                    if self.error is not None:
+                        break
+                if self._file is not None and now - last_flush >= self.flush_s:
+                    self._file.flush()
+                    last_flush = now
+        finally:
+            if self._file is not None:
+                self._file.flush()
+            self.done.set()
+
+    def _fail(self, kind, message):
+        if self.error is None:
+            self.error = kind(message)
+
+    def _over(self) -> bool:
+        return self.error is not None or self._reached
+
+    def _check_startup(self, waited):
+        s = self.stats
+        valid = s.samples + s.before_header + (self.header is not None)
+        if waited >= self.garbage_s and s.bytes >= 20 and valid <= 0.1 * (valid + s.bad_lines):
+            hint = ("check Serial.begin(...) in the sketch" if self.baud == DEFAULT_BAUD
+                    else f"pass baud={DEFAULT_BAUD} (kfkit capture --baud {DEFAULT_BAUD})")
+            self._fail(WrongBaudError, f"{self.device}: {s.bytes} bytes in {waited:.1f} s but no valid protocol line, "
+                       f"which is what a wrong baud rate looks like: kfkit sketches send at {DEFAULT_BAUD} baud and "
+                       f"this port is open at {self.baud}; {hint}")
+        elif waited >= self.no_data_s and s.before_header and self.header is None:
+            self._fail(CaptureError, f"{self.device}: {s.before_header} samples but no #KFKIT header in {waited:.1f} s, "
+                       f"although 'h' was sent: is the sketch from this kit ({SKETCHES})?")
+        elif waited >= self.no_data_s and self.header is not None and s.samples == 0:
+            self._fail(NoDataError, f"{self.device}: the board sent its header but no samples in {waited:.1f} s: "
+                       f"it may be stopped (the 's' command toggles streaming) or its sensor failed to start"
+                       f"{self._notes()}; press the board's reset button")
+        elif waited >= self.no_data_s and valid == 0 and s.bytes < 20:
+            notes = self._notes() + (f" except {s.bytes} stray bytes" if s.bytes else "")
+            self._fail(NoDataError, f"{self.device}: nothing received in {waited:.1f} s{notes}. Check that the logger "
+                       f"sketch is flashed ({SKETCHES}), press the board's reset button, and that no other "
+                       f"program reads the port")
+
+    def _notes(self) -> str:
+        return f" (the board said: {'; '.join(self.stats.notes)})" if self.stats.notes else ""
+
+    def _handle(self, line: bytes):
+        item = parse_line(line)
+        if isinstance(item, Sample):
+            self._sample(item)
+        elif isinstance(item, BadLine):
+            if item.kind == "checksum":
+                self.stats.bad_checksum += 1
+            elif item.kind == "version":
+                self._fail(ProtocolVersionError, f"{self.device}: the board speaks an unknown protocol ({item.detail}): "
+                           f"{line[:60].decode('ascii', 'replace')!r}. Flash the sketch from this kit's firmware/ "
+                           f"folder, or update kfkit")
+            elif item.kind == "malformed":
+                self.stats.malformed += 1
+        elif isinstance(item, Header):
+            self._header(item)
+        elif isinstance(item, Message):
+            self.stats.messages += 1
+            self.messages.setdefault(item.tag, []).append((self.stats.samples, item.values))
+        elif isinstance(item, Note):
+            self.stats.notes.append(item.text)
+
+    def _header(self, header: Header):
+        if self.header is None:
+            self.header = header
+            self.meta = header_metadata(header)
+            self.columns = _columns(header)
+            self._nfields = len(header.fields)
+            self._mag_index = header.fields.index(MAG_FLAG) if MAG_FLAG in header.fields else None
+            self._keep = [i for i, f in enumerate(header.fields[2:], start=2) if f != MAG_FLAG]
+            self._mag_cols = [self.columns.index(f) for f in ("mx", "my", "mz") if f in self.columns]
+            if self.out is not None:
+                self.out.parent.mkdir(parents=True, exist_ok=True)
+                self._file = open(self.out, "w", encoding="utf-8", newline="\n")
+                self._file.write(format_header(self._file_meta(), self.columns))
+        elif header.fields != self.header.fields or header.board != self.header.board:
+            self._fail(CaptureError, f"{self.device}: the board header changed mid-capture, from "
+                       f"{self.header.text!r} to {header.text!r}; start a new capture")
+
+    def _sample(self, values):
+        s = self.stats
+        if self.header is None:
+            s.before_header += 1
+            return
+        if len(values) != self._nfields:
+            s.malformed += 1
+            return
+        t_us, seq = values[0], values[1]
+        prev = self._prev
+        if prev is None:
+            t = 0.0
+        else:
+            dt_us = (t_us - prev[0]) % MICROS_MODULO
+            if dt_us == 0:  # the same instant twice: not a sample we can place in time
+                s.malformed += 1
+                return
+            if dt_us >= MICROS_MODULO // 2:  # time went backwards: the board restarted
+                s.resets += 1
+                s.reset_positions.append(s.samples)
+                t = round(prev[2] + 1.0 / self.header.rate_hz, 6)
+            else:
+                t = round(prev[2] + dt_us * 1e-6, 6)  # whole µs: the file's 6 decimals hold t exactly
+                gap = (seq - prev[1] - 1) % SEQ_MODULO
+                if gap:
+                    s.dropped += gap
+                    s.drops.append((s.samples, round(t, 6), gap))
+                else:
+                    self._dt_sum += dt_us
+                    self._dt_sq += dt_us * dt_us
+                    self._dt_n += 1
+        if self.seconds is not None and t >= self.seconds - 1e-9:
+            self._reached = True
+            return
+        row = [t, seq, *(values[i] for i in self._keep)]
+        if self._mag_index is not None and not values[self._mag_index]:
+            for j in self._mag_cols:  # no new magnetometer reading: empty cells (NaN)
+                row[j] = math.nan
+        row = tuple(row)
+        with self._lock:
+            self._rows.append(row)
+            self._prev = (t_us, seq, t)
+            s.samples += 1
+            s.duration_s = t
+        if self._file is not None:
+            self._file.write(format_row(self.columns, row))
+
+    # -- results ------------------------------------------------------------------------------------------
+    def _update_rates(self):
+        s = self.stats
+        if s.samples > 1 and s.duration_s > 0:
+            s.rate_hz = (s.samples - 1) / s.duration_s
+        if self._dt_n:
+            mean = self._dt_sum / self._dt_n
+            s.dt_mean_us = mean
+            s.jitter_us = math.sqrt(max(self._dt_sq / self._dt_n - mean * mean, 0.0))
+
+    def _file_meta(self, final=False) -> dict:
+        meta = dict(self.meta or {"rate_hz": 0.0, "source": "capture"})
+        meta["capture"] = {"port": str(self.device), "baud": self.baud}
+        if isinstance(self.port, VirtualBoard) or self.port == "virtual":
+            meta["source"] = "capture (virtual board)"
+        if final:
+            self._update_rates()
+            meta["capture"]["stats"] = self.stats.as_dict()
+            end = self.stats.duration_s + (1.0 / self.header.rate_hz if self.header else 0.0)
+            phases = [{**p, "end": min(p["end"], end)} for p in self.phases or () if p["start"] < end]
+            if phases:  # windows clipped to what was recorded (a capture stopped early)
+                meta["phases"] = phases
+        return meta
+
+    def recording(self, last_seconds=None) -> Recording:
+        """A snapshot of what has arrived (thread-safe): counts + metadata from the board header.
+
+        ``last_seconds``: only the samples within that many seconds of the newest (times keep
+        their origin, so phases still line up). Empty (0 rows) until the header has arrived.
+        """
+        with self._lock:
+            if last_seconds is None:
+                rows = list(self._rows)
+            else:
+                rate = self.header.rate_hz if self.header else 1.0
+                rows = self._rows[-int(last_seconds * rate * 1.5 + 16):]
+        cols = self.columns or ["t", "seq"]
+        table = np.array(rows, dtype=float).reshape(len(rows), len(cols))
+        if last_seconds is not None and len(rows):
+            table = table[table[:, 0] >= table[-1, 0] - last_seconds]
+        data = {}
+        for j, c in enumerate(cols):
+            data[c] = table[:, j] if c == "t" or c in ("mx", "my", "mz") or c not in SENSOR_FIELDS + ("seq",) \
+                else table[:, j].astype(np.int64)
+        return Recording(self._file_meta(final=True), data, self.out)
+
+    def _finish_file(self):
+        if self._file is None:
+            return
+        self._file.close()
+        self._file = None
+        if self.stats.samples:  # rewrite with the statistics and phases (atomically)
+            tmp = self.out.with_name(self.out.name + ".tmp")
+            save_recording(self.recording(), tmp)
+            os.replace(tmp, self.out)
+        if isinstance(self.error, BoardDisconnectedError):
+            self.error = BoardDisconnectedError(f"{self.error}, after {self.stats.samples} samples "
+                                                f"({self.stats.duration_s:.2f} s); every sample received is saved in {self.out}")
+
+
+def capture(port="auto", seconds=10.0, out=None, baud=DEFAULT_BAUD, progress=None, **options) -> Recording:
+    """Record ``seconds`` of board time from ``port`` into ``out`` and return the Recording.
+
+    ``progress(fraction, recorder)`` is called about ten times a second. Other keyword
+    arguments go to :class:`Recorder` (``virtual=dict(motion=…)``, ``phases=…``, timeouts).
+    Raises :class:`CaptureError` subclasses with what to do; on a disconnect the file keeps
+    every sample received.
+    """
+    rec = Recorder(port, baud, out, seconds=seconds, **options)
+    with rec:
+        while not rec.wait(0.1):
+            if progress is not None:
+                progress(min(rec.elapsed / seconds, 1.0), rec)
+        if progress is not None and rec.error is None:
+            progress(1.0, rec)
+    return rec.recording()

@@ -1,0 +1,319 @@
+"""A virtual board: the IMU simulator streaming protocol v1 to a pseudo-terminal.
+
+``VirtualBoard`` opens a pty (``os.openpty``): the slave end is a real tty (``.port``, e.g.
+``/dev/pts/5``) that pyserial, ``screen`` or ``kfkit capture --port`` open by path; a thread
+writes lines to the master end at the board's real rate. Like an Arduino that resets when
+its port opens, it starts (header, then ``seq`` 0) when the host sends its first byte;
+afterwards ``h`` re-sends the header and ``s`` stops/starts streaming.
+
+Faults (``faults=`` dict; positions count every sample the board makes, from 0, across resets;
+a list of positions or a probability per sample, drawn from ``seed``):
+
+| key         | what the board does at that sample                                      |
+| ----------- | ----------------------------------------------------------------------- |
+| corrupt     | changes one digit of the line (bad checksum)                              |
+| drop        | does not send the line (a ``seq`` gap)                                    |
+| truncate    | sends half the line (malformed)                                           |
+| reset       | reboots before it: header again, ``seq`` and ``t_us`` restart             |
+| disconnect  | (a position) closes the pty, as if unplugged                              |
+| garbage     | (True) sends random bytes at the line rate, as a wrong baud rate looks    |
+| silent      | (True) sends nothing at all, as a board without the sketch                |
+"""
+from __future__ import annotations
+
+import fcntl
+import os
+import select
+import sys
+import termios
+import threading
+import time
+import tty
+
+import numpy as np
+
+from .. import sim
+from ..frames import G
+from ..sensors import board as get_board
+from ..filters.tilt import TiltAttitude
+from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_message, encode_sample
+
+FAULT_KINDS = ("corrupt", "drop", "truncate", "reset", "disconnect", "garbage", "silent")
+BOOT_US = 1500  # micros() when a sketch sends its first sample after a reset
+
+
+def board_fields(b) -> tuple:
+    """The sample fields a kfkit sketch sends for board ``b`` (see firmware/*/README.md)."""
+    fields = ("t_us", "seq", "ax", "ay", "az", "gx", "gy", "gz")
+    return fields + ("mx", "my", "mz", "mag_new") if b.mag is not None else fields
+
+
+def board_header(b, rate_hz: float) -> bytes:
+    """The ``#KFKIT`` header the sketch for board ``b`` sends."""
+    params = {"accel_fs_g": round(b.accel.full_scale / G), "gyro_fs_dps": round(np.degrees(b.gyro.full_scale))}
+    if b.mag is not None:
+        params["mag_rate_hz"] = f"{b.mag_rate_hz or rate_hz:g}"
+    return encode_header(b.name, rate_hz, board_fields(b), **params)
+
+
+def _positions(spec):
+    """A fault spec → a set of positions (list) or a probability (float)."""
+    if spec is None or spec is False:
+        return set()
+    if isinstance(spec, float):
+        if not 0.0 <= spec <= 1.0:
+            raise ValueError(f"a fault probability must be in [0, 1], got {spec}")
+        return spec
+    return {int(p) for p in ([spec] if isinstance(spec, (int, np.integer)) else spec)}
+
+
+class VirtualBoard:
+    """A simulated board on a pty. Use as a context manager; ``.port`` is the tty path.
+
+    rate_hz      sample rate, Hz (default: the motion's, else the board's: 104 Nucleo, 100 MPU6050)
+    board        "nucleo-iks02a1" or "mpu6050" (kfkit.sensors.BOARDS)
+    motion       a sim.Motion to play (looped when ``loop``), or None: at rest, level, forever
+    faults       dict, see the module docstring
+    seed         seeds the sensor noise, biases and random faults
+    realtime     False: send as fast as the host reads (tests, benchmarks)
+    start_us     micros() of the first sample (set near 2³² to exercise the wrap)
+    sim_options  extra keyword arguments for ``sim.simulate_imu``
+    extra_lines  callables ``f(board, n, truth_euler) → bytes | None`` adding lines of other
+                 kinds after sample ``n`` (e.g. ``$ATT,…`` from the tilt firmware)
+    attitude     True: behave like ``firmware/mpu6050_tilt_kf``, adding ``$ATT,roll_deg,pitch_deg*HH``
+                 after each sample, computed from the sample's counts by the Python reference
+                 ``kfkit.filters.TiltAttitude`` (none during the first 2 s: gyro bias), and
+                 ``messages=ATT`` in the header
+    """
+
+    def __init__(self, rate_hz=None, board="nucleo-iks02a1", motion=None, faults=None, seed=0, *,
+                 realtime=True, loop=True, start_us=0, chunk_s=1.0, sim_options=None, extra_lines=(),
+                 attitude=False):
+        self.board = get_board(board) if isinstance(board, str) else board
+        if motion is not None and rate_hz is not None and abs(float(rate_hz) - motion.rate_hz) > 1e-9:
+            raise ValueError(f"rate_hz={rate_hz} differs from the motion's rate {motion.rate_hz} Hz")
+        self.rate_hz = float(rate_hz or (motion.rate_hz if motion is not None else self.board.rate_hz))
+        self.motion, self.loop, self.realtime = motion, loop, realtime
+        self.seed, self.start_us, self.chunk_s = seed, int(start_us), chunk_s
+        self.sim_options = dict(sim_options or {})
+        self.extra_lines = list(extra_lines)
+        faults = dict(faults or {})
+        unknown = set(faults) - set(FAULT_KINDS)
+        if unknown:
+            raise ValueError(f"unknown fault kind(s) {', '.join(sorted(unknown))}; known: {', '.join(FAULT_KINDS)}")
+        self._rng = np.random.default_rng(seed)
+        self.faults = {k: _positions(faults.get(k)) for k in ("corrupt", "drop", "truncate", "reset")}
+        self.disconnect_at = faults.get("disconnect")
+        self.garbage, self.silent = bool(faults.get("garbage")), bool(faults.get("silent"))
+        self.header = board_header(self.board, self.rate_hz)
+        self.attitude = bool(attitude)
+        if self.attitude:
+            self.header = self.header.rstrip(b"\n") + b",messages=ATT\n"
+        self.fields = board_fields(self.board)
+        self.samples_made = 0  # every sample generated, sent or not
+        self._paused_us = 0  # time spent stopped by 's' (micros() runs on)
+        self.lines_sent = 0
+        self.connected = False
+        self._master = self._slave = None
+        self._thread = None
+        self._stop = threading.Event()
+        self.port = None
+
+    # -- life cycle ------------------------------------------------------------------------------
+    def start(self) -> "VirtualBoard":
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)  # no echo, no line editing: bytes pass unchanged
+        os.set_blocking(self._master, False)
+        self.port = os.ttyname(self._slave)
+        self._thread = threading.Thread(target=self._run, name=f"kfkit-virtual-board {self.port}", daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self):
+        """Stop the thread and close the pty (idempotent)."""
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(5.0)
+        self._close_fds()
+
+    def _close_fds(self):
+        for name in ("_master", "_slave"):
+            fd = getattr(self, name)
+            if fd is not None:
+                setattr(self, name, None)
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+
+    def __enter__(self):
+        return self.start() if self._thread is None else self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __repr__(self):
+        return f"VirtualBoard({self.board.name}, {self.rate_hz:g} Hz, port={self.port})"
+
+    # -- samples -----------------------------------------------------------------------------------
+    def _chunks(self):
+        """Yield (counts (n, k) int, truth euler (n, 3)) chunks of the sample rows, forever or once."""
+        b, rate = self.board, self.rate_hz
+        rng = np.random.default_rng(self.seed)
+        biases = {"gyro_bias": rng.normal(0.0, b.gyro.bias_typical / 2, 3),
+                  "accel_bias": rng.normal(0.0, b.accel.bias_typical / 2, 3)}
+        mag_rate = b.mag_rate_hz or rate
+        last_mag, chunk_index = np.zeros(3), 0
+        while True:
+            total = len(self.motion.t) if self.motion is not None else None
+            start = 0
+            while total is None or start < total:
+                n = int(round(self.chunk_s * rate)) if total is None else min(int(round(self.chunk_s * rate)), total - start)
+                if self.motion is None:
+                    m = sim.stationary(n / rate, rate)
+                    m.t = (start + np.arange(n)) / rate
+                else:
+                    s = slice(start, start + n)
+                    m = sim.Motion(self.motion.t[s], rate, self.motion.euler[s], self.motion.omega_b[s], self.motion.acc_n[s])
+                rec = sim.simulate_imu(m, board=b, seed=self.seed + 1 + chunk_index, mag_rate_hz=mag_rate,
+                                       **biases, **self.sim_options)
+                cols = [rec[c].astype(np.int64) for c in ("ax", "ay", "az", "gx", "gy", "gz")]
+                if b.mag is not None:
+                    k = start + np.arange(n)
+                    tick = np.floor(k * mag_rate / rate + 1e-9)
+                    fresh = tick != np.floor((k - 1) * mag_rate / rate + 1e-9)
+                    mag = rec.counts("mag")
+                    for i in range(n):  # the sketch repeats the last reading, flagged mag_new = 0
+                        if fresh[i]:
+                            last_mag = mag[i] if np.all(np.isfinite(mag[i])) else last_mag
+                        mag[i] = last_mag
+                    cols += [mag[:, j].astype(np.int64) for j in range(3)] + [fresh.astype(np.int64)]
+                yield np.column_stack(cols), rec.truth()
+                start += n
+                chunk_index += 1
+            if not self.loop:
+                return
+
+    def _is_fault(self, kind, n) -> bool:
+        spec = self.faults[kind]
+        return self._rng.random() < spec if isinstance(spec, float) else n in spec
+
+    def _corrupt(self, line: bytes) -> bytes:
+        star = line.rindex(b"*")
+        digits = [i for i in range(1, star) if 48 <= line[i] <= 57]
+        i = digits[int(self._rng.integers(len(digits)))]
+        new = 48 + (line[i] - 48 + 1 + int(self._rng.integers(9))) % 10  # a different digit
+        return line[:i] + bytes([new]) + line[i + 1:]
+
+    def _lines(self):
+        """Yield (n, bytes to send) per sample made, applying the faults."""
+        since_reset, boot_us = 0, self.start_us
+        tilt = TiltAttitude(self.board, self.rate_hz) if self.attitude else None
+        for counts, truth in self._chunks():
+            for row, euler in zip(counts, truth):
+                n = self.samples_made
+                if self.disconnect_at is not None and n >= self.disconnect_at:
+                    return
+                out = b""
+                if self._is_fault("reset", n):
+                    since_reset, boot_us = 0, BOOT_US
+                    out += self.header
+                    tilt = TiltAttitude(self.board, self.rate_hz) if self.attitude else None
+                t_us = (boot_us + round(since_reset * 1e6 / self.rate_hz) + self._paused_us) % MICROS_MODULO
+                line = encode_sample((t_us, since_reset % SEQ_MODULO, *row.tolist()))
+                since_reset += 1
+                self.samples_made += 1
+                if self._is_fault("drop", n):
+                    line = b""
+                elif self._is_fault("corrupt", n):
+                    line = self._corrupt(line)
+                elif self._is_fault("truncate", n):
+                    line = line[: len(line) // 2] + b"\n"
+                out += line
+                angles = tilt.update(row[:3], row[3:6]) if tilt is not None else None
+                if angles is not None:
+                    out += encode_message("ATT", np.degrees(angles))
+                for extra in self.extra_lines:
+                    out += extra(self.board, n, euler) or b""
+                yield n, out
+
+    # -- the thread ----------------------------------------------------------------------------------
+    def _run(self):
+        streaming, lines = False, None
+        pending = bytearray()
+        t0 = 0.0
+        paused_at = None
+        try:
+            while not self._stop.is_set():
+                for c in self._read_commands():
+                    if not self.connected:  # first contact: the board (re)starts, as on a DTR reset
+                        self.connected, streaming = True, True
+                        lines, t0 = self._lines(), time.monotonic()
+                        pending += b"" if self.silent else self.header
+                    elif c == ord("h") and not self.silent:
+                        pending += self.header
+                    elif c == ord("s"):
+                        streaming = not streaming
+                        if streaming and paused_at is not None:
+                            gap = time.monotonic() - paused_at
+                            t0 += gap
+                            self._paused_us += int(gap * 1e6)
+                        paused_at = None if streaming else time.monotonic()
+                if streaming and lines is not None and not self.silent:
+                    due = int((time.monotonic() - t0) * self.rate_hz) + 1 if self.realtime else self.samples_made + 64
+                    while self.samples_made < due and len(pending) < 65536:
+                        try:
+                            n, out = next(lines)
+                        except StopIteration:
+                            if self.disconnect_at is not None and self.samples_made >= self.disconnect_at:
+                                self._flush(pending, wait=0.01)
+                                self._drain()
+                                self._close_fds()  # unplugged
+                                return
+                            lines = None
+                            break
+                        if self.garbage:
+                            out = self._rng.integers(0, 256, len(out), dtype=np.uint8).tobytes()
+                        pending += out
+                        self.lines_sent += bool(out)
+                if pending:
+                    self._flush(pending, wait=0.0 if self.realtime else 0.01)
+                self._stop.wait(min(0.5 / self.rate_hz, 0.005) if streaming else 0.01)
+        except OSError:  # the pty went away under us (closed from outside)
+            pass
+
+    def _drain(self, timeout=2.0):
+        """Wait until the host has read what was sent (a pty drops unread bytes when it closes)."""
+        deadline = time.monotonic() + timeout
+        empty_since = None
+        while time.monotonic() < deadline and not self._stop.is_set():
+            waiting = int.from_bytes(fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0"), sys.byteorder)
+            now = time.monotonic()
+            if waiting:
+                empty_since = None
+            elif empty_since is None:
+                empty_since = now
+            elif now - empty_since > 0.05:  # empty for 50 ms: the kernel's pty buffers were pushed and read
+                return
+            time.sleep(0.002)
+
+    def _read_commands(self) -> bytes:
+        if self._master is None:
+            return b""
+        try:
+            return os.read(self._master, 256)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError:  # EIO: nobody has the port open
+            return b""
+
+    def _flush(self, pending: bytearray, wait=0.0):
+        """Write as much of ``pending`` as the pty takes (keeps the rest: no line is lost)."""
+        while pending and self._master is not None and not self._stop.is_set():
+            try:
+                n = os.write(self._master, pending)
+            except BlockingIOError:
+                if not select.select([], [self._master], [], wait or 0.001)[1] and not wait:
+                    return
+                continue
+            del pending[:n]

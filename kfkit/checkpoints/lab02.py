@@ -1,0 +1,191 @@
+"""Checkpoints of lab 02 (bias and noise)."""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import calibration, datasets
+from ..frames import G, mount_matrix
+from . import Case, Checkpoint, compare, register
+
+N_SIGMA = 4.0  # estimates on the bundled recording must lie within 4 standard uncertainties of the truth
+
+
+def _rest(rng, n, bias, sigma):
+    return bias + rng.normal(0.0, sigma, (n, 3))
+
+
+def _gyro_bias_cases(rng):
+    cases = []
+    for _ in range(8):
+        gyr = _rest(rng, int(rng.integers(5, 400)), rng.normal(0, 0.02, 3), 10 ** rng.uniform(-4, -2))
+        cases.append(Case({"gyr": gyr}, calibration.gyro_bias(gyr), f"a rest of {len(gyr)} samples"))
+    return cases
+
+
+def _noise_cases(rng):
+    cases = []
+    for _ in range(8):
+        x = _rest(rng, int(rng.integers(5, 400)), rng.normal(0, 1, 3), 10 ** rng.uniform(-4, -1))
+        cases.append(Case({"x": x}, calibration.noise_std(x), f"a rest of {len(x)} samples"))
+    return cases
+
+
+def _judge_noise(case, got):
+    problem = compare(case.expected, got, rtol=1e-6)
+    if problem is None or "shape" in problem:
+        return problem
+    x = case.args["x"]
+    if np.allclose(np.asarray(got, float), x.std(axis=0, ddof=0), rtol=1e-9):
+        return problem + " — that is the population std (ddof=0); use the sample std (ddof=1)"
+    return problem
+
+
+def _accel_bias_cases(rng):
+    cases = []
+    for _ in range(8):
+        expected = G * np.eye(3)[rng.integers(3)] * rng.choice([-1, 1])
+        acc = _rest(rng, int(rng.integers(5, 300)), expected + rng.normal(0, 0.1, 3), 0.01)
+        cases.append(Case({"acc": acc, "expected": expected}, calibration.accel_bias(acc, expected),
+                          f"a rest of {len(acc)} samples with expected specific force {np.round(expected, 3).tolist()}"))
+    return cases
+
+
+def _judge_accel_bias(case, got):
+    problem = compare(case.expected, got, atol=1e-9)
+    if problem is None or "shape" in problem:
+        return problem
+    if np.allclose(np.asarray(got, float), case.args["acc"].mean(axis=0), atol=1e-9):
+        return problem + " — you returned the whole mean: gravity is still in it"
+    return problem
+
+
+def random_faces(rng, bias, scale, n=50, sigma=0.01):
+    """Six labelled rests of an accelerometer with per-axis ``bias`` (m/s²) and ``scale``."""
+    faces = {}
+    for i, axis in enumerate("xyz"):
+        for sign, word in ((1, "up"), (-1, "down")):
+            f = np.zeros(3)
+            f[i] = sign * G
+            faces[f"{axis}_{word}"] = _rest(rng, n, scale * f + bias, sigma)
+    return faces
+
+
+def _six_face_cases(rng):
+    cases = []
+    for _ in range(6):
+        faces = random_faces(rng, rng.normal(0, 0.1, 3), 1 + rng.normal(0, 0.01, 3), n=int(rng.integers(10, 100)))
+        cases.append(Case({"faces": faces}, calibration.accel_six_face(faces), "six random faces"))
+    return cases
+
+
+def _allan_cases(rng):
+    cases = []
+    for _ in range(5):
+        n, rate = int(rng.integers(200, 2000)), float(rng.choice([12.5, 100.0, 104.0]))
+        x = rng.normal(0, 1e-3, n) + np.cumsum(rng.normal(0, 1e-5, n))
+        taus = np.unique(np.round(np.logspace(0, np.log10(n / 4), 8))) / rate
+        cases.append(Case({"x": x, "rate_hz": rate, "taus": taus}, calibration.allan_deviation(x, rate, taus)[1],
+                          f"{n} samples at {rate:g} Hz, {len(taus)} values of τ"))
+    return cases
+
+
+def _judge_allan(case, got):
+    problem = compare(case.expected, got, rtol=1e-6, atol=0)
+    if problem is None or "shape" in problem:
+        return problem
+    ratio = np.asarray(got, float) / case.expected
+    if np.allclose(ratio, ratio[0], rtol=1e-3):
+        return problem + f" — off by a constant factor {ratio[0]:.3g}: check the 1/(2τ²(N − 2m)) normalisation"
+    return problem
+
+
+def _rate_cases(rng):
+    return [Case(args, calibration.noise_at_rate(**args)) for args in (
+        {"sigma": 10 ** rng.uniform(-5, -1, 3), "rate_from": float(rng.choice([12.5, 26.0, 52.0])),
+         "rate_to": float(rng.choice([100.0, 104.0, 208.0]))} for _ in range(6))]
+
+
+# --- estimates on the bundled recordings ----------------------------------------------------------
+
+def gyro_bias_truth(rec):
+    """The simulation's gyro bias in the body frame (rad/s) and the standard uncertainty of a mean
+    over the recording: √(σ²/N + K²T/3), white noise σ plus a bias random walk of density K."""
+    sim = rec.meta["sim"]
+    truth = mount_matrix(rec.meta["mount"]["gyr"]) @ np.asarray(sim["gyro_bias"])
+    sigma = rec.body("gyr").std(axis=0, ddof=1)
+    T = len(rec) / rec.rate_hz
+    return truth, np.sqrt(sigma**2 / len(rec) + sim.get("gyro_bias_rw", 0.0) ** 2 * T / 3)
+
+
+def _bias_recording_cases(rng):
+    rec = datasets.load("02_stationary")
+    truth, u = gyro_bias_truth(rec)
+    return [Case({"gyr": rec.body("gyr")}, (truth, u), "the bundled recording 02_stationary")]
+
+
+def _judge_within(case, got, unit=""):
+    truth, u = case.expected
+    try:
+        g = np.asarray(got, dtype=float)
+    except (TypeError, ValueError):
+        return f"expected an array of 3 values, got {type(got).__name__}"
+    if g.shape != truth.shape:
+        return f"expected shape {truth.shape}, got {g.shape}"
+    z = np.abs(g - truth) / u
+    if np.all(z <= N_SIGMA):
+        return None
+    return (f"the true value is {np.round(truth, 6).tolist()}{unit}, yours {np.round(g, 6).tolist()}: "
+            f"{z.max():.0f} standard uncertainties away (allowed {N_SIGMA:g})")
+
+
+def six_face_truth(rec):
+    """The simulation's accelerometer bias (body, m/s²) and scale, with standard uncertainties."""
+    sim = rec.meta["sim"]
+    M = mount_matrix(rec.meta["mount"]["acc"])
+    bias = M @ np.asarray(sim["accel_bias"])
+    scale = np.abs(M) @ np.asarray(sim.get("accel_scale", [1.0, 1.0, 1.0]))
+    acc = rec.body("acc")
+    n = min(int(rec.phase(f).sum()) for f in calibration.FACES)
+    sigma = np.mean([acc[rec.phase(f)].std(axis=0, ddof=1) for f in calibration.FACES], axis=0)
+    T = len(rec) / rec.rate_hz
+    walk = sim.get("accel_bias_rw", 0.0) * np.sqrt(T / 3)
+    tilt = G * (1 - np.cos(np.radians(1.5)))  # faces tilted by up to ~3σ of the 0.5° table error
+    u_bias = np.sqrt(sigma**2 / (2 * n) + walk**2) + tilt / N_SIGMA
+    return bias, scale, u_bias, u_bias / G
+
+
+def _six_face_recording_cases(rng):
+    rec = datasets.load("02_six_faces")
+    faces = {f: rec.body("acc")[rec.phase(f)] for f in calibration.FACES}
+    return [Case({"faces": faces}, six_face_truth(rec), "the bundled recording 02_six_faces")]
+
+
+def _judge_six_face_recording(case, got):
+    bias, scale, u_b, u_s = case.expected
+    if not isinstance(got, (tuple, list)) or len(got) != 2:
+        return f"expected (bias, scale), got {type(got).__name__}"
+    return _judge_within(Case({}, (bias, u_b)), got[0], " m/s² (bias)") or _judge_within(Case({}, (scale, u_s)), got[1], " (scale)")
+
+
+register(
+    Checkpoint("02.gyro_bias", "gyro_bias", _gyro_bias_cases, lambda c, got: compare(c.expected, got, atol=1e-12), points=1,
+               hint="at rest the true rate is zero, so what is left on average, per axis, is the bias."),
+    Checkpoint("02.noise_std", "noise_std", _noise_cases, _judge_noise, points=1,
+               hint="the spread about the mean, per axis (axis=0), with the N − 1 of a sample standard deviation."),
+    Checkpoint("02.accel_bias", "accel_bias", _accel_bias_cases, _judge_accel_bias, points=1,
+               hint="at rest the accelerometer reads the specific force of the pose plus the bias."),
+    Checkpoint("02.six_face", "six_face", _six_face_cases, lambda c, got: compare(c.expected, got, rtol=1e-9, atol=1e-12),
+               points=2, hint="axis i reads s·g + b pointing up and −s·g + b pointing down: add and subtract the two means "
+                              "of that axis's component. Return (bias, scale), each of shape (3,)."),
+    Checkpoint("02.allan_deviation", "allan_deviation", _allan_cases, _judge_allan, points=2,
+               hint="integrate to θ = cumsum(x)/rate (start at 0), then for each τ = m/rate use every overlapping "
+                    "difference θ[k+2m] − 2θ[k+m] + θ[k]."),
+    Checkpoint("02.sigma_at_rate", "sigma_at_rate", _rate_cases, lambda c, got: compare(c.expected, got), points=1,
+               hint="the density N = σ/√rate is the sensor's; the per-sample σ at another rate follows from it."),
+    Checkpoint("02.gyro_bias_recording", "gyro_bias", _bias_recording_cases, _judge_within, points=1,
+               what="bundled recording",
+               hint="use the whole rest: the uncertainty of a mean shrinks as σ/√N, until the bias's own wander dominates."),
+    Checkpoint("02.six_face_recording", "six_face", _six_face_recording_cases, _judge_six_face_recording, points=1,
+               what="bundled recording",
+               hint="if 02.six_face passes, check that each face's samples come from its own phase."),
+)

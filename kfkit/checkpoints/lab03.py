@@ -1,0 +1,172 @@
+"""Checkpoints of lab 03 (magnetometer alignment, calibration and heading)."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .. import calibration, datasets
+from ..frames import MAG_FIELD_LONDON, accel_tilt, declination, mag_heading, tilt_compensated_heading, wrap_angle
+from ..sensors import iis2mdc_mag
+from . import Case, Checkpoint, compare, register
+
+HEADING_LIMIT_DEG = 2.0  # RMS heading error allowed after calibration on the bundled recording
+PROPER_SIGNS = [np.diag(d) for d in ([1, 1, 1], [-1, 1, -1], [-1, -1, 1], [1, -1, -1])]  # det +1
+
+
+def _counts_cases(rng):
+    sens = iis2mdc_mag().sensitivity
+    return [Case({"counts": c}, c * sens, f"{c.shape[0]} random count triples")
+            for c in (rng.integers(-3000, 3000, (int(rng.integers(1, 20)), 3)) for _ in range(6))]
+
+
+def _judge_counts(case, got):
+    problem = compare(case.expected, got)
+    if problem is None or "shape" in problem:
+        return problem
+    ratio = np.asarray(got, float).ravel() / np.where(case.expected == 0, np.nan, case.expected).ravel()
+    r = np.nanmedian(ratio)
+    if np.isclose(r, 0.01) or np.isclose(r, 1e-3) or np.isclose(r, 10.0):
+        return problem + f" — off by ×{r:g}: 1 gauss = 100 µT and 1 mG = 0.1 µT"
+    return problem
+
+
+def turn_angles(rng, sense, n=200):
+    """A turn out by α and back (gyro angle, rad) and what a magnetometer sees (distorted, sign ``sense``)."""
+    alpha = rng.uniform(np.radians(45), np.radians(120)) * rng.choice([-1, 1])
+    s = np.sin(np.linspace(0, np.pi, n)) ** 2
+    gyro = alpha * s
+    mag = sense * alpha * s * rng.uniform(0.5, 1.6) + rng.normal(0, 0.02, n)  # hard iron distorts the size
+    return gyro, mag
+
+
+def _alignment_cases(rng):
+    cases = []
+    for D in PROPER_SIGNS + [PROPER_SIGNS[k] for k in rng.integers(0, 4, 4)]:
+        turns = {axis: turn_angles(rng, D[i, i]) for i, axis in enumerate("xyz")}
+        cases.append(Case({"turns": turns}, D, f"turns whose magnetometer senses are {np.diag(D).astype(int).tolist()}"))
+    return cases
+
+
+def random_ellipsoid(rng, n=400, field_norm=None, noise=0.05):
+    """Readings (n, 3) µT of a field of magnitude B seen from all directions through a random soft iron
+    W (symmetric, eigenvalues 0.7–1.3) and hard iron h (±30 µT), with white noise; returns (mag, h, W)."""
+    B = float(np.linalg.norm(MAG_FIELD_LONDON)) if field_norm is None else field_norm
+    u = Rotation.random(n, random_state=rng).apply([1.0, 0.0, 0.0])
+    V = Rotation.random(random_state=rng).as_matrix()
+    W = V @ np.diag(rng.uniform(0.7, 1.3, 3)) @ V.T
+    h = rng.uniform(-30, 30, 3)
+    return B * u @ W.T + h + rng.normal(0, noise, (n, 3)), h, W
+
+
+def _ellipsoid_cases(rng):
+    cases = []
+    for _ in range(6):
+        mag, h, W = random_ellipsoid(rng)
+        cases.append(Case({"mag": mag}, calibration.fit_mag_calibration(mag), "a random ellipsoid of 400 readings"))
+    return cases
+
+
+def _judge_ellipsoid(case, got):
+    problem = compare(case.expected, got, rtol=1e-4, atol=1e-4)
+    if problem is None or "values" in problem:
+        return problem
+    try:
+        h, S = (np.asarray(g, dtype=float) for g in got)
+        norms = np.linalg.norm((case.args["mag"] - h) @ S.T, axis=1)
+    except (TypeError, ValueError) as e:
+        return f"expected (hard_iron (3,), soft_iron (3, 3)), got something else ({e})"
+    B = np.linalg.norm(MAG_FIELD_LONDON)
+    if np.allclose(h, case.expected[0], atol=1e-3) and not np.allclose(np.mean(norms), B, rtol=1e-3):
+        return problem + f" — the hard iron is right but calibrated norms average {np.mean(norms):.2f} µT, not {B:.2f}"
+    if not np.allclose(S, S.T, atol=1e-9):
+        return problem + " — S is not symmetric: take the symmetric square root (eigh)"
+    return problem
+
+
+def _heading_cases(rng):
+    cases = []
+    for _ in range(10):
+        roll, pitch, yaw = rng.uniform(-1.2, 1.2), rng.uniform(-1.2, 1.2), rng.uniform(-np.pi, np.pi)
+        m_b = Rotation.from_euler("ZYX", [yaw, pitch, roll]).inv().apply(MAG_FIELD_LONDON)  # R_bn m_n
+        decl = float(rng.choice([0.0, declination()]))  # 0: magnetic heading; D: true heading
+        cases.append(Case({"m_b": m_b, "roll": roll, "pitch": pitch, "declination": decl},
+                          wrap_angle(yaw - declination() + decl)))
+    return cases
+
+
+def _flat_cases(rng):
+    cases = []
+    for yaw in np.concatenate([[0.0, np.pi / 2, np.pi, -np.pi / 2], rng.uniform(-np.pi, np.pi, 6)]):
+        m_b = Rotation.from_euler("Z", yaw).inv().apply(MAG_FIELD_LONDON)
+        cases.append(Case({"m_b": m_b}, mag_heading(m_b)))
+    return cases
+
+
+def _judge_heading(case, got):
+    try:
+        g = float(np.asarray(got, dtype=float))
+    except (TypeError, ValueError):
+        return f"expected one angle in rad, got {type(got).__name__}"
+    err = wrap_angle(g - case.expected)
+    if abs(err) < 1e-6:
+        return None
+    text = f"expected {case.expected:.4f} rad, got {g:.4f}"
+    if abs(abs(err) - np.pi) < 1e-6:
+        return text + " — exactly 180° off: both atan2 arguments have the wrong sign"
+    if abs(wrap_angle(g + case.expected)) < 1e-6:
+        return text + " — the heading turns the wrong way: check the sign of m_y"
+    return text
+
+
+# --- the bundled recordings ------------------------------------------------------------------------
+
+def heading_errors(hard_iron, soft_iron):
+    """RMS heading error (rad) on 03_headings's rests with a magnetometer calibration (h, S):
+    tilt-compensated, roll and pitch from the (reference-)calibrated accelerometer, declination added."""
+    rec = datasets.load("03_headings")
+    ref = calibration.load_calibration(rec.meta["board"], path=datasets.data_dir() / f"calibration_{rec.meta['board']}.json")
+    _, acc, _ = ref.apply(rec)
+    mag = calibration.apply_mag_calibration(rec.body("mag"), hard_iron, soft_iron)
+    rest = (rec.phase("heading_flat") | rec.phase("heading_tilted")) & np.isfinite(mag[:, 0])
+    roll, pitch = accel_tilt(acc[rest])
+    psi = tilt_compensated_heading(mag[rest], roll, pitch, declination())
+    return float(np.sqrt(np.mean(wrap_angle(psi - rec["true_yaw"][rest]) ** 2)))
+
+
+def _calibration_recording_cases(rng):
+    rec = datasets.load("03_mag_rotations")
+    mag = rec.body("mag")
+    before = heading_errors(np.zeros(3), np.eye(3))
+    return [Case({"mag": mag[np.isfinite(mag[:, 0])]}, before, "the bundled recordings 03_mag_rotations → 03_headings")]
+
+
+def _judge_heading_recording(case, got):
+    try:
+        h, S = (np.asarray(g, dtype=float) for g in got)
+        after = heading_errors(h, S)
+    except (TypeError, ValueError) as e:
+        return f"expected (hard_iron (3,), soft_iron (3, 3)), got something else ({e})"
+    if np.degrees(after) < HEADING_LIMIT_DEG:
+        return None
+    return (f"RMS heading error {np.degrees(after):.1f}° after your calibration (uncalibrated: "
+            f"{np.degrees(case.expected):.1f}°), allowed {HEADING_LIMIT_DEG:g}°")
+
+
+register(
+    Checkpoint("03.counts_to_ut", "counts_to_ut", _counts_cases, _judge_counts, points=1,
+               hint="the IIS2MDC gives 1.5 mG per count; convert gauss to µT."),
+    Checkpoint("03.alignment", "alignment_from_turns", _alignment_cases, lambda c, got: compare(c.expected, got), points=2,
+               hint="per axis, does the magnetometer's angle go the same way as the gyro's (+1) or the opposite way "
+                    "(−1)? Compare signs over the whole turn (e.g. the sign of Σ gyro·mag), not the sizes."),
+    Checkpoint("03.mag_calibration", "mag_calibration", _ellipsoid_cases, _judge_ellipsoid, points=3,
+               hint="fit the quadric [x², y², z², 2xy, 2xz, 2yz, x, y, z, 1]·p = 0 (last right singular vector), "
+                    "h = −Q⁻¹p_lin/2, A = Q/(hᵀQh − c), S = B·A^½ from eigh."),
+    Checkpoint("03.flat_heading", "flat_heading", _flat_cases, _judge_heading, points=1,
+               hint="level, m_x = B_h cos ψ and m_y = −B_h sin ψ."),
+    Checkpoint("03.tilt_heading", "tilt_heading", _heading_cases, _judge_heading, points=2,
+               hint="de-rotate by roll (about x) then pitch (about y) into the level frame, then use the flat formula "
+                    "and add the declination."),
+    Checkpoint("03.heading_error", "mag_calibration", _calibration_recording_cases, _judge_heading_recording, points=2,
+               what="bundled recording",
+               hint="if 03.mag_calibration passes, check that you pass only rows with a magnetometer sample (no NaN)."),
+)

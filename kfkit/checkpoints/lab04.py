@@ -1,0 +1,252 @@
+"""Checkpoints of lab 04 (attitude with an Euler-angle EKF).
+
+Every expected value comes from kfkit's reference (:mod:`kfkit.filters.attitude`); the
+Jacobian is judged against central finite differences of kfkit's h(x), so any correct H passes.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import datasets
+from ..calibration import Calibration, bundled_calibration_path
+from ..filters.attitude import (EULER_ACCEL_NOISE, EULER_GYRO_NOISE, EULER_MAG_NOISE, attitude_jacobian,
+                                attitude_measurement, euler_ekf_predict, euler_ekf_update, euler_process_noise,
+                                euler_rates)
+from ..frames import MAG_FIELD_LONDON, wrap_angle
+from ..metrics import angle_error, rmse
+from . import Case, Checkpoint, compare, fmt, register
+
+RECORDING = "04_attitude_tour"
+BOARD = "nucleo-iks02a1"
+#: the full filter must reach these RMSEs on the bundled recording (rad): roll, pitch, yaw
+RMSE_LIMITS = np.radians([1.0, 1.0, 2.0])
+ANGLES = ("roll", "pitch", "yaw")
+
+
+def _random_state(rng, max_pitch=np.radians(80.0)):
+    return np.array([rng.uniform(-np.pi, np.pi), rng.uniform(-max_pitch, max_pitch), rng.uniform(-np.pi, np.pi)])
+
+
+def _random_field(rng):
+    """A plausible Earth field in NED, µT: horizontal 15–35, down −50…60 (either hemisphere)."""
+    h, dec = rng.uniform(15.0, 35.0), rng.uniform(-0.3, 0.3)
+    return np.array([h * np.cos(dec), h * np.sin(dec), rng.uniform(-50.0, 60.0)])
+
+
+def _random_cov(rng, n, scale):
+    A = rng.normal(0.0, scale, (n, n))
+    return A @ A.T + np.eye(n) * scale ** 2
+
+
+# --- 04.euler_rates ---------------------------------------------------------------------------
+
+def _euler_rates_cases(rng):
+    cases = [Case({"euler": np.array([0.3, 0.0, 0.0]), "omega_b": np.array([0.0, 0.0, 0.5])},
+                  euler_rates([0.3, 0.0, 0.0], [0.0, 0.0, 0.5]), "euler_rates(φ = 17°, θ = 0, r = 0.5 rad/s)")]
+    for _ in range(11):
+        e, w = _random_state(rng), rng.normal(0.0, 1.0, 3)
+        cases.append(Case({"euler": e, "omega_b": w}, euler_rates(e, w)))
+    return cases
+
+
+def _judge_euler_rates(case, got):
+    problem = compare(case.expected, got)
+    if problem is None or "shape" in problem:
+        return problem
+    phi, theta = case.args["euler"][:2]
+    p, q, r = case.args["omega_b"]
+    u = q * np.sin(phi) + r * np.cos(phi)
+    if np.isclose(np.asarray(got, float)[2], u / np.cos(phi)) and not np.isclose(np.cos(phi), np.cos(theta)):
+        return problem + " — ψ̇ looks divided by cos φ: the widely copied mistake"
+    return problem
+
+
+# --- 04.predict -------------------------------------------------------------------------------
+
+def _predict_cases(rng):
+    cases = []
+    for i in range(12):
+        x = _random_state(rng)
+        if i == 0:
+            x[2] = np.pi - 1e-3  # yaw about to cross +180°
+        w = rng.normal(0.0, 1.0, 3)
+        if i == 0:
+            w = np.array([0.0, 0.0, 1.0]) / np.cos(x[1])  # turning right, so ψ passes +180°
+        dt = float(rng.choice([0.01, 1 / 104, 0.005]))
+        P = _random_cov(rng, 3, np.radians(rng.uniform(0.5, 5.0)))
+        Q = euler_process_noise(x, np.radians(rng.uniform(0.05, 1.0)), dt)
+        args = {"x": x, "P": P, "omega_b": w, "dt": dt, "Q": Q}
+        cases.append(Case(args, euler_ekf_predict(**args)))
+    return cases
+
+
+def _judge_predict(case, got):
+    problem = compare(case.expected, got, rtol=1e-6, atol=1e-9)
+    if problem is None or not isinstance(got, (tuple, list)) or len(got) != 2:
+        return problem
+    try:
+        x = np.asarray(got[0], dtype=float)
+    except (TypeError, ValueError):
+        return problem
+    want = case.expected[0]
+    if x.shape == (3,) and np.allclose(wrap_angle(x - want), 0.0, atol=1e-9) and not np.allclose(x, want):
+        return problem + " — the yaw is right but not wrapped to (−π, π]"
+    return problem
+
+
+# --- 04.measurement and 04.jacobian -------------------------------------------------------------
+
+def _measurement_cases(rng):
+    cases = [Case({"x": np.zeros(3), "field_n": np.array(MAG_FIELD_LONDON)},
+                  attitude_measurement(np.zeros(3), MAG_FIELD_LONDON), "measurement(level, facing north, London)")]
+    for _ in range(11):
+        x, m = _random_state(rng), _random_field(rng)
+        cases.append(Case({"x": x, "field_n": m}, attitude_measurement(x, m)))
+    return cases
+
+
+def finite_difference_jacobian(h, x, step=1e-6):
+    """∂h/∂x by central differences, (h(x + δeⱼ) − h(x − δeⱼ)) / 2δ, column by column."""
+    x = np.asarray(x, dtype=float)
+    columns = []
+    for j in range(len(x)):
+        d = np.zeros_like(x)
+        d[j] = step
+        columns.append((np.asarray(h(x + d)) - np.asarray(h(x - d))) / (2 * step))
+    return np.column_stack(columns)
+
+
+def _jacobian_cases(rng):
+    cases = []
+    for i in range(12):
+        x = np.zeros(3) if i == 0 else _random_state(rng)
+        m = np.array(MAG_FIELD_LONDON) if i == 0 else _random_field(rng)
+        cases.append(Case({"x": x, "field_n": m}, attitude_jacobian(x, m)))
+    return cases
+
+
+def _judge_jacobian(case, got):
+    """Against finite differences of kfkit's h(x) (any correct H passes); names the wrong column."""
+    x, m = case.args["x"], case.args["field_n"]
+    fd = finite_difference_jacobian(lambda v: attitude_measurement(v, m), x)
+    try:
+        H = np.asarray(got, dtype=float)
+    except (TypeError, ValueError):
+        return f"expected a 6×3 array, got {type(got).__name__}"
+    if H.shape != (6, 3):
+        return f"expected shape (6, 3), got shape {H.shape}"
+    bad = ~np.isclose(H, fd, rtol=1e-5, atol=1e-5)
+    if not bad.any():
+        return None
+    where = []
+    for j in np.flatnonzero(bad.any(axis=0)):
+        parts = [part for part, rows in (("accelerometer rows", slice(0, 3)), ("magnetometer rows", slice(3, 6)))
+                 if bad[rows, j].any()]
+        where.append(f"∂h/∂{'φθψ'[j]} ({', '.join(parts)})")
+    first = int(np.flatnonzero(bad.any(axis=0))[0])
+    return (f"columns {'; '.join(where)} differ from finite differences of h: "
+            f"expected {fmt(fd[:, first])}, got {fmt(H[:, first])}")
+
+
+# --- 04.numerical_jacobian --------------------------------------------------------------------
+
+def _numerical_jacobian_cases(rng):
+    cases = []
+    for i in range(4):
+        A, b = rng.normal(0.0, 3.0, (4, 3)), rng.normal(0.0, 1.0, 4)
+        x = rng.normal(0.0, 1.0, 3)
+        cases.append(Case({"h": (lambda v, A=A, b=b: A @ v + b), "x": x}, A, f"a linear h(x) = A x + b (4×3, case {i + 1})"))
+    for i in range(8):
+        x, m = _random_state(rng), _random_field(rng)
+        cases.append(Case({"h": (lambda v, m=m: attitude_measurement(v, m)), "x": x}, attitude_jacobian(x, m),
+                          f"kfkit's attitude h(x) at x = {fmt(x)}"))
+    return cases
+
+
+def _judge_numerical_jacobian(case, got):
+    problem = compare(case.expected, got, rtol=1e-5, atol=1e-5)
+    if problem is not None and "shape" in problem:
+        return problem + " — one row per output of h, one column per state"
+    return problem
+
+
+# --- 04.update --------------------------------------------------------------------------------
+
+def _update_cases(rng):
+    cases = []
+    for i in range(12):
+        x_true, m = _random_state(rng), _random_field(rng)
+        x = x_true + rng.normal(0.0, np.radians(3.0), 3)
+        x[2] = wrap_angle(x[2])
+        P = _random_cov(rng, 3, np.radians(rng.uniform(1.0, 5.0)))
+        sa, sm = rng.uniform(0.05, 0.5), rng.uniform(0.3, 2.0)
+        z = attitude_measurement(x_true, m) + rng.normal(0.0, 1.0, 6) * np.r_[[sa] * 3, [sm] * 3]
+        if i % 3 == 2:
+            z[3:] = np.nan  # no new magnetometer sample
+        R = np.diag([sa ** 2] * 3 + [sm ** 2] * 3)
+        args = {"x": x, "P": P, "z": z, "R": R, "field_n": m}
+        label = f"a{' magnetometer-less (NaN)' if i % 3 == 2 else ''} update at x = {fmt(x)}"
+        cases.append(Case(args, euler_ekf_update(**args), label))
+    return cases
+
+
+# --- 04.ekf_rmse ------------------------------------------------------------------------------
+
+def bundled_inputs():
+    """Lab 04's inputs: the bundled recording corrected with the board's bundled calibration
+    (labs 02/03's reference results; the student's own file is not used, so every grader agrees).
+
+    Returns (recording, gyr rad/s, acc m/s², mag µT), body frame.
+    """
+    rec = datasets.load(RECORDING)
+    gyr, acc, mag = Calibration.load(bundled_calibration_path(BOARD)).apply(rec)
+    return rec, gyr, acc, mag
+
+
+def _rmse_cases(rng):
+    rec, gyr, acc, mag = bundled_inputs()
+    args = {"gyr": gyr, "acc": acc, "mag": mag, "rate_hz": rec.rate_hz, "gyro_noise": EULER_GYRO_NOISE,
+            "accel_noise": EULER_ACCEL_NOISE, "mag_noise": EULER_MAG_NOISE, "field_n": np.array(MAG_FIELD_LONDON)}
+    return [Case(args, rec.truth(), f"the bundled recording {RECORDING} (calibrated)")]
+
+
+def _judge_rmse(case, got):
+    try:
+        x = np.asarray(got[0] if isinstance(got, (tuple, list)) else got, dtype=float)
+    except (TypeError, ValueError):
+        return f"expected (x, P, nis) with x of shape (N, 3), got {type(got).__name__}"
+    truth = case.expected
+    if x.shape != truth.shape:
+        return f"expected {len(truth)} rows of [roll, pitch, yaw] (shape {truth.shape}), got shape {x.shape}"
+    if not np.isfinite(x).all():
+        return f"the estimate holds NaN or inf from row {int(np.argmax(~np.isfinite(x).all(axis=1)))}"
+    err = rmse(angle_error(x, truth), 0.0)
+    over = [f"{name} RMSE {np.degrees(e):.2f}° (limit {np.degrees(lim):.0f}°)"
+            for name, e, lim in zip(ANGLES, err, RMSE_LIMITS) if e >= lim]
+    return None if not over else "; ".join(over)
+
+
+register(
+    Checkpoint("04.euler_rates", "euler_rates", _euler_rates_cases, _judge_euler_rates, points=1,
+               hint="φ̇ = p + (q sin φ + r cos φ) tan θ, θ̇ = q cos φ − r sin φ, ψ̇ = (q sin φ + r cos φ)/cos θ: "
+                    "it is the pitch θ that makes Euler angles singular."),
+    Checkpoint("04.predict", "ekf_predict", _predict_cases, _judge_predict, points=2,
+               hint="x⁻ = x + f(x, ω)·dt with ψ wrapped to (−π, π]; P⁻ = F P Fᵀ + Q with F = I + dt·A and A the "
+                    "Jacobian ∂f/∂x given above (its third column is zero). Return (x, P)."),
+    Checkpoint("04.measurement", "measurement", _measurement_cases, lambda c, got: compare(c.expected, got), points=1,
+               hint="h = [R_bn·(0, 0, −g); R_bn·m_n] with R_bn = R_nbᵀ and R_nb = Rz(ψ) Ry(θ) Rx(φ) "
+                    "(frames.euler_to_dcm); level and facing north it is [0, 0, −g, m_N, m_E, m_D]."),
+    Checkpoint("04.jacobian", "jacobian", _jacobian_cases, _judge_jacobian, points=2, what="random states",
+               hint="column j is ∂h/∂xⱼ; the accelerometer rows do not depend on ψ (gravity is vertical), and "
+                    "∂R_bn/∂ψ = (∂R_nb/∂ψ)ᵀ — compare your columns one by one with numerical_jacobian."),
+    Checkpoint("04.numerical_jacobian", "numerical_jacobian", _numerical_jacobian_cases, _judge_numerical_jacobian,
+               points=1, hint="column j is (h(x + ε eⱼ) − h(x − ε eⱼ)) / 2ε; with ε around 1e-6 both rounding "
+                              "and truncation errors stay below 1e-8."),
+    Checkpoint("04.update", "ekf_update", _update_cases, lambda c, got: compare(c.expected, got, rtol=1e-6, atol=1e-9),
+               points=2, hint="y = z − h(x), S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x + K y (ψ wrapped), P = (I − K H) P; "
+                              "with NaN in z[3:] keep only the first three rows of z, h, H and R. Return (x, P, y, S)."),
+    Checkpoint("04.ekf_rmse", "run_ekf", _rmse_cases, _judge_rmse, points=2, what="bundled recording",
+               hint="initialise from the first accelerometer and magnetometer samples, then predict with every gyro "
+                    "sample and update with every accelerometer sample, adding the magnetometer rows only when a new "
+                    "magnetometer sample arrived; if 04.predict and 04.update pass, look at dt, Q and R."),
+)

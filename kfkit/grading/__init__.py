@@ -1,0 +1,64 @@
+"""Instructor grading: a folder of submitted notebooks → a gradebook you can trust.
+
+    kfkit grade --lab 01 --out gradebook.csv submissions/
+
+For each submission, in its own sandboxed kernel (see :mod:`kfkit.grading.sandbox`):
+
+1. run the student's code cells top to bottom (cell tags removed, so nothing is skipped or
+   excused; errors do not stop the run), with a per-cell and a total timeout;
+2. for each checkpoint of the lab (``kfkit.checkpoints.labNN``), draw fresh cases in the
+   grader's process (a new seed per submission, written in the feedback), send only their
+   inputs to the kernel, call the student's function there, and receive only its outputs as
+   JSON numbers (:mod:`kfkit.grading.wire`);
+3. judge those outputs here, with the checkpoint's own ``judge`` and ``points``, against
+   expected values the kernel never sees. Nothing the notebook prints or patches in its kernel
+   (``kfkit.checkpoints``, kfkit's reference functions) enters that judgement.
+
+Writes ``gradebook.csv`` (``submission,checkpoint,points,max_points,message``), one Markdown
+feedback file per submission, and returns a summary with per-checkpoint pass rates.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+CELL_TIMEOUT = 30.0  # s per notebook cell and per checkpoint call
+TOTAL_TIMEOUT = 300.0  # s for one whole submission
+_PUBLIC = ("grade", "grade_submission", "lab_checkpoints", "find_submissions", "read_code_cells", "summary",
+           "Limits", "Row", "SubmissionGrade", "NotANotebook")
+
+
+def __getattr__(name):
+    """The pipeline (nbclient, numpy) loads only when used, so other ``kfkit`` commands stay fast."""
+    if name in _PUBLIC:
+        from . import core
+
+        return getattr(core, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _cli(args) -> int:
+    from .core import cli
+
+    return cli(args)
+
+
+def add_parser(sub):
+    """The ``grade`` subcommand of ``kfkit`` (see cli.py)."""
+    p = sub.add_parser("grade", help="grade submitted notebooks in isolated kernels into a gradebook (instructors)")
+    p.add_argument("submissions", nargs="+", metavar="SUBMISSION", help=".ipynb files or folders holding them")
+    p.add_argument("--lab", required=True, help="lab number, e.g. 01")
+    p.add_argument("--out", type=Path, default=Path("gradebook.csv"), help="gradebook CSV (default: %(default)s)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                   help="submissions graded in parallel (default: one per core, %(default)s)")
+    p.add_argument("--timeout", type=float, default=CELL_TIMEOUT,
+                   help="seconds per notebook cell and per checkpoint call (default: %(default)g)")
+    p.add_argument("--total-timeout", type=float, default=TOTAL_TIMEOUT,
+                   help="seconds for one whole submission (default: %(default)g)")
+    p.add_argument("--feedback", type=Path, default=None,
+                   help="folder for the per-submission Markdown feedback (default: <out stem>_feedback/)")
+    p.add_argument("--seed", type=int, default=None, help="fix the random cases (to reproduce a grade)")
+    p.add_argument("--update", action="store_true",
+                   help="replace only these submissions' rows in an existing gradebook (regrade one student)")
+    p.set_defaults(run=_cli)
+    return p

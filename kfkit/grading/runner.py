@@ -1,0 +1,286 @@
+"""One student notebook in one sandboxed kernel: run its cells, then call its functions.
+
+:class:`KernelRun` drives nbclient cell by cell (errors do not stop the run: a later exercise
+may still be right), with a per-cell timeout bounded by the submission's total deadline. A cell
+that times out is interrupted; if the kernel stays busy or dies (``sys.exit`` in a thread,
+``os._exit``, a crash), the kernel is restarted and the notebook replayed without that cell.
+Outputs of student cells are counted and dropped (only error names are kept), so a huge print
+costs nothing but its transfer.
+"""
+from __future__ import annotations
+
+import ctypes
+import json
+import logging
+import os
+import shutil
+import signal
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import nbformat
+from jupyter_client.manager import AsyncKernelManager
+from nbclient import NotebookClient
+from nbclient.exceptions import DeadKernelError
+
+from . import CELL_TIMEOUT, TOTAL_TIMEOUT
+from . import sandbox as sb
+from . import wire
+
+MAX_RESTARTS = 3
+WARM_UP_TIMEOUT = 120.0  # s for the kernel's first imports, not charged to the student's first cell
+WARM_UP_MODULES = ("numpy", "scipy.linalg", "matplotlib.pyplot", "ipywidgets", "kfkit.datasets", "kfkit.filters",
+                   "kfkit.frames", "kfkit.metrics", "kfkit.plots", "kfkit.widgets", "kfkit.checkpoints")
+_WARM_UP_CODE = f"""
+import importlib
+for name in {WARM_UP_MODULES!r}:
+    try:
+        importlib.import_module(name)
+    except Exception:  # a missing optional module: the student's own import will say so
+        pass
+"""
+WARM_UP = f"exec({_WARM_UP_CODE!r}, {{}})"  # the labs' heavy imports, outside the student's namespace
+SHORT_TMP = 48  # characters of temporary folder that leave room for box/ipc-N in an AF_UNIX path (≤ 107)
+PING_TIMEOUT = 5.0  # s a kernel gets to answer after an interrupted cell before it is restarted
+_LOG = logging.getLogger("kfkit.grading.nbclient")
+_LOG.setLevel(logging.CRITICAL)
+
+
+@dataclass
+class Limits:
+    cell_timeout: float = CELL_TIMEOUT  # s per notebook cell and per checkpoint call
+    total_timeout: float = TOTAL_TIMEOUT  # s for the whole submission
+    output_bytes: int = 1 << 20  # output of one student cell beyond which it is reported as huge
+
+
+def _die_with_grader():
+    """In the kernel's launcher, before exec: SIGKILL it if this grading process dies first."""
+    ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+
+
+class KernelLost(Exception):
+    """The kernel hung past an interrupt or died: restart and replay without cell ``index``."""
+
+    def __init__(self, index, why):
+        super().__init__(why)
+        self.index, self.why = index, why
+
+
+class OutOfTime(Exception):
+    pass
+
+
+class _SandboxKernelManager(AsyncKernelManager):
+    """Starts ``python -m ipykernel_launcher`` through the sandbox, whatever the notebook asks for."""
+
+    wrap = None  # callable(argv) → argv, set by KernelRun
+
+    def format_kernel_cmd(self, extra_arguments=None):
+        argv = [sys.executable, "-m", "ipykernel_launcher", "-f", self.connection_file,
+                "--HistoryManager.enabled=False", "--IPKernelApp.log_level=CRITICAL"]
+        return self.wrap(argv)
+
+
+class _Client(NotebookClient):
+    """nbclient with outputs counted and dropped, errors kept short, and no widget state."""
+
+    def __init__(self, nb, km, **kw):
+        super().__init__(nb, km=km, log=_LOG, **kw)
+        self.comm_open_handlers = {}
+        self.timed_out = False
+        self.cell_bytes = 0
+        self.capture = None  # a list collecting stdout text for the grader's own cells
+
+    async def _async_handle_timeout(self, timeout, cell=None):
+        self.timed_out = True
+        return await super()._async_handle_timeout(timeout, cell)
+
+    def handle_comm_msg(self, outs, msg, cell_index):
+        return None
+
+    def output(self, outs, msg, display_id, cell_index):
+        kind, content = msg["msg_type"], msg["content"]
+        if kind == "stream":
+            size = len(content.get("text", ""))
+            if self.capture is not None and content.get("name") == "stdout":
+                if sum(map(len, self.capture)) + size <= wire.MAX_PAYLOAD + 200:
+                    self.capture.append(content["text"])
+        elif kind == "error":
+            size = len(str(content.get("evalue", "")))
+            outs.append(nbformat.NotebookNode(output_type="error", ename=str(content.get("ename", ""))[:100],
+                                              evalue=str(content.get("evalue", ""))[:600], traceback=[]))
+        else:
+            data = content.get("data", {})
+            size = sum(len(v) if isinstance(v, str) else len(json.dumps(v)) for v in data.values()) \
+                if isinstance(data, dict) else 0
+        self.cell_bytes += size
+        return None
+
+
+class KernelRun:
+    """A kernel for one submission; use as a context manager (the kernel and its box go away)."""
+
+    def __init__(self, sources: list[str], sandbox: sb.Sandbox, limits: Limits, protect: list[str]):
+        self.sources, self.sandbox, self.limits, self.protect = sources, sandbox, limits, protect
+        self.deadline = time.monotonic() + limits.total_timeout
+        self.skipped: set[int] = set()
+        self.cell_notes: dict[int, str] = {}
+        self.restarts = 0
+        self.scratch = self.box = self.client = self.log = None
+
+    # kernel lifecycle
+    def __enter__(self):
+        base = tempfile.gettempdir()
+        if len(base) > SHORT_TMP and os.path.isdir("/tmp"):  # the kernel's sockets need a path < 108 bytes
+            base = "/tmp"
+        self.scratch = Path(tempfile.mkdtemp(prefix="kfkit-grade-", dir=base))
+        self.scratch.chmod(0o711)
+        self._start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop()
+        shutil.rmtree(self.scratch, ignore_errors=True)
+
+    def _start(self):
+        self.box = sb.make_box(self.scratch, self.sandbox)
+        km = _SandboxKernelManager(kernel_name="python3", transport="ipc", ip=str(self.box / "ipc"),
+                                   connection_file=str(self.box / "kernel.json"))
+        km.wrap = lambda argv: self.sandbox.command(self.box, self.scratch, self.box / "home",
+                                                    km.connection_file, argv, self.protect)
+        nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(s) for s in self.sources])
+        self.client = _Client(nb, km, timeout=int(self.limits.cell_timeout), interrupt_on_timeout=True,
+                              error_on_timeout={"ename": "Timeout", "evalue": "timed out", "traceback": []},
+                              allow_errors=True, record_timing=False, shutdown_kernel="immediate",
+                              startup_timeout=60, iopub_timeout=2)
+        self.client.timeout_func = lambda cell: max(1, int(min(self.limits.cell_timeout, self._remaining()) + 0.999))
+        self.log = open(self.box / "kernel.log", "wb")
+        cwd = self.box / "home" if self.sandbox.mode == "none" else Path("/")
+        try:
+            self.client.km = km
+            self.client.start_new_kernel(env=sb.kernel_env(self.box), cwd=str(cwd), stdout=self.log, stderr=self.log,
+                                         preexec_fn=_die_with_grader)
+            self.client.start_new_kernel_client()
+            if self.sandbox.uid():  # sockets exist now: the kernel may write only in its tmpfs home and /tmp
+                os.chown(self.box, 0, 0)
+                self.box.chmod(0o711)
+            self._quiet(WARM_UP, max(WARM_UP_TIMEOUT, self.limits.cell_timeout))
+        except Exception as exc:
+            self._stop()
+            raise RuntimeError(f"the kernel did not start ({type(exc).__name__}: {exc}); "
+                               f"kernel log: {self._log_tail()}") from None
+
+    def _log_tail(self) -> str:
+        try:
+            return (self.box / "kernel.log").read_bytes()[-400:].decode(errors="replace").strip() or "(empty)"
+        except OSError:
+            return "(none)"
+
+    def _stop(self):
+        if self.client is not None and self.client.km is not None:
+            try:
+                self.client._cleanup_kernel()
+            except Exception:  # already dead: nothing left to stop
+                pass
+        self.client = None
+        if self.log is not None:
+            self.log.close()
+            self.log = None
+
+    def _restart(self):
+        self.restarts += 1
+        self._stop()
+        if self.restarts > MAX_RESTARTS:
+            raise OutOfTime(f"the kernel had to be restarted more than {MAX_RESTARTS} times")
+        self._check_time()
+        self._start()
+
+    def _remaining(self) -> float:
+        return self.deadline - time.monotonic()
+
+    def _check_time(self):
+        if self._remaining() <= 0:
+            raise OutOfTime(f"the submission used up its total time ({self.limits.total_timeout:g} s)")
+
+    # execution
+    def _execute(self, index: int, source: str, capture: list | None = None) -> tuple[str, dict | None]:
+        """Run ``source``; → (status, error) with status 'ok', 'error' or 'timeout'. Raises KernelLost."""
+        self._check_time()
+        client = self.client
+        cells = client.nb.cells
+        while len(cells) <= index:
+            cells.append(nbformat.v4.new_code_cell(""))
+        cell = nbformat.v4.new_code_cell(source)
+        client.timed_out, client.cell_bytes, client.capture = False, 0, capture
+        try:
+            client.execute_cell(cell, index, store_history=False)
+        except DeadKernelError:
+            raise KernelLost(index, "the kernel died (sys.exit in a thread, os._exit, a crash or too much memory)") from None
+        finally:
+            client.capture = None
+        if client.timed_out:
+            if not self._ping():
+                raise KernelLost(index, f"timed out after {self.limits.cell_timeout:g} s and ignored the interrupt")
+            return "timeout", None
+        errors = [o for o in cell.outputs if o.output_type == "error"]
+        return ("error", errors[0]) if errors else ("ok", None)
+
+    def _ping(self) -> bool:
+        """Does the kernel answer again after an interrupt?"""
+        return self._quiet("pass", PING_TIMEOUT)
+
+    def _quiet(self, source: str, timeout: float) -> bool:
+        """Run the grader's ``source`` with its own timeout; → True if it finished in time."""
+        client, saved = self.client, self.client.timeout_func
+        client.timeout_func = lambda cell: int(timeout)
+        try:
+            client.timed_out = False
+            client.execute_cell(nbformat.v4.new_code_cell(source), len(client.nb.cells) - 1, store_history=False)
+            return not client.timed_out
+        except DeadKernelError:
+            return False
+        finally:
+            client.timeout_func = saved
+
+    def run_notebook(self):
+        """Run every student cell once (replaying after a restart); notes per cell in ``cell_notes``."""
+        while True:
+            try:
+                for i, source in enumerate(self.sources):
+                    if i in self.skipped or not source.strip():
+                        continue
+                    status, error = self._execute(i, source)
+                    if status == "timeout":
+                        self.cell_notes[i] = f"timed out after {self.limits.cell_timeout:g} s (interrupted)"
+                    elif status == "error":
+                        self.cell_notes[i] = f"{error.ename}: {error.evalue}"
+                    if self.client.cell_bytes > self.limits.output_bytes:
+                        self.cell_notes[i] = (self.cell_notes.get(i, "") + f" printed {self.client.cell_bytes / 1e6:.1f} MB "
+                                              "of output (discarded)").strip()
+                return
+            except KernelLost as lost:
+                self.skipped.add(lost.index)
+                self.cell_notes[lost.index] = lost.why + "; the kernel was restarted and this cell skipped"
+                self._restart()
+
+    def call(self, function: str, cases_args: list[dict]) -> dict:
+        """Call the student's ``function`` on each input in the kernel; → the decoded report dict.
+
+        Raises KernelLost (after restarting and replaying the notebook) or TimeoutError.
+        """
+        nonce, captured = wire.new_nonce(), []
+        index = len(self.sources)
+        try:
+            status, error = self._execute(index, wire.call_code(function, cases_args, nonce), capture=captured)
+        except KernelLost as lost:
+            self._restart()
+            self.run_notebook()
+            raise KernelLost(index, lost.why) from None
+        if status == "timeout":
+            raise TimeoutError(f"timed out after {self.limits.cell_timeout:g} s")
+        if status == "error":
+            raise wire.WireError(f"the grader's call failed in the kernel ({error.ename}: {error.evalue})")
+        return wire.extract("".join(captured), nonce)

@@ -1,0 +1,563 @@
+"""Single-track (bicycle) vehicle models, their discretisation, simulated drives and vehicle CSVs.
+
+Axes and signs follow ISO 8855: x forward, y left, z up; steering δ > 0 turns left, yaw rate
+r > 0 is a left turn, lateral acceleration a_y > 0 points left. (The IMU labs use FRD: an IMU
+mounted FRD gives r = −g_z and a_y = −f_y.) Sideslip β = atan(v_y / V_x) is the angle between
+the heading and the velocity of the centre of gravity (CG).
+
+Linear model (small angles, per-axle cornering stiffnesses Cf, Cr > 0 in N/rad), state [β, r],
+input δ, outputs [r, a_y]::
+
+    β̇  = −(Cf+Cr)/(m Vx)·β + [(b Cr − a Cf)/(m Vx²) − 1]·r + Cf/(m Vx)·δ        rad/s
+    ṙ  =  (b Cr − a Cf)/Iz·β − (a² Cf + b² Cr)/(Iz Vx)·r + a Cf/Iz·δ             rad/s²
+    a_y = Vx (β̇ + r) = −(Cf+Cr)/m·β + (b Cr − a Cf)/(m Vx)·r + Cf/m·δ            m/s²
+
+Reference for the model and the default car: R. Rajamani, *Vehicle Dynamics and Control*,
+2nd ed., Springer 2012, ch. 2–3 (lateral dynamics; the example car of ch. 3).
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+from scipy.linalg import expm
+
+from .frames import G
+from .io import Recording, RecordingError
+
+KMH = 1.0 / 3.6  # m/s per km/h
+
+
+# --- parameters -----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class BicycleParams:
+    """Single-track vehicle parameters (SI). The default is a mid-size passenger car.
+
+    m   mass, kg                                   1573
+    Iz  yaw moment of inertia about the CG, kg·m²   2873
+    a   CG → front axle, m                          1.10
+    b   CG → rear axle, m                           1.58
+    Cf  front-axle cornering stiffness, N/rad       160 000  (2 × 80 000 per tyre)
+    Cr  rear-axle cornering stiffness, N/rad        160 000  (2 × 80 000 per tyre)
+    mu  tyre–road friction coefficient (nonlinear model only), 1.0 (dry asphalt)
+
+    Numbers from the example vehicle of Rajamani, *Vehicle Dynamics and Control* (2nd ed.,
+    Springer 2012, ch. 3), whose Cαf = Cαr = 80 000 N/rad are per tyre; the bicycle model lumps
+    both tyres of an axle, so Cf = Cr = 160 000 N/rad here. Understeering: a·Cf < b·Cr.
+    """
+
+    m: float = 1573.0
+    Iz: float = 2873.0
+    a: float = 1.10
+    b: float = 1.58
+    Cf: float = 160_000.0
+    Cr: float = 160_000.0
+    mu: float = 1.0
+
+    def __post_init__(self):
+        for name in ("m", "Iz", "a", "b", "Cf", "Cr", "mu"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"BicycleParams.{name} must be a finite positive number, got {value!r}")
+
+    @property
+    def wheelbase(self) -> float:
+        """L = a + b, m."""
+        return self.a + self.b
+
+    @property
+    def understeer_gradient(self) -> float:
+        """K = m/L·(b/Cf − a/Cr), rad per m/s² (> 0: understeer); steady state δ = L/R + K·a_y."""
+        return self.m / self.wheelbase * (self.b / self.Cf - self.a / self.Cr)
+
+    def scaled(self, cornering: float = 1.0) -> "BicycleParams":
+        """The same car with both cornering stiffnesses multiplied by ``cornering`` (e.g. 0.8)."""
+        return replace(self, Cf=self.Cf * cornering, Cr=self.Cr * cornering)
+
+
+# --- the linear model and its discretisation -----------------------------------------------
+
+def _check_speed(vx, who="linear_model"):
+    vx = float(vx)
+    if not (math.isfinite(vx) and vx > 0):
+        raise ValueError(f"{who}: the bicycle model needs a forward speed Vx > 0 m/s (its coefficients divide by Vx), "
+                         f"got Vx = {vx!r}")
+    return vx
+
+
+def linear_model(params: BicycleParams, vx: float):
+    """Continuous linear bicycle model at speed ``vx`` (m/s): (A, B, C, D) for x = [β, r], u = δ, z = [r, a_y].
+
+    ẋ = A x + B δ,  z = C x + D δ; the equations are in the module docstring. Raises for vx ≤ 0.
+    """
+    vx = _check_speed(vx)
+    m, Iz, a, b, Cf, Cr = params.m, params.Iz, params.a, params.b, params.Cf, params.Cr
+    A = np.array([[-(Cf + Cr) / (m * vx), (b * Cr - a * Cf) / (m * vx ** 2) - 1.0],
+                  [(b * Cr - a * Cf) / Iz, -(a * a * Cf + b * b * Cr) / (Iz * vx)]])
+    B = np.array([[Cf / (m * vx)], [a * Cf / Iz]])
+    C = np.array([[0.0, 1.0],
+                  [-(Cf + Cr) / m, (b * Cr - a * Cf) / (m * vx)]])
+    D = np.array([[0.0], [Cf / m]])
+    return A, B, C, D
+
+
+def discretize(A, B, dt, Qc):
+    """Exact discretisation over a sample interval ``dt`` (s): (Ad, Bd, Qd).
+
+    Zero-order hold on the input: expm([[A, B], [0, 0]]·dt) = [[Ad, Bd], [0, I]].
+    Van Loan (1978) for the process noise of ẋ = A x + w, E[w wᵀ] = Qc δ(t−τ):
+    expm([[−A, Qc], [0, Aᵀ]]·dt) = [[·, G12], [0, G22]],  Ad = G22ᵀ,  Qd = Ad·G12
+    = ∫₀^dt e^{Aτ} Qc e^{Aᵀτ} dτ.
+    """
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    n = A.shape[0]
+    B = np.asarray(B, dtype=float).reshape(n, -1)
+    Qc = np.atleast_2d(np.asarray(Qc, dtype=float))
+    p = B.shape[1]
+    M = np.zeros((n + p, n + p))
+    M[:n, :n], M[:n, n:] = A, B
+    E = expm(M * dt)
+    Ad, Bd = E[:n, :n], E[:n, n:]
+    V = np.zeros((2 * n, 2 * n))
+    V[:n, :n], V[:n, n:], V[n:, n:] = -A, Qc, A.T
+    F = expm(V * dt)
+    Qd = Ad @ F[:n, n:]
+    return Ad, Bd, 0.5 * (Qd + Qd.T)
+
+
+def steady_state(params: BicycleParams, vx: float, delta: float):
+    """Steady cornering of the linear model at constant δ (rad): (β, r, a_y) from 0 = A x + B δ."""
+    A, B, C, D = linear_model(params, vx)
+    x = -np.linalg.solve(A, B[:, 0] * delta)
+    z = C @ x + D[:, 0] * delta
+    return float(x[0]), float(x[1]), float(z[1])
+
+
+def units_consistent(model, params: BicycleParams = BicycleParams(), vx: float = 15.0, rtol=1e-9):
+    """Dimensional check of a model function ``model(params, vx) → (A, B, C, D)`` by changing units.
+
+    Re-express the car in other units of length (×λ), mass (×μ) and time (×τ): a quantity with
+    dimension Lᵖ Mᵍ Tˢ changes by λᵖ μᵍ τˢ. Each entry of A, B, C, D has a known dimension
+    (rad is dimensionless): β̇ per β is 1/T, β̇ per r is 1, ṙ per β is 1/T², a_y per β is L/T², …
+    A correct model rescales exactly so; a coefficient with a wrong power of Vx does not.
+    Returns a dict 'A[i,j]' → True / False for every entry (entries that are 0 are skipped).
+    """
+    lam, mu, tau = 0.37, 2.9, 1.7  # arbitrary unit changes
+    other = BicycleParams(m=params.m * mu, Iz=params.Iz * mu * lam ** 2, a=params.a * lam, b=params.b * lam,
+                          Cf=params.Cf * mu * lam / tau ** 2, Cr=params.Cr * mu * lam / tau ** 2, mu=params.mu)
+    # dimension exponents (L, T) of each entry; mass never survives in a ratio of the outputs
+    dims = {"A": [[(0, -1), (0, 0)], [(0, -2), (0, -1)]], "B": [[(0, -1)], [(0, -2)]],
+            "C": [[(0, 0), (0, 0)], [(1, -2), (1, -1)]], "D": [[(0, 0)], [(1, -2)]]}
+    base = dict(zip("ABCD", model(params, vx)))
+    moved = dict(zip("ABCD", model(other, vx * lam / tau)))
+    result = {}
+    for name, table in dims.items():
+        for i, row in enumerate(table):
+            for j, (p, s) in enumerate(row):
+                ref = float(np.asarray(base[name])[i, j])
+                if ref == 0.0:
+                    continue
+                got = float(np.asarray(moved[name])[i, j])
+                result[f"{name}[{i},{j}]"] = bool(abs(got - ref * lam ** p * tau ** s) <= rtol * abs(ref * lam ** p * tau ** s))
+    return result
+
+
+def miscopied_linear_model(params: BicycleParams, vx: float):
+    """NOT a vehicle model: the widely copied version of :func:`linear_model` with three errors.
+
+    Kept only so lab 06 can show what it does. Compared with the correct model:
+    β̇'s r-coefficient (b Cr − a Cf)/(m Vx) − 1 (should be over m Vx²: units m/s, not 1);
+    ṙ's β-coefficient (b Cr − a Cf)/(Iz Vx) (should not divide by Vx: units 1/s, not 1/s²);
+    a_y's r-coefficient (b Cr − a Cf)/(m Vx) + Vx (the centripetal Vx·r counted twice).
+    """
+    A, B, C, D = linear_model(params, vx)
+    A, C = A.copy(), C.copy()
+    A[0, 1] = (params.b * params.Cr - params.a * params.Cf) / (params.m * vx) - 1.0
+    A[1, 0] = (params.b * params.Cr - params.a * params.Cf) / (params.Iz * vx)
+    C[1, 1] += vx
+    return A, B, C, D
+
+
+# --- the nonlinear single-track truth model ---------------------------------------------------
+
+@dataclass(frozen=True)
+class MagicFormula:
+    """Pacejka's magic formula for one axle: F_y = D sin(C atan(Bα − E(Bα − atan Bα))), N.
+
+    D = µ·F_z (peak force), C = 1.3 (shape factor typical of lateral force), E = −1.0
+    (curvature; E < 1); B = C_α / (C·D) so that the initial slope B·C·D equals the axle's
+    cornering stiffness C_α (N/rad).
+    """
+
+    B: float
+    C: float
+    D: float
+    E: float
+
+    @classmethod
+    def for_axle(cls, stiffness, vertical_load, mu, C=1.3, E=-1.0):
+        D = mu * vertical_load
+        return cls(stiffness / (C * D), C, D, E)
+
+    def force(self, alpha):
+        """Lateral force (N) at slip angle ``alpha`` (rad); works on floats and arrays."""
+        x = self.B * alpha
+        return self.D * np.sin(self.C * np.arctan(x - self.E * (x - np.arctan(x))))
+
+
+def axle_tyres(params: BicycleParams):
+    """Front and rear :class:`MagicFormula` with static loads F_zf = m g b/L, F_zr = m g a/L."""
+    L = params.wheelbase
+    return (MagicFormula.for_axle(params.Cf, params.m * G * params.b / L, params.mu),
+            MagicFormula.for_axle(params.Cr, params.m * G * params.a / L, params.mu))
+
+
+MIN_TRUTH_SPEED = 0.5  # m/s: slip angles atan(v/Vx) are meaningless at a standstill
+
+
+def simulate_nonlinear(params: BicycleParams, t, delta, vx, substeps: int = 4):
+    """Drive the nonlinear single-track model with steering ``delta`` (rad) and speed ``vx`` (m/s).
+
+    State [v_y, r] in the body frame; slip angles α_f = δ − atan((v_y + a r)/V_x),
+    α_r = −atan((v_y − b r)/V_x); magic-formula tyre forces (:func:`axle_tyres`);
+        m (v̇_y + V_x r) = F_yf cos δ + F_yr,     I_z ṙ = a F_yf cos δ − b F_yr.
+    V_x is prescribed (the driver holds the speed), which is the lab's "slowly varying V_x".
+    Fixed-step RK4 with ``substeps`` steps per sample and δ, V_x held over each sample (the
+    same zero-order hold the filter assumes): deterministic, aligned with the samples and fast
+    in plain Python; the fastest mode at 2 m/s is ≈ (Cf+Cr)/(m Vx) ≈ 100 /s, so a 2.5 ms step
+    keeps |λ h| < 0.3, well inside RK4's stability region (2.8). solve_ivp would need the inputs
+    interpolated and adapts its step for nothing. Returns dict of arrays: vy, r, beta, ay (m/s²).
+    """
+    t = np.asarray(t, dtype=float)
+    delta = np.asarray(delta, dtype=float)
+    vx = np.broadcast_to(np.asarray(vx, dtype=float), t.shape)
+    if np.any(vx < MIN_TRUTH_SPEED):
+        k = int(np.argmax(vx < MIN_TRUTH_SPEED))
+        raise ValueError(f"simulate_nonlinear: V_x = {vx[k]:.3g} m/s at t = {t[k]:.3f} s is below {MIN_TRUTH_SPEED} m/s, "
+                         "where tyre slip angles are undefined")
+    front, rear = axle_tyres(params)
+    m, Iz, a, b = params.m, params.Iz, params.a, params.b
+
+    def forces(vy, r, d, u):
+        fyf = front.force(d - math.atan((vy + a * r) / u)) * math.cos(d)
+        fyr = rear.force(-math.atan((vy - b * r) / u))
+        return fyf, fyr
+
+    def deriv(vy, r, d, u):
+        fyf, fyr = forces(vy, r, d, u)
+        return (fyf + fyr) / m - u * r, (a * fyf - b * fyr) / Iz
+
+    N = len(t)
+    vys, rs, ays = np.empty(N), np.empty(N), np.empty(N)
+    vy = r = 0.0
+    for k in range(N):
+        d, u = float(delta[k]), float(vx[k])
+        fyf, fyr = forces(vy, r, d, u)
+        vys[k], rs[k], ays[k] = vy, r, (fyf + fyr) / m
+        if k + 1 == N:
+            break
+        h = (t[k + 1] - t[k]) / substeps
+        for _ in range(substeps):
+            k1 = deriv(vy, r, d, u)
+            k2 = deriv(vy + 0.5 * h * k1[0], r + 0.5 * h * k1[1], d, u)
+            k3 = deriv(vy + 0.5 * h * k2[0], r + 0.5 * h * k2[1], d, u)
+            k4 = deriv(vy + h * k3[0], r + h * k3[1], d, u)
+            vy += h / 6.0 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+            r += h / 6.0 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+    return {"vy": vys, "r": rs, "beta": np.arctan2(vys, vx), "ay": ays}
+
+
+# --- scenarios ---------------------------------------------------------------------------------
+
+@dataclass
+class Drive:
+    """A prescribed drive: times (s), road-wheel steering δ (rad), speed V_x (m/s), labelled windows."""
+
+    t: np.ndarray
+    delta: np.ndarray
+    vx: np.ndarray
+    phases: list
+    description: str
+
+
+def ay_gain(params: BicycleParams, vx: float, freq_hz: float) -> float:
+    """|a_y/δ| (m/s² per rad) of the linear model for sinusoidal steering at ``freq_hz``."""
+    A, B, C, D = linear_model(params, vx)
+    s = 2j * math.pi * freq_hz
+    H = C @ np.linalg.solve(s * np.eye(2) - A, B) + D
+    return float(abs(H[1, 0]))
+
+
+def _speed_ramp(t, t0, t1, v0, v1):
+    """V_x going smoothly (cosine blend) from v0 at t0 to v1 at t1."""
+    s = np.clip((t - t0) / (t1 - t0), 0.0, 1.0)
+    return v0 + (v1 - v0) * 0.5 * (1.0 - np.cos(np.pi * s))
+
+
+def slalom(speed_kmh=20.0, cone_spacing=9.0, cones=10, peak_ay=3.0, rate_hz=100.0, lead=2.0,
+           start_kmh=None, params: BicycleParams = BicycleParams()) -> Drive:
+    """Slalom through ``cones`` cones ``cone_spacing`` m apart at ``speed_kmh``.
+
+    The car passes one cone per half steering period, so δ(t) = δ₀ sin(2π f t) with
+    f = V_x / (2·spacing). δ₀ is chosen so the *linear* model's a_y amplitude at that f is
+    ``peak_ay`` (m/s²); keep it ≤ 4 m/s² to stay where tyres are nearly linear. With
+    ``start_kmh`` the car first accelerates from that speed over ``lead`` s (and brakes back to
+    it after the cones), which exercises the filter's low-speed guard.
+    """
+    v = speed_kmh * KMH
+    freq = v / (2.0 * cone_spacing)
+    duration = cones * cone_spacing / v
+    ramp = 0.0 if start_kmh is None else 3.0
+    t = np.arange(0.0, ramp + lead + duration + lead + ramp, 1.0 / rate_hz)
+    t0 = ramp + lead
+    amplitude = peak_ay / ay_gain(params, v, freq)
+    s = (t - t0) * (t >= t0) * (t < t0 + duration)
+    delta = amplitude * np.sin(2 * np.pi * freq * s)
+    vx = np.full_like(t, v)
+    if start_kmh is not None:
+        up = _speed_ramp(t, 0.0, ramp, 0.0, 1.0) - _speed_ramp(t, t[-1] - ramp, t[-1], 0.0, 1.0)
+        vx = start_kmh * KMH + (v - start_kmh * KMH) * up
+    phases = [(t0, t0 + duration, "slalom")]
+    text = (f"slalom at {speed_kmh:g} km/h through {cones} cones {cone_spacing:g} m apart: steering "
+            f"{math.degrees(amplitude):.2f}° (road wheel) at {freq:.3f} Hz, linear-model a_y amplitude {peak_ay:g} m/s²")
+    if start_kmh is not None:
+        text += f"; from {start_kmh:g} km/h up to speed in {ramp:g} s before and back down after"
+    return Drive(t, delta, vx, phases, text)
+
+
+def lane_change(speed_kmh=60.0, offset=3.5, change_length=40.0, hold_length=25.0, rate_hz=100.0, lead=2.0,
+                end_kmh=None, params: BicycleParams = BicycleParams()) -> Drive:
+    """A double lane change (ISO 3888-1 style, approximated): out by ``offset`` m, hold, and back.
+
+    Each lane change is one full sine period of steering over ``change_length`` m of travel;
+    its amplitude is scaled (on the nonlinear model, in its linear range) so the car's lateral
+    displacement is ``offset`` m. The ISO 3888-1 track is a limit test (≈ 25 m per change);
+    the default 40 m keeps a_y near 3 m/s², in the tyres' linear range. With ``end_kmh`` the
+    car brakes gently through the manoeuvre.
+    """
+    v = speed_kmh * KMH
+    T, H = change_length / v, hold_length / v
+    t = np.arange(0.0, lead + 2 * T + H + lead, 1.0 / rate_hz)
+    s1 = np.clip(t - lead, 0.0, T)
+    s2 = np.clip(t - lead - T - H, 0.0, T)
+    shape = np.sin(2 * np.pi * s1 / T) * (s1 < T) - np.sin(2 * np.pi * s2 / T) * (s2 < T)
+    vx = np.full_like(t, v) if end_kmh is None else _speed_ramp(t, lead, t[-1] - lead, v, end_kmh * KMH)
+    probe = simulate_nonlinear(params, t, 1e-3 * shape, vx)
+    heading = np.concatenate([[0.0], np.cumsum(0.5 * (probe["r"][1:] + probe["r"][:-1]) * np.diff(t))])
+    lateral_rate = vx * np.sin(heading + probe["beta"])
+    y = np.concatenate([[0.0], np.cumsum(0.5 * (lateral_rate[1:] + lateral_rate[:-1]) * np.diff(t))])
+    k_hold = int(np.searchsorted(t, lead + T + 0.5 * H))
+    amplitude = 1e-3 * offset / y[k_hold]
+    phases = [(lead, lead + T, "lane_out"), (lead + T, lead + T + H, "hold"), (lead + T + H, lead + 2 * T + H, "lane_back")]
+    text = (f"double lane change at {speed_kmh:g} km/h" + ("" if end_kmh is None else f" braking to {end_kmh:g} km/h") +
+            f": {offset:g} m out over {change_length:g} m, {hold_length:g} m hold, back; steering amplitude "
+            f"{math.degrees(amplitude):.2f}° (road wheel)")
+    return Drive(t, amplitude * shape, vx, phases, text)
+
+
+# --- sensors and recordings -------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class VehicleSensors:
+    """Sensor models of a production ESC cluster (σ per sample at 100 Hz; biases drawn per drive).
+
+    gyro_noise   yaw-rate noise, rad/s                    0.003 (≈ 0.17 °/s)
+    gyro_bias    σ of the constant yaw-rate bias, rad/s   0.002
+    accel_noise  lateral-acceleration noise, m/s²         0.05
+    accel_bias   σ of the constant a_y bias, m/s²         0.1 (mounting tilt, road bank)
+    steer_ratio  steering-wheel to road-wheel ratio       16; the steering-wheel angle sensor
+    steer_lsb    steering-wheel angle resolution, rad     0.1° → road wheel 0.1°/16
+    wheel_noise  per-wheel speed noise, m/s               0.05; V_x = mean of the two rear wheels
+    speed_lsb    wheel-speed resolution, m/s              1/64 km/h (a common CAN scaling)
+    """
+
+    gyro_noise: float = 0.003
+    gyro_bias: float = 0.002
+    accel_noise: float = 0.05
+    accel_bias: float = 0.1
+    steer_ratio: float = 16.0
+    steer_lsb: float = math.radians(0.1)
+    wheel_noise: float = 0.05
+    speed_lsb: float = KMH / 64.0
+
+
+def _quantise(x, lsb):
+    return np.round(np.asarray(x) / lsb) * lsb
+
+
+def simulate_drive(drive: Drive, params: BicycleParams = BicycleParams(), sensors: VehicleSensors = VehicleSensors(),
+                   seed=0, *, gyro_bias=None, accel_bias=None) -> Recording:
+    """Simulate ``drive`` on the nonlinear model and its sensors → a vehicle :class:`Recording`.
+
+    Columns t, delta, yaw_rate, ay, vx (measured, SI) and true_beta, true_yaw_rate, true_vy.
+    Biases are drawn from ``sensors`` with the seed unless given (rad/s, m/s²).
+    """
+    rng = np.random.default_rng(seed)
+    truth = simulate_nonlinear(params, drive.t, drive.delta, drive.vx)
+    N = len(drive.t)
+    bg = rng.normal(0.0, sensors.gyro_bias) if gyro_bias is None else float(gyro_bias)
+    ba = rng.normal(0.0, sensors.accel_bias) if accel_bias is None else float(accel_bias)
+    yaw_rate = truth["r"] + bg + rng.normal(0.0, sensors.gyro_noise, N)
+    ay = truth["ay"] + ba + rng.normal(0.0, sensors.accel_noise, N)
+    delta = _quantise(drive.delta * sensors.steer_ratio, sensors.steer_lsb) / sensors.steer_ratio
+    wheels = [_quantise(drive.vx + rng.normal(0.0, sensors.wheel_noise, N), sensors.speed_lsb) for _ in range(2)]
+    vx = np.maximum(0.5 * (wheels[0] + wheels[1]), 0.0)
+    rate = 1.0 / float(np.median(np.diff(drive.t)))
+    meta = {"rate_hz": round(rate, 6), "source": "simulated", "description": drive.description,
+            "axes": "ISO 8855 (x forward, y left, z up)",
+            "units": {"t": "s", "delta": "rad (road wheel)", "yaw_rate": "rad/s", "ay": "m/s^2", "vx": "m/s",
+                      "true_beta": "rad", "true_yaw_rate": "rad/s", "true_vy": "m/s"},
+            "vehicle": {k: getattr(params, k) for k in ("m", "Iz", "a", "b", "Cf", "Cr", "mu")},
+            "phases": [{"label": lab, "start": round(s, 6), "end": round(e, 6)} for s, e, lab in drive.phases],
+            "sim": {"seed": seed, "gyro_bias": bg, "accel_bias": ba, "sensors": sensors.__dict__}}
+    data = {"t": drive.t, "delta": delta, "yaw_rate": yaw_rate, "ay": ay, "vx": vx,
+            "true_beta": truth["beta"], "true_yaw_rate": truth["r"], "true_vy": truth["vy"]}
+    return Recording(meta, {k: np.asarray(v, dtype=float) for k, v in data.items()})
+
+
+# --- the vehicle CSV format and students' own CSVs ----------------------------------------------
+
+VEHICLE_MAGIC = "# kfkit-vehicle v1 "
+VEHICLE_COLUMNS = ("t", "delta", "yaw_rate", "ay", "vx")
+VEHICLE_TRUTH = ("true_beta", "true_yaw_rate", "true_vy")
+
+#: unit name → factor to SI, per kind of quantity (the options of :func:`load_vehicle_csv`)
+UNITS = {
+    "t": {"s": 1.0, "ms": 1e-3},
+    "delta": {"rad": 1.0, "deg": math.pi / 180.0},
+    "yaw_rate": {"rad/s": 1.0, "deg/s": math.pi / 180.0},
+    "ay": {"m/s^2": 1.0, "m/s2": 1.0, "g": G},
+    "vx": {"m/s": 1.0, "km/h": KMH},
+    "true_beta": {"rad": 1.0, "deg": math.pi / 180.0},
+    "true_yaw_rate": {"rad/s": 1.0, "deg/s": math.pi / 180.0},
+    "true_vy": {"m/s": 1.0, "km/h": KMH},
+}
+
+
+def vehicle_text(rec: Recording) -> str:
+    """The file contents of a vehicle recording: ``# kfkit-vehicle v1 {json}``, column names, rows."""
+    cols = rec.columns
+    lines = [VEHICLE_MAGIC + json.dumps(rec.meta, ensure_ascii=False), ",".join(cols)]
+    fmt = ["{:.6f}" if c == "t" else "{:.9g}" for c in cols]
+    rows = zip(*(rec.data[c].tolist() for c in cols))
+    lines += [",".join(f.format(v + 0.0) for f, v in zip(fmt, row)) for row in rows]  # + 0.0 writes −0 as 0
+    return "\n".join(lines) + "\n"
+
+
+def save_vehicle(rec: Recording, path) -> Path:
+    """Write a vehicle recording to ``path``."""
+    path = Path(path)
+    path.write_text(vehicle_text(rec), encoding="utf-8", newline="\n")
+    return path
+
+
+def _read_rows(path, lines, first_lineno, header, columns, scale, delimiter=","):
+    """Parse CSV ``lines`` (after the header) into SI arrays for ``columns`` {kit name: file column}."""
+    index = {}
+    for name, col in columns.items():
+        if col not in header:
+            raise RecordingError(path, first_lineno - 1, f"no column {col!r} for {name} (columns in the file: {', '.join(header)})")
+        index[name] = header.index(col)
+    values = {name: [] for name in columns}
+    t_prev = None
+    for offset, cells in enumerate(csv.reader(lines, delimiter=delimiter)):
+        lineno = first_lineno + offset
+        if not cells or all(not c.strip() for c in cells):
+            continue
+        if len(cells) < len(header):
+            raise RecordingError(path, lineno, f"expected {len(header)} fields ({','.join(header)}), got {len(cells)}")
+        for name, i in index.items():
+            text = cells[i].strip()
+            try:
+                v = float(text)
+            except ValueError:
+                what = "is empty" if not text else f"{text!r} is not a number"
+                raise RecordingError(path, lineno, f"column {header[i]!r} ({name}): {what}") from None
+            if not math.isfinite(v):
+                raise RecordingError(path, lineno, f"column {header[i]!r} ({name}): {text!r} is not a finite number")
+            values[name].append(v * scale[name])
+        t = values["t"][-1]
+        if t_prev is not None and t <= t_prev:
+            raise RecordingError(path, lineno, f"time (column {header[index['t']]!r}) does not increase: {t:g} s after {t_prev:g} s")
+        t_prev = t
+    if t_prev is None:
+        raise RecordingError(path, first_lineno, "no data rows")
+    return {name: np.asarray(v) for name, v in values.items()}
+
+
+def _read_text(path) -> list[str]:
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8-sig").splitlines()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"no file at {path}") from None
+    except UnicodeDecodeError as e:
+        raise RecordingError(path, None, f"not a text file ({e.reason} at byte {e.start})") from None
+
+
+def load_vehicle(path) -> Recording:
+    """Read a vehicle recording (``# kfkit-vehicle v1`` format); errors name the file and line."""
+    path = Path(path)
+    lines = _read_text(path)
+    if not lines or not lines[0].startswith(VEHICLE_MAGIC):
+        shown = lines[0][:60] if lines else ""
+        raise RecordingError(path, 1, f"expected the header '{VEHICLE_MAGIC.strip()} {{…json…}}', got {shown!r}; "
+                             "for your own CSV use load_vehicle_csv(path, columns=…, units=…)")
+    try:
+        meta = json.loads(lines[0][len(VEHICLE_MAGIC):])
+    except json.JSONDecodeError as e:
+        raise RecordingError(path, 1, f"the metadata is not valid JSON ({e.msg})") from None
+    if len(lines) < 2:
+        raise RecordingError(path, 2, "no column-name line")
+    header = [c.strip() for c in lines[1].split(",")]
+    wanted = [c for c in VEHICLE_COLUMNS + VEHICLE_TRUTH if c in header or c in VEHICLE_COLUMNS]
+    data = _read_rows(path, lines[2:], 3, header, {c: c for c in wanted}, {c: 1.0 for c in wanted})
+    return Recording(meta, data, path)
+
+
+def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter=",", comment="#") -> Recording:
+    """Load your own drive from a CSV (a logger or spreadsheet export) by naming its columns.
+
+    ``columns`` maps the kit's names to the file's header names: required ``t``, ``delta``
+    (road-wheel steering), ``yaw_rate``, ``ay``, ``vx``; optional ``true_beta``,
+    ``true_yaw_rate``, ``true_vy``. ``units`` picks each column's unit (default SI):
+    t 's'|'ms', delta/true_beta 'rad'|'deg', yaw_rate 'rad/s'|'deg/s', ay 'm/s^2'|'g',
+    vx/true_vy 'm/s'|'km/h'. Lines starting with ``comment`` are skipped; the first other line
+    is the header. Everything is converted to SI. Errors name the file, line and column.
+
+        rec = load_vehicle_csv("mycar.csv", columns={"t": "Time", "delta": "RoadWheelAngle",
+                               "yaw_rate": "YawRate", "ay": "LatAcc", "vx": "Speed"},
+                               units={"delta": "deg", "yaw_rate": "deg/s", "ay": "g", "vx": "km/h"})
+    """
+    path = Path(path)
+    units = dict(units or {})
+    missing = [c for c in VEHICLE_COLUMNS if c not in columns]
+    unknown = [c for c in list(columns) + list(units) if c not in UNITS]
+    if missing or unknown:
+        raise ValueError(f"load_vehicle_csv({path}): columns must name {', '.join(VEHICLE_COLUMNS)} "
+                         f"(optional {', '.join(VEHICLE_TRUTH)})" + (f"; missing {', '.join(missing)}" if missing else "") +
+                         (f"; unknown {', '.join(unknown)}" if unknown else ""))
+    scale = {}
+    for name in columns:
+        unit = units.get(name, next(iter(UNITS[name])))
+        if unit not in UNITS[name]:
+            raise ValueError(f"load_vehicle_csv({path}): unit {unit!r} for {name}; choose one of {', '.join(UNITS[name])}")
+        scale[name] = UNITS[name][unit]
+    lines = _read_text(path)
+    skip = 0
+    while skip < len(lines) and (not lines[skip].strip() or lines[skip].lstrip().startswith(comment)):
+        skip += 1
+    if skip == len(lines):
+        raise RecordingError(path, None, "the file has no header line")
+    header = [c.strip() for c in next(csv.reader([lines[skip]], delimiter=delimiter))]
+    data = _read_rows(path, lines[skip + 1:], skip + 2, header, dict(columns), scale, delimiter)
+    data = {k: data[k] for k in VEHICLE_COLUMNS + VEHICLE_TRUTH if k in data}
+    dt = np.diff(data["t"])
+    meta = {"rate_hz": float(1.0 / np.median(dt)) if len(dt) else 0.0, "source": str(path),
+            "columns": dict(columns), "units": {k: units.get(k, next(iter(UNITS[k]))) for k in columns}}
+    return Recording(meta, data, path)

@@ -1,0 +1,484 @@
+"""kfkit.filters.attitude against independent oracles: scipy Rotation, finite differences,
+filterpy's ExtendedKalmanFilter, chi-square bounds over Monte Carlo runs."""
+import numpy as np
+import pytest
+from filterpy.kalman import ExtendedKalmanFilter
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from kfkit.frames import G, MAG_FIELD_LONDON, euler_rates_to_body_rates, wrap_angle
+from kfkit.filters import (EulerAttitudeEKF, attitude_jacobian, attitude_measurement, estimate_attitude, euler_ekf_predict,
+                           euler_ekf_update, euler_process_noise, euler_rates)
+from kfkit.filters.attitude import (MultiplicativeEKF, euler_kinematics_jacobian, euler_rate_matrix, euler_to_quat, learn_field,
+                                    quat_to_euler, tilt_heading)
+from kfkit.metrics import attitude_errors, chi2_bounds, nees
+
+FIELD = np.array(MAG_FIELD_LONDON)
+
+
+def random_states(rng, n, max_pitch=np.radians(80)):
+    return np.column_stack([rng.uniform(-np.pi, np.pi, n), rng.uniform(-max_pitch, max_pitch, n), rng.uniform(-np.pi, np.pi, n)])
+
+
+def scipy_rotation(euler):
+    """Oracle: body → NED rotation from [roll, pitch, yaw] via scipy's intrinsic ZYX."""
+    e = np.asarray(euler, dtype=float)
+    return Rotation.from_euler("ZYX", e[..., ::-1])
+
+
+def smooth_motion(rng, duration, rate_hz, amp=(0.6, 0.5, 2.0), freq=(0.02, 0.3)):
+    """Private truth generator: Euler angles as sums of slow sines; body rates from their derivatives.
+
+    Returns t, euler (N, 3), omega_b (N, 3)."""
+    t = np.arange(int(round(duration * rate_hz))) / rate_hz
+    e, ed = np.zeros((len(t), 3)), np.zeros((len(t), 3))
+    for i in range(3):
+        for _ in range(3):
+            f, ph, a = rng.uniform(*freq), rng.uniform(0, 2 * np.pi), amp[i] / 3
+            e[:, i] += a * np.sin(2 * np.pi * f * t + ph)
+            ed[:, i] += a * 2 * np.pi * f * np.cos(2 * np.pi * f * t + ph)
+    e[:, 2] = wrap_angle(e[:, 2])
+    return t, e, euler_rates_to_body_rates(e, ed)
+
+
+def sensors(rng, euler, omega_b, sg, sa, sm, acc_n=None, field=FIELD):
+    """Gyro, specific force and field in the body frame with white Gaussian noise (σ per sample)."""
+    rot = scipy_rotation(euler)
+    a_n = np.zeros_like(euler) if acc_n is None else acc_n
+    f_b = rot.inv().apply(a_n - [0.0, 0.0, G])
+    m_b = rot.inv().apply(field)
+    n = len(euler)
+    return (omega_b + rng.normal(0, sg, (n, 3)), f_b + rng.normal(0, sa, (n, 3)), m_b + rng.normal(0, sm, (n, 3)))
+
+
+def finite_difference(fun, x, eps=1e-6):
+    x = np.asarray(x, dtype=float)
+    cols = []
+    for i in range(len(x)):
+        d = np.zeros_like(x)
+        d[i] = eps
+        cols.append((fun(x + d) - fun(x - d)) / (2 * eps))
+    return np.column_stack(cols)
+
+
+# ---------------------------------------------------------------------------------------
+# Kinematics
+# ---------------------------------------------------------------------------------------
+def test_euler_rates_invert_the_body_rate_map():
+    rng = np.random.default_rng(1)
+    x = random_states(rng, 200, np.radians(85))
+    omega = rng.normal(0, 2.0, (200, 3))
+    rates = euler_rates(x, omega)
+    np.testing.assert_allclose(euler_rates_to_body_rates(x, rates), omega, atol=1e-9)
+    np.testing.assert_allclose([euler_rate_matrix(xi) @ wi for xi, wi in zip(x[:20], omega[:20])], rates[:20], atol=1e-9)
+
+
+def test_euler_rates_divide_by_cos_pitch_not_cos_roll():
+    # Level in pitch, rolled 60°: a pure body z rate r gives ψ̇ = r cos φ / cos θ = r/2.
+    rates = euler_rates([np.radians(60), 0.0, 0.0], [0.0, 0.0, 1.0])
+    assert rates[2] == pytest.approx(0.5)
+    # Pitched 60°, level in roll: ψ̇ = r / cos θ = 2r (÷ cos φ would give r).
+    assert euler_rates([0.0, np.radians(60), 0.0], [0.0, 0.0, 1.0])[2] == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_one_prediction_step_matches_scipy_rotation_propagation(seed):
+    rng = np.random.default_rng(seed)
+    x = random_states(rng, 1, np.radians(70))[0]
+    omega, dt = rng.normal(0, 1.0, 3), 1e-3
+    x_pred, _ = euler_ekf_predict(x, np.eye(3), omega, dt, np.zeros((3, 3)))
+    # Body rates act on the right: R_nb(t + dt) = R_nb(t) · exp([ω dt]×).
+    truth = (scipy_rotation(x) * Rotation.from_rotvec(omega * dt)).as_euler("ZYX")[::-1]
+    np.testing.assert_allclose(wrap_angle(x_pred - truth), 0.0, atol=5 * (np.abs(omega).max() * dt) ** 2 * 50)
+
+
+def test_integrated_kinematics_follow_scipy_over_many_steps():
+    rng = np.random.default_rng(2)
+    x, omega, dt = np.array([0.2, -0.3, 3.0]), np.array([0.3, -0.2, 0.5]), 1e-4
+    rot = scipy_rotation(x)
+    for _ in range(5000):  # 0.5 s, yaw crosses +π
+        x, _ = euler_ekf_predict(x, np.eye(3), omega, dt, np.zeros((3, 3)))
+        rot = rot * Rotation.from_rotvec(omega * dt)
+    np.testing.assert_allclose(wrap_angle(x - rot.as_euler("ZYX")[::-1]), 0.0, atol=1e-5)
+    assert -np.pi < x[2] <= np.pi
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_prediction_jacobian_against_finite_differences(seed):
+    rng = np.random.default_rng(seed)
+    x = random_states(rng, 1)[0]
+    omega, dt = rng.normal(0, 1.0, 3), 0.01
+    A = euler_kinematics_jacobian(x, omega)
+    np.testing.assert_allclose(A, finite_difference(lambda s: euler_rates(s, omega), x), rtol=1e-6, atol=1e-7)
+    P = np.diag(rng.uniform(0.01, 0.1, 3))
+    Q = euler_process_noise(x, 0.02, dt)
+    _, P_pred = euler_ekf_predict(x, P, omega, dt, Q)
+    F = np.eye(3) + dt * finite_difference(lambda s: euler_rates(s, omega), x)
+    np.testing.assert_allclose(P_pred, F @ P @ F.T + Q, rtol=1e-6, atol=1e-12)
+
+
+def test_process_noise_is_gyro_noise_through_the_rate_matrix():
+    # Monte Carlo oracle: Q is the covariance of G·n·dt for gyro noise n ~ N(0, σ² I).
+    rng = np.random.default_rng(3)
+    x, sg, dt = np.array([0.4, 0.7, -1.0]), 0.05, 0.01
+    samples = np.array([euler_rates(x, n) * dt for n in rng.normal(0, sg, (40000, 3))])
+    Q = euler_process_noise(x, sg, dt)
+    np.testing.assert_allclose(Q, np.cov(samples.T), atol=0.03 * Q.max())
+
+
+# ---------------------------------------------------------------------------------------
+# Measurement model
+# ---------------------------------------------------------------------------------------
+def test_measurement_matches_scipy_rotation():
+    rng = np.random.default_rng(4)
+    for x in random_states(rng, 20, np.radians(89)):
+        rot = scipy_rotation(x)
+        expected = np.concatenate([rot.inv().apply([0, 0, -G]), rot.inv().apply(FIELD)])
+        np.testing.assert_allclose(attitude_measurement(x, FIELD), expected, atol=1e-9)
+    np.testing.assert_allclose(attitude_measurement([0, 0, 0])[:3], [0, 0, -G])
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_measurement_jacobian_against_finite_differences(seed):
+    rng = np.random.default_rng(seed + 100)
+    x = random_states(rng, 1, np.radians(89))[0]
+    field = rng.normal(0, 30, 3)
+    np.testing.assert_allclose(attitude_jacobian(x, field), finite_difference(lambda s: attitude_measurement(s, field), x),
+                               rtol=1e-6, atol=1e-6)
+
+
+def test_initial_state_from_tilt_and_heading():
+    rng = np.random.default_rng(5)
+    field = np.array([19.5, 3.0, 45.0])  # declination ≈ 8.7°
+    for x in random_states(rng, 20, np.radians(80)):
+        h = attitude_measurement(x, field)
+        np.testing.assert_allclose(wrap_angle(tilt_heading(h[:3], h[3:], field) - x), 0.0, atol=1e-9)
+    assert tilt_heading(h[:3], None, field)[2] == 0.0
+
+
+def test_learned_field_has_the_true_magnitude_and_dip():
+    rng = np.random.default_rng(6)
+    euler = random_states(rng, 60, np.radians(60))
+    rot = scipy_rotation(euler)
+    acc, mag = rot.inv().apply([0, 0, -G]), rot.inv().apply(FIELD)
+    mag[::3] = np.nan
+    learned = learn_field(acc, mag)
+    np.testing.assert_allclose(learned, [np.hypot(FIELD[0], FIELD[1]), 0.0, FIELD[2]], atol=1e-9)
+
+
+# ---------------------------------------------------------------------------------------
+# Update against filterpy's ExtendedKalmanFilter
+# ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("with_mag", [True, False])
+def test_update_matches_filterpy_ekf(seed, with_mag):
+    rng = np.random.default_rng(seed + 200)
+    x = random_states(rng, 1)[0]
+    L = rng.normal(0, 0.1, (3, 3))
+    P = L @ L.T + 1e-3 * np.eye(3)
+    R = np.diag(np.r_[rng.uniform(0.01, 0.5, 3), rng.uniform(0.1, 2.0, 3)])
+    z = attitude_measurement(x + rng.normal(0, 0.1, 3), FIELD) + rng.normal(0, 0.1, 6)
+    rows = slice(0, 6) if with_mag else slice(0, 3)
+    if not with_mag:
+        z[3:] = np.nan
+    x_new, P_new, y, S = euler_ekf_update(x, P, z, R, FIELD)
+
+    ref = ExtendedKalmanFilter(dim_x=3, dim_z=6 if with_mag else 3)
+    ref.x, ref.P = x.copy(), P.copy()
+    ref.update(z[rows], lambda s: attitude_jacobian(s, FIELD)[rows], lambda s: attitude_measurement(s, FIELD)[rows],
+               R=R[rows, rows])
+    np.testing.assert_allclose(y, ref.y, atol=1e-10)
+    np.testing.assert_allclose(S, ref.S, rtol=1e-10)
+    np.testing.assert_allclose(P_new, ref.P, rtol=1e-8, atol=1e-14)
+    np.testing.assert_allclose(wrap_angle(x_new - ref.x), 0.0, atol=1e-10)
+    assert -np.pi < x_new[2] <= np.pi
+
+
+def test_update_rejects_bad_shapes_and_nan_accelerometer():
+    with pytest.raises(ValueError, match="shape"):
+        euler_ekf_update(np.zeros(3), np.eye(3), np.zeros(5), np.eye(6))
+    with pytest.raises(ValueError, match="accelerometer part"):
+        euler_ekf_update(np.zeros(3), np.eye(3), np.r_[np.nan, 0, 0, 1, 1, 1], np.ones(6))
+
+
+def test_yaw_update_across_plus_minus_pi_moves_the_short_way():
+    # Truth ψ = −179°, estimate ψ = +179°: the mag innovation must pull ψ through ±180° (2°), not back 358°.
+    truth, x = np.radians([0.0, 0.0, -179.0]), np.radians([0.0, 0.0, 179.0])
+    z = attitude_measurement(truth, FIELD)
+    P = np.diag(np.radians([1.0, 1.0, 5.0]) ** 2)
+    x_new, *_ = euler_ekf_update(x, P, z, np.r_[[0.01] * 3, [0.01] * 3], FIELD)
+    assert abs(wrap_angle(x_new[2] - truth[2])) < np.radians(0.2)
+    assert -np.pi < x_new[2] <= np.pi
+
+
+# ---------------------------------------------------------------------------------------
+# The whole filter
+# ---------------------------------------------------------------------------------------
+def test_fast_run_equals_the_numpy_step_functions():
+    rng = np.random.default_rng(7)
+    t, euler, omega = smooth_motion(rng, 5.0, 100.0)
+    gyr, acc, mag = sensors(rng, euler, omega, 0.01, 0.05, 0.5)
+    acc[100:130] *= 1.2  # ‖f‖ ≈ 1.2 g: gated rows
+    mag[1::2] = np.nan  # magnetometer at half rate
+    res = EulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    ekf = EulerAttitudeEKF(100.0, field_n=FIELD)
+    for k in range(len(t)):
+        x, P, y, S = ekf.step(gyr[k], acc[k], mag[k])
+        np.testing.assert_allclose(res.euler[k], x, atol=1e-9)
+        np.testing.assert_allclose(res.P[k], P, rtol=1e-7, atol=1e-15)
+        m = len(y)
+        np.testing.assert_allclose(res.y[k, :m], y, atol=1e-9)
+        np.testing.assert_allclose(res.S[k, :m, :m], S, rtol=1e-8)
+        assert np.isnan(res.y[k, m:]).all()
+        assert res.nis[k] == pytest.approx(y @ np.linalg.solve(S, y), rel=1e-7, abs=1e-12)
+    assert res.mag_used.sum() == np.sum(~np.isnan(mag[:, 0]))
+    assert res.accel_gated[100:130].all() and not res.accel_gated[:100].any()
+    np.testing.assert_allclose(quat_to_euler(res.quat), res.euler, atol=1e-9)
+
+
+def test_quaternions_match_scipy():
+    rng = np.random.default_rng(8)
+    e = random_states(rng, 50, np.radians(89))
+    q = euler_to_quat(e)
+    ref = scipy_rotation(e).as_quat()[:, [3, 0, 1, 2]]  # scipy is x-y-z-w
+    ref *= np.sign(ref[:, :1])
+    np.testing.assert_allclose(q, ref, atol=1e-12)
+
+
+def test_tracks_a_smooth_motion_and_yaw_across_plus_minus_pi():
+    rng = np.random.default_rng(9)
+    t, euler, omega = smooth_motion(rng, 30.0, 100.0, amp=(0.5, 0.4, 1.0))
+    euler[:, 2] = wrap_angle(euler[:, 2] + np.pi)  # heading around south: ψ crosses ±π repeatedly
+    gyr, acc, mag = sensors(rng, euler, omega, 0.005, 0.05, 0.5)
+    assert np.any(np.abs(np.diff(euler[:, 2])) > np.pi)
+    res = EulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    err = np.degrees(np.abs(wrap_angle(res.euler - euler)))
+    assert np.sqrt((err ** 2).mean(axis=0)).max() < 1.0
+    assert np.all((res.euler[:, 2] > -np.pi) & (res.euler[:, 2] <= np.pi))
+
+
+def test_accelerometer_gating_flags_accelerating_rows_and_protects_tilt():
+    rng = np.random.default_rng(10)
+    t, euler, omega = smooth_motion(rng, 20.0, 100.0, amp=(0.3, 0.3, 0.5))
+    acc_n = np.zeros((len(t), 3))
+    shake = (t >= 8.0) & (t < 11.0)
+    acc_n[shake, 1] = 6.0 * np.sin(2 * np.pi * 1.0 * (t[shake] - 8.0))  # sideways shake, m/s²
+    gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.02, 0.3, acc_n=acc_n)
+    gated_truth = np.abs(np.linalg.norm(acc, axis=1) - G) > 1.0
+    runs = {gate: EulerAttitudeEKF(100.0, field_n=FIELD, accel_gate=gate, accel_noise=0.1).run(gyr, acc, mag)
+            for gate in (1.0, None)}
+    np.testing.assert_array_equal(runs[1.0].accel_gated, gated_truth)
+    assert not runs[None].accel_gated.any()
+    roll_err = {gate: np.degrees(np.abs(wrap_angle(r.euler[shake, 0] - euler[shake, 0]))).max() for gate, r in runs.items()}
+    assert roll_err[1.0] < 0.5 * roll_err[None]
+
+
+def test_nan_magnetometer_rows_leave_yaw_to_the_gyro():
+    rng = np.random.default_rng(11)
+    t, euler, omega = smooth_motion(rng, 10.0, 100.0)
+    gyr, acc, mag = sensors(rng, euler, omega, 0.005, 0.05, 0.5)
+    mag[200:] = np.nan
+    res = EulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    assert res.mag_used[:200].all() and not res.mag_used[200:].any()
+    assert np.isnan(res.y[200:, 3:]).all() and np.isnan(res.S[200:, 3:, 3:]).all()
+    # The accelerometer cannot observe yaw (H has a zero yaw column): a yaw error made after the
+    # magnetometer stops stays, while a roll error is corrected.
+    assert np.all(attitude_jacobian(euler[0], FIELD)[:3, 2] == 0)
+    x0 = euler[0] + np.radians([10.0, 0.0, 20.0])
+    res = EulerAttitudeEKF(100.0, field_n=FIELD, x0=x0).run(gyr, acc, np.full_like(mag, np.nan))
+    err = np.degrees(wrap_angle(res.euler[-1] - euler[-1]))
+    assert abs(err[0]) < 1.0 and abs(err[2] - 20.0) < 2.0
+
+
+def test_monte_carlo_nees_and_nis_inside_chi2_bounds():
+    # A filter tuned with the true noise levels on data made with white Gaussian noise must be
+    # consistent: final-time NEES averaged over runs ~ χ²(3)/runs; NIS over all steps ~ χ²(Σ dof).
+    rng = np.random.default_rng(12)
+    sg, sa, sm, runs = 0.02, 0.05, 0.5, 60
+    final_nees, nis_sum, dof_sum = [], 0.0, 0
+    for _ in range(runs):
+        t, euler, omega = smooth_motion(rng, 8.0, 100.0, amp=(0.5, 0.4, 1.0), freq=(0.02, 0.1))
+        gyr, acc, mag = sensors(rng, euler, omega, sg, sa, sm)
+        mag[1::2] = np.nan
+        P0 = np.diag(np.radians([2.0, 2.0, 4.0]) ** 2)
+        x0 = euler[0] + rng.multivariate_normal(np.zeros(3), P0)
+        # gyr[k] is the rate at t_k; the filter predicts t_{k-1} → t_k, so its first sample is t_1.
+        res = EulerAttitudeEKF(100.0, gyro_noise=sg, accel_noise=sa, mag_noise=sm, field_n=FIELD, accel_gate=None,
+                               x0=x0, P0=P0).run(gyr[1:], acc[1:], mag[1:])
+        final_nees.append(nees(wrap_angle(res.euler[-1:] - euler[-1:]), res.P[-1:])[0])
+        nis_sum += res.nis.sum()
+        dof_sum += res.dof.sum()
+    lo, hi = chi2_bounds(3, runs)
+    assert lo <= np.mean(final_nees) <= hi
+    assert chi2.ppf(0.025, dof_sum) <= nis_sum <= chi2.ppf(0.975, dof_sum)
+
+
+# ---------------------------------------------------------------------------------------
+# estimate_attitude: the front door and its input checks
+# ---------------------------------------------------------------------------------------
+def _clean_inputs(n=300):
+    rng = np.random.default_rng(13)
+    t, euler, omega = smooth_motion(rng, n / 100.0, 100.0)
+    return euler, *sensors(rng, euler, omega, 0.005, 0.05, 0.5)
+
+
+def test_estimate_attitude_defaults_learn_magnetic_north():
+    euler, gyr, acc, mag = _clean_inputs(1000)
+    res = estimate_attitude(gyr, acc, mag, 100.0)
+    assert res.method == "euler-ekf" and res.quat.shape == (1000, 4) and res.euler.shape == (1000, 3)
+    # Learned field has no east component: yaw is relative to magnetic north (declination removed).
+    declination = np.arctan2(FIELD[1], FIELD[0])
+    err = wrap_angle(res.euler - euler + [0, 0, declination])
+    assert np.degrees(np.sqrt((err[100:] ** 2).mean(axis=0))).max() < 1.5
+    np.testing.assert_allclose(np.linalg.norm(res.quat, axis=1), 1.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda g, a, m: (g[:, :2], a, m), r"gyr must have shape \(N, 3\)"),
+    (lambda g, a, m: (g, a[:-1], m), "acc has 299 rows but gyr has 300"),
+    (lambda g, a, m: (g, np.where(np.arange(300)[:, None] == 17, np.nan, a), m), "acc row 17 is not finite"),
+    (lambda g, a, m: (np.where(np.arange(300)[:, None] == 5, np.inf, g), a, m), "gyr row 5 is not finite"),
+    (lambda g, a, m: (g, a / G, m), "looks like it is in g"),
+    (lambda g, a, m: (np.degrees(g) * 20, a, m), "°/s"),
+    (lambda g, a, m: (g, a, m * 1e-6), "tesla"),
+    (lambda g, a, m: (g, a, m / 100), "gauss"),
+    (lambda g, a, m: (g, a, np.where(np.arange(300)[:, None] == 9, [np.nan, 1.0, 1.0], m)), "mag row 9 is partly NaN"),
+])
+def test_estimate_attitude_rejects_bad_inputs_with_a_hint(change, message):
+    _, gyr, acc, mag = _clean_inputs()
+    with pytest.raises(ValueError, match=message):
+        estimate_attitude(*change(gyr, acc, mag), 100.0)
+
+
+def test_estimate_attitude_rejects_bad_rate_and_method():
+    _, gyr, acc, mag = _clean_inputs()
+    with pytest.raises(ValueError, match="rate_hz"):
+        estimate_attitude(gyr, acc, mag, 0)
+    with pytest.raises(ValueError, match="unknown method 'ukf'"):
+        estimate_attitude(gyr, acc, mag, 100.0, method="ukf")
+
+
+def test_estimate_attitude_without_magnetometer():
+    euler, gyr, acc, _ = _clean_inputs()
+    res = estimate_attitude(gyr, acc, None, 100.0)
+    assert not res.mag_used.any()
+    assert np.degrees(np.abs(wrap_angle(res.euler[:, :2] - euler[:, :2]))).max() < 3.0
+
+
+# ---------------------------------------------------------------------------------------
+# MEKF: the quaternion filter with gyro bias
+# ---------------------------------------------------------------------------------------
+
+
+def rotvec_error_ned(q_est, euler_true):
+    """δφ_n = rotvec(R_true R_estᵀ) (rad), the NED-frame attitude error the MEKF's P describes."""
+    r_est = Rotation.from_quat(np.asarray(q_est)[:, [1, 2, 3, 0]])
+    return (scipy_rotation(euler_true) * r_est.inv()).as_rotvec()
+
+
+def pitch_over_motion(rng, duration=40.0, rate_hz=100.0):
+    """Pitch swings of ±110° (through ±90° twice per cycle) with roll and yaw motion on top."""
+    t = np.arange(int(round(duration * rate_hz))) / rate_hz
+    f = 0.05
+    e = np.column_stack([0.3 * np.sin(2 * np.pi * 0.07 * t), np.radians(110) * np.sin(2 * np.pi * f * t),
+                         0.8 * np.sin(2 * np.pi * 0.03 * t + 1.0)])
+    ed = np.column_stack([0.3 * 2 * np.pi * 0.07 * np.cos(2 * np.pi * 0.07 * t),
+                          np.radians(110) * 2 * np.pi * f * np.cos(2 * np.pi * f * t),
+                          0.8 * 2 * np.pi * 0.03 * np.cos(2 * np.pi * 0.03 * t + 1.0)])
+    return t, e, euler_rates_to_body_rates(e, ed)
+
+
+def test_mekf_tracks_through_pitch_plus_minus_90_degrees():
+    rng = np.random.default_rng(20)
+    t, euler, omega = pitch_over_motion(rng)
+    gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.05, 0.5)
+    assert np.degrees(np.abs(euler[:, 1])).max() > 100  # really goes over the top
+    res = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD)
+    total, heading, incl = attitude_errors(res.quat, euler_to_quat(euler))
+    near_lock = np.abs(np.abs(euler[:, 1]) - np.pi / 2) < np.radians(5)
+    assert near_lock.sum() > 50
+    assert np.degrees(total).max() < 1.5
+    assert np.degrees(total[near_lock]).max() < 1.5
+    np.testing.assert_allclose(np.linalg.norm(res.quat, axis=1), 1.0, atol=1e-12)
+
+
+def test_mekf_estimates_a_constant_gyro_bias():
+    rng = np.random.default_rng(21)
+    t, euler, omega = smooth_motion(rng, 60.0, 100.0, amp=(0.6, 0.5, 2.0))
+    bias = np.radians([0.8, -0.5, 0.3])
+    gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.05, 0.5)
+    res = estimate_attitude(gyr + bias, acc, mag, 100.0, method="mekf", field_n=FIELD)
+    np.testing.assert_allclose(np.degrees(res.bias[-1]), np.degrees(bias), atol=0.1)
+    total, _, _ = attitude_errors(res.quat[3000:], euler_to_quat(euler[3000:]))
+    assert np.degrees(np.sqrt(np.mean(total ** 2))) < 1.0
+
+
+def test_mekf_heading_update_leaves_tilt_alone():
+    # One magnetometer update with a 10° heading error and no prior correlation between tilt and
+    # heading errors: heading moves towards the truth, tilt does not move at all.
+    truth = np.radians([20.0, -30.0, 50.0])
+    q_wrong = euler_to_quat(truth + [0.0, 0.0, np.radians(10.0)])
+    acc, mag = attitude_measurement(truth, FIELD)[:3], attitude_measurement(truth, FIELD)[3:]
+    R_nb = scipy_rotation(truth).as_matrix()
+    P0 = np.diag(np.r_[[1e-12] * 6])
+    P0[:3, :3] = R_nb.T @ np.diag(np.radians([1.0, 1.0, 20.0]) ** 2) @ R_nb  # diagonal in NED
+    f = MultiplicativeEKF(100.0, field_n=FIELD, q0=q_wrong, P0=P0, gyro_noise=0.0, gyro_bias_rw=0.0, accel_tau=None)
+    res = f.run(np.zeros((1, 3)), acc[None], mag[None])
+    _, heading, incl = attitude_errors(res.quat, euler_to_quat(truth)[None])
+    assert res.mag_used[0]
+    assert incl[0] < 1e-9
+    assert np.degrees(heading[0]) < 1.0
+
+
+def test_mekf_rejects_a_magnetic_disturbance_by_norm_and_dip():
+    rng = np.random.default_rng(22)
+    t, euler, omega = smooth_motion(rng, 40.0, 100.0, amp=(0.3, 0.3, 1.5))
+    gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.05, 0.3)
+    window = (t >= 15.0) & (t < 25.0)
+    mag[window] += [15.0, -10.0, 5.0]  # a steel object fixed to the board (body frame), µT
+    runs = {gated: estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD,
+                                     **({} if gated else {"mag_norm_gate": None, "mag_dip_gate": None}))
+            for gated in (True, False)}
+    assert runs[True].mag_gated[window].mean() > 0.95
+    assert not runs[True].mag_used[window].any() and not runs[True].mag_gated[~window][:1000].any()
+    assert not runs[False].mag_gated.any()
+    heading = {g: np.degrees(attitude_errors(r.quat, euler_to_quat(euler))[1][window]).max() for g, r in runs.items()}
+    assert heading[True] < 1.0 < 5.0 < heading[False]
+
+
+def test_mekf_nees_and_nis_inside_chi2_bounds():
+    # White Gaussian sensor noise, no bias, raw accelerometer (no low-pass, whose output is
+    # correlated in time): the MEKF tuned with the true noise must be consistent.
+    rng = np.random.default_rng(23)
+    sg, sa, sm, runs = 0.02, 0.05, 0.5, 40
+    final_nees, nis_sum, dof_sum = [], 0.0, 0
+    for _ in range(runs):
+        t, euler, omega = smooth_motion(rng, 8.0, 100.0, amp=(0.5, 0.4, 1.0), freq=(0.02, 0.1))
+        gyr, acc, mag = sensors(rng, euler, omega, sg, sa, sm)
+        P0 = np.diag(np.r_[np.radians([2.0, 2.0, 4.0]) ** 2, [1e-14] * 3])
+        q0 = (scipy_rotation(euler[0]) * Rotation.from_rotvec(rng.multivariate_normal(np.zeros(3), P0[:3, :3]))
+              ).as_quat()[[3, 0, 1, 2]]
+        f = MultiplicativeEKF(100.0, gyro_noise=sg, gyro_bias_rw=0.0, accel_noise=sa, mag_noise=sm, accel_gate=None,
+                              field_n=FIELD, mag_norm_gate=None, mag_dip_gate=None, accel_tau=None, q0=q0, P0=P0)
+        res = f.run(gyr[1:], acc[1:], mag[1:])
+        e = rotvec_error_ned(res.quat[-1:], euler[-1:])
+        final_nees.append(nees(e, res.P[-1:])[0])
+        nis_sum += res.nis.sum()
+        dof_sum += res.dof.sum()
+    lo, hi = chi2_bounds(3, runs)
+    assert lo <= np.mean(final_nees) <= hi
+    assert chi2.ppf(0.0005, dof_sum) <= nis_sum <= chi2.ppf(0.9995, dof_sum)
+
+
+def test_mekf_result_layout_and_heading_innovations():
+    euler, gyr, acc, mag = _clean_inputs(400)
+    mag[1::2] = np.nan
+    res = estimate_attitude(gyr, acc, mag, 100.0, method="mekf")
+    assert res.method == "mekf" and res.quat.shape == (400, 4) and res.P.shape == (400, 3, 3) and res.bias.shape == (400, 3)
+    assert np.array_equal(res.mag_used, ~np.isnan(mag[:, 0]) & ~res.mag_gated)
+    assert set(np.unique(res.dof)) <= {3, 4}
+    assert np.all(np.isnan(res.y[:, 4:])) and np.all(np.abs(res.y[res.mag_used, 3]) <= np.pi)
+    np.testing.assert_allclose(quat_to_euler(res.quat), res.euler, atol=1e-9)
+    with pytest.raises(ValueError, match="acc row 3 is not finite"):
+        acc[3] = np.nan
+        estimate_attitude(gyr, acc, mag, 100.0, method="mekf")

@@ -1,0 +1,131 @@
+"""kfkit.io.load_broad: a small file in BROAD's format written here, and the real trials when present."""
+import glob
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.io
+from scipy.spatial.transform import Rotation
+
+from kfkit.filters import estimate_attitude
+from kfkit.filters.attitude import quat_to_dcm
+from kfkit.frames import G
+from kfkit.io import RecordingError, enu_to_ned_quat, load_broad
+from kfkit.metrics import attitude_errors
+
+BROAD_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"
+REAL_TRIALS = sorted(glob.glob(str(BROAD_DIR / "*.mat")))
+ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # swap x, y; negate z
+FIELD_ENU = np.array([0.0, 18.0, -44.0])  # magnetic north along ENU y, pointing down: µT
+
+
+def write_trial(path, n=3000, rate=200.0, seed=0):
+    """A BROAD-format trial: an IMU (z up) turned slowly, ENU truth with a NaN gap."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / rate
+    rotvec = np.column_stack([0.4 * np.sin(0.5 * t), 0.3 * np.sin(0.3 * t + 1), 1.2 * np.sin(0.2 * t)])
+    rot = Rotation.from_rotvec(rotvec)  # IMU → ENU
+    omega = np.empty((n, 3))  # body rates from consecutive rotations (finite differences)
+    omega[1:] = (rot[:-1].inv() * rot[1:]).as_rotvec() * rate
+    omega[0] = omega[1]
+    acc = rot.inv().apply([0.0, 0.0, G]) + rng.normal(0, 0.02, (n, 3))  # specific force points up
+    mag = rot.inv().apply(FIELD_ENU) + rng.normal(0, 0.2, (n, 3))
+    quat = rot.as_quat()[:, [3, 0, 1, 2]]
+    quat[500:520] = np.nan
+    movement = np.zeros((n, 1), np.uint8)
+    movement[400:] = 1
+    scipy.io.savemat(path, {"imu_gyr": omega + rng.normal(0, 0.002, (n, 3)), "imu_acc": acc, "imu_mag": mag,
+                            "opt_quat": quat, "opt_pos": np.zeros((n, 3)), "sampling_rate": np.array([[rate]]),
+                            "movement": movement, "info": np.array(["test trial"])})
+    return rot
+
+
+def test_enu_to_ned_quaternion_matches_the_frame_matrix():
+    rng = np.random.default_rng(1)
+    rot = Rotation.from_quat(rng.normal(size=(40, 4)))
+    q_ned = enu_to_ned_quat(rot.as_quat()[:, [3, 0, 1, 2]])
+    np.testing.assert_allclose(quat_to_dcm(q_ned), ENU_TO_NED @ rot.as_matrix(), atol=1e-12)
+    assert np.isclose(np.linalg.det(ENU_TO_NED), 1.0)
+
+
+def test_load_broad_reads_the_format_and_converts_truth_to_ned(tmp_path):
+    path = tmp_path / "99_test_trial.mat"
+    rot = write_trial(path)
+    rec = load_broad(path)
+    raw = scipy.io.loadmat(path)
+    assert len(rec) == 3000 and rec.rate_hz == 200.0 and rec.meta["trial"] == "99_test_trial"
+    np.testing.assert_array_equal(rec.body("gyr"), raw["imu_gyr"])
+    np.testing.assert_array_equal(rec.body("acc"), raw["imu_acc"])
+    np.testing.assert_array_equal(rec.body("mag"), raw["imu_mag"])
+    q = np.column_stack([rec[c] for c in ("true_qw", "true_qx", "true_qy", "true_qz")])
+    ok = ~np.isnan(q[:, 0])
+    assert ok.sum() == 2980 and np.isnan(rec.truth()[500:520]).all()
+    np.testing.assert_allclose(quat_to_dcm(q[ok]), ENU_TO_NED @ rot.as_matrix()[ok], atol=1e-12)
+    ned = Rotation.from_matrix(ENU_TO_NED @ rot.as_matrix()[ok]).as_euler("ZYX")[:, ::-1]
+    np.testing.assert_allclose(np.cos(rec.truth()[ok] - ned), 1.0, atol=1e-9)
+    assert rec["movement"].dtype == bool and rec["movement"].sum() == 2600
+    # At rest the truth must map the measured specific force onto −g along NED down.
+    f_n = np.einsum("nij,nj->ni", quat_to_dcm(q[:5]), rec.body("acc")[:5])
+    np.testing.assert_allclose(f_n, np.tile([0, 0, -G], (5, 1)), atol=0.2)
+
+
+def test_filters_on_a_broad_format_file_agree_with_its_truth(tmp_path):
+    # End to end: the filter's sensor → NED (magnetic north) output against truth converted from ENU.
+    path = tmp_path / "98_test_trial.mat"
+    write_trial(path, n=4000)
+    rec = load_broad(path)
+    q_true = np.column_stack([rec[c] for c in ("true_qw", "true_qx", "true_qy", "true_qz")])
+    for method in ("euler-ekf", "mekf"):
+        res = estimate_attitude(rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz, method=method)
+        total, heading, incl = attitude_errors(res.quat, q_true)
+        keep = rec["movement"] & ~np.isnan(total)
+        assert np.degrees(np.sqrt(np.mean(total[keep] ** 2))) < 1.5, method
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda d: d.pop("opt_quat"), "missing field.*opt_quat"),
+    (lambda d: d.update(imu_acc=np.zeros((10, 2))), r"'imu_acc' must have shape \(N, 3\)"),
+    (lambda d: d.update(imu_mag=np.zeros((9, 3))), "'imu_mag' has 9 rows but imu_gyr has 10"),
+    (lambda d: d.update(movement=np.zeros((3, 1))), "'movement' has 3 entries"),
+    (lambda d: d.update(sampling_rate=np.array([[0.0]])), "'sampling_rate' must be positive"),
+    (lambda d: d["imu_gyr"].__setitem__((4, 1), np.nan), "'imu_gyr' row 4 is not finite"),
+])
+def test_load_broad_names_the_bad_field(tmp_path, change, message):
+    data = {"imu_gyr": np.zeros((10, 3)), "imu_acc": np.tile([0, 0, G], (10, 1)), "imu_mag": np.ones((10, 3)),
+            "opt_quat": np.tile([1.0, 0, 0, 0], (10, 1)), "sampling_rate": np.array([[100.0]]),
+            "movement": np.ones((10, 1), np.uint8)}
+    change(data)
+    path = tmp_path / "bad.mat"
+    scipy.io.savemat(path, data)
+    with pytest.raises(RecordingError, match=message) as err:
+        load_broad(path)
+    assert "bad.mat" in str(err.value)
+
+
+def test_load_broad_rejects_a_file_that_is_not_mat(tmp_path):
+    path = tmp_path / "trial.mat"
+    path.write_text("not a mat file")
+    with pytest.raises(RecordingError, match="trial.mat"):
+        load_broad(path)
+    with pytest.raises(FileNotFoundError, match="no BROAD trial"):
+        load_broad(tmp_path / "missing.mat")
+
+
+@pytest.mark.skipif(not REAL_TRIALS, reason=f"no BROAD trials in {BROAD_DIR}")
+@pytest.mark.parametrize("path", REAL_TRIALS, ids=[Path(p).stem for p in REAL_TRIALS])
+def test_real_broad_trial(path):
+    rec = load_broad(path)
+    q = np.column_stack([rec[c] for c in ("true_qw", "true_qx", "true_qy", "true_qz")])
+    ok = ~np.isnan(q[:, 0])
+    np.testing.assert_allclose(np.linalg.norm(q[ok], axis=1), 1.0, atol=1e-6)
+    assert rec["movement"].any() and 100 < rec.rate_hz < 1000
+    # Physics check of the ENU → NED conversion on real data: in the still start, the truth maps the
+    # measured specific force onto −g along NED down (within a couple of degrees).
+    still = np.flatnonzero(ok & ~rec["movement"])[:200]
+    f_n = np.einsum("nij,nj->ni", quat_to_dcm(q[still]), rec.body("acc")[still]).mean(axis=0)
+    assert np.degrees(np.arccos(-f_n[2] / np.linalg.norm(f_n))) < 2.0
+    # The first 20 s through the MEKF: inclination within a degree of the optical truth.
+    n = int(20 * rec.rate_hz)
+    res = estimate_attitude(rec.body("gyr")[:n], rec.body("acc")[:n], rec.body("mag")[:n], rec.rate_hz, method="mekf")
+    _, _, incl = attitude_errors(res.quat, q[:n])
+    assert np.degrees(np.sqrt(np.nanmean(incl ** 2))) < 1.0
