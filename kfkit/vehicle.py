@@ -20,6 +20,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -46,9 +47,12 @@ class BicycleParams:
     Cr  rear-axle cornering stiffness, N/rad        160 000  (2 × 80 000 per tyre)
     mu  tyre–road friction coefficient (nonlinear model only), 1.0 (dry asphalt)
 
-    Numbers from the example vehicle of Rajamani, *Vehicle Dynamics and Control* (2nd ed.,
-    Springer 2012, ch. 3), whose Cαf = Cαr = 80 000 N/rad are per tyre; the bicycle model lumps
-    both tyres of an axle, so Cf = Cr = 160 000 N/rad here. Understeering: a·Cf < b·Cr.
+    Numbers from the example passenger sedan of R. Rajamani, *Vehicle Dynamics and Control* (2nd ed.,
+    Springer 2012, ch. 3, lateral vehicle dynamics), whose Cαf = Cαr = 80 000 N/rad are per tyre (his
+    equations carry 2Cα per axle); the bicycle model lumps both tyres of an axle, so Cf = Cr =
+    160 000 N/rad here. Plausible: 80 000 N/rad ≈ 1400 N/° per tyre (passenger tyres: 1000–2000 N/°),
+    Iz ≈ m·a·b (2734 kg·m²), 59 % of the weight on the front axle. Understeering: a·Cf < b·Cr
+    (176 000 < 252 800 N·m/rad), understeer gradient K ≈ 0.0018 rad/(m/s²) ≈ 1°/g.
     """
 
     m: float = 1573.0
@@ -172,7 +176,7 @@ def miscopied_linear_model(params: BicycleParams, vx: float):
 
     Kept only so lab 06 can show what it does. Compared with the correct model:
     β̇'s r-coefficient (b Cr − a Cf)/(m Vx) − 1 (should be over m Vx²: units m/s, not 1);
-    ṙ's β-coefficient (b Cr − a Cf)/(Iz Vx) (should not divide by Vx: units 1/s, not 1/s²);
+    ṙ's β-coefficient (b Cr − a Cf)/(Iz Vx) (should not divide by Vx: units 1/(m·s), not 1/s²);
     a_y's r-coefficient (b Cr − a Cf)/(m Vx) + Vx (the centripetal Vx·r counted twice).
     """
     A, B, C, D = linear_model(params, vx)
@@ -428,7 +432,7 @@ VEHICLE_TRUTH = ("true_beta", "true_yaw_rate", "true_vy")
 
 #: unit name → factor to SI, per kind of quantity (the options of :func:`load_vehicle_csv`)
 UNITS = {
-    "t": {"s": 1.0, "ms": 1e-3},
+    "t": {"s": 1.0, "ms": 1e-3, "us": 1e-6},
     "delta": {"rad": 1.0, "deg": math.pi / 180.0},
     "yaw_rate": {"rad/s": 1.0, "deg/s": math.pi / 180.0},
     "ay": {"m/s^2": 1.0, "m/s2": 1.0, "g": G},
@@ -456,21 +460,28 @@ def save_vehicle(rec: Recording, path) -> Path:
     return path
 
 
-def _read_rows(path, lines, first_lineno, header, columns, scale, delimiter=","):
-    """Parse CSV ``lines`` (after the header) into SI arrays for ``columns`` {kit name: file column}."""
+def _read_rows(path, lines, first_lineno, header, columns, delimiter=","):
+    """Parse CSV ``lines`` (after the header) into arrays for ``columns`` {kit name: file column}, in the file's units.
+
+    Returns (data, line numbers of the rows). Errors name the file, the line and the column.
+    """
     index = {}
     for name, col in columns.items():
         if col not in header:
             raise RecordingError(path, first_lineno - 1, f"no column {col!r} for {name} (columns in the file: {', '.join(header)})")
+        if header.count(col) > 1:
+            raise RecordingError(path, first_lineno - 1, f"column {col!r} (for {name}) appears {header.count(col)} times in the header")
         index[name] = header.index(col)
     values = {name: [] for name in columns}
+    linenos = []
     t_prev = None
     for offset, cells in enumerate(csv.reader(lines, delimiter=delimiter)):
         lineno = first_lineno + offset
         if not cells or all(not c.strip() for c in cells):
             continue
-        if len(cells) < len(header):
-            raise RecordingError(path, lineno, f"expected {len(header)} fields ({','.join(header)}), got {len(cells)}")
+        # a trailing delimiter (spreadsheet exports) adds empty cells: allowed; anything else must match the header
+        if len(cells) < len(header) or any(c.strip() for c in cells[len(header):]):
+            raise RecordingError(path, lineno, f"expected {len(header)} fields ({delimiter.join(header)}), got {len(cells)}")
         for name, i in index.items():
             text = cells[i].strip()
             try:
@@ -480,14 +491,15 @@ def _read_rows(path, lines, first_lineno, header, columns, scale, delimiter=",")
                 raise RecordingError(path, lineno, f"column {header[i]!r} ({name}): {what}") from None
             if not math.isfinite(v):
                 raise RecordingError(path, lineno, f"column {header[i]!r} ({name}): {text!r} is not a finite number")
-            values[name].append(v * scale[name])
+            values[name].append(v)
         t = values["t"][-1]
         if t_prev is not None and t <= t_prev:
-            raise RecordingError(path, lineno, f"time (column {header[index['t']]!r}) does not increase: {t:g} s after {t_prev:g} s")
+            raise RecordingError(path, lineno, f"time (column {header[index['t']]!r}) does not increase: {t:.10g} after {t_prev:.10g}")
         t_prev = t
+        linenos.append(lineno)
     if t_prev is None:
         raise RecordingError(path, first_lineno, "no data rows")
-    return {name: np.asarray(v) for name, v in values.items()}
+    return {name: np.asarray(v) for name, v in values.items()}, np.asarray(linenos)
 
 
 def _read_text(path) -> list[str]:
@@ -516,19 +528,26 @@ def load_vehicle(path) -> Recording:
         raise RecordingError(path, 2, "no column-name line")
     header = [c.strip() for c in lines[1].split(",")]
     wanted = [c for c in VEHICLE_COLUMNS + VEHICLE_TRUTH if c in header or c in VEHICLE_COLUMNS]
-    data = _read_rows(path, lines[2:], 3, header, {c: c for c in wanted}, {c: 1.0 for c in wanted})
+    data, _ = _read_rows(path, lines[2:], 3, header, {c: c for c in wanted})
     return Recording(meta, data, path)
 
 
-def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter=",", comment="#") -> Recording:
+def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter=",", comment="#",
+                     steer_ratio: float | None = None, negate=()) -> Recording:
     """Load your own drive from a CSV (a logger or spreadsheet export) by naming its columns.
 
     ``columns`` maps the kit's names to the file's header names: required ``t``, ``delta``
     (road-wheel steering), ``yaw_rate``, ``ay``, ``vx``; optional ``true_beta``,
     ``true_yaw_rate``, ``true_vy``. ``units`` picks each column's unit (default SI):
-    t 's'|'ms', delta/true_beta 'rad'|'deg', yaw_rate 'rad/s'|'deg/s', ay 'm/s^2'|'g',
-    vx/true_vy 'm/s'|'km/h'. Lines starting with ``comment`` are skipped; the first other line
-    is the header. Everything is converted to SI. Errors name the file, line and column.
+    t 's'|'ms'|'us', delta/true_beta 'rad'|'deg', yaw_rate 'rad/s'|'deg/s', ay 'm/s^2'|'g',
+    vx/true_vy 'm/s'|'km/h'. ``steer_ratio``: the delta column is the steering-*wheel* angle,
+    divided by this ratio (e.g. 16) to give the road-wheel angle. ``negate``: kit names whose
+    sign is flipped to ISO 8855 (y left, z up): a y-right/z-down logger needs ('yaw_rate', 'ay').
+    Lines starting with ``comment`` are skipped; the first other line is the header; a trailing
+    delimiter is allowed. Everything is converted to SI and t starts at 0 (the file's first time
+    is kept in ``meta['t0']``, s). V_x = 0 (standing) is valid (:func:`~kfkit.filters.estimate_sideslip`
+    handles it); V_x < 0 (reversing) is not. Errors name the file, line and column; a warning
+    names the file when the signs of δ, r and a_y disagree in the turns (:func:`sign_check`).
 
         rec = load_vehicle_csv("mycar.csv", columns={"t": "Time", "delta": "RoadWheelAngle",
                                "yaw_rate": "YawRate", "ay": "LatAcc", "vx": "Speed"},
@@ -537,17 +556,22 @@ def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter="
     path = Path(path)
     units = dict(units or {})
     missing = [c for c in VEHICLE_COLUMNS if c not in columns]
-    unknown = [c for c in list(columns) + list(units) if c not in UNITS]
+    unknown = [c for c in dict.fromkeys([*columns, *units, *negate]) if c not in UNITS]
     if missing or unknown:
         raise ValueError(f"load_vehicle_csv({path}): columns must name {', '.join(VEHICLE_COLUMNS)} "
                          f"(optional {', '.join(VEHICLE_TRUTH)})" + (f"; missing {', '.join(missing)}" if missing else "") +
                          (f"; unknown {', '.join(unknown)}" if unknown else ""))
+    if steer_ratio is not None and not (math.isfinite(steer_ratio) and steer_ratio > 0):
+        raise ValueError(f"load_vehicle_csv({path}): steer_ratio must be a positive number (steering wheel ÷ road wheel), "
+                         f"got {steer_ratio!r}")
     scale = {}
     for name in columns:
         unit = units.get(name, next(iter(UNITS[name])))
         if unit not in UNITS[name]:
             raise ValueError(f"load_vehicle_csv({path}): unit {unit!r} for {name}; choose one of {', '.join(UNITS[name])}")
-        scale[name] = UNITS[name][unit]
+        scale[name] = UNITS[name][unit] * (-1.0 if name in negate else 1.0)
+    if steer_ratio is not None:
+        scale["delta"] /= steer_ratio
     lines = _read_text(path)
     skip = 0
     while skip < len(lines) and (not lines[skip].strip() or lines[skip].lstrip().startswith(comment)):
@@ -555,9 +579,48 @@ def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter="
     if skip == len(lines):
         raise RecordingError(path, None, "the file has no header line")
     header = [c.strip() for c in next(csv.reader([lines[skip]], delimiter=delimiter))]
-    data = _read_rows(path, lines[skip + 1:], skip + 2, header, dict(columns), scale, delimiter)
-    data = {k: data[k] for k in VEHICLE_COLUMNS + VEHICLE_TRUTH if k in data}
+    while header and not header[-1]:  # "a;b;c;" from a spreadsheet: the rows may or may not end in ';' too
+        header.pop()
+    raw, linenos = _read_rows(path, lines[skip + 1:], skip + 2, header, dict(columns), delimiter)
+    if np.any(raw["vx"] * scale["vx"] < 0):
+        k = int(np.argmax(raw["vx"] * scale["vx"] < 0))
+        raise RecordingError(path, int(linenos[k]), f"column {columns['vx']!r} (vx): {raw['vx'][k]:g} "
+                             f"{units.get('vx', 'm/s')} is negative (reversing): the bicycle model is for forward driving; "
+                             "cut the reversing part or check the column's sign")
+    t0 = float(raw["t"][0])
+    raw["t"] = raw["t"] - t0  # before scaling: epoch timestamps in ms keep their resolution
+    data = {k: raw[k] * scale[k] for k in VEHICLE_COLUMNS + VEHICLE_TRUTH if k in raw}
+    t0 *= scale["t"]
     dt = np.diff(data["t"])
-    meta = {"rate_hz": float(1.0 / np.median(dt)) if len(dt) else 0.0, "source": str(path),
-            "columns": dict(columns), "units": {k: units.get(k, next(iter(UNITS[k]))) for k in columns}}
+    meta = {"rate_hz": float(1.0 / np.median(dt)) if len(dt) else 0.0, "source": str(path), "t0": t0,
+            "columns": dict(columns), "units": {k: units.get(k, next(iter(UNITS[k]))) for k in columns},
+            "negated": list(negate), "steer_ratio": steer_ratio}
+    for problem in sign_check(data["delta"], data["yaw_rate"], data["ay"], data["vx"]):
+        warnings.warn(f"{path}: {problem}", stacklevel=2)
     return Recording(meta, data, path)
+
+
+def sign_check(delta, yaw_rate, ay, vx, min_ay=1.0, min_samples=20) -> list[str]:
+    """What disagrees with ISO 8855 signs (δ, r, a_y all > 0 in a left turn), as messages; [] if all agree.
+
+    Looks only at the turns: samples with V_x > 3 m/s and |V_x·r| > ``min_ay`` (m/s²), at least
+    ``min_samples`` of them. In a turn a_y ≈ V_x·r and δ has the sign of r (counter-steering in a
+    drift is the exception, hence a warning, not an error).
+    """
+    delta, r, ay, vx = (np.asarray(v, dtype=float) for v in (delta, yaw_rate, ay, vx))
+    turning = (vx > 3.0) & (np.abs(vx * r) > min_ay)
+    if turning.sum() < min_samples:
+        return []
+    ay_vs_r = float(np.sum(ay[turning] * r[turning])) > 0
+    delta_vs_r = float(np.sum(delta[turning] * r[turning])) > 0
+    if ay_vs_r and delta_vs_r:
+        return []
+    if not ay_vs_r and delta_vs_r:
+        fix = "a_y has the wrong sign: pass negate=('ay',)"
+    elif not ay_vs_r:
+        fix = "the yaw rate has the wrong sign: pass negate=('yaw_rate',)"
+    else:
+        fix = ("steering disagrees with both: negate=('delta',) if your steering is positive to the right, or "
+               "negate=('yaw_rate', 'ay') if the logger's axes are y right, z down")
+    return [f"in the turns ({int(turning.sum())} samples) the signs of δ, r and a_y disagree with ISO 8855 "
+            f"(all three > 0 in a left turn; a_y ≈ V_x·r): {fix}"]

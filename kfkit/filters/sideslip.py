@@ -21,6 +21,13 @@ Low speed: the model's coefficients grow like 1/V_x and 1/V_x² as V_x → 0. Be
 and no correlation to r, keeps r⁻ = r (P_rr grows by q_r·dt), and updates with the yaw rate
 only (a_y carries no information on β at a crawl). Nothing divides by V_x there, so a stop or a
 start from rest is safe; the result's ``low_speed`` mask says which samples were handled so.
+
+Speed and sample-interval changes: (Ad, Bd, Qd) are recomputed whenever V_x moves to another
+``vx_step`` bin (default 0.05 m/s; the model is evaluated at the bin centre, so V_x is off by at most
+vx_step/2 and the 1/V_x² coefficient by at most vx_step/V_x: 2.5 % at v_min = 2 m/s, 1 % at 5 m/s,
+0.2 % at 25 m/s, far inside the ±20 % to which a cornering stiffness is known) or the sample interval
+moves to another 0.1 % bin around the median interval (logger timestamps jitter; without bins that
+would be two matrix exponentials per sample). Each bin is computed once per run.
 """
 from __future__ import annotations
 
@@ -109,15 +116,22 @@ def _as_inputs(t, delta, yaw_rate, ay, vx):
     return out
 
 
-class _ModelCache:
-    """(Ad, Bd, Qd, C, D) per (V_x quantised to ``vx_step``, dt); expm only when the speed bin changes."""
+DT_BIN = 1e-3  # relative width of the sample-interval bins (0.1 %: 10 µs at 100 Hz)
 
-    def __init__(self, model, params, Qc, bias, vx_step):
-        self.model, self.params, self.Qc, self.bias, self.vx_step = model, params, Qc, bias, vx_step
+
+class _ModelCache:
+    """(Ad, Bd, Qd, C, D) per bin of V_x (``vx_step`` m/s wide) and of dt (0.1 % around ``dt0``).
+
+    The model is discretised at the bin's speed and interval: V_x = key·vx_step, dt = dt0·(1 + DT_BIN)^key,
+    so an evenly sampled drive uses its exact interval.
+    """
+
+    def __init__(self, model, params, Qc, bias, vx_step, dt0):
+        self.model, self.params, self.Qc, self.bias, self.vx_step, self.dt0 = model, params, Qc, bias, vx_step, dt0
         self.table = {}
 
     def __call__(self, vx, dt):
-        key = (round(vx / self.vx_step), round(dt * 1e7))
+        key = (round(vx / self.vx_step), round(math.log(dt / self.dt0) / math.log1p(DT_BIN)))
         entry = self.table.get(key)
         if entry is None:
             A, B, C, D = self.model(self.params, key[0] * self.vx_step)
@@ -125,10 +139,9 @@ class _ModelCache:
                 A = np.pad(A, ((0, 1), (0, 1)))
                 B = np.vstack([B, [[0.0]]])
                 C = np.hstack([C, [[0.0], [1.0]]])
-            entry = discretize(A, B, dt, self.Qc) + (C, D)
-            Ad, Bd, Qd = entry[:3]
+            Ad, Bd, Qd = discretize(A, B, self.dt0 * (1.0 + DT_BIN) ** key[1], self.Qc)
             flat = (*Ad.ravel().tolist(), *Bd.ravel().tolist(), Qd[0, 0], Qd[0, 1], Qd[1, 1], C[1, 0], C[1, 1], D[1, 0])
-            entry = (entry, flat)
+            entry = ((Ad, Bd, Qd, C, D), flat)
             self.table[key] = entry
         return entry
 
@@ -143,16 +156,22 @@ def estimate_sideslip(t, delta, yaw_rate, ay, vx, params: BicycleParams = Bicycl
     arrays, ISO 8855 signs. ``params``: the car (:class:`BicycleParams`). Tuning: q_beta (rad²/s),
     q_r (rad²/s³), gyro_noise (rad/s) and accel_noise (m/s²) σ per sample, v_min (m/s),
     beta_low_std (rad), bias_ay (add an a_y bias state), q_bias ((m/s²)²/s), bias_std (m/s², its
-    initial σ). The model is re-discretised whenever V_x moves to another ``vx_step`` (m/s) bin
-    (cached; 0.05 m/s changes the coefficients by < 1 % above 5 m/s). ``model(params, vx)`` →
-    (A, B, C, D) may be swapped for a teaching comparison. Starts at x0 (default 0) with
-    P0 (default diag((2°)², (2°/s)², bias_std²)).
+    initial σ), vx_step (m/s, the speed bins of the model cache, ≤ v_min; see the module doc).
+    ``model(params, vx)`` → (A, B, C, D) may be swapped for a teaching comparison. Starts at x0
+    (default 0) with P0 (default diag((2°)², (2°/s)², bias_std²)), one step before the first sample.
     """
     d = _as_inputs(t, delta, yaw_rate, ay, vx)
+    tuning = {"q_beta": q_beta, "q_r": q_r, "gyro_noise": gyro_noise, "accel_noise": accel_noise, "v_min": v_min,
+              "beta_low_std": beta_low_std, "q_bias": q_bias, "bias_std": bias_std, "vx_step": vx_step}
+    for name, value in tuning.items():
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"estimate_sideslip: {name} must be a finite positive number, got {value!r}")
+    if vx_step > v_min:
+        raise ValueError(f"estimate_sideslip: vx_step = {vx_step} m/s is coarser than v_min = {v_min} m/s: the slowest "
+                         "speed bin the model is used at would be 0 m/s")
     n = 3 if bias_ay else 2
     Qc = np.diag([q_beta, q_r, q_bias][:n])
     R = np.diag([gyro_noise ** 2, accel_noise ** 2])
-    models = _ModelCache(model, params, Qc, bias_ay, vx_step)
     x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).reshape(n).copy()
     P = np.diag([math.radians(2.0) ** 2, math.radians(2.0) ** 2, bias_std ** 2][:n]) if P0 is None \
         else np.asarray(P0, dtype=float).reshape(n, n).copy()
@@ -162,6 +181,7 @@ def estimate_sideslip(t, delta, yaw_rate, ay, vx, params: BicycleParams = Bicycl
     speeds = d["vx"]
     N = len(ts)
     dt0 = float(np.median(np.diff(ts)))
+    models = _ModelCache(model, params, Qc, bias_ay, vx_step, dt0)
     xs, Ps = np.empty((N, n)), np.empty((N, n, n))
     ys, Ss = np.full((N, 2), np.nan), np.full((N, 2, 2), np.nan)
     low = speeds < v_min
@@ -184,8 +204,10 @@ def estimate_sideslip(t, delta, yaw_rate, ay, vx, params: BicycleParams = Bicycl
 
 @lru_cache(maxsize=1)
 def _blas_controller():
-    """BLAS thread control. On 2×2 matrices BLAS threads only add wake-up latency (scipy's expm ran 20×
-    slower on a busy 2-core machine), so the filter loop runs with one BLAS thread."""
+    """BLAS thread control: the filter loop runs with one BLAS thread. scipy's expm on these 2×2–6×6
+    matrices wakes OpenBLAS's thread pool, which on a busy 2-core machine costs more than the work
+    itself: measured 140–330 µs per expm with the default 2 threads vs 16–40 µs with 1 (a 5–15× slowdown),
+    and 3–8× on a whole run with the bias state (the benchmark's "BLAS threads" table repeats this)."""
     return ThreadpoolController()
 
 
