@@ -1,4 +1,5 @@
-"""Calibration speed and accuracy: Allan deviation vs allantools, ellipsoid fit vs truth.
+"""Calibration speed and accuracy: Allan deviation vs allantools, ellipsoid fit vs truth, the labs' estimates
+on the bundled recordings vs the simulation's true values, and how long a magnetometer rotation must be.
 
     python benchmarks/bench_calibration.py
 """
@@ -6,8 +7,13 @@ import time
 
 import numpy as np
 
-from kfkit import calibration
-from kfkit.checkpoints.lab03 import random_ellipsoid
+from kfkit import calibration, datasets, sim
+from kfkit.capture import sphere_coverage
+from kfkit.checkpoints.lab02 import gyro_bias_truth, noise_truth, six_face_truth
+from kfkit.checkpoints.lab03 import heading_errors, random_ellipsoid
+from kfkit.frames import G, mount_matrix
+
+DEG = np.pi / 180
 
 
 def best_of(func, repeat=3):
@@ -56,6 +62,63 @@ def ellipsoid_table():
               f"{np.max(errs_s):.4f} | {np.mean(spreads):.2f} |")
 
 
+def worst(values):
+    return float(np.max(np.abs(values)))
+
+
+def bundled_table():
+    """Lab 02/03 estimates (kfkit's reference functions) on the bundled recordings against the simulation."""
+    still, faces_rec, rot = datasets.load("02_stationary"), datasets.load("02_six_faces"), datasets.load("03_mag_rotations")
+    print("\n| quantity (bundled recording) | estimate − truth (worst axis) | in standard uncertainties (worst) |")
+    print("| --- | --- | --- |")
+    gyr = still.body("gyr")
+    truth, u = gyro_bias_truth(still)
+    err = calibration.gyro_bias(gyr) - truth
+    print(f"| gyro bias (02_stationary, 40 min) | {worst(err) / DEG:.4f} °/s | {worst(err / u):.1f} |")
+    for sensor, unit, k in (("gyr", "°/s", 1 / DEG), ("acc", "mm/s²", 1e3)):
+        sigma, u, n = noise_truth(still, sensor)
+        err = calibration.noise_std(still.body(sensor)[:n]) - sigma
+        print(f"| {sensor} noise σ per sample at 12.5 Hz (first 2 min) | {worst(err) * k:.4f} {unit} "
+              f"({worst(err / sigma) * 100:.1f} %) | {worst(err / u):.1f} |")
+    b, s_, u_b, u_s = six_face_truth(faces_rec)
+    b_hat, s_hat = calibration.accel_six_face({f: faces_rec.body("acc")[faces_rec.phase(f)] for f in calibration.FACES})
+    print(f"| accel bias, six faces | {worst(b_hat - b) / G * 1e3:.3f} mg | {worst((b_hat - b) / u_b):.1f} |")
+    print(f"| accel scale, six faces | {worst(s_hat - s_) * 100:.4f} % | {worst((s_hat - s_) / u_s):.1f} |")
+    level = calibration.accel_bias(still.body("acc"), [0.0, 0.0, -G])
+    true_b = mount_matrix(still.meta["mount"]["acc"]) @ still.meta["sim"]["accel_bias"]
+    print(f"| accel z bias, level rest only (scale error not separable) | {(level - true_b)[2] / G * 1e3:.2f} mg | — |")
+    mag = rot.body("mag")
+    h, S = calibration.fit_mag_calibration(mag)
+    M = mount_matrix(rot.meta["mount"]["mag"])
+    h_true = M @ rot.meta["sim"]["mag_hard_iron"]
+    S_true = np.linalg.inv(M @ np.asarray(rot.meta["sim"]["mag_soft_iron"]) @ M.T)
+    print(f"| mag hard iron (03_mag_rotations) | {worst(h - h_true):.3f} µT | — |")
+    print(f"| mag soft iron, max abs(S − W⁻¹) | {worst(S - S_true):.4f} | — |")
+    before, after = heading_errors(np.zeros(3), np.eye(3)), heading_errors(h, S)
+    print(f"| heading RMS on 03_headings (tilt-compensated, declination) | {np.degrees(after):.2f}° calibrated, "
+          f"{np.degrees(before):.1f}° uncalibrated | — |")
+
+
+def rotation_length_table():
+    """How long the magnetometer tumble must be: coverage, the fit's verdict and the heading it gives."""
+    print("\n| tumbling (s) | sphere coverage | fit | hard-iron error (µT) | heading RMS on 03_headings |")
+    print("| --- | --- | --- | --- | --- |")
+    unit = {k: np.asarray(v) for k, v in datasets.NUCLEO_UNIT.items()}
+    for seconds in (8.0, 15.0, 30.0, 60.0):
+        rec = sim.simulate_imu(sim.mag_rotations(duration=seconds, rate_hz=104.0, seed=302), seed=303, **unit)
+        mag = rec.body("mag")
+        h_true = mount_matrix(rec.meta["mount"]["mag"]) @ unit["mag_hard_iron"]
+        coverage = sphere_coverage(mag)
+        try:
+            h, S = calibration.fit_mag_calibration(mag)
+        except calibration.CalibrationError:
+            print(f"| {seconds:g} | {coverage:.0%} | refused: too little of the sphere | — | — |")
+            continue
+        print(f"| {seconds:g} | {coverage:.0%} | ok | {worst(h - h_true):.2f} | {np.degrees(heading_errors(h, S)):.2f}° |")
+
+
 if __name__ == "__main__":
     allan_table()
     ellipsoid_table()
+    bundled_table()
+    rotation_length_table()

@@ -10,7 +10,8 @@ holds the results of labs 02 and 03 and corrects raw body-frame measurements:
 It is saved as a small JSON file. :func:`load_calibration` finds the right one for a board: an
 explicit path, else the student's own file saved by labs 02/03 (:func:`user_calibration_path`),
 else the bundled default in ``data/`` (made by ``kfkit data regenerate`` from the labs' analyses
-of the bundled simulations).
+of the bundled simulations). :func:`calibration_for` picks the one that belongs to a recording: the
+bundled default for the bundled recordings, the student's own for theirs.
 """
 from __future__ import annotations
 
@@ -168,7 +169,9 @@ def bias_instability(taus, adev):
 
     B = σ_min / 0.664 (:data:`BIAS_INSTABILITY_FACTOR`, exact for flicker noise). Where the curve has
     no flat floor (white noise meeting a rate random walk, as in kfkit's simulator) this is the
-    conventional read-out of the lowest point, not a flicker-noise level. Per column for (M, k).
+    conventional read-out of the lowest point, not a flicker-noise level. The lowest of several noisy
+    points reads a little low (about 10 % on a long floor); if τ_min is the longest τ the curve has not
+    turned up yet and B is only an upper bound: record longer. Per column for (M, k).
     """
     taus, adev = np.asarray(taus, float), np.asarray(adev, float)
     k = np.argmin(adev, axis=0)
@@ -291,10 +294,17 @@ class Calibration:
             raise CalibrationError(f"{where}: {e}") from None
 
     def save(self, path=None) -> Path:
-        """Write the JSON file; by default where :func:`load_calibration` looks for the student's own."""
+        """Write the JSON file; by default where :func:`load_calibration` looks for the student's own.
+
+        A different calibration already there is kept as ``<name>.previous.json`` (one step back),
+        so re-running a lab never silently loses the last one.
+        """
         path = Path(path) if path is not None else user_calibration_path(self.board)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(self.to_json(), encoding="utf-8", newline="\n")
+        text = self.to_json()
+        if path.exists() and path.read_text(encoding="utf-8") != text:
+            path.replace(path.with_name(f"{path.stem}.previous.json"))
+        path.write_text(text, encoding="utf-8", newline="\n")
         return path
 
     @classmethod
@@ -358,6 +368,20 @@ def load_calibration(board="nucleo-iks02a1", path=None) -> Calibration:
             return Calibration.load(candidate)
     raise FileNotFoundError(f"no calibration for {board!r}: neither {user_calibration_path(board)} nor the bundled "
                             f"{bundled_calibration_path(board)} exists. Rebuild the bundled one with: python -m kfkit data regenerate")
+
+
+def calibration_for(rec) -> Calibration:
+    """The calibration that belongs to recording ``rec``.
+
+    The kit's bundled recordings (files in ``data/``) are simulations of one unit per board, so they get
+    that unit's bundled default, whatever the student has saved; any other recording (the student's own)
+    gets :func:`load_calibration` for its board: their saved file, else the bundled default.
+    """
+    from .datasets import data_dir
+    board = rec.meta.get("board")
+    if rec.path is not None and Path(rec.path).resolve().parent == data_dir().resolve():
+        return Calibration.load(bundled_calibration_path(board))
+    return load_calibration(board)
 
 
 def noise_at_rate(sigma, rate_from, rate_to):

@@ -259,3 +259,18 @@ def test_heading_rejects_wrong_shapes():
         mag_heading(np.zeros((4, 2)))
     with pytest.raises(ValueError, match="3 components"):
         tilt_compensated_heading(1.0, 0.0, 0.0)
+
+
+@pytest.mark.parametrize("D_deg, dip_deg", [(-12.0, 70.0), (0.0, 66.0), (15.0, 30.0), (179.0, -40.0)])
+def test_true_heading_with_large_declinations(D_deg, dip_deg):
+    """A field D east of true north (and south of the equator for negative dip): ψ_true = atan2(−m_y', m_x') + D."""
+    from kfkit.frames import declination, mag_heading, tilt_compensated_heading, wrap_angle
+    D, dip, B = np.radians(D_deg), np.radians(dip_deg), 48.0
+    field_n = B * np.array([np.cos(dip) * np.cos(D), np.cos(dip) * np.sin(D), np.sin(dip)])
+    assert declination(field_n) == pytest.approx(D)
+    rng = np.random.default_rng(4)
+    yaw, pitch, roll = rng.uniform(-np.pi, np.pi, 200), rng.uniform(-1.4, 1.4, 200), rng.uniform(-np.pi, np.pi, 200)
+    m_b = _field_in_body(yaw, pitch, roll, field_n=field_n)
+    np.testing.assert_allclose(wrap_angle(tilt_compensated_heading(m_b, roll, pitch, D) - yaw), 0.0, atol=1e-9)
+    level = _field_in_body(yaw, 0 * yaw, 0 * yaw, field_n=field_n)
+    np.testing.assert_allclose(wrap_angle(mag_heading(level, declination=D) - yaw), 0.0, atol=1e-9)

@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 
 from .. import calibration, datasets
-from ..frames import G, mount_matrix
+from ..frames import G, euler_to_dcm, mount_matrix
+from ..sensors import board as get_board
 from . import Case, Checkpoint, compare, register
 
 N_SIGMA = 4.0  # estimates on the bundled recording must lie within 4 standard uncertainties of the truth
@@ -138,20 +139,53 @@ def _judge_within(case, got, unit=""):
             f"{z.max():.0f} standard uncertainties away (allowed {N_SIGMA:g})")
 
 
+NOISE_CHECK_S = 120.0  # s of 02_stationary the noise check uses: the bias wander adds < 0.2 % to σ over it
+
+
+def noise_truth(rec, sensor):
+    """The per-sample white-noise σ (3,) the simulator gave ``sensor`` ('gyr' or 'acc') at the recording's
+    rate — datasheet density · √rate, with rounding to counts adding LSB²/12 — and the standard uncertainty
+    of a sample standard deviation over the first :data:`NOISE_CHECK_S` seconds, σ/√(2(n − 1))."""
+    spec = getattr(get_board(rec.meta["board"]), {"gyr": "gyro", "acc": "accel"}[sensor])
+    lsb = rec.meta["sensors"][sensor]["sensitivity"]
+    sigma = np.full(3, np.sqrt(spec.noise_std(rec.rate_hz) ** 2 + lsb**2 / 12))
+    n = int(min(len(rec), NOISE_CHECK_S * rec.rate_hz))
+    return sigma, sigma / np.sqrt(2 * (n - 1)), n
+
+
+def _noise_recording_cases(rng):
+    rec = datasets.load("02_stationary")
+    cases = []
+    for sensor, name in (("gyr", "gyro"), ("acc", "accelerometer")):
+        sigma, u, n = noise_truth(rec, sensor)
+        cases.append(Case({"x": rec.body(sensor)[:n]}, (sigma, u),
+                          f"the {name} over the first {NOISE_CHECK_S:g} s of the bundled recording 02_stationary"))
+    return cases
+
+
 def six_face_truth(rec):
-    """The simulation's accelerometer bias (body, m/s²) and scale, with standard uncertainties."""
+    """The simulation's accelerometer bias (body, m/s²) and scale, as the six-face estimator sees them,
+    with their standard uncertainties: (bias, scale, u_bias, u_scale).
+
+    Axis i reads s_i·f_i + b_i, so with f̄⁺, f̄⁻ the mean true specific force of its up and down faces the
+    estimator targets b_i + s_i (f̄⁺_i + f̄⁻_i)/2 and s_i (f̄⁺_i − f̄⁻_i)/(2g): the true b and s, moved by the
+    known tilt of the simulated table (second order, well under 0.1 mg here). The uncertainty is statistical:
+    white noise σ/√(2n) over the two faces, plus the bias random walk K√(T/3) over the recording.
+    """
     sim = rec.meta["sim"]
     M = mount_matrix(rec.meta["mount"]["acc"])
     bias = M @ np.asarray(sim["accel_bias"])
     scale = np.abs(M) @ np.asarray(sim.get("accel_scale", [1.0, 1.0, 1.0]))
+    R_bn = np.swapaxes(euler_to_dcm(*rec.truth().T), -1, -2)
+    f_true = R_bn @ np.array([0.0, 0.0, -G])
+    up, down = (np.array([f_true[rec.phase(f"{a}_{w}"), i].mean() for i, a in enumerate("xyz")]) for w in ("up", "down"))
     acc = rec.body("acc")
     n = min(int(rec.phase(f).sum()) for f in calibration.FACES)
     sigma = np.mean([acc[rec.phase(f)].std(axis=0, ddof=1) for f in calibration.FACES], axis=0)
     T = len(rec) / rec.rate_hz
     walk = sim.get("accel_bias_rw", 0.0) * np.sqrt(T / 3)
-    tilt = G * (1 - np.cos(np.radians(1.5)))  # faces tilted by up to ~3σ of the 0.5° table error
-    u_bias = np.sqrt(sigma**2 / (2 * n) + walk**2) + tilt / N_SIGMA
-    return bias, scale, u_bias, u_bias / G
+    u_bias = np.sqrt(sigma**2 / (2 * n) + walk**2)
+    return bias + scale * (up + down) / 2, scale * (up - down) / (2 * G), u_bias, u_bias / G
 
 
 def _six_face_recording_cases(rng):
@@ -185,6 +219,9 @@ register(
     Checkpoint("02.gyro_bias_recording", "gyro_bias", _bias_recording_cases, _judge_within, points=1,
                what="bundled recording",
                hint="use the whole rest: the uncertainty of a mean shrinks as σ/√N, until the bias's own wander dominates."),
+    Checkpoint("02.noise_recording", "noise_std", _noise_recording_cases, _judge_within, points=1,
+               what="bundled recording checks",
+               hint="if 02.noise_std passes, check that you pass the samples at rest in the body frame, all three axes."),
     Checkpoint("02.six_face_recording", "six_face", _six_face_recording_cases, _judge_six_face_recording, points=1,
                what="bundled recording",
                hint="if 02.six_face passes, check that each face's samples come from its own phase."),
