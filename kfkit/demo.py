@@ -4,18 +4,25 @@ The board (``firmware/mpu6050_tilt_kf``) sends ``$ATT,roll_deg,pitch_deg*HH`` li
 board sends the same lines computed by the Python reference (``VirtualBoard(attitude=True)``).
 Roll steers (right side down → right), pitch is the throttle (nose down → faster), like tilting a
 game controller. The core is headless and testable: :func:`controls` maps angles to commands,
-:class:`RaceGame` advances the game, :class:`AttitudeStream` reads the lines in a thread.
+:class:`RaceGame` advances the game, :class:`AttitudeStream` reads the lines in a thread and
+:func:`advance` drives the game by board time (1/rate_hz per ``$ATT`` line). Three front ends share
+:func:`tilt_figure`: a matplotlib window (``kfkit demo tilt --port …``), a notebook widget
+(:class:`TiltDemoPanel`) and a headless run (``--headless``, for tests and CI).
 """
 from __future__ import annotations
 
 import math
+import textwrap
 import threading
-from dataclasses import dataclass, field
+import time
+from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from . import sim
-from .capture.protocol import BadLine, Message, Sample, parse_line
+from .capture.protocol import BadLine, Header, Message, Sample, parse_line
 from .frames import euler_rates_to_body_rates
 
 MAX_TILT_DEG = 30.0  # tilt for full steering / full throttle
@@ -48,7 +55,7 @@ class RaceGame:
 
     speed   v ← v + (a_max·throttle − drag·v)·dt, within [0, v_max]; off the road v_max is 1/3
     steer   lateral speed = steer · turn_rate · v  (the car turns more at speed)
-    score   metres driven on the road; ``off_road_s`` counts the time spent beside it
+    score   metres driven on the road; ``off_road_s`` counts the time spent beside it, ``time`` all of it
     """
 
     half_width: float = 3.0
@@ -61,7 +68,7 @@ class RaceGame:
     speed: float = 0.0
     score: float = 0.0
     off_road_s: float = 0.0
-    history: list = field(default_factory=list, repr=False)
+    time: float = 0.0
 
     @property
     def on_road(self) -> bool:
@@ -80,27 +87,44 @@ class RaceGame:
             self.score += self.speed * dt
         else:
             self.off_road_s += dt
-        self.history.append((self.distance, self.x))
+        self.time += dt
         return self
 
 
-class AttitudeStream:
-    """Reads ``$ATT`` lines from a serial port in a thread; ``.latest`` is (roll_deg, pitch_deg) or None.
+class DemoError(RuntimeError):
+    """The demo cannot run; the message names the port and says what to check."""
 
-    ``port`` is anything pyserial opens (``serial_for_url``); counts lines by kind in ``.counts``.
+
+NO_ATTITUDE_S = 5.0  # s without a $ATT line (the sketch needs 2 s for its gyro bias) before saying why
+
+
+class AttitudeStream:
+    """Reads a board's lines in a thread: ``$ATT,roll_deg,pitch_deg`` into a queue, samples and bad lines counted.
+
+    ``port`` is anything pyserial opens (``serial_for_url``). ``take()`` returns the attitudes that arrived
+    since the last call (so the game advances by board time, 1/rate_hz per line, whatever the frame rate);
+    ``latest`` is the last one or None; ``rate_hz`` comes from the board's header (default 100 Hz);
+    ``error`` says why reading stopped (the board was unplugged), else None.
     """
 
     def __init__(self, port, baud=115200):
         import serial
 
-        self.serial = serial.serial_for_url(port, baudrate=baud, timeout=0.2)
-        self.latest = None
+        self.port = str(port)
+        try:
+            self.serial = serial.serial_for_url(port, baudrate=baud, timeout=0.2)
+        except (serial.SerialException, ValueError) as e:
+            raise DemoError(f"cannot open {port}: {e}") from None
+        self.latest, self.rate_hz, self.error = None, 100.0, None
         self.counts = {"ATT": 0, "samples": 0, "bad": 0, "other": 0}
+        self._new = deque()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="kfkit-demo-attitude", daemon=True)
+        self.started = None
 
     def __enter__(self):
         self.serial.write(b"h")  # wakes the virtual board; a real board resends its header
+        self.started = time.monotonic()
         self._thread.start()
         return self
 
@@ -113,24 +137,62 @@ class AttitudeStream:
             self._thread.join(2.0)
         self.serial.close()
 
+    def take(self, limit=None) -> list:
+        """The (roll_deg, pitch_deg) pairs received since the last call (at most ``limit``), oldest first."""
+        out = []
+        while self._new and (limit is None or len(out) < limit):
+            out.append(self._new.popleft())
+        return out
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def waiting_for(self) -> str | None:
+        """None while $ATT lines arrive (or the board may still be measuring its bias), else what is wrong."""
+        if self.error:
+            return self.error
+        if self.counts["ATT"] or self.started is None or time.monotonic() - self.started < NO_ATTITUDE_S:
+            return None
+        if self.counts["samples"]:
+            return (f"{self.port} sends samples but no $ATT lines: flash firmware/mpu6050_tilt_kf "
+                    f"(mpu6050_logger sends raw samples only)")
+        if self.counts["bad"]:
+            return f"{self.port} sends only unreadable lines ({self.counts['bad']}): wrong baud rate? try --baud 115200"
+        return f"nothing received from {self.port} in {NO_ATTITUDE_S:g} s: is the board plugged in and its sketch flashed?"
+
     def _run(self):
         while not self._stop.is_set():
             try:
                 line = self.serial.readline()
-            except Exception:  # unplugged: keep the last attitude, stop reading
+            except Exception as e:  # unplugged: keep what was received, say why it stopped
+                self.error = f"{self.port} stopped sending ({type(e).__name__}: {e}): board unplugged?"
                 return
             if not line:
                 continue
             item = parse_line(line)
             if isinstance(item, Message) and item.tag == "ATT" and len(item.values) == 2:
                 self.latest = item.values
+                self._new.append(item.values)
                 self.counts["ATT"] += 1
             elif isinstance(item, Sample):
                 self.counts["samples"] += 1
             elif isinstance(item, BadLine):
                 self.counts["bad"] += item.kind != "empty"
             else:
+                if isinstance(item, Header) and item.rate_hz > 0:
+                    self.rate_hz = float(item.rate_hz)
                 self.counts["other"] += 1
+
+
+def advance(game, stream, until=None) -> int:
+    """Drive ``game`` with the attitudes ``stream`` received since the last call, 1/rate_hz each, up to game time
+    ``until`` (s; None: all of them). Returns how many."""
+    limit = None if until is None else max(0, math.ceil(round((until - game.time) * stream.rate_hz, 6)))
+    attitudes = stream.take(limit)
+    for roll, pitch in attitudes:
+        game.update(*controls(roll, pitch), 1.0 / stream.rate_hz)
+    return len(attitudes)
 
 
 def driving_motion(rate_hz=100.0, duration=62.5, still=2.5) -> sim.Motion:
@@ -149,50 +211,59 @@ def driving_motion(rate_hz=100.0, duration=62.5, still=2.5) -> sim.Motion:
                       "a hand steering: roll ±20°, nose down 0…10°", [(0.0, still, "stationary")])
 
 
-def run_tilt_demo(port, seconds=None, headless=False, fps=30.0, baud=115200, out=print) -> RaceGame:
-    """Play the game from ``port`` (a serial port, or "virtual") for ``seconds`` (None: until the window closes).
+def open_stream(stack, port, baud=115200, fast=False) -> AttitudeStream:
+    """An :class:`AttitudeStream` on ``port`` inside ``stack`` (an ExitStack); "virtual" starts a virtual board
+    that plays :func:`driving_motion` and sends $ATT lines like the sketch (``fast``: faster than real time)."""
+    if port == "virtual":
+        from .capture.virtual import VirtualBoard
 
-    ``headless`` runs the same loop without a window (tests, CI) and prints a summary.
+        board = stack.enter_context(VirtualBoard(board="mpu6050", motion=driving_motion(), attitude=True,
+                                                 realtime=not fast))
+        port = board.port
+    return stack.enter_context(AttitudeStream(port, baud))
+
+
+def run_tilt_demo(port, seconds=None, headless=False, fps=30.0, baud=115200, fast=False, out=print) -> RaceGame:
+    """Play the game from ``port`` (a serial port, or "virtual") for ``seconds`` of board time (None: until the
+    window closes). ``headless`` runs without a window (tests, CI) and prints a summary; ``fast`` lets the
+    virtual board run faster than real time. Raises :class:`DemoError` when no $ATT lines come, saying why.
     """
-    import time
     from contextlib import ExitStack
 
     if headless and seconds is None:
         raise ValueError("run_tilt_demo: a headless run needs seconds")
-    game, dt = RaceGame(), 1.0 / fps
+    game = RaceGame()
     with ExitStack() as stack:
-        if port == "virtual":
-            from .capture.virtual import VirtualBoard
-
-            board = stack.enter_context(VirtualBoard(board="mpu6050", motion=driving_motion(), attitude=True))
-            port = board.port
-        stream = stack.enter_context(AttitudeStream(port, baud))
+        stream = open_stream(stack, port, baud, fast)
         if headless:
-            t_end = time.monotonic() + seconds
-            while time.monotonic() < t_end:
-                time.sleep(dt)
-                if stream.latest is not None:
-                    game.update(*controls(*stream.latest), dt)
+            while game.time < seconds:
+                if not advance(game, stream, until=seconds):
+                    problem = stream.waiting_for()
+                    if problem or not stream.alive:
+                        raise DemoError(problem or f"{stream.port}: reading stopped")
+                    time.sleep(0.5 / fps)
         else:
-            _window(game, stream, dt, seconds)
+            _window(game, stream, 1.0 / fps, seconds)
         out(f"$ATT lines {stream.counts['ATT']}, samples {stream.counts['samples']}, bad lines {stream.counts['bad']}; "
-            f"distance {game.distance:.0f} m, score {game.score:.0f}, off road {game.off_road_s:.1f} s")
+            f"{game.time:.1f} s driven, distance {game.distance:.0f} m, score {game.score:.0f}, off road {game.off_road_s:.1f} s"
+            + (f"; {stream.error}" if stream.error else ""))
     return game
 
 
-def tilt_figure(game, stream, dt):
-    """The game's figure (road from above, the car, roll and pitch) and ``draw(frame)``, which advances
-    the game by one frame of dt seconds with the stream's latest attitude and redraws."""
-    import matplotlib.pyplot as plt
+def tilt_figure(game, stream, fig=None):
+    """The game's figure (road from above, the car, roll and pitch, status) and ``draw(frame=None)``, which
+    advances the game by the attitudes received since the last frame (:func:`advance`) and moves the artists."""
+    from matplotlib.figure import Figure
 
     from .plots import COLORS
 
-    fig, ax = plt.subplots(figsize=(5, 7), layout="constrained")
+    fig = fig or Figure(figsize=(5, 7), layout="constrained")
+    ax = fig.subplots()
     ahead = np.linspace(-20, 80, 200)
     (left,) = ax.plot([], [], color=COLORS["truth"], lw=2)
     (right,) = ax.plot([], [], color=COLORS["truth"], lw=2)
     (car,) = ax.plot([], [], "s", color=COLORS["bound"], ms=12)
-    text = ax.text(0.02, 0.98, "", transform=ax.transAxes, va="top", family="monospace")
+    text = ax.text(0.02, 0.98, "", transform=ax.transAxes, va="top", family="monospace", parse_math=False)  # "$ATT" is no TeX
     ax.set_xlim(-20, 20)
     ax.set_ylim(-20, 80)
     ax.set_xlabel("lateral position (m)")
@@ -200,15 +271,19 @@ def tilt_figure(game, stream, dt):
     ax.set_title("roll steers, nose down accelerates")
 
     def draw(_frame=None):
-        if stream.latest is not None:
-            game.update(*controls(*stream.latest), dt)
+        advance(game, stream)
         center = road_center(game.distance + ahead)
         left.set_data(center - game.half_width, ahead)
         right.set_data(center + game.half_width, ahead)
         car.set_data([game.x], [0.0])
-        roll, pitch = stream.latest or (float("nan"), float("nan"))
-        text.set_text(f"roll {roll:+6.1f}°  pitch {pitch:+6.1f}°\nspeed {game.speed * 3.6:5.0f} km/h  score {game.score:6.0f}"
-                      + ("" if game.on_road else "\nOFF ROAD"))
+        if stream.latest is None:
+            status = stream.waiting_for() or "waiting for $ATT lines (keep the board still: gyro bias)"
+        else:
+            roll, pitch = stream.latest
+            status = (f"roll {roll:+6.1f}°  pitch {pitch:+6.1f}°\nspeed {game.speed * 3.6:5.0f} km/h  "
+                      f"score {game.score:6.0f}" + ("" if game.on_road else "\nOFF ROAD"))
+            status += f"\n{stream.error}" if stream.error else ""
+        text.set_text("\n".join(textwrap.fill(part, 44) for part in status.split("\n")))
         return left, right, car, text
 
     return fig, draw
@@ -219,9 +294,54 @@ def _window(game, stream, dt, seconds):
     import matplotlib.pyplot as plt
     from matplotlib.animation import FuncAnimation
 
-    fig, draw = tilt_figure(game, stream, dt)
+    fig, draw = tilt_figure(game, stream, plt.figure(figsize=(5, 7), layout="constrained"))
     fig.canvas.manager.set_window_title("kfkit demo tilt")
-    frames = None if seconds is None else int(seconds / dt)
-    animation = FuncAnimation(fig, draw, frames=frames, interval=dt * 1000, blit=False, repeat=False)
+
+    def frame(_):
+        if seconds is not None and game.time >= seconds:
+            plt.close(fig)  # ends plt.show()
+        return draw()
+
+    animation = FuncAnimation(fig, frame, interval=dt * 1000, blit=False, cache_frame_data=False)
     plt.show()
     return animation
+
+
+class TiltDemoPanel:
+    """The game in a notebook: an ipympl canvas redrawn by its own timer (the kernel's thread), start/stop buttons.
+
+    ``TiltDemoPanel("virtual")`` needs no hardware (``fast``: faster than real time); ``.refresh()`` does what
+    one timer tick does; ``.close()`` stops the timer, the stream and the virtual board.
+    """
+
+    def __init__(self, port="virtual", baud=115200, fps=30.0, fast=False):
+        from contextlib import ExitStack
+
+        import ipywidgets as W
+
+        from .widgets import _interactive_canvas
+
+        self._stack = ExitStack()
+        self.stream = open_stream(self._stack, port, baud, fast)
+        self.game = RaceGame()
+        self.fig, self.draw = tilt_figure(self.game, self.stream, Figure(figsize=(4.5, 6), layout="constrained"))
+        self.canvas = _interactive_canvas(self.fig)
+        self.timer = self.canvas.new_timer(interval=int(1000 / fps))
+        self.timer.add_callback(self.refresh)
+        start, stop = W.Button(description="drive", icon="play"), W.Button(description="stop", icon="stop")
+        start.on_click(lambda _: self.timer.start())
+        stop.on_click(lambda _: self.close())
+        self.widget = W.VBox([W.HBox([start, stop]), self.canvas])
+
+    def refresh(self):
+        self.draw()
+        self.canvas.draw_idle()
+
+    def close(self):
+        self.timer.stop()
+        self._stack.close()
+
+    def _ipython_display_(self):
+        from IPython.display import display
+
+        display(self.widget)

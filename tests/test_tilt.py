@@ -4,9 +4,10 @@ import math
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
+from scipy.linalg import solve_discrete_are
 
-from kfkit import datasets, sim
-from kfkit.filters import TiltBiasKF, TiltRun, accel_static_ok
+from kfkit import datasets, metrics, sim
+from kfkit.filters import TiltBiasKF, TiltRun, accel_static_ok, tilt
 from kfkit.frames import accel_tilt
 
 g = 9.80665
@@ -214,3 +215,180 @@ def test_bundled_tilt_recording_accel_agrees_with_the_labels():
     assert abs(np.degrees(np.median(pitch[rec.phase("pitch_90")])) - 90) < 3
     assert abs(np.degrees(np.median(roll[rec.phase("roll_90")])) - 90) < 3
     assert abs(np.degrees(np.median(pitch[rec.phase("roll_0")]))) < 3
+
+
+# --- steady state and consistency ---------------------------------------------------------
+
+def riccati(q_angle, q_bias, r):
+    """scipy's DARE solution P⁻ = A (P⁻ − P⁻Hᵀ(HP⁻Hᵀ + R)⁻¹HP⁻) Aᵀ + Q, the steady gain, and the slowest error mode."""
+    A, H = np.array([[1.0, -DT], [0.0, 1.0]]), np.array([[1.0, 0.0]])
+    prior = solve_discrete_are(A.T, H.T, np.diag([q_angle, q_bias]), np.array([[r]]))
+    gain = prior @ H.T / (prior[0, 0] + r)
+    return A, prior, gain, max(abs(np.linalg.eigvals((np.eye(2) - gain @ H) @ A)))
+
+
+@pytest.mark.parametrize("q_angle, q_bias, r", [(1e-4, 1e-6, 1e-6), (1e-5, 1e-6, 1e-4), (2e-6, 1e-6, 1.6e-5)])
+def test_steady_state_covariance_solves_the_riccati_equation(q_angle, q_bias, r):
+    """Updating every step from the default P0, P⁻ converges to scipy's DARE solution for (A, H, Q, R)."""
+    A, prior, gain, slowest = riccati(q_angle, q_bias, r)
+    Q = np.diag([q_angle, q_bias])
+    n = int(np.log(1e-12) / np.log(slowest) / 2) + 1  # P's error decays as slowest²ⁿ
+    run = TiltBiasKF(DT, q_angle, q_bias, r, gate="none").run(np.zeros(n), np.zeros(n))
+    np.testing.assert_allclose(A @ run.P[-1] @ A.T + Q, prior, rtol=1e-6)
+    np.testing.assert_allclose(run.S[-1], prior[0, 0] + r, rtol=1e-6)
+    # one more step: the correction per unit innovation is the steady-state gain K = P⁻Hᵀ / S
+    kf = TiltBiasKF(DT, q_angle, q_bias, r, gate="none")
+    kf.reset(run.x[-1], run.P[-1])
+    predicted = run.x[-1, 0] - run.x[-1, 1] * DT
+    angle, bias, y, _ = kf.step(0.0, 1.0)
+    np.testing.assert_allclose([(angle - predicted) / y, (bias - run.x[-1, 1]) / y], gain[:, 0], rtol=1e-6)
+
+
+def test_the_labs_tuning_keeps_the_riccati_fixed_point():
+    """At the lab's q's the bias mode settles over minutes (|eig| = 1 − 10⁻⁴ per step), too slow to wait for:
+    started on the DARE's solution, one filter step must map it onto itself."""
+    q_angle, q_bias, r = tilt.DEFAULT_Q_ANGLE, tilt.DEFAULT_Q_BIAS, tilt.DEFAULT_R
+    A, prior, gain, slowest = riccati(q_angle, q_bias, r)
+    assert slowest > 0.9998
+    posterior = prior - gain @ gain.T * (prior[0, 0] + r)
+    kf = TiltBiasKF(DT, q_angle, q_bias, r, gate="none")
+    kf.reset((0.0, 0.0), posterior)
+    kf.step(0.3, 0.1)
+    np.testing.assert_allclose(kf.P, posterior, rtol=1e-9)
+
+
+def simulate_model(rng, n, q_angle, q_bias, r, x0, P0):
+    """Truth drawn from the filter's own model: x_k = A x_{k−1} + B ω_k + w_k, z_k = θ_k + v_k."""
+    omega = 0.5 * np.sin(np.arange(n) * DT * 2.0)  # any known input
+    x = rng.multivariate_normal(x0, P0)
+    truth, z = np.empty((n, 2)), np.empty(n)
+    for k in range(n):
+        x = np.array([x[0] + (omega[k] - x[1]) * DT, x[1]]) + rng.normal(0.0, np.sqrt([q_angle, q_bias]))
+        truth[k], z[k] = x, x[0] + rng.normal(0.0, np.sqrt(r))
+    return omega, z, truth
+
+
+def monte_carlo(filter_r_factor=1.0, runs=60, n=400, seed=11):
+    """Average NEES (2 dof) and NIS (1 dof) over ``runs`` per step, skip-gated with a random static_ok."""
+    rng = np.random.default_rng(seed)
+    q_angle, q_bias, r = 1e-6, 1e-8, 1e-4
+    x0, P0 = np.array([0.1, 0.02]), np.diag([1e-3, 1e-4])
+    nees, nis = np.zeros((runs, n)), np.full((runs, n), np.nan)
+    for i in range(runs):
+        omega, z, truth = simulate_model(rng, n, q_angle, q_bias, r, x0, P0)
+        ok = rng.random(n) > 0.3  # the skipped samples' z are as good, but a gated filter does not use them
+        kf = TiltBiasKF(DT, q_angle, q_bias, r * filter_r_factor, gate="skip")
+        run = kf.run(omega, z, ok, x0=x0, P0=P0)
+        nees[i] = metrics.nees(truth - run.x, run.P)
+        nis[i] = metrics.nis(run.y, run.S)
+    return nees, nis, runs
+
+
+def test_nees_and_nis_are_chi_square_on_data_from_the_model():
+    nees, nis, runs = monte_carlo()
+    lo, hi = metrics.chi2_bounds(2, runs)
+    inside = (nees.mean(axis=0) >= lo) & (nees.mean(axis=0) <= hi)
+    assert inside.mean() > 0.9  # 95 % bounds per step, allowing for chance
+    assert lo < nees.mean() < hi  # one run's NEES is correlated in time: only the runs are independent
+    updated = ~np.isnan(nis)
+    assert 0.6 < updated.mean() < 0.8  # the skip gate left the gated samples out of the NIS
+    lo1, hi1 = metrics.chi2_bounds(1, int(updated.sum()))
+    assert lo1 < np.nanmean(nis) < hi1  # innovations of a consistent filter are white: every NIS value counts
+    assert metrics.fraction_inside(nis, 1) == pytest.approx(0.95, abs=0.01)  # single values: 95 % inside
+
+
+@pytest.mark.parametrize("r_factor", [0.05, 20.0])
+def test_nees_and_nis_catch_a_filter_with_the_wrong_r(r_factor):
+    """The negative controls: trusting the accelerometer 20× too much (or too little) leaves the χ² bounds."""
+    nees, nis, runs = monte_carlo(filter_r_factor=r_factor)
+    lo, hi = metrics.chi2_bounds(2, runs)
+    lo1, hi1 = metrics.chi2_bounds(1, int(np.sum(~np.isnan(nis))))
+    if r_factor < 1:  # overconfident
+        assert nees.mean() > hi and np.nanmean(nis) > hi1
+    else:  # too cautious
+        assert nees.mean() < lo and np.nanmean(nis) < lo1
+
+
+# --- the bundled recordings in the logger's format ------------------------------------------
+
+@pytest.mark.parametrize("name", ["05_tilt_protocol", "05_stationary", "05_six_faces"])
+def test_bundled_recordings_carry_the_loggers_columns(name):
+    rec = datasets.load(name)
+    assert rec.meta["board"] == "mpu6050" and rec.rate_hz == 100.0
+    counts = np.column_stack([rec.counts("acc"), rec.counts("gyr")])
+    assert np.all(counts == np.round(counts)) and counts.min() >= -32768 and counts.max() <= 32767  # int16 counts
+    assert rec["t_us"].dtype == np.int64 and np.all(np.diff(rec["t_us"]) == 10000)  # micros() at exactly 100 Hz
+    np.testing.assert_allclose(rec.t, (rec["t_us"] - rec["t_us"][0]) * 1e-6, rtol=0, atol=1e-9)  # t (s, 6 decimals) is t_us − t_us₀
+    np.testing.assert_array_equal(rec["seq"], np.arange(len(rec)) % 65536)
+    # the norm in g from the raw counts at 16384 LSB/g, and the board's own static test at 0.05 g
+    np.testing.assert_allclose(rec["acc_norm"], np.linalg.norm(rec.counts("acc"), axis=1) / 16384.0, atol=5e-7)
+    np.testing.assert_array_equal(rec["static_ok"], (np.abs(rec["acc_norm"] - 1.0) < 0.05).astype(int))
+    assert rec.phases
+
+
+def test_stationary_record_is_ten_seconds_at_rest_and_still_by_the_loggers_flag():
+    rec = datasets.load("05_stationary")
+    assert len(rec) == 1000 and np.all(rec.phase("stationary"))
+    assert rec["static_ok"].mean() > 0.99  # uncalibrated the norm reads ≈ 1.035 g: inside 0.05 g, but only just
+    b = datasets.MPU6050_GYRO_BIAS  # sensor frame, rad/s
+    np.testing.assert_allclose(rec.sensor_si("gyr").mean(axis=0), b, atol=3e-4)  # the MEAN is the bias
+
+
+def test_six_face_set_has_every_face():
+    from kfkit import calibration
+
+    rec = datasets.load("05_six_faces")
+    for face in calibration.FACES:
+        up = rec.body("acc")[rec.phase(face)].mean(axis=0)
+        axis = "xyz".index(face[0])
+        assert np.sign(up[axis]) == (1 if face.endswith("_up") else -1) and abs(up[axis]) > 0.9 * g
+
+
+# --- the final checkpoint discriminates ---------------------------------------------------------
+
+def reference_estimate(start_bias="zero", tuned=True):
+    """kfkit's pipeline as an answer to 05.final, optionally with a known mistake."""
+    from kfkit.checkpoints import lab05
+
+    def estimate_tilt(tilt, still, faces):
+        axes, dt, r, q0 = lab05.pipeline_inputs(tilt, still, faces)
+        b_still = still.body("gyr").mean(axis=0)
+        out = []
+        for col, name in enumerate(("roll", "pitch")):
+            w, z, ok, ref = axes[name]
+            q = lab05.tune_reference(w, z, ok, ref, dt, r, q0) if tuned else (q0, 1e-4 * q0)
+            b0 = 0.0 if start_bias == "zero" else b_still[col]
+            out.append(TiltBiasKF(dt, *q, r).run(w, z, ok, x0=(z[0], b0)))
+        return out[0].angle, out[1].angle, out[0].bias, out[1].bias
+
+    return estimate_tilt
+
+
+def test_final_checkpoint_passes_kfkits_pipeline_and_fails_known_mistakes():
+    from kfkit.checkpoints import get, run_checkpoint
+
+    cp = get("05.final")
+    assert run_checkpoint(cp, reference_estimate()).ok
+    handed = run_checkpoint(cp, reference_estimate(start_bias="still"))
+    assert not handed.ok and "already at the first sample" in handed.message
+    untuned = run_checkpoint(cp, reference_estimate(tuned=False))
+    assert not untuned.ok and "RMSE on the static windows" in untuned.message
+
+
+def test_python_twin_tracks_the_protocol_with_the_bundled_calibration():
+    """TiltAttitude (what the sketch and the virtual board run), six-face corrected, on the holds."""
+    from kfkit import calibration
+    from kfkit.filters import TiltAttitude, protocol_angles
+
+    rec = datasets.load("05_tilt_protocol")
+    cal = calibration.load_calibration("mpu6050", path=calibration.bundled_calibration_path("mpu6050"))
+    twin = TiltAttitude("mpu6050", accel_bias=cal.accel_bias, accel_scale=cal.accel_scale)
+    out = [twin.update(a, w) for a, w in zip(rec.counts("acc"), rec.counts("gyr"))]
+    start = sum(o is None for o in out)
+    assert start == 199  # 2 s of gyro bias first: no attitude until the 200th sample
+    est = np.array(out[start:])
+    roll_ref, pitch_ref = protocol_angles(rec)
+    for col, ref in ((0, roll_ref[start:]), (1, pitch_ref[start:])):
+        known = ~np.isnan(ref)
+        assert np.degrees(np.sqrt(np.mean((est[known, col] - ref[known]) ** 2))) < 0.5
+    np.testing.assert_allclose(twin.gyro_bias[:2], [-2.5 * deg, -1.8 * deg], atol=0.05 * deg)

@@ -1,15 +1,19 @@
 """firmware/tilt_kf (C99, float32) against the Python reference kfkit.filters.TiltBiasKF.
 
-gcc compiles tilt_kf.c into a shared library, ctypes runs it on the bundled recording; the angles
-must match the float64 reference within 1e-4 rad. Skipped when gcc is not installed.
+gcc compiles tilt_kf.c into a shared library, ctypes runs it on the whole bundled recording; the angles
+must match the float64 reference within 1e-4 rad. The sketch runs on the host against Arduino stand-ins,
+and is compiled for an Uno with avr-gcc and the Arduino AVR core. Each part skips without its compiler.
 """
 import ctypes
+import os
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+import arduino_host
 from kfkit import datasets
 from kfkit.datasets import KIT_ROOT
 from kfkit.filters import TiltBiasKF, accel_static_ok, tilt
@@ -119,106 +123,23 @@ def test_c_filter_skips_a_nan_accel_angle(lib):
 
 
 # --- the Arduino sketch itself, on the host -------------------------------------------------------------
-# The .ino cannot be built for AVR here; it is compiled with g++ against minimal stand-ins for Arduino.h
-# and Wire.h that play the bundled recording's counts as MPU6050 registers and collect what Serial sends.
+# The .ino compiled with g++ against the kit's Arduino/Wire stand-ins (tests/arduino_host.py), which play the
+# bundled recording's counts as MPU6050 registers and collect what Serial sends.
 
-ARDUINO_STUB = r"""
-#pragma once
-#include <stdint.h>
-#include <stddef.h>
-#include <math.h>
-#include <stdio.h>
-#define F(x) (x)
-struct Print {
-    size_t write(const uint8_t *data, size_t n) { return fwrite(data, 1, n, stdout); }
-};
-struct Stream : Print {  /* no host input: the sketch streams from the start */
-    int available() { return 0; }
-    int read() { return -1; }
-};
-struct HardwareSerial : Stream {
-    void begin(unsigned long) {}
-    void println(const char *text) { printf("%s\n", text); }
-};
-extern HardwareSerial Serial;
-unsigned long micros();
-void delay(unsigned long);
-"""
-
-WIRE_STUB = r"""
-#pragma once
-#include <stdint.h>
-struct TwoWire {
-    void begin() {}
-    void setClock(long) {}
-    void beginTransmission(uint8_t) { expectRegister = 1; }
-    size_t write(uint8_t value) { if (expectRegister) { reg = value; expectRegister = 0; } return 1; }
-    uint8_t endTransmission(bool = true) { return 0; }
-    uint8_t requestFrom(uint8_t, uint8_t count);
-    int read();
-    uint8_t reg = 0, expectRegister = 0, buffer[14] = {0}, position = 0;
-};
-extern TwoWire Wire;
-"""
-
-HOST_MAIN = r"""
-#include "Arduino.h"
-#include "Wire.h"
-#include <stdlib.h>
-HardwareSerial Serial;
-TwoWire Wire;
-static unsigned long now = 0;
-unsigned long micros() { return now; }
-void delay(unsigned long ms) { now += 1000ul * ms; }
-static int16_t frames[20000][7];
-static long frameCount = 0, next = 0;
-uint8_t TwoWire::requestFrom(uint8_t, uint8_t count) {
-    position = 0;
-    if (reg == 0x75) { buffer[0] = 0x68; return count; }
-    if (reg == 0x3B && next < frameCount) {
-        for (int i = 0; i < 7; i++) { buffer[2 * i] = (uint8_t)((uint16_t)frames[next][i] >> 8); buffer[2 * i + 1] = (uint8_t)(frames[next][i] & 0xFF); }
-        next++;
-        return count;
-    }
-    return 0;
-}
-int TwoWire::read() { return buffer[position++]; }
-void setup();
-void loop();
-int main() {
-    int ax, ay, az, gx, gy, gz;
-    while (frameCount < 20000 && scanf("%d %d %d %d %d %d", &ax, &ay, &az, &gx, &gy, &gz) == 6) {
-        int16_t row[7] = {(int16_t)ax, (int16_t)ay, (int16_t)az, 0, (int16_t)gx, (int16_t)gy, (int16_t)gz};
-        for (int i = 0; i < 7; i++) frames[frameCount][i] = row[i];
-        frameCount++;
-    }
-    setup();
-    while (next < frameCount) { loop(); now += 500; }  /* 20 loop() calls per 10 ms sample period */
-    return 0;
-}
-"""
+SKETCH = KIT_ROOT / "firmware" / "mpu6050_tilt_kf" / "mpu6050_tilt_kf.ino"
 
 
 @pytest.fixture(scope="module")
-def sketch_output(tmp_path_factory):
-    gxx = shutil.which("g++")
-    if gxx is None:
-        pytest.skip("g++ is not installed: the sketch's host run needs it")
-    work = tmp_path_factory.mktemp("sketch")
-    (work / "Arduino.h").write_text(ARDUINO_STUB)
-    (work / "Wire.h").write_text(WIRE_STUB)
-    (work / "host_main.cpp").write_text(HOST_MAIN)
-    sketch = KIT_ROOT / "firmware" / "mpu6050_tilt_kf" / "mpu6050_tilt_kf.ino"
-    exe = work / "sketch"
-    subprocess.run([gxx, "-std=c++11", "-O1", "-Wall", "-DARDUINO=10819", f"-I{work}",
-                    f"-I{KIT_ROOT / 'firmware' / 'common'}", f"-I{KIT_ROOT / 'firmware' / 'tilt_kf'}",
-                    "-x", "c++", str(sketch), "-x", "c++", str(work / "host_main.cpp"), "-x", "c", str(SOURCE),
-                    "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
+def sketch_exe(tmp_path_factory):
+    return arduino_host.build_sketch(SKETCH, tmp_path_factory.mktemp("sketch"), include=[SOURCE.parent], sources=[SOURCE])
+
+
+@pytest.fixture(scope="module")
+def sketch_output(sketch_exe):
     rec = datasets.load("05_tilt_protocol")
     counts = np.column_stack([rec.counts("acc"), rec.counts("gyr")]).astype(int)
-    feed = "\n".join(" ".join(map(str, row)) for row in counts.tolist()) + "\n"
-    run = subprocess.run([str(exe)], input=feed, capture_output=True, text=True, check=True, timeout=60)
-    return rec, counts, run.stdout.encode().splitlines(keepends=True)
+    lines, _ = arduino_host.run_sketch(sketch_exe, counts, "--max-us", int(rec.t[-1] * 1e6) + 5_000_000)
+    return rec, counts, lines
 
 
 def test_sketch_streams_valid_protocol_lines(sketch_output):
@@ -247,3 +168,82 @@ def test_sketch_attitude_matches_the_python_twin(sketch_output):
     assert att.shape == expected.shape
     # the sketch prints two decimals; float32 vs float64 adds < 1e-4°
     assert np.max(np.abs(att - expected)) <= 0.0051
+
+
+def test_sketch_measures_the_bias_again_after_a_stop_and_start(sketch_exe):
+    """'s' stops the stream; the board may move meanwhile, so 's' again restarts the 2 s bias measurement."""
+    from kfkit.capture import Message, Note, Sample, parse_line
+
+    counts = np.column_stack([datasets.load("05_stationary").counts(k) for k in ("acc", "gyr")]).astype(int)
+    lines, _ = arduino_host.run_sketch(sketch_exe, counts, "4000000:s", "4500000:s")
+    items = [parse_line(line) for line in lines]
+    notes = [i for i, item in enumerate(items) if isinstance(item, Note) and "keep the board still" in item.text]
+    assert len(notes) == 2  # at start, and again after the restart
+    after = items[notes[1] + 1:]
+    first_att = next(i for i, item in enumerate(after) if isinstance(item, Message))
+    assert sum(isinstance(item, Sample) for item in after[:first_att]) == 200  # 2 s of samples, no $ATT
+    t_us = [item.t_us for item in items if isinstance(item, Sample)]
+    assert max(np.diff(t_us)) >= 500000  # the pause shows as a gap in the board's clock, not as lost samples
+
+
+def test_sketch_without_an_mpu6050_says_so_and_sends_no_samples(sketch_exe):
+    lines, _ = arduino_host.run_sketch(sketch_exe, [[0] * 6], "--who-am-i", "0x70", "--max-us", 3_000_000)
+    assert sum(b"#ERROR,MPU6050 not found at 0x68" in line for line in lines) >= 3  # once a second for 3 s
+    assert not any(line.startswith((b"$", b"#KFKIT")) for line in lines)
+
+
+def test_virtual_board_speaks_like_the_sketch(sketch_output):
+    """What `kfkit demo tilt --port virtual` reads stands in for the board: the same header, and $ATT lines
+    on the same schedule (none during the 2 s bias start, then one after every sample; the virtual side of
+    it is tests/test_tilt_demo.py::test_virtual_board_emits_att_lines_that_track_the_truth)."""
+    from kfkit.capture import Message, Sample, VirtualBoard, parse_line
+
+    _, _, lines = sketch_output
+    assert VirtualBoard(board="mpu6050", attitude=True).header == lines[0]
+    kinds = [type(parse_line(line)) for line in lines[2:]]  # after the header and the #NOTE
+    assert kinds[:200] == [Sample] * 200 and kinds[200:204] == [Message, Sample, Message, Sample]
+
+
+# --- the sketch for the real board: avr-gcc and the Arduino AVR core ---------------------------------------
+# Debian's gcc-avr, avr-libc and arduino-core-avr (the core and Wire that arduino-cli's arduino:avr installs).
+# Flags as the core's platform.txt (without -flto: Debian's avr-gcc 5.4 links without the plugin here).
+
+AVR_CORE = Path(os.environ.get("KFKIT_ARDUINO_AVR", "/usr/share/arduino/hardware/arduino/avr"))
+UNO_FLASH, UNO_RAM = 32256, 2048  # boards.txt: uno.upload.maximum_size, maximum_data_size (bytes)
+
+
+@pytest.fixture(scope="module")
+def avr_build(tmp_path_factory):
+    tools = {name: shutil.which(name) for name in ("avr-gcc", "avr-g++", "avr-size")}
+    if None in tools.values() or not (AVR_CORE / "cores" / "arduino" / "Arduino.h").exists():
+        pytest.skip("no AVR toolchain / Arduino AVR core (apt-get install gcc-avr avr-libc arduino-core-avr)")
+    out = tmp_path_factory.mktemp("avr")
+    core, wire = AVR_CORE / "cores" / "arduino", AVR_CORE / "libraries" / "Wire" / "src"
+    common = ["-c", "-Os", "-ffunction-sections", "-fdata-sections", "-mmcu=atmega328p", "-DF_CPU=16000000L",
+              "-DARDUINO=10819", "-DARDUINO_AVR_UNO", "-DARDUINO_ARCH_AVR", f"-I{core}",
+              f"-I{AVR_CORE / 'variants' / 'standard'}", f"-I{wire}", f"-I{wire / 'utility'}",
+              f"-I{KIT_ROOT / 'firmware' / 'common'}", f"-I{KIT_ROOT / 'firmware' / 'tilt_kf'}"]
+    cpp = ["-std=gnu++11", "-fpermissive", "-fno-exceptions", "-fno-threadsafe-statics"]
+    jobs = [([tools["avr-gcc"], "-w", "-std=gnu11"], f) for f in [*core.glob("*.c"), wire / "utility" / "twi.c"]]
+    jobs += [([tools["avr-g++"], "-w", "-DDECIMAL_DIG=17", *cpp], f) for f in [*core.glob("*.cpp"), wire / "Wire.cpp"]]
+    jobs += [([tools["avr-gcc"], "-w", "-x", "assembler-with-cpp"], f) for f in core.glob("*.S")]
+    # the kit's own code: every warning is an error
+    jobs += [([tools["avr-gcc"], "-std=c99", "-Wall", "-Wextra", "-Werror"], SOURCE),
+             ([tools["avr-g++"], *cpp, "-Wall", "-Wextra", "-Werror", "-x", "c++"],
+              KIT_ROOT / "firmware" / "mpu6050_tilt_kf" / "mpu6050_tilt_kf.ino")]
+    objects = []
+    for i, (compiler, source) in enumerate(jobs):
+        objects.append(out / f"{i}_{source.stem}.o")
+        done = subprocess.run([*compiler, *common, str(source), "-o", str(objects[-1])], capture_output=True, text=True)
+        assert done.returncode == 0, f"{source}:\n{done.stderr}"
+    elf = out / "mpu6050_tilt_kf.elf"
+    subprocess.run([tools["avr-gcc"], "-Os", "-Wl,--gc-sections", "-mmcu=atmega328p", *map(str, objects), "-o", str(elf),
+                    "-lm"], check=True, capture_output=True, text=True)
+    sizes = subprocess.run([tools["avr-size"], str(elf)], check=True, capture_output=True, text=True).stdout
+    text, data, bss = map(int, sizes.splitlines()[1].split()[:3])
+    return {"flash": text + data, "ram": data + bss}
+
+
+def test_sketch_compiles_for_an_uno_and_fits(avr_build):
+    assert avr_build["flash"] < UNO_FLASH / 2  # ≈ 12 KB of 31.5 KB
+    assert avr_build["ram"] < UNO_RAM / 2  # static RAM ≈ 0.7 KB of 2 KB: the rest is stack (no allocation)

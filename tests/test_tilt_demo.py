@@ -95,17 +95,82 @@ def test_bad_dt():
         RaceGame().update(0.0, 0.0, 0)
 
 
+# --- the stream and the game, end to end --------------------------------------------------------------
+
+def test_att_lines_from_the_virtual_board_drive_the_game_by_board_time():
+    """The whole path without a window: virtual board → pty → AttitudeStream → controls → RaceGame."""
+    from kfkit.demo import run_tilt_demo
+
+    lines = []
+    game = run_tilt_demo("virtual", seconds=40.0, headless=True, fast=True, out=lines.append)
+    assert game.time == pytest.approx(40.0)  # one 1/100 s step per $ATT line, however fast they came
+    assert game.distance > 100 and game.speed > 0  # nose down: throttle
+    assert "bad lines 0" in lines[0] and "40." in lines[0]
+
+
+def test_the_virtual_hand_steers_both_ways():
+    """driving_motion rolls ±20°: the attitudes the sketch's twin sends steer right and left of the start."""
+    from contextlib import ExitStack
+
+    from kfkit.demo import advance, open_stream
+
+    game, xs = RaceGame(), []
+    with ExitStack() as stack:
+        stream = open_stream(stack, "virtual", fast=True)
+        deadline = time.monotonic() + 30
+        while game.time < 20.0 and time.monotonic() < deadline:
+            if advance(game, stream):
+                xs.append(game.x)
+            time.sleep(0.01)
+    assert game.time >= 20.0
+    steps = np.diff(xs)
+    assert steps.max() > 0 and steps.min() < 0  # moved right at one time, left at another
+
+
+def test_stream_says_why_there_are_no_att_lines(monkeypatch):
+    """A board running mpu6050_logger sends samples only; the demo names the port and the sketch to flash."""
+    import kfkit.demo as demo
+
+    monkeypatch.setattr(demo, "NO_ATTITUDE_S", 1.0)
+    with VirtualBoard(board="mpu6050", realtime=False) as board:  # raw samples, no attitude=True
+        with pytest.raises(demo.DemoError, match=f"{board.port} sends samples but no \\$ATT lines: flash firmware/mpu6050_tilt_kf"):
+            demo.run_tilt_demo(board.port, seconds=5.0, headless=True)
+    with VirtualBoard(board="mpu6050", faults={"silent": True}) as board:
+        with pytest.raises(demo.DemoError, match=f"nothing received from {board.port}"):
+            demo.run_tilt_demo(board.port, seconds=5.0, headless=True)
+
+
+def test_unplugged_board_is_named():
+    import kfkit.demo as demo
+
+    motion = driving_motion()
+    with VirtualBoard(board="mpu6050", motion=motion, attitude=True, realtime=False, loop=False,
+                      faults={"disconnect": 700}) as board:
+        with pytest.raises(demo.DemoError, match=f"{board.port} stopped sending .*: board unplugged\\?"):
+            demo.run_tilt_demo(board.port, seconds=30.0, headless=True)
+
+
 # --- the command ----------------------------------------------------------------------------------------
 
 def test_demo_runs_headless_against_the_virtual_board(capsys):
-    assert main(["demo", "tilt", "--port", "virtual", "--seconds", "4", "--headless"]) == 0
+    assert main(["demo", "tilt", "--port", "virtual", "--seconds", "30", "--headless", "--fast"]) == 0
     out = capsys.readouterr().out
-    assert "$ATT lines" in out and "bad lines 0" in out
+    assert "$ATT lines" in out and "bad lines 0" in out and "30.0 s driven" in out
+
+
+def test_demo_in_real_time_against_the_virtual_board(capsys):
+    assert main(["demo", "tilt", "--port", "virtual", "--seconds", "1", "--headless"]) == 0
+    assert "1.0 s driven" in capsys.readouterr().out
 
 
 def test_demo_names_a_missing_port(capsys):
     assert main(["demo", "tilt", "--port", "/dev/kfkit-no-such-port", "--seconds", "1", "--headless"]) == 2
-    assert "/dev/kfkit-no-such-port" in capsys.readouterr().err
+    assert "cannot open /dev/kfkit-no-such-port" in capsys.readouterr().err
+
+
+def test_fast_is_only_for_the_virtual_board(capsys):
+    assert main(["demo", "tilt", "--port", "/dev/ttyUSB0", "--seconds", "1", "--headless", "--fast"]) == 2
+    assert "--fast is for --port virtual" in capsys.readouterr().err
 
 
 def test_headless_needs_seconds():
@@ -115,18 +180,69 @@ def test_headless_needs_seconds():
         run_tilt_demo("virtual", headless=True)
 
 
+class FakeStream:
+    """What tilt_figure reads from an AttitudeStream: 60 attitudes queued, rolled right and nose down."""
+
+    def __init__(self, attitudes=((10.0, -12.0),) * 60, problem=None):
+        self.queue, self.rate_hz, self.error, self.problem = list(attitudes), 100.0, None, problem
+        self.latest = attitudes[-1] if attitudes else None
+
+    def take(self, limit=None):
+        out, self.queue = self.queue[:limit], self.queue[len(self.queue[:limit]):]
+        return out
+
+    def waiting_for(self):
+        return self.problem
+
+
 def test_figure_draws_a_frame(tmp_path):
-    import matplotlib
-    matplotlib.use("Agg")
     from kfkit.demo import tilt_figure
 
-    class Stream:
-        latest = (10.0, -12.0)
-
-    game = RaceGame()
-    fig, draw = tilt_figure(game, Stream(), 1 / 30)
-    for frame in range(60):
-        artists = draw(frame)
-    assert game.distance > 0 and game.x > 0  # rolled right, nose down: forward and to the right
+    game = RaceGame(speed=10.0)
+    fig, draw = tilt_figure(game, FakeStream())
+    artists = draw()
+    assert game.time == pytest.approx(0.6) and game.x > 0  # 60 lines at 100 Hz: rolled right, moved right
     assert "roll  +10.0°" in artists[-1].get_text()
+    draw()
+    assert game.time == pytest.approx(0.6)  # nothing new: the game waits for the board
     fig.savefig(tmp_path / "demo.png")
+
+
+def test_figure_shows_why_it_waits():
+    from kfkit.demo import tilt_figure
+
+    _, draw = tilt_figure(RaceGame(), FakeStream((), problem="/dev/ttyUSB0 sends samples but no $ATT lines: flash it"))
+    assert "no $ATT lines: flash it" in draw()[-1].get_text().replace("\n", " ")
+
+
+@pytest.mark.filterwarnings("ignore:Passing unrecognized arguments:DeprecationWarning")  # ipympl's toolbar
+def test_notebook_panel_drives_the_game_from_the_virtual_board():
+    from kfkit.demo import TiltDemoPanel
+
+    panel = TiltDemoPanel("virtual", fast=True)
+    try:
+        deadline = time.monotonic() + 15
+        while panel.game.time < 3.0 and time.monotonic() < deadline:
+            panel.refresh()
+            time.sleep(0.05)
+        assert panel.game.time >= 3.0 and panel.stream.counts["bad"] == 0
+        assert "roll" in panel.fig.axes[0].texts[0].get_text()
+    finally:
+        panel.close()
+
+
+def test_demo_window_opens_and_closes_after_its_seconds(tmp_path):
+    """The real window (TkAgg) under a virtual X server, where Debian's xvfb is installed."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    pytest.importorskip("tkinter")
+    if shutil.which("xvfb-run") is None:
+        pytest.skip("xvfb-run is not installed (apt-get install xvfb): the window path is not tried here")
+    env = {**os.environ, "MPLBACKEND": "TkAgg"}
+    run = subprocess.run(["xvfb-run", "-a", sys.executable, "-m", "kfkit", "demo", "tilt", "--port", "virtual",
+                          "--seconds", "3"], capture_output=True, text=True, timeout=60, env=env)
+    assert run.returncode == 0, run.stderr
+    assert "bad lines 0" in run.stdout and " s driven" in run.stdout
