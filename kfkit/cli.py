@@ -4,7 +4,7 @@
     kfkit data regenerate [--check]    rebuild data/ from seeded simulations
     kfkit doctor                       check this environment and say what to fix
     kfkit boards                       list the boards plugged in over USB
-    kfkit capture --port P --seconds S --out FILE   record from a board (or --port virtual)
+    kfkit capture --port P --seconds S --out FILE   record from a board (or --port virtual, or phyphox://HOST:PORT)
     kfkit demo tilt --port P|virtual   steer a car by tilting the board (mpu6050_tilt_kf's $ATT lines)
     kfkit grade --lab NN --out gradebook.csv SUBMISSION…   grade notebooks in isolated kernels
 """
@@ -68,42 +68,55 @@ def _boards(args) -> int:
 def _capture(args) -> int:
     import json
 
-    from .capture import CaptureError, capture
+    from .capture import CaptureError, CaptureStats, capture
     from .capture.guided import protocol_capture_options, step_at
 
     options, steps = {}, None
     seconds = args.seconds
-    if args.protocol:
-        length, steps, options = protocol_capture_options(args.protocol, args.port, args.board, quick=args.quick,
-                                                          fast=args.fast)
-        seconds = seconds or length
-    elif args.port == "virtual":
-        options["virtual"] = {"board": args.board or "nucleo-iks02a1", "rate_hz": args.rate, "realtime": not args.fast}
+    try:
+        if args.protocol:
+            length, steps, options = protocol_capture_options(args.protocol, args.port, args.board, quick=args.quick,
+                                                              fast=args.fast)
+            seconds = seconds or length
+        elif args.port == "virtual":
+            options["virtual"] = {"board": args.board or "nucleo-iks02a1", "rate_hz": args.rate, "realtime": not args.fast}
+    except ValueError as e:
+        print(f"capture failed: {e}", file=sys.stderr)
+        return 2
     seconds = seconds or 10.0
+    started = []
 
     def progress(fraction, rec):
         if args.json:
             return
+        if not started:
+            started.append(True)
+            print(f"recording {seconds:g} s from {rec.description} (Ctrl-C stops early and keeps what arrived)",
+                  file=sys.stderr)
+        step = step_at(steps, rec.elapsed) if steps and args.port != "virtual" else None
+        if step is not None and step is not started[-1]:  # a guided protocol's next instruction, on its own line
+            started.append(step)
+            print(f"\r{'':100}\r{step[0]:6.1f} s  ▶ {step[3]}", file=sys.stderr)
         s = rec.stats
         bar = "#" * int(30 * fraction)
-        prompt = f" | {step_at(steps, rec.elapsed)[3]}" if steps else ""
         print(f"\r[{bar:<30}] {rec.elapsed:6.1f}/{seconds:.1f} s  samples {s.samples}  bad {s.bad_lines}  "
-              f"dropped {s.dropped}{prompt}"[:160], end="", file=sys.stderr, flush=True)
+              f"dropped {s.dropped}", end="", file=sys.stderr, flush=True)
 
     try:
         rec = capture(args.port, seconds, args.out, baud=args.baud, progress=progress, **options)
     except CaptureError as e:
-        if not args.json:
+        if started:
             print(file=sys.stderr)
         print(f"capture failed: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # the recorder has closed the port and written the file by now
+        print(f"\nstopped: what arrived is saved in {args.out}", file=sys.stderr)
+        return 130
     stats = rec.meta["capture"]["stats"]
     if args.json:
         print(json.dumps({**stats, "out": str(args.out.resolve()), "port": rec.meta["capture"]["port"],
                           "board": rec.meta.get("board")}))
     else:
-        from .capture import CaptureStats
-
         print(file=sys.stderr)
         shown = CaptureStats(**{k: v if v is not None else float("nan") for k, v in stats.items() if k != "bad_lines"})
         print(f"{shown}\nsaved {len(rec)} samples to {args.out}")
@@ -112,7 +125,7 @@ def _capture(args) -> int:
 
 def _demo(args) -> int:
     from .capture import CaptureError
-    from .demo import run_tilt_demo
+    from .demo import DemoError, run_tilt_demo
 
     port = args.port
     try:
@@ -122,8 +135,10 @@ def _demo(args) -> int:
             board, why = resolve_auto()
             port = board.port
             print(why, file=sys.stderr)
-        run_tilt_demo(port, seconds=args.seconds, headless=args.headless, baud=args.baud)
-    except (CaptureError, ValueError, OSError) as e:
+        if args.fast and port != "virtual":
+            raise ValueError(f"--fast is for --port virtual (a board sends in real time), got --port {port}")
+        run_tilt_demo(port, seconds=args.seconds, headless=args.headless, baud=args.baud, fast=args.fast)
+    except (CaptureError, DemoError, ValueError, OSError) as e:
         print(f"demo failed: {e}", file=sys.stderr)
         return 2
     return 0
@@ -153,7 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("capture", help="record from a board (protocol v1) into a recording file")
     p.add_argument("--port", default="auto", help="device path, pyserial URL (loop://, socket://, hwgrep://), "
-                   "'auto' or 'virtual' (default: %(default)s)")
+                   "'auto', 'virtual', or phyphox://HOST:PORT for a phone running phyphox with remote access "
+                   "(default: %(default)s)")
     p.add_argument("--seconds", type=float, default=None, help="board time to record, s (default: 10, or the protocol's)")
     p.add_argument("--out", type=Path, required=True, help="recording file to write (CSV, kit format)")
     p.add_argument("--baud", type=int, default=115200, help="default: %(default)s")
@@ -172,7 +188,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", default="auto", help="device path, pyserial URL, 'auto' or 'virtual' (default: %(default)s)")
     p.add_argument("--baud", type=int, default=115200, help="default: %(default)s")
     p.add_argument("--seconds", type=float, default=None, help="stop after this long (default: when the window closes)")
-    p.add_argument("--headless", action="store_true", help="no window: play for --seconds and print a summary")
+    p.add_argument("--headless", action="store_true", help="no window: play --seconds of board time and print a summary")
+    p.add_argument("--fast", action="store_true", help="the virtual board runs faster than real time (with --headless)")
     p.set_defaults(run=_demo)
 
     from .grading import add_parser as add_grade_parser

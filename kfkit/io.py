@@ -31,7 +31,7 @@ from .frames import mount_matrix
 MAGIC = "# kfkit-recording v1 "
 VERSION_PREFIX = "# kfkit-recording "
 REQUIRED_COLUMNS = ("t", "seq")
-INT_COLUMNS = frozenset({"seq", "ax", "ay", "az", "gx", "gy", "gz"})
+INT_COLUMNS = frozenset({"seq", "ax", "ay", "az", "gx", "gy", "gz", "t_us", "static_ok"})  # t_us, static_ok: lab 05's logger columns
 OPTIONAL_INT_COLUMNS = frozenset({"mx", "my", "mz"})  # empty cell = no new sample (NaN)
 SENSOR_COLUMNS = {"acc": ("ax", "ay", "az"), "gyr": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
 TRUTH_COLUMNS = ("true_roll", "true_pitch", "true_yaw")
@@ -238,6 +238,14 @@ def load_recording(path) -> Recording:
         dtype = np.int64 if c in INT_COLUMNS else float
         data[c] = np.asarray(column, dtype=dtype)
     return Recording(meta, data, path)
+
+
+def load_phyphox(path, mount="flat", require=("acc", "gyr")) -> Recording:
+    """A phone's phyphox CSV export (folder, .zip or ``Raw Data.csv``) as a Recording in the phone's
+    mounting ``mount``; see :func:`kfkit.phyphox.load_phyphox`."""
+    from .phyphox import load_phyphox as load  # late import: the format module builds on this one
+
+    return load(path, mount=mount, require=require)
 
 
 # --- public datasets ------------------------------------------------------------------------

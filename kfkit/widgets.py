@@ -1,5 +1,6 @@
 """ipywidgets UIs: filter tuning with log-scale sliders; the 3-D attitude view (lab 04), replayed
-(``attitude_view``) or live from a recorder (``AttitudeView.live`` + ``LiveAttitude``).
+(``attitude_view``) or live from a recorder (``AttitudeView.live`` + ``LiveAttitude``); the capture
+panel (lab 00, ``capture_panel``).
 
 The tuning figure is an ipympl canvas created for this panel only, so the rest of a
 notebook keeps the inline backend (static PNGs that survive in saved outputs) while
@@ -125,16 +126,18 @@ def _enu(v_ned):
 class LiveAttitude:
     """Keeps a filter running over a growing recording: ``update(rec)`` feeds the samples newer
     than the last one it saw and returns the latest quaternion (w-x-y-z, body → NED), or None
-    before any sample. A time that goes backwards (board reset) restarts the filter.
+    before any sample. A time that goes backwards (board reset, a new recording) restarts the filter.
 
     method and tuning go to :class:`kfkit.filters.EulerAttitudeEKF` ("euler-ekf") or the
-    quaternion filter ("mekf"); ``calibration`` (a :class:`kfkit.calibration.Calibration`, labs
-    02/03) corrects the samples first.
+    quaternion filter ("mekf"); ``calibration`` corrects the samples first: a
+    :class:`kfkit.calibration.Calibration` (labs 02/03) for the recording's board, "auto" for
+    :func:`kfkit.calibration.load_calibration` of the board named in the recording (the student's
+    own file if saved, else the kit's default), or None (raw samples).
     """
 
     def __init__(self, method="euler-ekf", calibration=None, **tuning):
         self.method, self.tuning, self.calibration = method, tuning, calibration
-        self.filter, self.t_last, self.quat = None, -np.inf, None
+        self.filter, self.t_last, self.quat, self._cal = None, -np.inf, None, None
 
     def _new_filter(self, rate_hz):
         from .filters.attitude import EulerAttitudeEKF, MultiplicativeEKF
@@ -143,6 +146,20 @@ class LiveAttitude:
         if self.method not in kinds:
             raise ValueError(f"LiveAttitude: method must be one of {', '.join(kinds)}, got {self.method!r}")
         return kinds[self.method](rate_hz, **self.tuning)
+
+    def _calibration_for(self, board):
+        if self.calibration is None:
+            return None
+        if isinstance(self.calibration, str):
+            if self.calibration != "auto":
+                raise ValueError(f"LiveAttitude: calibration must be a Calibration, 'auto' or None, got {self.calibration!r}")
+            from .calibration import load_calibration
+
+            return load_calibration(board=board) if board else None
+        if board is not None and self.calibration.board != board:
+            raise ValueError(f"LiveAttitude: the calibration is for board {self.calibration.board!r} but the samples come "
+                             f"from {board!r}: use calibration='auto' or load_calibration(board={board!r})")
+        return self.calibration
 
     def update(self, rec):
         if rec is None or len(rec) == 0:
@@ -154,11 +171,11 @@ class LiveAttitude:
         if not new.any():
             return self.quat
         if self.filter is None:
-            self.filter = self._new_filter(rec.rate_hz)
+            self.filter, self._cal = self._new_filter(rec.rate_hz), self._calibration_for(rec.meta.get("board"))
         mag = rec.body("mag")[new] if "mag" in rec.meta.get("sensors", {}) else None
         gyr, acc = rec.body("gyr")[new], rec.body("acc")[new]
-        if self.calibration is not None:
-            gyr, acc, mag = self.calibration.apply((gyr, acc) if mag is None else (gyr, acc, mag))
+        if self._cal is not None:
+            gyr, acc, mag = self._cal.apply((gyr, acc) if mag is None else (gyr, acc, mag))
         result = self.filter.run(gyr, acc, mag)
         self.t_last, self.quat = float(t[new][-1]), result.quat[-1]
         return self.quat
@@ -170,8 +187,9 @@ class AttitudeView:
 
     - replay: ``AttitudeView(t, quat)`` with quaternions (N, 4, w-x-y-z, body → NED), a Play
       button and a time slider; ``truth`` (N, 4) adds a wire-frame ghost of the true attitude.
-    - live: ``AttitudeView.live(source)``, ``source()`` returning the latest Recording (e.g.
-      ``lambda: recorder.recording(last_seconds=2)``), polled by a timer on the kernel's thread.
+    - live: ``AttitudeView.live(source)`` follows a capture panel (:func:`capture_panel`: whatever it
+      is recording, the virtual board or a real one), a :class:`kfkit.capture.Recorder`, or any
+      ``source()`` returning the latest Recording, polled by a timer on the kernel's thread.
     ``show(k)`` draws sample k; ``draw(q, t)`` draws any quaternion.
     """
 
@@ -247,15 +265,19 @@ class AttitudeView:
         """Move the box, the axes and their labels to quaternion ``q`` (w-x-y-z, body → NED)."""
         R = quat_to_dcm(q)
         self.box.set_verts(self._polys(R))
+        error = ""
         if self.ghost is not None and q_truth is not None:
-            self.ghost.set_verts(self._polys(quat_to_dcm(q_truth)))
+            R_true = quat_to_dcm(q_truth)
+            self.ghost.set_verts(self._polys(R_true))
+            angle = np.degrees(np.arccos(np.clip((np.trace(R_true.T @ R) - 1.0) / 2.0, -1.0, 1.0)))
+            error = f" &nbsp; (dashed: truth, {angle:.1f}° away)"
         for i, (line, label) in enumerate(zip(self.axis_lines, self.axis_labels)):
             tip = _enu(R[:, i]) * (0.85 if i == 0 else 0.65)
             line.set_data_3d([0, tip[0]], [0, tip[1]], [0, tip[2]])
             label.set_position_3d(tip * 1.12)
         roll, pitch, yaw = np.degrees(dcm_to_euler(R))
         when = "" if t is None else f"t = {t:6.2f} s &nbsp; "
-        self.status.value = f"{when}roll {roll:+6.1f}°, pitch {pitch:+5.1f}°, yaw {yaw:+6.1f}°"
+        self.status.value = f"{when}roll {roll:+6.1f}°, pitch {pitch:+5.1f}°, yaw {yaw:+6.1f}°{error}"
         self.canvas.draw_idle()
 
     def show(self, k):
@@ -264,12 +286,14 @@ class AttitudeView:
         self.draw(self.quat[k], self.t[k], None if self.truth is None else self.truth[k])
 
     @classmethod
-    def live(cls, source, estimator=None, interval_ms=100, start=True, **view_options):
-        """A view that polls ``source()`` (→ latest Recording) every ``interval_ms`` on the kernel's
-        main thread and draws the attitude that ``estimator.update(rec)`` returns (default: a
-        :class:`LiveAttitude`, Euler EKF). Start and stop buttons; ``poll()`` does one tick."""
+    def live(cls, source, estimator=None, interval_ms=100, start=True, seconds=2.0, **view_options):
+        """A view that polls ``source`` every ``interval_ms`` on the kernel's main thread and draws
+        the attitude that ``estimator.update(rec)`` returns (default: a :class:`LiveAttitude`, Euler
+        EKF). ``source``: a :class:`CapturePanel` (its recording while it records), a Recorder, or a
+        callable returning the latest Recording; the last ``seconds`` of it are read each tick.
+        Start and stop buttons; ``poll()`` does one tick."""
         view = cls(**view_options)
-        view.source, view.estimator = source, estimator or LiveAttitude()
+        view.source, view.estimator = _latest_samples(source, seconds), estimator or LiveAttitude()
         view.timer = view.canvas.new_timer(interval=interval_ms)
         view.timer.add_callback(view.poll)
         run, stop = W.Button(description="start", icon="play"), W.Button(description="stop", icon="stop")
@@ -281,15 +305,34 @@ class AttitudeView:
         return view
 
     def poll(self):
-        """One live tick: read the source, feed the estimator, redraw; returns the quaternion or None."""
-        rec = self.source()
-        q = self.estimator.update(rec)
-        if q is not None:
+        """One live tick: read the source, feed the estimator, redraw; returns the quaternion or None
+        (nothing recorded yet). An error stops the timer and is shown in the status line."""
+        try:
+            rec = self.source()
+            q = self.estimator.update(rec)
+        except Exception as e:  # a timer callback has no one to raise to: show it, stop polling
+            if self.timer is not None:
+                self.timer.stop()
+            self.status.value = f"<b style='color:{COLORS['bound']}'>❌ {e}</b>"
+            return None
+        if q is not None and rec is not None and len(rec):
             self.draw(q, float(rec.t[-1]))
         return q
 
     def _repr_mimebundle_(self, **kwargs):
         return self.widget._repr_mimebundle_(**kwargs)
+
+
+def _latest_samples(source, seconds):
+    """A callable returning the latest Recording (or None) of a CapturePanel, a Recorder or a callable."""
+    if hasattr(source, "recorder") and hasattr(source, "record"):  # a CapturePanel: follow what it records
+        return lambda: None if source.recorder is None else source.recorder.recording(last_seconds=seconds)
+    if hasattr(source, "recording") and callable(source.recording):  # a Recorder
+        return lambda: source.recording(last_seconds=seconds)
+    if callable(source):
+        return source
+    raise TypeError(f"AttitudeView.live: source must be a capture panel, a Recorder or a callable returning a "
+                    f"Recording, got {type(source).__name__}")
 
 
 def attitude_view(t, quat, truth=None, stride=None) -> AttitudeView:
@@ -303,13 +346,48 @@ _AXIS_COLORS = (COLORS["accel"], COLORS["band"], COLORS["kf"])  # x, y, z (Okabe
 _AXIS_STYLES = ("-", "--", "-.")
 
 
+class LiveSignals:
+    """The capture panel's figure: accelerometer, gyro and magnetometer, body frame, SI (gyro in °/s),
+    over the last ``window_s`` seconds. ``update(snapshot)`` sets the lines; the caller draws the canvas."""
+
+    def __init__(self, fig, window_s=5.0):
+        self.fig, self.window_s = fig, window_s
+        self.axes = fig.subplots(3, 1, sharex=True)
+        self.lines = {}
+        for ax, (sensor, label, _) in zip(self.axes, _LIVE_SENSORS):
+            self.lines[sensor] = [ax.plot([], [], color=c, ls=ls, lw=1.0, label=f"{axis}")[0]
+                                  for c, ls, axis in zip(_AXIS_COLORS, _AXIS_STYLES, "xyz")]
+            ax.set_ylabel(label, fontsize=8)
+            ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)  # beside the live data
+        self.axes[-1].set_xlabel("time (s)")
+
+    def update(self, snap) -> bool:
+        """Show ``snap`` (a Recording); False (nothing changed) until it has samples and sensors."""
+        if not len(snap) or "sensors" not in snap.meta:
+            return False
+        t = snap.t
+        for ax, (sensor, _, scale) in zip(self.axes, _LIVE_SENSORS):
+            if sensor not in snap.meta["sensors"]:
+                continue
+            values = snap.body(sensor) * scale
+            keep = np.isfinite(values[:, 0])  # magnetometer: only the rows with a new reading
+            for i, line in enumerate(self.lines[sensor]):
+                line.set_data(t[keep], values[keep, i])
+            ax.relim()
+            ax.autoscale_view()
+        self.axes[-1].set_xlim(max(t[-1] - self.window_s, 0.0), max(t[-1], self.window_s))
+        return True
+
+
 class CapturePanel:
-    """Record from a board or the virtual board: port, baud, guided protocol, duration, record/stop,
+    """Record from a board or the virtual board: port, board, baud, guided protocol, duration, record/stop,
     a progress bar, the live signals of the last ``window_s`` seconds, statistics and the saved file.
 
     The live plot is redrawn by a timer of the figure's canvas (``canvas.new_timer``), which runs on
     the kernel's main thread (ipykernel's event loop); the recorder's reader thread never draws.
     ``record()``, ``stop()`` and ``refresh()`` do from code what the buttons and the timer do.
+    A guided protocol labels its phases in the recording and saves it under the name labs 02–05
+    look for (``kfkit.capture.dataset_name``: e.g. ``05_six_faces.csv`` for an MPU6050).
     """
 
     def __init__(self, out_dir="my_recordings", window_s=5.0, interval_ms=200, quick=False, fast=False):
@@ -318,67 +396,93 @@ class CapturePanel:
         # quick: the protocols' short durations; fast: the virtual board runs faster than real time
         self.out_dir, self.window_s, self.quick, self.fast = Path(out_dir), window_s, quick, fast
         self.recorder, self.recording, self.steps = None, None, None
-        boards = find_boards()
-        options = [(str(b), b.port) for b in boards] + [("virtual board (simulated)", "virtual")]
+        self.boards = {b.port: b for b in find_boards()}
+        options = [(str(b), b.port) for b in self.boards.values()] + [("phone (phyphox remote access)", "phone"),
+                                                                       ("virtual board (simulated)", "virtual")]
         style, wide = {"description_width": "initial"}, W.Layout(width="330px")
-        self.port = W.Dropdown(options=options, value=next((b.port for b in boards if b.known), "virtual"),
+        self.port = W.Dropdown(options=options, value=next((b.port for b in self.boards.values() if b.known), "virtual"),
                                description="port", style=style, layout=W.Layout(width="460px"))
-        self.board = W.Dropdown(options=["nucleo-iks02a1", "mpu6050"], description="virtual board", style=style)
+        self.board = W.Dropdown(options=["nucleo-iks02a1", "mpu6050"], description="board", style=style)
+        self.phone = W.Text(placeholder="192.168.0.42:8080", description="phone address", style=style)  # as phyphox shows it
         self.baud = W.Dropdown(options=[115200, 230400, 460800, 921600, 9600], value=115200, description="baud", style=style)
         self.protocol = W.Dropdown(options=[("free recording", None)] + [(p.title, name) for name, p in PROTOCOLS.items()],
                                    description="protocol", style=style, layout=W.Layout(width="460px"))
         self.seconds = W.BoundedFloatText(value=30.0, min=0.5, max=7200.0, step=1.0, description="duration (s)",
                                           style=style, layout=W.Layout(width="200px"))
         self.out = W.Text(value=str(self.out_dir / "capture.csv"), description="save as", style=style, layout=wide)
+        self._auto_out = self.out.value  # the name the panel chose; one typed by the user is kept
         self.record_button = W.Button(description="record", icon="circle", button_style="danger")
         self.stop_button = W.Button(description="stop", icon="stop", disabled=True)
         self.progress = W.FloatProgress(value=0.0, min=0.0, max=1.0, description="0 %", style=style)
-        self.coverage = W.FloatProgress(value=0.0, min=0.0, max=1.0, description="sphere coverage",
+        self.coverage = W.FloatProgress(value=0.0, min=0.0, max=1.0, description="sphere coverage 0 %",
                                         style=style, layout=W.Layout(visibility="hidden"))
         self.prompt, self.status = W.HTML(), W.HTML()
         self.record_button.on_click(lambda _: self.record())
         self.stop_button.on_click(lambda _: self.stop())
-        self.protocol.observe(lambda _: self._protocol_changed(), names="value")
         self.port.observe(lambda _: self._port_changed(), names="value")
+        self.protocol.observe(lambda _: self._protocol_changed(), names="value")
+        self.board.observe(lambda _: self._settings_changed(), names="value")
 
-        fig = Figure(figsize=(9.0, 5.4), layout="constrained")
-        self.axes = fig.subplots(3, 1, sharex=True)
-        self.lines = {}
-        for ax, (sensor, label, _) in zip(self.axes, _LIVE_SENSORS):
-            self.lines[sensor] = [ax.plot([], [], color=c, ls=ls, lw=1.0, label=f"{sensor} {axis}")[0]
-                                  for c, ls, axis in zip(_AXIS_COLORS, _AXIS_STYLES, "xyz")]
-            ax.set_ylabel(label, fontsize=8)
-            ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)  # beside the live data
-        self.axes[-1].set_xlabel("time (s)")
-        self.canvas = _interactive_canvas(fig)
+        self.live = LiveSignals(Figure(figsize=(9.0, 5.4), layout="constrained"), window_s)
+        self.axes, self.lines = self.live.axes, self.live.lines
+        self.canvas = _interactive_canvas(self.live.fig)
         self.timer = self.canvas.new_timer(interval=interval_ms)
         self.timer.add_callback(self.refresh)
         self._port_changed()
-        self._protocol_changed()
         self.widget = W.VBox([
-            W.HBox([self.port, self.board]), W.HBox([self.protocol, self.baud]),
+            W.HBox([self.port, self.board, self.phone]), W.HBox([self.protocol, self.baud]),
             W.HBox([self.seconds, self.out, self.record_button, self.stop_button]),
             W.HBox([self.progress, self.coverage]), self.prompt, self.canvas, self.status])
 
     # -- settings ---------------------------------------------------------------------------------
     def _port_changed(self):
+        """A detected board fixes the board type (from its USB ID); the virtual board lets you pick it."""
+        found = self.boards.get(self.port.value)
         virtual = self.port.value == "virtual"
-        self.board.layout.display = None if virtual else "none"
-        self.baud.layout.display = "none" if virtual else None
+        if found is not None and found.known:
+            self.board.value = found.board
+        self.board.layout.display = None if virtual or (found is not None and not found.known) else "none"
+        phone = self.port.value == "phone"
+        self.baud.layout.display = "none" if virtual or phone else None
+        self.phone.layout.display = None if phone else "none"
+        self._protocol_changed()
 
     def _protocol_changed(self):
-        from .capture import PROTOCOLS, protocol_motion
+        from .capture import PROTOCOLS
 
         name = self.protocol.value
         self.coverage.layout.visibility = "visible" if name == "mag-rotations" else "hidden"
+        if name is not None and self.port.value == "virtual":
+            board = PROTOCOLS[name].board
+            if board != self.board.value and name in ("tilt", "mag-rotations"):
+                self.board.value = board  # the board its lab uses (observing board calls _settings_changed)
+                return
+        self._settings_changed()
+
+    def _settings_changed(self):
+        """Duration, file name and the first instruction for the chosen protocol and board."""
+        from .capture import dataset_name, protocol_motion, protocol_steps
+
+        name = self.protocol.value
         if name is None:
-            self.out.value = str(self.out_dir / "capture.csv")
+            self._name_file("capture")
+            self.prompt.value = ""
             return
-        p = PROTOCOLS[name]
-        self.board.value = p.board
+        try:
+            self._name_file(dataset_name(name, self.board.value))
+        except ValueError as e:
+            self.prompt.value = f"<b style='color:{COLORS['bound']}'>❌ {e}</b>"
+            return
         motion = protocol_motion(name, self._rate(), quick=self.quick)
         self.seconds.value = round(len(motion.t) / motion.rate_hz, 2)
-        self.out.value = str(self.out_dir / f"{p.dataset}.csv")
+        first = protocol_steps(name, motion)[0][3]
+        self.prompt.value = ("the virtual board follows the prompts by itself" if self.port.value == "virtual"
+                             else f"before you press record: <b>{first}</b>")
+
+    def _name_file(self, stem):
+        """Save as ``out_dir/stem.csv`` unless the user typed a name of their own."""
+        if self.out.value == self._auto_out:
+            self.out.value = self._auto_out = str(self.out_dir / f"{stem}.csv")
 
     def _rate(self) -> float:
         from .sensors import board
@@ -395,20 +499,22 @@ class CapturePanel:
             return
         options, name = {}, self.protocol.value
         self.steps = None
-        if name is not None:
-            _, self.steps, options = protocol_capture_options(name, self.port.value, self.board.value,
-                                                              quick=self.quick, fast=self.fast)
-        elif self.port.value == "virtual":
-            options["virtual"] = {"board": self.board.value, "realtime": not self.fast}
+        port = self.port.value if self.port.value != "phone" else f"phyphox://{self.phone.value.strip().removeprefix('http://')}"
         try:
-            self.recorder = Recorder(self.port.value, self.baud.value, self.out.value, seconds=self.seconds.value,
+            if name is not None:
+                _, self.steps, options = protocol_capture_options(name, port, self.board.value,
+                                                                  quick=self.quick, fast=self.fast)
+            elif self.port.value == "virtual":
+                options["virtual"] = {"board": self.board.value, "realtime": not self.fast}
+            self.recorder = Recorder(port, self.baud.value, self.out.value, seconds=self.seconds.value,
                                      **options).start()
-        except CaptureError as e:
+        except (CaptureError, ValueError) as e:
             self.recorder = None
             self._show_error(e)
             return
         self.recording = None
         self.record_button.disabled, self.stop_button.disabled = True, False
+        self.progress.value, self.progress.description, self.coverage.value = 0.0, "0 %", 0.0
         self.status.value = f"recording from {self.recorder.description} …"
         self.timer.start()
 
@@ -428,12 +534,14 @@ class CapturePanel:
         except CaptureError as e:
             self._show_error(e)
             stats = rec.stats
-        self.refresh_plot(rec)
+        self._draw(rec)
         if rec.error is None and rec.elapsed > 0 and rec.done.is_set():
             self.progress.value, self.progress.description = 1.0, "100 %"
         if rec.stats.samples:
             self.recording = rec.recording()
             saved = f"saved {len(self.recording)} samples to <code>{rec.out}</code>"
+            if rec.header is not None and rec.header.board != self.board.value:
+                saved += f" (the board says it is a {rec.header.board}, not a {self.board.value}: rename the file)"
         else:
             saved = "nothing to save"
         text = str(stats).replace("\n", "<br>")
@@ -446,7 +554,7 @@ class CapturePanel:
         self.status.value = f"<b style='color:{COLORS['bound']}'>❌ {error}</b>"
 
     def refresh(self):
-        """One timer tick: progress, prompt, statistics and the live plot; finish when done."""
+        """One timer tick: progress, prompt, statistics, coverage and the live plot; finish when done."""
         rec = self.recorder
         if rec is None:
             return
@@ -460,32 +568,21 @@ class CapturePanel:
         s = rec.stats
         self.status.value = (f"{rec.description}: {s.samples} samples, {s.bad_lines} bad lines, "
                              f"{s.dropped} dropped, {s.resets} resets")
-        snapshot = self.refresh_plot(rec)
-        if snapshot is not None and self.protocol.value == "mag-rotations" and "mag" in snapshot.meta.get("sensors", {}):
+        self._draw(rec)
+        if self.protocol.value == "mag-rotations" and rec.columns and "mx" in rec.columns:
             from .capture import sphere_coverage
 
-            self.coverage.value = sphere_coverage(rec.recording().body("mag"))
+            snapshot = rec.recording()
+            if "mag" in snapshot.meta.get("sensors", {}):
+                self.coverage.value = sphere_coverage(snapshot.body("mag"))
+                self.coverage.description = f"sphere coverage {100 * self.coverage.value:.0f} %"
         if rec.done.is_set():
             self._finish()
 
-    def refresh_plot(self, rec):
-        """Redraw the last ``window_s`` seconds of ``rec`` (a Recorder); returns the snapshot."""
-        snap = rec.recording(last_seconds=self.window_s)
-        if not len(snap) or "sensors" not in snap.meta:
-            return None
-        t = snap.t
-        for ax, (sensor, _, scale) in zip(self.axes, _LIVE_SENSORS):
-            if sensor not in snap.meta["sensors"]:
-                continue
-            values = snap.body(sensor) * scale
-            keep = np.isfinite(values[:, 0])
-            for i, line in enumerate(self.lines[sensor]):
-                line.set_data(t[keep], values[keep, i])
-            ax.relim()
-            ax.autoscale_view()
-        self.axes[-1].set_xlim(max(t[-1] - self.window_s, 0.0), max(t[-1], self.window_s))
-        self.canvas.draw_idle()
-        return snap
+    def _draw(self, rec):
+        """Redraw the last ``window_s`` seconds of ``rec`` (a Recorder)."""
+        if self.live.update(rec.recording(last_seconds=self.window_s)):
+            self.canvas.draw_idle()
 
     def _repr_mimebundle_(self, **kwargs):
         return self.widget._repr_mimebundle_(**kwargs)

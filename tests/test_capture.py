@@ -50,6 +50,8 @@ def test_design_example_header_parses():
     (b"#KFKIT,2,board=x,rate_hz=1,fields=t_us|seq", "version"),  # another protocol version
     (b"#KFKIT,1,board=x,fields=t_us|seq", "malformed"),          # no rate_hz
     (b"#KFKIT,1,board=x,rate_hz=1,fields=seq|t_us", "malformed"),
+    (b"#KFKIT,1,board=x,rate_hz=0,fields=t_us|seq", "malformed"),     # a rate the host cannot divide by
+    (b"#KFKIT,1,board=x,rate_hz=nan,fields=t_us|seq", "malformed"),
     (b"   \r\n", "empty"),
 ])
 def test_bad_lines_are_classified(line, kind):
@@ -116,14 +118,34 @@ def test_find_boards_names_known_ids_and_skips_builtin_uarts(comports):
     assert "unknown USB serial device (Mystery)" in str(boards[2])
 
 
-@pytest.mark.parametrize("vid_pid", ["0483:374B", "0483:3752", "0483:374E", "0483:374F", "0483:3753", "0483:3754",
-                                     "2341:0043", "2341:0001", "2341:0243", "2A03:0043", "1A86:7523", "1A86:55D4",
-                                     "10C4:EA60", "0403:6001", "0403:6015"])
+# the issue's table: ST-LINK (Nucleo), Arduino, and the USB-serial chips of clones, by what they are
+ISSUE_IDS = {"0483:374B": "ST-LINK/V2-1", "0483:3752": "ST-LINK/V2-1", "0483:374E": "STLINK-V3", "0483:374F": "STLINK-V3",
+             "0483:3753": "STLINK-V3", "0483:3754": "STLINK-V3", "2341:0043": "Arduino Uno", "2341:0001": "Arduino Uno",
+             "2341:0243": "Genuino Uno", "2A03:0043": "Arduino Uno", "1A86:7523": "CH340", "1A86:55D4": "CH9102",
+             "10C4:EA60": "CP210x", "0403:6001": "FTDI FT232R", "0403:6015": "FTDI FT-X"}
+
+
+@pytest.mark.parametrize("vid_pid", ISSUE_IDS)
 def test_issue_vid_pid_table_is_recognised(comports, vid_pid):
     vid, pid = (int(x, 16) for x in vid_pid.split(":"))
     comports(port("/dev/ttyX", vid, pid))
     (b,) = C.find_boards()
-    assert b.known and b.board == ("nucleo-iks02a1" if vid == 0x0483 else "mpu6050")
+    assert b.known and b.vid_pid == vid_pid and ISSUE_IDS[vid_pid] in b.guess
+    assert b.board == ("nucleo-iks02a1" if vid == 0x0483 else "mpu6050")  # ST-LINK: a Nucleo; the rest: Arduinos
+    assert str(b) == f"/dev/ttyX [{vid_pid}] {b.guess} → probably {b.board}"
+
+
+def test_kfkit_boards_lists_what_it_finds(comports, capsys):
+    from kfkit.cli import main
+
+    comports(port("/dev/ttyACM0", 0x0483, 0x374B, "STM32 STLink"), port("/dev/ttyUSB0", 0x1234, 0x5678, "Mystery"))
+    assert main(["boards"]) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        "/dev/ttyACM0 [0483:374B] ST-LINK/V2-1 (STM32 Nucleo-64 such as the Nucleo-F411RE) → probably nucleo-iks02a1",
+        "/dev/ttyUSB0 [1234:5678] unknown USB serial device (Mystery)"]
+    comports()
+    assert main(["boards"]) == 0
+    assert "no USB serial boards found" in capsys.readouterr().out
 
 
 def test_auto_picks_the_single_board_or_explains(comports):
@@ -154,30 +176,49 @@ def test_hwgrep_without_match_is_port_not_found(comports):
 
 
 @pytest.mark.parametrize("code, error, words", [
-    (errno.EACCES, C.PortPermissionError, "dialout.*sudo usermod -aG dialout"),
+    (errno.EACCES, C.PortPermissionError, "group 'dialout' and you are not in it: sudo usermod -aG dialout"),
     (errno.EBUSY, C.PortBusyError, "busy: another program"),
+    (errno.EAGAIN, C.PortBusyError, "busy: another program"),  # pyserial's exclusive lock (flock) is taken
 ])
 def test_open_errors_say_what_to_do(monkeypatch, code, error, words):
     def refuse(*args, **kwargs):
         raise serial.SerialException(code, f"could not open port /dev/ttyACM0: [Errno {code}]")
     monkeypatch.setattr(serial, "serial_for_url", refuse)
-    monkeypatch.setattr(ports_module, "needs_dialout", lambda: True)
+    monkeypatch.setattr(ports_module.sys, "platform", "linux")
+    monkeypatch.setattr(ports_module.os, "getgroups", lambda: [])  # not in any group (the port is absent: dialout)
     with pytest.raises(error, match=words):
         C.open_port("/dev/ttyACM0")
+
+
+@pytest.mark.parametrize("text, error", [
+    ("could not open port 'COM7': FileNotFoundError(2, 'The system cannot find the file specified.', None, 2)",
+     C.PortNotFoundError),
+    ("could not open port 'COM3': PermissionError(13, 'Access is denied.', None, 5)", C.PortBusyError),
+])
+def test_windows_open_errors(monkeypatch, comports, text, error):
+    """pyserial on Windows gives no errno: 'Access is denied' is a port another program holds."""
+    def refuse(*args, **kwargs):
+        raise serial.SerialException(text)
+    comports()
+    monkeypatch.setattr(serial, "serial_for_url", refuse)
+    monkeypatch.setattr(ports_module.sys, "platform", "win32")
+    with pytest.raises(error):
+        C.open_port("COM3")
 
 
 # -- a pyserial URL: loop:// echoes what is written into it -------------------------------------------------
 HEADER = C.encode_header("mpu6050", 100, ("t_us", "seq", "ax", "ay", "az", "gx", "gy", "gz"), accel_fs_g=2, gyro_fs_dps=250)
 
 
-def loop_capture(payload: bytes, **options):
+def loop_capture(payload: bytes, settle_s=0.05, **options):
+    """Record ``payload`` through pyserial's loop:// URL; keep reading ``settle_s`` after it arrived."""
     rec = C.Recorder("loop://", **options).start()
     try:
         rec._serial.write(b"\n" + payload)  # the newline ends the echoed 'h' request
         deadline = time.monotonic() + 5
         while rec.stats.bytes < len(payload) + 2 and not rec.done.is_set() and time.monotonic() < deadline:
             time.sleep(0.01)
-        time.sleep(0.05)
+        rec.done.wait(settle_s)
     finally:
         rec.stop(raise_error=False)
     return rec
@@ -206,6 +247,27 @@ def test_wrong_field_count_duplicate_time_and_samples_before_header():
     rec = loop_capture(early + HEADER + good[0] + C.encode_sample((2000, 2, 1, 2)) + good[1] + good[1] + good[2])
     s = rec.stats
     assert (s.before_header, s.samples, s.malformed, s.dropped) == (1, 3, 2, 0)
+
+
+def test_samples_without_a_header_say_which_sketch():
+    lines = b"".join(C.encode_sample((10_000 * k, k, 0, 0, 0, 0, 0, 0)) for k in range(20))
+    rec = loop_capture(lines, settle_s=2.0, no_data_s=0.3)
+    assert isinstance(rec.error, C.CaptureError) and "no #KFKIT header" in str(rec.error)
+    assert "firmware/nucleo_iks02a1_logger or firmware/mpu6050_logger" in str(rec.error)
+
+
+def test_header_but_no_samples_says_the_board_is_stopped():
+    rec = loop_capture(HEADER + b"#ERROR,MPU6050 read failed\n", settle_s=2.0, no_data_s=0.3)
+    assert isinstance(rec.error, C.NoDataError)
+    assert "header but no samples" in str(rec.error) and "the board said: ERROR,MPU6050 read failed" in str(rec.error)
+
+
+def test_noise_without_newlines_is_counted_once_and_capture_goes_on():
+    noise = bytes(np.random.default_rng(2).integers(0x20, 0x7F, 5000, dtype=np.uint8))  # no b"\n" in it
+    good = b"".join(C.encode_sample((10_000 * k, k, 0, 0, 16384, 0, 0, 0)) for k in range(10))
+    rec = loop_capture(HEADER + noise + b"\n" + good)
+    s = rec.stats
+    assert (s.samples, s.malformed, s.bad_checksum, s.dropped) == (10, 1, 0, 0)
 
 
 def test_socket_url():

@@ -2,7 +2,12 @@
 the streamed file, the CLI. Expected statistics come from the fault positions, not from the code."""
 import json
 import os
+import signal
+import subprocess
+import sys
 import threading
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,8 +35,8 @@ def no_leaks():
     assert set(os.listdir("/proc/self/fd")) <= fds | {f for f in os.listdir("/proc/self/fd") if not f.isdigit()}
 
 
-def record(faults=None, board="nucleo-iks02a1", out=None, seconds=SECONDS, **options):
-    vb = C.VirtualBoard(rate_hz=RATE, board=board, faults=faults, realtime=False, seed=3)
+def record(faults=None, board="nucleo-iks02a1", out=None, seconds=SECONDS, board_options=None, **options):
+    vb = C.VirtualBoard(rate_hz=RATE, board=board, faults=faults, realtime=False, seed=3, **(board_options or {}))
     rec = C.Recorder(vb, out=out, seconds=seconds, no_data_s=0.4, garbage_s=0.3, **options)
     with rec:
         assert rec.wait(10)
@@ -44,7 +49,7 @@ def test_clean_stream_physics_and_time():
     assert (s.samples, s.bad_lines, s.dropped, s.resets) == (N, 0, 0, 0)
     np.testing.assert_allclose(r.t, np.arange(N) / RATE, atol=1e-6)  # t_us rounds to whole µs
     np.testing.assert_array_equal(r["seq"], np.arange(N))
-    assert s.rate_hz == pytest.approx(RATE, rel=1e-5) and s.jitter_us < 1.0
+    assert s.rate_hz == pytest.approx(RATE, rel=1e-9) and s.dt_mean_us == 1000.0 and s.jitter_us == 0.0
     acc = r.body("acc").mean(axis=0)  # at rest and level: f_b = [0, 0, −g] (± the board's bias)
     np.testing.assert_allclose(acc, [0.0, 0.0, -G], atol=0.25)
     mag = r.body("mag")
@@ -54,16 +59,65 @@ def test_clean_stream_physics_and_time():
     np.testing.assert_allclose(np.linalg.norm(mag[fresh], axis=1).mean(), np.linalg.norm(MAG_FIELD_LONDON), rtol=0.03)
 
 
-def test_each_fault_gives_exactly_its_statistics():
-    rec = record(faults={"corrupt": [10, 20], "drop": [30, 31, 32], "truncate": [40], "reset": [100]})
+def at(position):
+    """Board time (s) of the sample the board made at ``position`` (1 kHz, from t = 0)."""
+    return round(position / RATE, 6)
+
+
+# Each fault kind on its own and all together. Expected values follow from the positions by hand:
+# a lost sample at position p leaves a gap "before sample p − (losses before p)", at t = p / RATE.
+FAULT_CASES = {
+    "corrupt": ({"corrupt": [10, 20]}, {},
+                dict(samples=N - 2, bad_checksum=2, malformed=0, dropped=2, drops=[(10, at(10), 1), (19, at(20), 1)],
+                     resets=0, reset_positions=[])),
+    "drop": ({"drop": [30, 31, 32]}, {},
+             dict(samples=N - 3, bad_checksum=0, malformed=0, dropped=3, drops=[(30, at(30), 3)], resets=0,
+                  reset_positions=[])),
+    "truncate": ({"truncate": [40]}, {},
+                 dict(samples=N - 1, bad_checksum=0, malformed=1, dropped=1, drops=[(40, at(40), 1)], resets=0,
+                      reset_positions=[])),
+    "reset": ({"reset": [100]}, {},
+              dict(samples=N, bad_checksum=0, malformed=0, dropped=0, drops=[], resets=1, reset_positions=[100])),
+    # after 50 min micros() > 2³¹: a restart to 1500 µs looks like a step forwards; the header gives it away
+    "reset after 2**31 us": ({"reset": [100]}, {"start_us": 3_000_000_000},
+                             dict(samples=N, bad_checksum=0, malformed=0, dropped=0, drops=[], resets=1,
+                                  reset_positions=[100])),
+    # seq 65436 + 100 = 65536 wraps to 0 at position 100: that sample and the one at 150 are lost
+    "drops across the seq wrap": ({"drop": [100, 150]}, {"start_seq": 65436},
+                                  dict(samples=N - 2, bad_checksum=0, malformed=0, dropped=2,
+                                       drops=[(100, at(100), 1), (149, at(150), 1)], resets=0, reset_positions=[])),
+    "all at once": ({"corrupt": [10, 20], "drop": [30, 31, 32], "truncate": [40], "reset": [100]}, {},
+                    dict(samples=N - 6, bad_checksum=2, malformed=1, dropped=6,
+                         drops=[(10, at(10), 1), (19, at(20), 1), (28, at(30), 3), (35, at(40), 1)],
+                         resets=1, reset_positions=[100 - 6])),
+}
+
+
+@pytest.mark.parametrize("case", FAULT_CASES)
+def test_each_fault_gives_exactly_its_statistics(case):
+    faults, board_options, expected = FAULT_CASES[case]
+    rec = record(faults=faults, board_options=board_options)
     s = rec.stats
-    assert s.bad_checksum == 2 and s.malformed == 1
-    # missing samples: 2 corrupted + 3 dropped + 1 truncated; received indices shift by the losses before them
-    assert s.dropped == 6 and s.samples == N - 6
-    assert s.drops == [(10, 0.011, 1), (19, 0.021, 1), (28, 0.033, 3), (35, 0.041, 1)]
-    assert s.resets == 1 and s.reset_positions == [100 - 6]
+    assert {k: getattr(s, k) for k in expected} == expected
+    assert s.duration_s == at(N - 1) and s.rate_hz == pytest.approx((expected["samples"] - 1) / at(N - 1))
+    assert s.dt_mean_us == 1000.0 and s.jitter_us == 0.0  # consecutive samples only: gaps and resets left out
     seq = rec.recording()["seq"]
-    assert seq[94] == 0 and seq[93] == 99  # seq restarts at the reset
+    for i in expected["reset_positions"]:
+        assert seq[i] == 0 and seq[i - 1] != 65535  # seq restarts at the reset
+    if board_options.get("start_seq"):
+        assert seq[0] == 65436 and seq[99] == 65535 and seq[100] == 1  # wrapped, seq 0 lost
+
+
+def test_jitter_of_a_104_hz_board_clock():
+    """t_us = round(k · 10⁶/104): steps of 9615 or 9616 µs; the recorder's jitter is their standard deviation."""
+    vb = C.VirtualBoard(rate_hz=104.0, board="mpu6050", realtime=False)
+    with C.Recorder(vb, seconds=4.0) as rec:
+        assert rec.wait(10)
+    steps = np.diff(np.round(np.arange(416) * 1e6 / 104.0))
+    s = rec.stats
+    assert s.samples == 416 and set(steps) == {9615.0, 9616.0}
+    assert s.dt_mean_us == pytest.approx(steps.mean(), abs=1e-9) and s.jitter_us == pytest.approx(steps.std(), abs=1e-6)
+    assert s.rate_hz == pytest.approx(415 / (steps.sum() * 1e-6), rel=1e-12)
 
 
 def test_random_faults_are_counted_consistently():
@@ -93,10 +147,37 @@ def test_disconnect_keeps_every_sample_on_disk(tmp_path):
         streamed = load_recording(out)  # before stop(): what the streaming writer put on disk
         assert len(streamed) == 149
     finally:
-        with pytest.raises(C.BoardDisconnectedError, match=f"after 149 samples.*saved in {out}"):
+        with pytest.raises(C.BoardDisconnectedError, match=f"disconnected.*every sample received "
+                                                           f"\\(149 samples, 0.15 s\\) is saved in {out}"):
             rec.stop()
     final = load_recording(out)
     assert len(final) == 149 and final.meta["capture"]["stats"]["dropped"] == 1
+
+
+def test_streamed_file_is_flushed_while_recording(tmp_path):
+    """A real-time board: the file grows while the capture runs (flushed ≤ 1 s), not only at the end."""
+    out = tmp_path / "live.csv"
+    rec = C.Recorder(C.VirtualBoard(rate_hz=200.0, board="mpu6050"), out=out, seconds=30, flush_s=0.2).start()
+    try:
+        time.sleep(1.5)
+        rows = out.read_text().count("\n") - 2  # minus the two header lines
+        received = rec.stats.samples
+    finally:
+        rec.stop()
+    assert received > 150 and received - 80 <= rows <= received  # at most 0.2 s (+ a read) behind
+
+
+def test_board_that_stops_sending_mid_capture(tmp_path):
+    out = tmp_path / "stalled.csv"
+    with C.VirtualBoard(rate_hz=RATE, board="mpu6050", realtime=False) as vb:
+        rec = C.Recorder(vb, out=out, seconds=60, no_data_s=0.5).start()
+        while rec.stats.samples < 100:
+            time.sleep(0.01)
+        rec._serial.write(b"s")  # the board stops streaming, as a crashed sketch or a loose cable would
+        assert rec.wait(10)
+        with pytest.raises(C.NoDataError, match=f"stopped sending.*after [0-9]+ samples.*saved in {out}"):
+            rec.stop()
+    assert len(load_recording(out)) == rec.stats.samples >= 100
 
 
 def test_wrong_baud_names_the_expected_rate():
@@ -107,6 +188,73 @@ def test_wrong_baud_names_the_expected_rate():
 def test_silent_board_says_check_the_sketch():
     with pytest.raises(C.NoDataError, match="nothing received.*sketch is flashed"):
         record(faults={"silent": True})
+
+
+def test_unknown_protocol_version_over_a_pty():
+    """The board's very first line is a version-2 header: an error, not a line skipped as partial."""
+    with pytest.raises(C.ProtocolVersionError, match="unknown protocol.*version 2; this kfkit reads version 1"):
+        record(board_options={"protocol_version": 2})
+
+
+PERMISSION_PROBE = """
+import grp, os, sys
+import serial
+import kfkit.capture as C  # imported as root (Python itself may live where others cannot read)
+os.setgroups([]); os.setgid(65534); os.setuid(65534)  # then an ordinary user outside the port's group
+try:
+    C.open_port(sys.argv[1])
+except C.PortPermissionError as e:
+    print(e)
+"""
+
+
+def test_permission_denied_names_the_group_and_the_command():
+    """A real pty owned by root:dialout, mode 660, opened by a user outside dialout (as /dev/ttyACM0 is)."""
+    import grp
+    import subprocess
+    import sys
+
+    with C.VirtualBoard(rate_hz=RATE, realtime=False) as vb:
+        if os.geteuid() == 0:
+            try:
+                os.chown(vb.port, 0, grp.getgrnam("dialout").gr_gid)
+            except KeyError:
+                pytest.skip("no dialout group on this system")
+            os.chmod(vb.port, 0o660)
+            run = subprocess.run([sys.executable, "-c", PERMISSION_PROBE, vb.port], capture_output=True, text=True,
+                                 timeout=60)
+            message = run.stdout.strip()
+            assert message == (f"permission denied opening {vb.port}; serial ports belong to the group 'dialout' "
+                               "and you are not in it: sudo usermod -aG dialout $USER   (then log out and in again)"), run.stderr
+        else:  # not root: take the read/write bits off our own pty
+            os.chmod(vb.port, 0)
+            with pytest.raises(C.PortPermissionError, match=f"permission denied opening {vb.port}"):
+                C.open_port(vb.port)
+
+
+def nucleo_at(device):
+    """What pyserial's comports() reports for a Nucleo's ST-LINK on ``device``."""
+    from serial.tools.list_ports_common import ListPortInfo
+
+    info = ListPortInfo(device, skip_link_detection=True)
+    info.vid, info.pid, info.description = 0x0483, 0x374B, "STM32 STLink"
+    info.hwid = "USB VID:PID=0483:374B SER=066DFF SUBSYSTEM=usb"
+    return info
+
+
+@pytest.mark.parametrize("port", ["auto", "hwgrep://0483:374B"])
+def test_auto_and_hwgrep_find_the_board_by_its_usb_id(monkeypatch, port):
+    """The same pty, announced by a mocked comports() as a Nucleo: 'auto' and hwgrep:// both open it."""
+    import serial.tools.list_ports
+
+    with C.VirtualBoard(rate_hz=RATE, realtime=False) as vb:
+        monkeypatch.setattr(serial.tools.list_ports, "comports", lambda include_links=False: [nucleo_at(vb.port)])
+        with C.Recorder(port, seconds=0.05) as rec:
+            assert rec.wait(10)
+    assert rec.stats.samples == 50 and rec.header.board == "nucleo-iks02a1"
+    if port == "auto":
+        assert rec.description == f"auto: the only known board is {vb.port} [0483:374B] ST-LINK/V2-1 " \
+                                  f"(STM32 Nucleo-64 such as the Nucleo-F411RE) → probably nucleo-iks02a1"
 
 
 def test_second_recorder_on_the_same_port_is_busy():
@@ -192,3 +340,43 @@ def test_record_protocol_on_a_real_port_labels_phases_from_the_prompts(tmp_path)
     steps = C.protocol_steps("tilt", C.protocol_motion("tilt", 100.0, quick=True))
     assert [(p["start"], p["end"], p["label"]) for p in rec.phases] == [(a, b, lab) for a, b, lab, _ in steps if lab]
     assert prompts and "level" in prompts[0]
+
+
+KFKIT = Path(sys.executable).with_name("kfkit")  # the console script pip installed beside this Python
+
+
+def fresh_shell_env():
+    """A new terminal's environment: no PYTHONPATH, started outside the repository."""
+    return {k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "PYTEST"))}
+
+
+@pytest.mark.skipif(not KFKIT.exists(), reason="the kfkit console script is not installed")
+def test_kfkit_capture_from_a_fresh_shell(tmp_path):
+    """`kfkit capture --port virtual --seconds S --out x.csv`, as typed in a new terminal."""
+    run = subprocess.run([str(KFKIT), "capture", "--port", "virtual", "--seconds", "2", "--out", "x.csv"],
+                         cwd=tmp_path, env=fresh_shell_env(), capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    assert "recording 2 s from virtual board (nucleo-iks02a1, 104 Hz) on /dev/pts/" in run.stderr
+    assert "[##############################]" in run.stderr  # the progress bar reached the end
+    assert run.stdout.startswith("samples        208 (t = 0 … 1.99 s): effective rate 104.00 Hz")
+    assert "bad lines      0 (0 bad checksum, 0 malformed)\ndropped        0\nboard resets   0\n" in run.stdout
+    assert run.stdout.endswith("saved 208 samples to x.csv\n")
+    assert len(load_recording(tmp_path / "x.csv")) == 208
+
+
+@pytest.mark.skipif(not KFKIT.exists(), reason="the kfkit console script is not installed")
+def test_ctrl_c_keeps_what_arrived(tmp_path):
+    out = tmp_path / "long.csv"
+    proc = subprocess.Popen([str(KFKIT), "capture", "--port", "virtual", "--seconds", "60", "--out", str(out)],
+                            env=fresh_shell_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while (not out.exists() or out.stat().st_size < 3000) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and f"stopped: what arrived is saved in {out}" in err
+    rec = load_recording(out)
+    assert len(rec) > 20 and rec.meta["capture"]["stats"]["samples"] == len(rec)  # the final file, statistics included

@@ -1,15 +1,21 @@
-"""The firmware's line encoder (firmware/common/kfkit_protocol.h), compiled with gcc, against kfkit's parser."""
+"""The firmware against kfkit: the line encoder (firmware/common/kfkit_protocol.h) compiled with gcc,
+and both logger sketches built on the host with g++ against stand-ins declaring the real Arduino and
+ST library APIs (tests/arduino_host.py), their output recorded by kfkit over a pseudo-terminal."""
+import os
 import re
 import shutil
 import subprocess
-from pathlib import Path
+import time
+import tty
 
+import arduino_host
 import numpy as np
 import pytest
 
 import kfkit.capture as C
+from kfkit.sensors import board as get_board
 
-FIRMWARE = Path(__file__).resolve().parents[1] / "firmware"
+FIRMWARE = arduino_host.FIRMWARE
 PROGRAM = r"""
 #include <stdio.h>
 #include <string.h>
@@ -152,19 +158,14 @@ def test_readme_example_lines_parse(folder):
         assert isinstance(sample, C.Sample) and len(sample.values) == len(header.fields), line
 
 
-ARDUINO_STUB = r"""
-#include <stdint.h>
-#include <stdio.h>
-#include <math.h>
-class Print {
+HOST_STREAM = r"""
+#include <Arduino.h>
+class StringStream : public Stream {  /* host-only: input from a string, as if typed by the host */
   public:
-    size_t write(const uint8_t *buffer, size_t size) { return fwrite(buffer, 1, size, stdout); }
-};
-class Stream : public Print {  // input from a string, as if typed by the host
-  public:
-    explicit Stream(const char *input) : next(input) {}
+    explicit StringStream(const char *input) : next(input) {}
     int available() { return *next ? 1 : 0; }
     int read() { return *next ? *next++ : -1; }
+    int peek() { return *next ? *next : -1; }
   private:
     const char *next;
 };
@@ -172,26 +173,28 @@ class Stream : public Print {  // input from a string, as if typed by the host
 ARDUINO_PROGRAM = r"""
 #define KFKIT_BOARD "nucleo-iks02a1"
 #include <kfkit_protocol.h>
+#include "host_stream.h"
 int main() {
-    Stream serial("xh");  /* an unknown command, then 'h' */
+    StringStream serial("xh");  /* an unknown command, then 'h' */
     bool streaming = true;
     if (kfkitHandleCommands(serial, &streaming) || !streaming) return 3;
     const int32_t sample[8] = {(int32_t)4294967000u, 65535, -32768, 32767, 0, 1, -1, 2};
     kfkitSendSample(serial, sample, 8);
     const float attitude[2] = {12.345f, -0.004f};
     kfkitSendMessage(serial, "ATT", attitude, 2);
-    Stream stop("s");
+    StringStream stop("s");
     if (!kfkitHandleCommands(stop, &streaming) || streaming) return 4;
     return 0;
 }
 """
 
 
-def test_arduino_helpers_with_a_stub_print(tmp_path):
+def test_arduino_helpers_with_the_stand_in_core(tmp_path):
     gxx = shutil.which("g++")
     if gxx is None:
         pytest.skip("g++ is not installed")
-    (tmp_path / "Arduino.h").write_text(ARDUINO_STUB)
+    (tmp_path / "Arduino.h").write_text(arduino_host.ARDUINO_H)
+    (tmp_path / "host_stream.h").write_text(HOST_STREAM)
     (tmp_path / "main.cpp").write_text(ARDUINO_PROGRAM)
     exe = tmp_path / "arduino"
     subprocess.run([gxx, "-std=c++11", "-Wall", "-Wextra", "-Werror", "-DARDUINO=10819", "-I", str(tmp_path),
@@ -201,3 +204,109 @@ def test_arduino_helpers_with_a_stub_print(tmp_path):
     assert header.board == "nucleo-iks02a1" and header.fields[2] == "ax"
     assert sample.values == (4294967000, 65535, -32768, 32767, 0, 1, -1, 2)  # t_us sent unsigned
     assert message == C.Message("ATT", (12.35, -0.0))
+
+
+# --- the logger sketches, built on the host against the Arduino and ST API stand-ins -----------------------
+def record_over_pty(stream: bytes, samples: int):
+    """Play a sketch's output into a pseudo-terminal and record it with kfkit's Recorder, as from a board."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        rec = C.Recorder(os.ttyname(slave), no_data_s=5.0).start()
+        try:
+            os.write(master, stream)  # the recorder reads concurrently; a pty holds a few kB at a time
+            deadline = time.monotonic() + 20
+            while rec.stats.samples < samples and rec.error is None and time.monotonic() < deadline:
+                time.sleep(0.02)
+        finally:
+            rec.stop()
+    finally:
+        os.close(master)
+        os.close(slave)
+    return rec
+
+
+def motion_counts(board, seconds, seed):
+    """Raw counts of the board tilting by hand (kfkit's simulator), one frame per sample, mag on every row."""
+    from kfkit import sim
+
+    b = get_board(board)
+    motion = sim.tilt_protocol(rate_hz=b.rate_hz, hold=seconds / 8, move=seconds / 8, seed=seed)
+    rec = sim.simulate_imu(motion, board=b, seed=seed, mag_rate_hz=b.rate_hz)
+    sensors = ("acc", "gyr", "mag") if b.mag is not None else ("acc", "gyr")
+    return np.column_stack([rec.counts(s) for s in sensors]).astype(int)
+
+
+def test_mpu6050_logger_configures_the_chip_and_streams_every_sample(tmp_path):
+    sketch = FIRMWARE / "mpu6050_logger" / "mpu6050_logger.ino"
+    exe = arduino_host.build_sketch(sketch, tmp_path)
+    frames = motion_counts("mpu6050", 8.0, seed=11)
+    start = 2**32 - 3_000_000  # micros() wraps 3 s into the run
+    lines, config = arduino_host.run_sketch(exe, frames, "--start-us", start, "4000000:h")
+    # MPU-6000/6050 register map (RM-MPU-6000A-00 rev 4.2): PWR_MGMT_1 clock = PLL x gyro, DLPF_CFG 3,
+    # SMPLRT_DIV 9 (1 kHz / 10 = 100 Hz), GYRO_CONFIG FS_SEL 0 (±250 °/s), ACCEL_CONFIG AFS_SEL 0 (±2 g)
+    for reg, value in ((0x6B, 0x01), (0x1A, 0x03), (0x19, 0x09), (0x1B, 0x00), (0x1C, 0x00)):
+        assert f"MPU6050 write 0x{reg:02X} = 0x{value:02X}" in config
+    assert "Serial.begin 115200" in config
+    header = C.parse_line(lines[0])
+    assert header.params["accel_fs_g"] == "2" and header.params["gyro_fs_dps"] == "250" and header.rate_hz == 100.0
+    assert sum(isinstance(C.parse_line(line), C.Header) for line in lines) == 2  # at start, and on 'h'
+    rec = record_over_pty(b"".join(lines), len(frames))
+    s = rec.stats
+    assert (s.samples, s.bad_lines, s.dropped, s.resets) == (len(frames), 0, 0, 0)
+    r = rec.recording()
+    np.testing.assert_array_equal(np.column_stack([r.counts("acc"), r.counts("gyr")]), frames)
+    np.testing.assert_allclose(r.t, np.arange(len(frames)) * 0.01, atol=1e-9)  # 100 Hz across the wrap
+    assert s.jitter_us == 0.0
+
+
+def test_mpu6050_logger_builds_for_the_arduino_uno(tmp_path):
+    """The real thing: avr-gcc with the Arduino AVR core and Wire library (Debian's arduino-core-avr),
+    every warning an error, linked; it must fit the ATmega328P (32 KB flash less the 512 B bootloader, 2 KB RAM)."""
+    size = arduino_host.build_avr(FIRMWARE / "mpu6050_logger" / "mpu6050_logger.ino", tmp_path)
+    assert 0 < size["flash"] < 32_256 and 0 < size["ram"] < 1_500  # RAM: leave room for the stack
+
+
+def test_mpu6050_logger_reports_a_missing_or_wrong_chip(tmp_path):
+    exe = arduino_host.build_sketch(FIRMWARE / "mpu6050_logger" / "mpu6050_logger.ino", tmp_path)
+    lines, _ = arduino_host.run_sketch(exe, [[0] * 6], "--who-am-i", "0x70", "--max-us", 2_500_000)
+    notes = [C.parse_line(line) for line in lines]
+    assert len(notes) == 3 and all(isinstance(n, C.Note) for n in notes)  # once a second
+    assert "WHO_AM_I 0x70" in notes[0].text and notes[0].text.startswith("ERROR,")
+
+
+def test_mpu6050_logger_stop_and_start(tmp_path):
+    exe = arduino_host.build_sketch(FIRMWARE / "mpu6050_logger" / "mpu6050_logger.ino", tmp_path)
+    frames = np.zeros((50, 6), dtype=int)
+    lines, _ = arduino_host.run_sketch(exe, frames, "100000:s", "300000:s")
+    t_us = [item.t_us for item in map(C.parse_line, lines) if isinstance(item, C.Sample)]
+    # the last sample before 's' at 100 ms is the one of 90 ms; the next 's' at 300 ms restarts the schedule there
+    assert len(t_us) == 50 and t_us[9:11] == [90_000, 300_000] and set(np.diff(t_us[10:])) == {10_000}
+
+
+def test_nucleo_logger_matches_its_header_and_streams_every_sample(tmp_path):
+    sketch = FIRMWARE / "nucleo_iks02a1_logger" / "nucleo_iks02a1_logger.ino"
+    exe = arduino_host.build_sketch(sketch, tmp_path)
+    frames = motion_counts("nucleo-iks02a1", 8.0, seed=12)
+    lines, config = arduino_host.run_sketch(exe, frames, "--start-us", 2**32 - 2_000_000)
+    header = C.parse_line(lines[0])
+    final = config.strip().splitlines()
+    acc_gyr = next(line for line in reversed(final) if line.startswith("ISM330DHCX"))
+    mag = next(line for line in reversed(final) if line.startswith("IIS2MDC"))
+    # what the sketch set through ST's API is what its header tells kfkit
+    assert "address=0xD7" in acc_gyr  # ISM330DHCX_I2C_ADD_H: SA0 high on the X-NUCLEO-IKS02A1
+    assert f"acc on=1 fs={header.params['accel_fs_g']} odr=104 gyro on=1 fs={header.params['gyro_fs_dps']} odr=104" in acc_gyr
+    assert mag == f"IIS2MDC on=1 odr={header.params['mag_rate_hz']}" and header.rate_hz == 104.0
+    samples = [item for item in map(C.parse_line, lines) if isinstance(item, C.Sample)]
+    t_us = np.array([s.t_us for s in samples], dtype=np.int64)
+    steps = np.diff(t_us) % 2**32
+    assert set(steps) == {9615, 9616} and (t_us[104] - t_us[0]) % 2**32 == 1_000_000  # exactly 104 Hz on average
+    rec = record_over_pty(b"".join(lines), len(frames))
+    s = rec.stats
+    assert (s.samples, s.bad_lines, s.dropped, s.resets) == (len(frames), 0, 0, 0)
+    r = rec.recording()
+    np.testing.assert_array_equal(np.column_stack([r.counts("acc"), r.counts("gyr")]), frames[:, :6])
+    fresh = np.isfinite(r["mx"])
+    np.testing.assert_array_equal(r.counts("mag")[fresh], frames[fresh, 6:])  # a new reading is that sample's
+    assert 0.45 < fresh.mean() < 0.52  # 50 Hz of 104 Hz lines
+    np.testing.assert_allclose(r.t[-1], (len(frames) - 1) / 104.0, atol=1e-5)  # across the micros() wrap

@@ -49,17 +49,27 @@ static bool readRegisters(uint8_t reg, uint8_t *buffer, uint8_t count) {
     return true;
 }
 
+// Nothing to stream: say why, once a second (kfkit shows '#' notes in its errors).
+static void failNoSensor(bool answered, uint8_t who) {
+    for (;;) {
+        if (answered) {
+            Serial.print(F("#ERROR,the chip at 0x68 has WHO_AM_I 0x"));
+            Serial.print(who, HEX);
+            Serial.println(F(", not 0x68: not an MPU6050 (MPU6500/9250 clones read 0x70-0x73)"));
+        } else {
+            Serial.println(F("#ERROR,no MPU6050 answers at 0x68: check VCC, GND, SDA (A4), SCL (A5) and that AD0 is low"));
+        }
+        delay(1000);
+    }
+}
+
 void setup() {
     Serial.begin(BAUD);
     Wire.begin();
     Wire.setClock(400000);  // 400 kHz I2C: the 14-byte read takes ~0.4 ms
     uint8_t who = 0;
-    if (!readRegisters(REG_WHO_AM_I, &who, 1) || who != 0x68) {
-        for (;;) {  // nothing to stream: say why, once a second (kfkit shows '#' notes in its errors)
-            Serial.println(F("#ERROR,MPU6050 not found at 0x68: check VCC, GND, SDA (A4), SCL (A5)"));
-            delay(1000);
-        }
-    }
+    const bool answered = readRegisters(REG_WHO_AM_I, &who, 1);
+    if (!answered || who != 0x68) failNoSensor(answered, who);
     writeRegister(REG_PWR_MGMT_1, 0x01);    // wake up, clock from the x gyro PLL
     writeRegister(REG_CONFIG, 0x03);        // DLPF 44 Hz accel / 42 Hz gyro: below Nyquist at 100 Hz
     writeRegister(REG_SMPLRT_DIV, 9);       // 1 kHz / (1 + 9) = 100 Hz internal sample rate

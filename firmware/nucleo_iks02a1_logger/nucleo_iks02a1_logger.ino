@@ -11,7 +11,8 @@
 // accumulator, so the mean rate is exactly 104 Hz). Host commands: 'h' header, 's' stop/start.
 //
 // Board: STM32duino core (STMicroelectronics:stm32), Nucleo-64, part number Nucleo F411RE.
-// Libraries: STM32duino ISM330DHCX, STM32duino IIS2MDC; kfkit_protocol.h from firmware/common.
+// Libraries: STM32duino ISM330DHCX 2.x and STM32duino IIS2MDC 2.x (the API with begin(); 1.x differs),
+// kfkit_protocol.h from firmware/common.
 
 #include <Arduino.h>
 #include <Wire.h>
@@ -30,10 +31,10 @@ static const uint32_t RATE_HZ = 104;
 static const float ACCEL_ODR_HZ = 104.0f, GYRO_ODR_HZ = 104.0f, MAG_ODR_HZ = 50.0f;
 static const int32_t ACCEL_FS_G = 4, GYRO_FS_DPS = 500;
 
-// The X-NUCLEO-IKS02A1 sits on the Arduino header: I2C on D14 (SDA) / D15 (SCL).
-static TwoWire bus(D14, D15);  // SDA, SCL (PB9, PB8 on the F411RE)
-static ISM330DHCXSensor accGyr(&bus);  // address 0x6B (SA0 high), as the shield wires it
-static IIS2MDCSensor mag(&bus);
+// The X-NUCLEO-IKS02A1 sits on the Arduino header, whose I2C (D14 SDA, D15 SCL; PB9, PB8 on the
+// F411RE) is STM32duino's default Wire on Nucleo-64 boards, as in ST's X-NUCLEO-IKS02A1 examples.
+static ISM330DHCXSensor accGyr(&Wire);  // default address ISM330DHCX_I2C_ADD_H (SA0 high), as the shield wires it
+static IIS2MDCSensor mag(&Wire);
 
 static uint32_t nextSampleUs, phase;  // phase: remainder of 1e6 / RATE_HZ, in 1/RATE_HZ µs
 static uint16_t seq;
@@ -50,8 +51,8 @@ static void fail(const __FlashStringHelper *why) {
 
 void setup() {
     Serial.begin(BAUD);
-    bus.begin();
-    bus.setClock(400000);
+    Wire.begin();
+    Wire.setClock(400000);
     if (accGyr.begin() != ISM330DHCX_OK || accGyr.ACC_Enable() != ISM330DHCX_OK || accGyr.GYRO_Enable() != ISM330DHCX_OK)
         fail(F("ISM330DHCX not found: is the X-NUCLEO-IKS02A1 seated on the Arduino header?"));
     accGyr.ACC_SetOutputDataRate(ACCEL_ODR_HZ);

@@ -6,7 +6,7 @@
 - :mod:`.recorder`  ``Recorder`` (reader thread, statistics, streamed file) and ``capture``
 - :mod:`.guided`    guided protocols (stationary, six faces, tilt, magnetometer rotations)
 """
-from .guided import PROTOCOLS, protocol_motion, protocol_steps, record_protocol, sphere_coverage
+from .guided import PROTOCOLS, dataset_name, protocol_motion, protocol_steps, record_protocol, sphere_coverage
 from .ports import (KNOWN_USB_IDS, BoardDisconnectedError, BoardPort, CaptureError, NoDataError, PortBusyError,
                     PortNotFoundError, PortPermissionError, ProtocolVersionError, WrongBaudError, find_boards,
                     open_port, resolve_auto)
@@ -16,7 +16,7 @@ from .recorder import DEFAULT_BAUD, CaptureStats, Recorder, capture, header_meta
 from .virtual import FAULT_KINDS, VirtualBoard
 
 __all__ = [
-    "PROTOCOLS", "protocol_motion", "protocol_steps", "record_protocol", "sphere_coverage",
+    "PROTOCOLS", "dataset_name", "protocol_motion", "protocol_steps", "record_protocol", "sphere_coverage",
     "KNOWN_USB_IDS", "BoardDisconnectedError", "BoardPort", "CaptureError", "NoDataError", "PortBusyError",
     "PortNotFoundError", "PortPermissionError", "ProtocolVersionError", "WrongBaudError", "find_boards",
     "open_port", "resolve_auto",

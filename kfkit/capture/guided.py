@@ -22,12 +22,16 @@ def _stationary(rate_hz, seed, duration):
 
 @dataclass(frozen=True)
 class GuidedProtocol:
-    """``make(rate_hz, seed, **durations)`` → Motion; ``full``/``quick`` are the durations."""
+    """``make(rate_hz, seed, **durations)`` → Motion; ``full``/``quick`` are the durations.
+
+    ``datasets`` maps each board the protocol can be recorded with to the bundled recording the
+    capture replaces (the file name lab 00 saves it under); ``board`` is the virtual board's default.
+    """
 
     name: str
     title: str
-    board: str  # the board the labs use this recording with
-    dataset: str  # the bundled recording it can replace (kfkit.datasets)
+    board: str
+    datasets: dict
     make: object
     full: dict
     quick: dict
@@ -35,23 +39,39 @@ class GuidedProtocol:
     move_prompt: str = "turn the board to the next position"
 
 
+# Prompts name the body axes (x forward, y right, z down) and what a student sees: the sensor's X and
+# Y arrows printed on the board, which are the body's x and −y (the chips read +1 g on z when flat).
+_FACE_PROMPTS = {
+    "z_down": "lay the board flat, components up (body z down), and keep it still",
+    "y_down": "stand the board on its right edge, printed Y arrow pointing up (rolled 90°: body y down), still",
+    "z_up": "turn the board upside down, components facing the table (body z up), still",
+    "y_up": "stand the board on its left edge, printed Y arrow pointing down (body y up), still",
+    "x_up": "stand the board on its back edge, printed X arrow pointing up (nose up: body x up), still",
+    "x_down": "stand the board on its front edge, printed X arrow pointing down (nose down: body x down), still",
+}
+_TILT_PROMPTS = {
+    "pitch_0": "hold the board level (pitch 0°), still",
+    "pitch_90": "pitch the nose up to 90°, printed X arrow pointing up, and hold still",
+    "roll_0": "hold the board level (roll 0°), still",
+    "roll_90": "roll right to 90°, right edge down (printed Y arrow pointing up), and hold still",
+}
+_NUCLEO, _MPU = "nucleo-iks02a1", "mpu6050"
+
 PROTOCOLS = {p.name: p for p in (
-    GuidedProtocol("stationary", "Stationary (2 min): bias and noise", "nucleo-iks02a1", "02_stationary",
+    GuidedProtocol("stationary", "Stationary (2 min): bias and noise", _NUCLEO,
+                   {_NUCLEO: "02_stationary", _MPU: "05_stationary"},
                    lambda r, s, **kw: _stationary(r, s, **kw), {"duration": 120.0}, {"duration": 5.0},
                    {"stationary": "leave the board flat and still on the table; do not touch it"}),
-    GuidedProtocol("six-faces", "Six faces: accelerometer bias and scale", "nucleo-iks02a1", "02_six_faces",
+    GuidedProtocol("six-faces", "Six faces: accelerometer bias and scale", _NUCLEO,
+                   {_NUCLEO: "02_six_faces", _MPU: "05_six_faces"},
                    lambda r, s, **kw: sim.six_faces(rate_hz=r, seed=s, **kw), {"hold": 5.0, "move": 3.0},
-                   {"hold": 1.0, "move": 1.5},
-                   {f"{a}_{d}": f"rest the board with its {a} axis pointing {'up' if d == 'up' else 'down'}, still"
-                    for a in "xyz" for d in ("up", "down")}),
-    GuidedProtocol("tilt", "Tilt protocol: 0°, 90°, 0° per axis (lab 05)", "mpu6050", "05_tilt_protocol",
+                   {"hold": 1.0, "move": 1.5}, _FACE_PROMPTS),
+    GuidedProtocol("tilt", "Tilt protocol: 0°, 90°, 0° per axis (lab 05)", _MPU,
+                   {_MPU: "05_tilt_protocol", _NUCLEO: "05_tilt_protocol"},
                    lambda r, s, **kw: sim.tilt_protocol(rate_hz=r, seed=s, **kw), {"hold": 2.0, "move": 1.5},
-                   {"hold": 0.6, "move": 1.0},
-                   {"pitch_0": "hold the board level (pitch 0°), still", "pitch_90": "pitch the nose up to 90°, hold still",
-                    "roll_0": "hold the board level (roll 0°), still", "roll_90": "roll right to 90°, hold still"},
-                   "turn smoothly to the next angle"),
-    GuidedProtocol("mag-rotations", "Magnetometer rotations: figure-eights over the sphere", "nucleo-iks02a1",
-                   "03_mag_rotations", lambda r, s, **kw: sim.mag_rotations(rate_hz=r, seed=s, **kw),
+                   {"hold": 0.6, "move": 1.0}, _TILT_PROMPTS, "turn smoothly to the next angle"),
+    GuidedProtocol("mag-rotations", "Magnetometer rotations: figure-eights over the sphere", _NUCLEO,
+                   {_NUCLEO: "03_mag_rotations"}, lambda r, s, **kw: sim.mag_rotations(rate_hz=r, seed=s, **kw),
                    {"duration": 60.0}, {"duration": 8.0},
                    {"mag_rotations": "tumble the board slowly in figure-eights, turning it over too, until the "
                                      "sphere coverage passes 90 %; stay away from steel and magnets"}),
@@ -63,6 +83,18 @@ def _protocol(name) -> GuidedProtocol:
         return PROTOCOLS[name]
     except KeyError:
         raise ValueError(f"unknown guided protocol {name!r}; known: {', '.join(PROTOCOLS)}") from None
+
+
+def dataset_name(name: str, board: str | None = None) -> str:
+    """The bundled recording that protocol ``name`` recorded on ``board`` replaces ('05_six_faces' on
+    an MPU6050, '02_six_faces' on the Nucleo): the file name (+ '.csv') labs 02–05 look for."""
+    p = _protocol(name)
+    board = board or p.board
+    if board not in p.datasets:
+        why = " (it has no magnetometer)" if name == "mag-rotations" else ""
+        raise ValueError(f"the {name} protocol is not recorded with the {board}{why}; "
+                         f"record it with the {' or the '.join(p.datasets)}")
+    return p.datasets[board]
 
 
 def protocol_motion(name: str, rate_hz: float, quick: bool = False, seed: int = 0, **durations):
@@ -94,8 +126,8 @@ def protocol_capture_options(name: str, port, board=None, quick=False, fast=Fals
     """
     from ..sensors import board as get_board
 
-    p = _protocol(name)
-    board = board or p.board
+    board = board or _protocol(name).board
+    dataset_name(name, board)  # raises if this board cannot record it
     motion = protocol_motion(name, get_board(board).rate_hz, quick=quick, seed=seed)
     steps = protocol_steps(name, motion)
     if port == "virtual":

@@ -2,12 +2,10 @@
 from __future__ import annotations
 
 import errno
+import os
 import sys
 from dataclasses import dataclass
 
-from ..doctor import needs_dialout
-
-DIALOUT_FIX = "sudo usermod -aG dialout $USER   (then log out and in again)"
 SKETCHES = "firmware/nucleo_iks02a1_logger or firmware/mpu6050_logger"
 
 
@@ -43,23 +41,24 @@ class BoardDisconnectedError(CaptureError):
     pass
 
 
-#: USB VID:PID → (what it is, the kfkit board it most likely carries)
+#: USB VID:PID → (what it is, the kfkit board it most likely carries). ST-LINK product IDs as in
+#: OpenOCD's and stlink's tables; Arduino's from its boards.txt; the rest are the USB-serial chips of clones.
 KNOWN_USB_IDS = {
-    (0x0483, 0x374B): ("ST-LINK/V2-1 (STM32 Nucleo-64, e.g. Nucleo-F411RE)", "nucleo-iks02a1"),
-    (0x0483, 0x3752): ("ST-LINK/V2-1 without mass storage (STM32 Nucleo)", "nucleo-iks02a1"),
-    (0x0483, 0x374E): ("ST-LINK/V3 (STM32 Nucleo)", "nucleo-iks02a1"),
-    (0x0483, 0x374F): ("ST-LINK/V3 (STM32 Nucleo)", "nucleo-iks02a1"),
-    (0x0483, 0x3753): ("ST-LINK/V3 dual VCP (STM32 Nucleo)", "nucleo-iks02a1"),
-    (0x0483, 0x3754): ("ST-LINK/V3 without mass storage (STM32 Nucleo)", "nucleo-iks02a1"),
+    (0x0483, 0x374B): ("ST-LINK/V2-1 (STM32 Nucleo-64 such as the Nucleo-F411RE)", "nucleo-iks02a1"),
+    (0x0483, 0x3752): ("ST-LINK/V2-1 without mass storage (STM32 Nucleo-64)", "nucleo-iks02a1"),
+    (0x0483, 0x374E): ("STLINK-V3E (on newer STM32 Nucleo boards)", "nucleo-iks02a1"),
+    (0x0483, 0x374F): ("STLINK-V3SET probe (an STM32 board wired to it)", "nucleo-iks02a1"),
+    (0x0483, 0x3753): ("STLINK-V3 with two virtual COM ports (STM32 Nucleo)", "nucleo-iks02a1"),
+    (0x0483, 0x3754): ("STLINK-V3 without mass storage (STM32 Nucleo)", "nucleo-iks02a1"),
     (0x2341, 0x0043): ("Arduino Uno R3", "mpu6050"),
-    (0x2341, 0x0001): ("Arduino Uno", "mpu6050"),
+    (0x2341, 0x0001): ("Arduino Uno (first revision)", "mpu6050"),
     (0x2341, 0x0243): ("Genuino Uno", "mpu6050"),
     (0x2A03, 0x0043): ("Arduino Uno (arduino.org)", "mpu6050"),
     (0x1A86, 0x7523): ("CH340 USB-serial (Arduino Uno/Nano clone)", "mpu6050"),
     (0x1A86, 0x55D4): ("CH9102 USB-serial (Arduino clone)", "mpu6050"),
     (0x10C4, 0xEA60): ("CP210x USB-serial (Arduino clone or adapter)", "mpu6050"),
-    (0x0403, 0x6001): ("FTDI FT232R (Arduino Nano / adapter)", "mpu6050"),
-    (0x0403, 0x6015): ("FTDI FT-X (Arduino clone / adapter)", "mpu6050"),
+    (0x0403, 0x6001): ("FTDI FT232R (Arduino Nano, older Arduinos, adapters)", "mpu6050"),
+    (0x0403, 0x6015): ("FTDI FT-X (Arduino clone or adapter)", "mpu6050"),
 }
 
 
@@ -120,24 +119,48 @@ def resolve_auto() -> tuple[BoardPort, str]:
 
 
 def open_port(port: str, baud: int = 115200, timeout: float = 0.05):
-    """Open a device path or a pyserial URL (``loop://``, ``socket://host:port``, ``hwgrep://VID:PID``)."""
+    """Open a device path or a pyserial URL (``loop://``, ``socket://host:port``, ``hwgrep://VID:PID``).
+
+    Device paths are opened exclusively (a second capture of the same port fails as busy).
+    Raises :class:`PortNotFoundError` (listing the ports that exist), :class:`PortBusyError`,
+    :class:`PortPermissionError` (naming the group to join) or :class:`CaptureError`.
+    ``phyphox://HOST:PORT`` opens a phone running phyphox (:class:`kfkit.capture.phyphox.PhyphoxPort`).
+    """
+    if port.startswith("phyphox://"):
+        from .phyphox import PhyphoxPort
+
+        return PhyphoxPort(port, read_timeout=timeout)
     import serial
 
     is_url = "://" in port
     try:
         return serial.serial_for_url(port, baudrate=baud, timeout=timeout, exclusive=None if is_url else True)
     except serial.SerialException as e:
-        code = e.errno
-        if code == errno.ENOENT or (is_url and "no ports found" in str(e)):
+        code, text = e.errno, str(e)
+        windows = sys.platform == "win32"  # pyserial's Windows errors carry no errno, only the WinError text
+        if code == errno.ENOENT or (is_url and "no ports found" in text) or (windows and "FileNotFoundError" in text):
             raise PortNotFoundError(f"port {port} not found; {_list_text(find_boards())}") from None
-        if code in (errno.EBUSY, errno.EAGAIN):
-            raise PortBusyError(f"port {port} is busy: another program has it open (a serial monitor, "
-                                "another notebook or kfkit capture?); close it and try again") from None
+        if code in (errno.EBUSY, errno.EAGAIN) or (windows and "PermissionError" in text):
+            raise PortBusyError(f"port {port} is busy: another program has it open (a serial monitor, the Arduino "
+                                "IDE, another notebook or kfkit capture?); close it and try again") from None
         if code == errno.EACCES:
-            fix = ""
-            if needs_dialout():
-                fix = f"; you are not in the 'dialout' group that owns serial ports: {DIALOUT_FIX}"
-            elif sys.platform.startswith("linux"):
-                fix = f"; check the port's group with `ls -l {port}` and that you are in it (usually: {DIALOUT_FIX})"
-            raise PortPermissionError(f"permission denied opening {port}{fix}") from None
+            raise PortPermissionError(f"permission denied opening {port}{_permission_hint(port)}") from None
         raise CaptureError(f"cannot open {port}: {e}") from None
+
+
+def _permission_hint(port: str) -> str:
+    """Linux: the group that owns ``port`` (dialout on most distributions, uucp on Arch) and how to join it."""
+    if not sys.platform.startswith("linux"):
+        return ""
+    import grp
+
+    try:
+        gid = os.stat(port).st_gid
+        group = grp.getgrgid(gid).gr_name
+    except (OSError, KeyError):
+        gid, group = None, "dialout"
+    if gid is not None and gid in os.getgroups():
+        return (f"; you are in its group '{group}', so check its mode with `ls -l {port}` (or log out and in "
+                "again if you joined the group recently)")
+    return (f"; serial ports belong to the group '{group}' and you are not in it: "
+            f"sudo usermod -aG {group} $USER   (then log out and in again)")

@@ -199,7 +199,9 @@ def _header(line: bytes):
     try:
         rate = float(params["rate_hz"])
     except ValueError:
-        return BadLine("malformed", f"rate_hz={params['rate_hz']} is not a number", line)
+        rate = float("nan")
+    if not (0.0 < rate < float("inf")):
+        return BadLine("malformed", f"rate_hz={params['rate_hz']} is not a positive number", line)
     return Header(version, params["board"], rate, fields, params, text)
 
 

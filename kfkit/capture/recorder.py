@@ -6,9 +6,11 @@ every received sample on disk. Live views poll :meth:`Recorder.recording` from t
 (main-thread) timer; nothing on the reader thread plots.
 
 Time: ``t`` (s) is the board's ``t_us`` relative to the first sample, unwrapping the 32-bit
-``micros()`` (Δ = (t_us − t_us_prev) mod 2³²). ``t_us`` going backwards (Δ ≥ 2³¹) is a board
-reset: time then continues one nominal period after the last sample, and ``seq`` restarts.
-A ``seq`` gap (mod 2¹⁶) counts the missing samples as dropped, with their position.
+``micros()`` (Δ = (t_us − t_us_prev) mod 2³²). A board reset is ``t_us`` going backwards
+(Δ ≥ 2³¹), or a header followed by ``seq`` restarting at 0 (the sketches send their header
+from ``setup()``; this catches a reset after 35.8 min, when Δ mod 2³² looks like a step
+forwards). Time then continues one nominal period after the last sample. A ``seq`` gap
+g = (seq − seq_prev − 1) mod 2¹⁶ > 0 counts g dropped samples, with their position.
 
 Magnetometer: the Nucleo sketch sends ``mx,my,mz`` on every line (the last reading repeated) and
 a last field ``mag_new`` (1 = a new reading, 0 = a repeat); rows with ``mag_new = 0`` get NaN
@@ -33,6 +35,7 @@ from .protocol import MICROS_MODULO, SEQ_MODULO, BadLine, Header, Message, Note,
 from .virtual import VirtualBoard
 
 DEFAULT_BAUD = 115200
+MAX_LINE_BYTES = 1024  # no newline in this many bytes: noise (a wrong baud rate), not a line
 SENSOR_FIELDS = ("ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz")
 MAG_FLAG = "mag_new"  # Nucleo sketch: 1 = mx,my,mz is a new reading, 0 = the last one repeated
 _SPEC_AT_RANGE = {  # chip → (accel spec at ±g, gyro spec at ±°/s), for headers that name a range
@@ -43,9 +46,19 @@ _SPEC_AT_RANGE = {  # chip → (accel spec at ±g, gyro spec at ±°/s), for hea
 
 @dataclass
 class CaptureStats:
-    """What arrived. ``dropped`` = samples missing by ``seq`` (a line rejected for its checksum
-    is also a missing sample); ``drops`` = [(sample index, t s, how many)]; ``jitter_us`` = the
-    standard deviation of the board's sample interval (consecutive samples only)."""
+    """What arrived.
+
+    samples        sample lines recorded
+    bad_checksum   lines whose ``*HH`` did not match (skipped)
+    malformed      lines that are not protocol v1: cut, no ``*HH``, a non-integer, the wrong field count
+    dropped        samples missing by ``seq`` (a line rejected above is also a missing sample)
+    drops          [(index of the first sample after the gap, t of the first missing sample (s), how many)]
+    resets         board restarts; ``reset_positions`` = index of the first sample after each
+    rate_hz        effective rate (samples − 1) / duration_s, duration_s = t of the last sample
+    dt_mean_us     mean board interval between consecutive samples (no gap, no reset), µs
+    jitter_us      standard deviation of that interval, µs
+    notes          ``#`` lines from the board other than headers (``#ERROR,…``)
+    """
 
     samples: int = 0
     bad_checksum: int = 0
@@ -73,12 +86,14 @@ class CaptureStats:
         return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in d.items()}
 
     def __str__(self):
-        lines = [f"samples        {self.samples} in {self.duration_s:.2f} s (effective rate {self.rate_hz:.2f} Hz, "
-                 f"interval {self.dt_mean_us:.1f} µs ± {self.jitter_us:.1f} µs jitter)",
+        drops = ", ".join(f"{n} before sample {i} (t = {t:.3f} s)" for i, t, n in self.drops[:4])
+        drops += " …" if len(self.drops) > 4 else ""
+        resets = ", ".join(map(str, self.reset_positions[:8])) + (" …" if len(self.reset_positions) > 8 else "")
+        lines = [f"samples        {self.samples} (t = 0 … {self.duration_s:.2f} s): effective rate {self.rate_hz:.2f} Hz, "
+                 f"interval {self.dt_mean_us:.1f} µs, jitter {self.jitter_us:.1f} µs rms",
                  f"bad lines      {self.bad_lines} ({self.bad_checksum} bad checksum, {self.malformed} malformed)",
-                 f"dropped        {self.dropped}" + (f" at samples {', '.join(f'{i} (t={t:.3f} s, {n})' for i, t, n in self.drops[:5])}"
-                                                   + (" …" if len(self.drops) > 5 else "") if self.drops else ""),
-                 f"board resets   {self.resets}" + (f" at samples {', '.join(map(str, self.reset_positions))}" if self.resets else "")]
+                 f"dropped        {self.dropped}" + (f": {drops}" if self.drops else ""),
+                 f"board resets   {self.resets}" + (f", before sample {resets}" if self.resets else "")]
         return "\n".join(lines)
 
 
@@ -127,6 +142,13 @@ class Recorder:
     seconds   stop by itself once this much board time (s) has arrived (None: until stop())
     phases    labelled windows [{"label", "start", "end"}] for the metadata; a virtual board
               playing a motion with phases gives them by default
+    no_data_s NoDataError when nothing valid arrives this long (s): at the start (no sketch,
+              no samples after the header) or mid-capture (the board stopped sending)
+    garbage_s WrongBaudError when ≥ 90 % of what arrived in this long (s) is not protocol v1
+    flush_s   the streamed file is flushed at least this often (s, at most 1)
+
+    Errors are :class:`CaptureError` subclasses saying what to do; one that ends a capture after
+    samples arrived also says where they are saved.
     """
 
     def __init__(self, port="auto", baud=DEFAULT_BAUD, out=None, *, seconds=None, phases=None, virtual=None,
@@ -161,6 +183,7 @@ class Recorder:
         self._dt_sum = self._dt_sq = 0.0
         self._dt_n = 0
         self._mag_index = None
+        self._header_again = False
 
     # -- life cycle --------------------------------------------------------------------------------
     def start(self) -> "Recorder":
@@ -238,37 +261,54 @@ class Recorder:
     # -- the reader thread ----------------------------------------------------------------------------
     def _read_loop(self):
         ser, buf = self._serial, b""
-        first_line = True
-        last_flush = time.monotonic()
+        tail = True  # the first piece may be the end of a line the board was already sending
+        discarding = False  # inside a run of bytes without a newline, already counted once
+        last_flush = last_data = time.monotonic()
         try:
             while not self._stop.is_set():
                 try:
                     data = ser.read(max(1, ser.in_waiting))
+                except CaptureError as e:  # a port that knows what went wrong (a phone: kfkit.capture.phyphox)
+                    self._fail(type(e), str(e))
+                    break
                 except Exception as e:  # SerialException/OSError: the device went away
                     self._fail(BoardDisconnectedError, f"the board disconnected ({self.device}: {e})")
                     break
                 now = time.monotonic()
                 if data:
+                    last_data = now
                     self.stats.bytes += len(data)
                     lines = (buf + data).split(b"\n")
                     buf = lines.pop()
+                    discarding = discarding and not lines
                     for line in lines:
-                        if first_line:  # bytes before the first newline may be a partial line: parse, do not count
-                            first_line = False
-                            if isinstance(parse_line(line), BadLine):
+                        if tail:  # use it only if it is a whole line: parse, do not count
+                            tail = False
+                            item = parse_line(line)
+                            if isinstance(item, BadLine) and item.kind != "version":
                                 continue
                         self._handle(line)
                         if self._over():
                             break
+                    if len(buf) > MAX_LINE_BYTES:  # far longer than any line: noise, counted once per run
+                        self.stats.malformed += not discarding
+                        buf, tail, discarding = b"", True, True
                     if self._over():
                         break
                 if self.header is None or self.stats.samples == 0:
                     self._check_startup(now - self._t_open)
-                    if self.error is not None:
-                        break
+                elif now - last_data >= self.no_data_s:
+                    self._fail(NoDataError, f"{self.device}: the board stopped sending {now - last_data:.1f} s ago, "
+                               f"after {self.stats.samples} samples{self._notes()}: a loose cable, a crashed "
+                               f"sketch or another program that took the port")
+                if self.error is not None:
+                    break
                 if self._file is not None and now - last_flush >= self.flush_s:
                     self._file.flush()
                     last_flush = now
+        except Exception as e:  # a bug must not end a capture silently: say so, keep what arrived
+            self._fail(CaptureError, f"{self.device}: the recorder stopped on an unexpected error ({e!r}); "
+                       "please report it with the file")
         finally:
             if self._file is not None:
                 self._file.flush()
@@ -330,7 +370,8 @@ class Recorder:
     def _header(self, header: Header):
         if self.header is None:
             self.header = header
-            self.meta = header_metadata(header)
+            describe = getattr(self._serial, "header_metadata", None)  # a phone port describes its own sensors
+            self.meta = describe(header) if describe is not None else header_metadata(header)
             self.columns = _columns(header)
             self._nfields = len(header.fields)
             self._mag_index = header.fields.index(MAG_FLAG) if MAG_FLAG in header.fields else None
@@ -343,6 +384,8 @@ class Recorder:
         elif header.fields != self.header.fields or header.board != self.header.board:
             self._fail(CaptureError, f"{self.device}: the board header changed mid-capture, from "
                        f"{self.header.text!r} to {header.text!r}; start a new capture")
+        else:  # the same header again: an answer to 'h', or a board that restarted (setup() sends it)
+            self._header_again = True
 
     def _sample(self, values):
         s = self.stats
@@ -353,31 +396,31 @@ class Recorder:
             s.malformed += 1
             return
         t_us, seq = values[0], values[1]
-        prev = self._prev
+        prev, header_again, self._header_again = self._prev, self._header_again, False
+        reset, gap, dt_us = False, 0, 0
         if prev is None:
             t = 0.0
         else:
             dt_us = (t_us - prev[0]) % MICROS_MODULO
+            gap = (seq - prev[1] - 1) % SEQ_MODULO
             if dt_us == 0:  # the same instant twice: not a sample we can place in time
                 s.malformed += 1
                 return
-            if dt_us >= MICROS_MODULO // 2:  # time went backwards: the board restarted
-                s.resets += 1
-                s.reset_positions.append(s.samples)
-                t = round(prev[2] + 1.0 / self.header.rate_hz, 6)
-            else:
-                t = round(prev[2] + dt_us * 1e-6, 6)  # whole µs: the file's 6 decimals hold t exactly
-                gap = (seq - prev[1] - 1) % SEQ_MODULO
-                if gap:
-                    s.dropped += gap
-                    s.drops.append((s.samples, round(t, 6), gap))
-                else:
-                    self._dt_sum += dt_us
-                    self._dt_sq += dt_us * dt_us
-                    self._dt_n += 1
+            reset = dt_us >= MICROS_MODULO // 2 or (header_again and seq == 0 and gap != 0)  # the board restarted
+            t = round(prev[2] + (1.0 / self.header.rate_hz if reset else dt_us * 1e-6), 6)  # whole µs: exact in the file
         if self.seconds is not None and t >= self.seconds - 1e-9:
-            self._reached = True
+            self._reached = True  # this sample is past the end: it counts for nothing
             return
+        if reset:
+            s.resets += 1
+            s.reset_positions.append(s.samples)
+        elif gap:  # the first missing sample was due one interval (of gap + 1) after the previous one
+            s.dropped += gap
+            s.drops.append((s.samples, round(prev[2] + dt_us * 1e-6 / (gap + 1), 6), gap))
+        elif prev is not None:
+            self._dt_sum += dt_us
+            self._dt_sq += dt_us * dt_us
+            self._dt_n += 1
         row = [t, seq, *(values[i] for i in self._keep)]
         if self._mag_index is not None and not values[self._mag_index]:
             for j in self._mag_cols:  # no new magnetometer reading: empty cells (NaN)
@@ -446,9 +489,9 @@ class Recorder:
             tmp = self.out.with_name(self.out.name + ".tmp")
             save_recording(self.recording(), tmp)
             os.replace(tmp, self.out)
-        if isinstance(self.error, BoardDisconnectedError):
-            self.error = BoardDisconnectedError(f"{self.error}, after {self.stats.samples} samples "
-                                                f"({self.stats.duration_s:.2f} s); every sample received is saved in {self.out}")
+        if self.error is not None and self.stats.samples:  # a capture cut short: say where its data is
+            self.error = type(self.error)(f"{self.error}; every sample received ({self.stats.samples} samples, "
+                                          f"{self.stats.duration_s:.2f} s) is saved in {self.out}")
 
 
 def capture(port="auto", seconds=10.0, out=None, baud=DEFAULT_BAUD, progress=None, **options) -> Recording:

@@ -48,12 +48,12 @@ def board_fields(b) -> tuple:
     return fields + ("mx", "my", "mz", "mag_new") if b.mag is not None else fields
 
 
-def board_header(b, rate_hz: float) -> bytes:
+def board_header(b, rate_hz: float, version: int = 1) -> bytes:
     """The ``#KFKIT`` header the sketch for board ``b`` sends."""
     params = {"accel_fs_g": round(b.accel.full_scale / G), "gyro_fs_dps": round(np.degrees(b.gyro.full_scale))}
     if b.mag is not None:
         params["mag_rate_hz"] = f"{b.mag_rate_hz or rate_hz:g}"
-    return encode_header(b.name, rate_hz, board_fields(b), **params)
+    return encode_header(b.name, rate_hz, board_fields(b), version=version, **params)
 
 
 def _positions(spec):
@@ -77,24 +77,27 @@ class VirtualBoard:
     seed         seeds the sensor noise, biases and random faults
     realtime     False: send as fast as the host reads (tests, benchmarks)
     start_us     micros() of the first sample (set near 2³² to exercise the wrap)
+    start_seq    ``seq`` of the first sample: a board that was already streaming (a Nucleo does not
+                 reset when its port opens); set near 2¹⁶ to exercise the wrap. Resets restart at 0.
+    protocol_version  the version its header announces (≠ 1: a board kfkit cannot read)
     sim_options  extra keyword arguments for ``sim.simulate_imu``
     extra_lines  callables ``f(board, n, truth_euler) → bytes | None`` adding lines of other
                  kinds after sample ``n`` (e.g. ``$ATT,…`` from the tilt firmware)
     attitude     True: behave like ``firmware/mpu6050_tilt_kf``, adding ``$ATT,roll_deg,pitch_deg*HH``
                  after each sample, computed from the sample's counts by the Python reference
                  ``kfkit.filters.TiltAttitude`` (none during the first 2 s: gyro bias), and
-                 ``messages=ATT`` in the header
+                 ``messages=ATT,filter=tilt_kf`` in the header
     """
 
     def __init__(self, rate_hz=None, board="nucleo-iks02a1", motion=None, faults=None, seed=0, *,
-                 realtime=True, loop=True, start_us=0, chunk_s=1.0, sim_options=None, extra_lines=(),
-                 attitude=False):
+                 realtime=True, loop=True, start_us=0, start_seq=0, chunk_s=1.0, sim_options=None, extra_lines=(),
+                 attitude=False, protocol_version=1):
         self.board = get_board(board) if isinstance(board, str) else board
         if motion is not None and rate_hz is not None and abs(float(rate_hz) - motion.rate_hz) > 1e-9:
             raise ValueError(f"rate_hz={rate_hz} differs from the motion's rate {motion.rate_hz} Hz")
         self.rate_hz = float(rate_hz or (motion.rate_hz if motion is not None else self.board.rate_hz))
         self.motion, self.loop, self.realtime = motion, loop, realtime
-        self.seed, self.start_us, self.chunk_s = seed, int(start_us), chunk_s
+        self.seed, self.start_us, self.start_seq, self.chunk_s = seed, int(start_us), int(start_seq), chunk_s
         self.sim_options = dict(sim_options or {})
         self.extra_lines = list(extra_lines)
         faults = dict(faults or {})
@@ -105,10 +108,10 @@ class VirtualBoard:
         self.faults = {k: _positions(faults.get(k)) for k in ("corrupt", "drop", "truncate", "reset")}
         self.disconnect_at = faults.get("disconnect")
         self.garbage, self.silent = bool(faults.get("garbage")), bool(faults.get("silent"))
-        self.header = board_header(self.board, self.rate_hz)
+        self.header = board_header(self.board, self.rate_hz, protocol_version)
         self.attitude = bool(attitude)
         if self.attitude:
-            self.header = self.header.rstrip(b"\n") + b",messages=ATT\n"
+            self.header = self.header.rstrip(b"\n") + b",messages=ATT,filter=tilt_kf\n"  # as mpu6050_tilt_kf's
         self.fields = board_fields(self.board)
         self.samples_made = 0  # every sample generated, sent or not
         self._paused_us = 0  # time spent stopped by 's' (micros() runs on)
@@ -207,7 +210,7 @@ class VirtualBoard:
 
     def _lines(self):
         """Yield (n, bytes to send) per sample made, applying the faults."""
-        since_reset, boot_us = 0, self.start_us
+        since_reset, boot_us, seq0 = 0, self.start_us, self.start_seq
         tilt = TiltAttitude(self.board, self.rate_hz) if self.attitude else None
         for counts, truth in self._chunks():
             for row, euler in zip(counts, truth):
@@ -216,11 +219,11 @@ class VirtualBoard:
                     return
                 out = b""
                 if self._is_fault("reset", n):
-                    since_reset, boot_us = 0, BOOT_US
+                    since_reset, boot_us, seq0 = 0, BOOT_US, 0
                     out += self.header
                     tilt = TiltAttitude(self.board, self.rate_hz) if self.attitude else None
                 t_us = (boot_us + round(since_reset * 1e6 / self.rate_hz) + self._paused_us) % MICROS_MODULO
-                line = encode_sample((t_us, since_reset % SEQ_MODULO, *row.tolist()))
+                line = encode_sample((t_us, (seq0 + since_reset) % SEQ_MODULO, *row.tolist()))
                 since_reset += 1
                 self.samples_made += 1
                 if self._is_fault("drop", n):
