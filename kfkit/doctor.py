@@ -16,7 +16,7 @@ OK, FAIL, WARN = "✅", "❌", "⚠️"
 INSTALL_HINT = "run: python -m pip install -r environment.txt"
 PACKAGES = (
     "numpy", "scipy", "matplotlib", "ipywidgets", "ipympl",
-    "jupyterlab", "pyserial", "nbval", "filterpy", "nbclient",
+    "jupyterlab", "pyserial", "threadpoolctl", "cloudpickle", "nbval", "filterpy", "nbclient",
 )
 # JupyterLab front-end extension folder -> Python package that ships it
 LABEXTENSIONS = {

@@ -134,3 +134,54 @@ def test_the_checks_see_errors_a_student_would_see(page, jupyter_lab):
     open_notebook(page, jupyter_lab, f"labs/{name}")
     run_all(page)
     assert any("NotImplementedError" in text for text in error_outputs(page))
+
+
+CAPTURE_NOTEBOOK = {
+    "cells": [{"cell_type": "code", "metadata": {}, "execution_count": None, "outputs": [], "source": [
+        "from kfkit import widgets\n",
+        "panel = widgets.capture_panel(out_dir='browser_capture')\n",
+        "panel.port.value = 'virtual'\n",
+        "panel.seconds.value = 30.0\n",
+        "panel"]}],
+    "metadata": {"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}},
+    "nbformat": 4, "nbformat_minor": 5,
+}
+
+
+def _progress_percent(panel) -> int:
+    text = panel.locator(".widget-hprogress").first.inner_text()
+    return int(text.split("%")[0].split()[-1])
+
+
+def test_capture_panel_records_from_the_virtual_board(page, jupyter_lab):
+    """Press record, watch the live plot move and the progress bar advance, stop, find the file."""
+    from kfkit.io import load_recording
+
+    (jupyter_lab.root / "capture_panel.ipynb").write_text(json.dumps(CAPTURE_NOTEBOOK))
+    open_notebook(page, jupyter_lab, "capture_panel.ipynb")
+    run_all(page)
+    panel = page.locator(".widget-vbox:has(.jupyter-matplotlib):has(.widget-hprogress)").last
+    panel.scroll_into_view_if_needed()
+    assert page.get_by_text("Error displaying widget").count() == 0
+    canvas = panel.locator(".jupyter-matplotlib canvas").first
+    idle = canvas_png(canvas)
+
+    panel.locator("button", has_text="record").click()
+    page.wait_for_function("el => /recording from|samples/.test(el.innerText)", arg=panel.element_handle(), timeout=20_000)
+    page.wait_for_timeout(2500)
+    first, first_percent = canvas_png(canvas), _progress_percent(panel)
+    page.wait_for_timeout(2500)
+    second, second_percent = canvas_png(canvas), _progress_percent(panel)
+    screenshot(page, "capture_panel", "-recording")
+    assert np.mean(np.abs(first - idle) > 10) > 0.001, "the live plot did not draw the incoming samples"
+    assert np.mean(np.abs(second - first) > 10) > 0.001, "the live plot froze while recording"
+    assert 0 < first_percent < second_percent < 100, f"progress went {first_percent} % → {second_percent} %"
+
+    panel.locator("button", has_text="stop").click()
+    page.wait_for_function("el => el.innerText.includes('saved')", arg=panel.element_handle(), timeout=20_000)
+    screenshot(page, "capture_panel", "-saved")
+    saved = jupyter_lab.root / "browser_capture" / "capture.csv"
+    assert saved.exists(), f"the panel says it saved, but {saved} is missing"
+    rec = load_recording(saved)
+    assert rec.meta["board"] and len(rec) > 100  # ≥ 1 s at the virtual board's rate
+    assert f"saved {len(rec)} samples" in panel.inner_text()
