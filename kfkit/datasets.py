@@ -14,6 +14,7 @@ from typing import Any, Callable
 import numpy as np
 
 from . import sim, vehicle
+from .frames import G
 from .io import Recording, load_recording, recording_text
 
 KIT_ROOT = Path(__file__).resolve().parents[1]
@@ -55,9 +56,29 @@ MPU6050_ACCEL_BIAS = (0.20, -0.15, 0.25)  # m/s²
 MPU6050_ACCEL_SCALE = (1.015, 0.99, 1.01)  # sensitivity errors, within the datasheet's ±3 %
 
 
+MPU6050_BOOT_US = 1523456  # the logger's micros() at its first sample (its README's example line)
+MPU6050_STATIC_TOLERANCE_G = 0.05  # the board's static test |‖a‖ − 1 g| < 0.05 g (firmware STATIC_TOLERANCE_G)
+
+
 def _mpu6050(motion, seed) -> Recording:
-    return sim.simulate_imu(motion, board="mpu6050", seed=seed, gyro_bias=MPU6050_GYRO_BIAS,
-                            accel_bias=MPU6050_ACCEL_BIAS, accel_scale=MPU6050_ACCEL_SCALE)
+    rec = sim.simulate_imu(motion, board="mpu6050", seed=seed, gyro_bias=MPU6050_GYRO_BIAS,
+                           accel_bias=MPU6050_ACCEL_BIAS, accel_scale=MPU6050_ACCEL_SCALE)
+    return _as_logged(rec)
+
+
+def _as_logged(rec) -> Recording:
+    """Lab 05's recordings in the MPU6050 logger's format: beside t (s) the board's ``t_us`` (micros(), µs,
+    10 000 apart at 100 Hz), the raw accelerometer norm ``acc_norm`` = ‖a_counts‖ / 16384 (g) and
+    ``static_ok`` = 1 where |acc_norm − 1| < 0.05: what the board can judge, uncalibrated."""
+    norm_g = np.linalg.norm(rec.counts("acc"), axis=1) * rec.meta["sensors"]["acc"]["sensitivity"] / G
+    data = {"t": rec.t, "seq": rec["seq"], "t_us": MPU6050_BOOT_US + np.round(rec.t * 1e6).astype(np.int64)}
+    data.update({c: rec[c] for c in ("ax", "ay", "az", "gx", "gy", "gz")})
+    data["acc_norm"] = np.round(norm_g, 6)  # 1 count is 6e-5 g
+    data["static_ok"] = (np.abs(data["acc_norm"] - 1.0) < MPU6050_STATIC_TOLERANCE_G).astype(np.int64)
+    data.update({c: rec[c] for c in rec.columns if c.startswith("true_")})
+    rec.meta["units"].update({"t_us": "µs (board micros())", "acc_norm": "g (raw counts, uncalibrated)",
+                              "static_ok": f"1 where |acc_norm − 1| < {MPU6050_STATIC_TOLERANCE_G} g"})
+    return Recording(rec.meta, data, rec.path)
 
 
 def _tilt_protocol() -> Recording:
@@ -162,6 +183,22 @@ class Bundled:
     suffix: str = ".csv"  # the file is data/<name><suffix>
 
 
+def _phone_attitude_tour() -> dict:
+    """Lab 04 with a phone: the attitude tour with a phone lying flat, screen up, top edge forward, in a
+    phyphox simple experiment (accelerometer, gyroscope, magnetometer at 100 Hz), exported as CSV (comma,
+    decimal point): {file in the export folder: text}, plus the truth (``kfkit_truth.csv``)."""
+    from . import phone, phyphox
+
+    motion = sim.attitude_tour(rate_hz=400.0, translate_accel=2.0, vibration_rms=0.1, seed=401)
+    return phyphox.simple_experiment_files(phone.simulate_phone(motion, seed=405))
+
+
+def _read_phone_export(path) -> Recording:
+    from .phyphox import load_phyphox
+
+    return load_phyphox(path, require=("acc", "gyr", "mag"))
+
+
 def _slalom_20kmh() -> Recording:
     """Lab 06: from a crawl (1 m/s) up to 20 km/h, slalom through 10 cones 9 m apart, back to a crawl; 100 Hz."""
     return vehicle.simulate_drive(vehicle.slalom(20.0, cone_spacing=9.0, peak_ay=3.0, start_kmh=3.6), seed=601)
@@ -196,6 +233,8 @@ BUNDLED = {
     "03_headings": Bundled(_headings),
     "calibration_nucleo-iks02a1": Bundled(_calibration_nucleo, text=_calibration_json, read=_read_calibration, suffix=".json"),
     "calibration_mpu6050": Bundled(_calibration_mpu6050, text=_calibration_json, read=_read_calibration, suffix=".json"),
+    # a folder (suffix ""): ``text`` gives {file in the folder: text}
+    "04_phone_attitude_tour": Bundled(_phone_attitude_tour, text=dict, read=_read_phone_export, suffix=""),
 }
 
 
@@ -227,15 +266,31 @@ def regenerate(check: bool = False, directory=None) -> list[str]:
     for name, entry in BUNDLED.items():
         path = folder / f"{name}{entry.suffix}"
         text = entry.text(entry.build())
+        files = text if isinstance(text, dict) else {None: text}  # a dict: the files of a folder
         if check:
-            if not path.exists():
-                report.append(f"{path} is missing")
-            elif path.read_text(encoding="utf-8") != text:
-                report.append(f"{path} differs from what its simulation makes now: {_first_difference(path.read_text(encoding='utf-8'), text)}")
+            report += _check_files(path, files)
         else:
-            folder.mkdir(parents=True, exist_ok=True)
-            path.write_text(text, encoding="utf-8", newline="\n")
+            for rel, content in files.items():
+                target = path if rel is None else path / rel
+                target.parent.mkdir(parents=True, exist_ok=True)
+                target.write_text(content, encoding="utf-8", newline="\n")
             report.append(str(path))
+    return report
+
+
+def _check_files(path: Path, files: dict) -> list[str]:
+    """What differs between the shipped ``path`` and ``files`` ({None: text} for one file, else
+    {path inside the folder: text}): missing, changed, or (in a folder) not made by the simulation."""
+    report = []
+    for rel, text in files.items():
+        target = path if rel is None else path / rel
+        if not target.exists():
+            report.append(f"{target} is missing")
+        elif (old := target.read_text(encoding="utf-8")) != text:
+            report.append(f"{target} differs from what its simulation makes now: {_first_difference(old, text)}")
+    if None not in files and path.is_dir():
+        report += [f"{p} is not made by the simulation: delete it" for p in sorted(path.rglob("*"))
+                   if p.is_file() and p.relative_to(path).as_posix() not in files]
     return report
 
 
