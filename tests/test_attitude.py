@@ -446,6 +446,70 @@ def test_mekf_rejects_a_magnetic_disturbance_by_norm_and_dip():
     assert heading[True] < 1.0 < 5.0 < heading[False]
 
 
+def field_change_in_ned(euler, change_n, when):
+    """Body-frame readings of an extra NED field ``change_n`` (µT) on the rows ``when``: the field
+    itself changed (a steel desk), unlike a magnet fixed to the board."""
+    extra = np.zeros_like(euler)
+    extra[when] = scipy_rotation(euler[when]).inv().apply(change_n)
+    return extra
+
+
+def test_mekf_recovery_and_max_rejection_are_counted_in_seconds():
+    # Magnetometer at half the gyro rate. A disturbance 3–5 s, then a field that changes for good at
+    # 20 s. Recovery: the field must pass the gates for 1 s of *time* (50, not 100, of its samples).
+    # Max rejection: after 30 s of rejection the magnetometer is used again (with a larger σ).
+    rng = np.random.default_rng(24)
+    t, euler, omega = smooth_motion(rng, 60.0, 100.0, amp=(0.3, 0.3, 1.0))
+    gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.05, 0.3)
+    short, lasting = (t >= 3.0) & (t < 5.0), t >= 20.0
+    mag += field_change_in_ned(euler, [15.0, -10.0, 5.0], short | lasting)
+    mag[1::2] = np.nan
+    fresh = ~np.isnan(mag[:, 0])
+    res = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, mag_max_rejection=30.0)
+    assert res.mag_gated[fresh & short].all() and not res.mag_gated[fresh & (t < 3.0)].any()
+    first_used_again = t[fresh & (t >= 5.0) & res.mag_used][0]
+    assert first_used_again == pytest.approx(6.0, abs=0.03)
+    assert res.mag_gated[fresh & (t >= 20.0) & (t <= 49.9)].all()
+    assert res.mag_used[fresh & (t > 50.1)].all() and not res.mag_gated[t > 50.1].any()
+    never = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, mag_max_rejection=None)
+    assert never.mag_gated[fresh & lasting].all()
+    # used again, the wrong field pulls the heading: slowly (σ doubled) but surely
+    heading = {name: np.degrees(attitude_errors(r.quat[-1:], euler_to_quat(euler[-1:]))[1][0])
+               for name, r in (("used again", res), ("rejected", never))}
+    assert heading["rejected"] < 1.0 < heading["used again"]
+
+
+def test_mekf_reference_field_follows_a_slow_change():
+    # The field's norm creeps up by 15 % over a minute (a magnetometer warming up): the reference of
+    # the gates follows a trusted field (time constant 20 s), so nothing is rejected; a fixed
+    # reference rejects everything once the change passes the 10 % gate.
+    rng = np.random.default_rng(26)
+    t, euler, omega = smooth_motion(rng, 60.0, 100.0, amp=(0.3, 0.3, 1.0))
+    gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.05, 0.3)
+    mag *= (1.0 + 0.15 * t / 60.0)[:, None]
+    follows = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD)
+    fixed = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, mag_ref_tau=None)
+    assert not follows.mag_gated.any()
+    assert fixed.mag_gated[t > 42.0].all() and not fixed.mag_gated[t < 28.0].any()
+
+
+def test_mekf_fed_in_pieces_equals_one_run():
+    # The live view feeds a recording a few samples at a time: the gates' clocks, their reference
+    # and the accelerometer low-pass must carry over from one run() to the next.
+    rng = np.random.default_rng(25)
+    t, euler, omega = smooth_motion(rng, 12.0, 100.0)
+    gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.05, 0.3)
+    mag += field_change_in_ned(euler, [15.0, -10.0, 5.0], (t >= 4.0) & (t < 6.0))
+    mag[1::2] = np.nan
+    whole = MultiplicativeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    f = MultiplicativeEKF(100.0, field_n=FIELD)
+    cuts = np.r_[0, np.sort(rng.choice(np.arange(1, len(t)), 40, replace=False)), len(t)]
+    pieces = [f.run(gyr[a:b], acc[a:b], mag[a:b]) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+    np.testing.assert_allclose(np.concatenate([p.quat for p in pieces]), whole.quat, atol=1e-12)
+    np.testing.assert_array_equal(np.concatenate([p.mag_gated for p in pieces]), whole.mag_gated)
+    assert whole.mag_gated.any()
+
+
 def test_mekf_nees_and_nis_inside_chi2_bounds():
     # White Gaussian sensor noise, no bias, raw accelerometer (no low-pass, whose output is
     # correlated in time): the MEKF tuned with the true noise must be consistent.

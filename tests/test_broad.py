@@ -124,6 +124,10 @@ def test_real_broad_trial(path):
     still = np.flatnonzero(ok & ~rec["movement"])[:200]
     f_n = np.einsum("nij,nj->ni", quat_to_dcm(q[still]), rec.body("acc")[still]).mean(axis=0)
     assert np.degrees(np.arccos(-f_n[2] / np.linalg.norm(f_n))) < 2.0
+    # ... and the measured field onto north, dipping down (BROAD's global frame is magnetic ENU: a
+    # wrong x/y swap or sign would put it east, west or south, a wrong z would make it point up).
+    m_n = np.einsum("nij,nj->ni", quat_to_dcm(q[still]), rec.body("mag")[still]).mean(axis=0)
+    assert abs(np.degrees(np.arctan2(m_n[1], m_n[0]))) < 5.0 and m_n[2] > 0
     # The first 20 s through the MEKF: inclination within a degree of the optical truth.
     n = int(20 * rec.rate_hz)
     res = estimate_attitude(rec.body("gyr")[:n], rec.body("acc")[:n], rec.body("mag")[:n], rec.rate_hz, method="mekf")

@@ -173,3 +173,37 @@ def test_live_view_follows_the_virtual_board():
     true = Rotation.from_euler("ZYX", angles[::-1])
     assert (true.inv() * got).magnitude() < np.radians(3.0)  # heading from a learned field: magnetic north
     assert view.estimator.t_last > 7.0
+
+
+def test_live_view_follows_the_capture_panel_on_the_virtual_board(tmp_path):
+    """Lab 04's wiring: the capture panel (virtual board) drives the 3-D view; nothing is drawn
+    before record; when the panel stops, the view keeps the last attitude."""
+    from scipy.spatial.transform import Rotation as Rot
+
+    panel = widgets.capture_panel(out_dir=tmp_path, fast=True)
+    panel.port.value, panel.seconds.value = "virtual", 4.0
+    view = widgets.AttitudeView.live(panel, estimator=widgets.LiveAttitude("mekf"), start=False)
+    assert view.poll() is None and "t = " not in view.status.value  # not recording yet: nothing drawn
+    panel.record()
+    assert panel.recorder.done.wait(30)
+    q = view.poll()
+    # the virtual board lies level and north-facing (the MEKF's north: the field it learned)
+    assert Rot.from_quat(np.r_[q[1:], q[0]]).magnitude() < np.radians(2.0)
+    assert "t = " in view.status.value
+    panel.refresh()  # the panel's timer tick: finishes and saves
+    assert panel.recorder is None and view.poll() is q
+    with pytest.raises(TypeError, match="source must be a capture panel, a Recorder or a callable"):
+        widgets.AttitudeView.live(42)
+
+
+def test_live_attitude_finds_the_boards_calibration_and_shows_a_wrong_one():
+    from kfkit import datasets
+    from kfkit.calibration import Calibration, load_calibration
+
+    rec = datasets.load("04_attitude_tour").head(5.0)  # the Nucleo unit the bundled calibration belongs to
+    q = widgets.LiveAttitude("mekf", calibration="auto").update(rec)
+    gyr, acc, mag = load_calibration(board=rec.meta["board"]).apply(rec)
+    np.testing.assert_allclose(q, filters.estimate_attitude(gyr, acc, mag, rec.rate_hz, method="mekf").quat[-1], atol=1e-12)
+    view = widgets.AttitudeView.live(lambda: rec, estimator=widgets.LiveAttitude(calibration=Calibration(board="mpu6050")),
+                                     start=False)
+    assert view.poll() is None and "calibration is for board 'mpu6050'" in view.status.value

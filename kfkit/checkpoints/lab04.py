@@ -20,6 +20,11 @@ RECORDING = "04_attitude_tour"
 BOARD = "nucleo-iks02a1"
 #: the full filter must reach these RMSEs on the bundled recording (rad): roll, pitch, yaw
 RMSE_LIMITS = np.radians([1.0, 1.0, 2.0])
+#: … and, with a gyro bias it was not told about, these: the calibrated gyro alone stays within the
+#: limits above on this recording, so this case is the one that shows the updates are at work
+#: (kfkit's reference: 1.4°, 1.1°, 2.8°; the gyro alone: 9.2°, 8.0°, 5.6°)
+EXTRA_GYRO_BIAS = np.radians([0.3, -0.3, 0.2])
+BIASED_RMSE_LIMITS = np.radians([3.0, 3.0, 5.0])
 ANGLES = ("roll", "pitch", "yaw")
 
 
@@ -207,7 +212,11 @@ def _rmse_cases(rng):
     rec, gyr, acc, mag = bundled_inputs()
     args = {"gyr": gyr, "acc": acc, "mag": mag, "rate_hz": rec.rate_hz, "gyro_noise": EULER_GYRO_NOISE,
             "accel_noise": EULER_ACCEL_NOISE, "mag_noise": EULER_MAG_NOISE, "field_n": np.array(MAG_FIELD_LONDON)}
-    return [Case(args, rec.truth(), f"the bundled recording {RECORDING} (calibrated)")]
+    biased = dict(args, gyr=gyr + EXTRA_GYRO_BIAS)
+    bias = ", ".join(f"{v:+.1f}" for v in np.degrees(EXTRA_GYRO_BIAS))
+    return [Case(args, (rec.truth(), RMSE_LIMITS), f"the bundled recording {RECORDING} (calibrated)"),
+            Case(biased, (rec.truth(), BIASED_RMSE_LIMITS),
+                 f"{RECORDING} with an extra gyro bias of ({bias}) °/s the filter does not know about")]
 
 
 def _judge_rmse(case, got):
@@ -215,14 +224,16 @@ def _judge_rmse(case, got):
         x = np.asarray(got[0] if isinstance(got, (tuple, list)) else got, dtype=float)
     except (TypeError, ValueError):
         return f"expected (x, P, nis) with x of shape (N, 3), got {type(got).__name__}"
-    truth = case.expected
+    truth, limits = case.expected
     if x.shape != truth.shape:
         return f"expected {len(truth)} rows of [roll, pitch, yaw] (shape {truth.shape}), got shape {x.shape}"
     if not np.isfinite(x).all():
         return f"the estimate holds NaN or inf from row {int(np.argmax(~np.isfinite(x).all(axis=1)))}"
     err = rmse(angle_error(x, truth), 0.0)
     over = [f"{name} RMSE {np.degrees(e):.2f}° (limit {np.degrees(lim):.0f}°)"
-            for name, e, lim in zip(ANGLES, err, RMSE_LIMITS) if e >= lim]
+            for name, e, lim in zip(ANGLES, err, limits) if e >= lim]
+    if over and limits is BIASED_RMSE_LIMITS:
+        over.append("the gyro alone drifts like this: are the accelerometer and magnetometer updates applied?")
     return None if not over else "; ".join(over)
 
 
@@ -245,7 +256,7 @@ register(
     Checkpoint("04.update", "ekf_update", _update_cases, lambda c, got: compare(c.expected, got, rtol=1e-6, atol=1e-9),
                points=2, hint="y = z − h(x), S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x + K y (ψ wrapped), P = (I − K H) P; "
                               "with NaN in z[3:] keep only the first three rows of z, h, H and R. Return (x, P, y, S)."),
-    Checkpoint("04.ekf_rmse", "run_ekf", _rmse_cases, _judge_rmse, points=2, what="bundled recording",
+    Checkpoint("04.ekf_rmse", "run_ekf", _rmse_cases, _judge_rmse, points=2, what="runs on the bundled recording",
                hint="initialise from the first accelerometer and magnetometer samples, then predict with every gyro "
                     "sample and update with every accelerometer sample, adding the magnetometer rows only when a new "
                     "magnetometer sample arrived; if 04.predict and 04.update pass, look at dt, Q and R."),

@@ -548,6 +548,14 @@ MAG_DIP_GATE = math.radians(10.0)
 #: After a rejected magnetometer sample, the field must pass the gates for MAG_RECOVERY seconds
 #: before it is used again (a disturbance fades in and out; its edges pass the gates).
 MAG_RECOVERY = 1.0
+#: A disturbance is not rejected for ever: after MAG_MAX_REJECTION seconds of rejection the
+#: magnetometer is used again with its heading σ multiplied by MAG_LONG_REJECTION_FACTOR (a slower
+#: heading correction), so that a field that changed for good cannot leave the heading to the gyro
+#: alone indefinitely. While the field is trusted, the reference norm and dip follow it with the
+#: time constant MAG_REF_TAU (s). These three are VQF's defaults (Laidig & Seel 2023).
+MAG_MAX_REJECTION = 60.0
+MAG_LONG_REJECTION_FACTOR = 2.0
+MAG_REF_TAU = 20.0
 #: Time constant (s) of the gyro-stabilised low-pass filter on the accelerometer (see MultiplicativeEKF).
 ACCEL_TAU = 1.0
 
@@ -586,6 +594,9 @@ class MultiplicativeEKF:
     mag_norm_gate  relative norm gate (fraction of ‖m_ref‖), None = off
     mag_dip_gate   dip-angle gate (rad), None = off
     mag_recovery   seconds the field must pass the gates after a rejection before it is used again
+    mag_max_rejection   seconds of rejection after which the magnetometer is used again, its heading
+                   σ multiplied by ``mag_long_rejection_factor``; None = reject for as long as disturbed
+    mag_ref_tau    time constant (s) with which the reference norm and dip follow a trusted field; None = fixed
     accel_tau      time constant (s) of the gyro-stabilised accelerometer low-pass; None = raw
     q0, bias0      initial quaternion (w-x-y-z) and gyro bias (rad/s); default from the first
                    samples (:func:`tilt_heading`) and zero
@@ -596,8 +607,9 @@ class MultiplicativeEKF:
 
     def __init__(self, rate_hz, gyro_noise=None, gyro_bias_rw=MEKF_BIAS_RW, accel_noise=MEKF_ACCEL_NOISE,
                  mag_noise=MEKF_MAG_NOISE, accel_gate=ACCEL_GATE, accel_gate_factor=ACCEL_GATE_FACTOR, field_n=None,
-                 mag_norm_gate=MAG_NORM_GATE, mag_dip_gate=MAG_DIP_GATE, mag_recovery=MAG_RECOVERY, accel_tau=ACCEL_TAU,
-                 q0=None, bias0=None, P0=None):
+                 mag_norm_gate=MAG_NORM_GATE, mag_dip_gate=MAG_DIP_GATE, mag_recovery=MAG_RECOVERY,
+                 mag_max_rejection=MAG_MAX_REJECTION, mag_long_rejection_factor=MAG_LONG_REJECTION_FACTOR,
+                 mag_ref_tau=MAG_REF_TAU, accel_tau=ACCEL_TAU, q0=None, bias0=None, P0=None):
         if not rate_hz > 0:
             raise ValueError(f"MultiplicativeEKF: rate_hz must be positive, got {rate_hz}")
         self.rate_hz = float(rate_hz)
@@ -612,16 +624,21 @@ class MultiplicativeEKF:
         self.mag_norm_gate = None if mag_norm_gate is None else float(mag_norm_gate)
         self.mag_dip_gate = None if mag_dip_gate is None else float(mag_dip_gate)
         self.mag_recovery = float(mag_recovery)
+        self.mag_max_rejection = None if mag_max_rejection is None else float(mag_max_rejection)
+        self.mag_long_rejection_factor = float(mag_long_rejection_factor)
+        self.mag_ref_tau = None if mag_ref_tau is None else float(mag_ref_tau)
         self.accel_tau = float(accel_tau or 0.0)
         self.q = None if q0 is None else np.asarray(q0, dtype=float) / np.linalg.norm(q0)
         self.bias = np.zeros(3) if bias0 is None else np.asarray(bias0, dtype=float).copy()
         if P0 is None:
             P0 = np.diag(np.r_[np.radians([5.0, 5.0, 10.0]) ** 2, [math.radians(0.5) ** 2] * 3])
         self.P = np.asarray(P0, dtype=float).copy()
+        self._carry = None  # the loop's gating and low-pass state, so that runs over pieces equal one run
 
     def run(self, gyr, acc, mag=None) -> AttitudeResult:
         """Filter a recording: gyr (N, 3) rad/s, acc (N, 3) m/s², mag (N, 3) µT or None (NaN rows =
-        no new sample), one sensor frame. Continues from the current state (a new object per run)."""
+        no new sample), one sensor frame. Continues from the current state: a recording fed in pieces
+        gives the same result as in one run."""
         gyr, acc, mag = _check_inputs(gyr, acc, mag)
         if self.field_n is None:
             self.field_n = learn_field(acc, mag) if mag is not None else np.array(MAG_FIELD_LONDON)
@@ -645,17 +662,28 @@ def _mekf_loop(f: MultiplicativeEKF, gyr, acc, mag) -> AttitudeResult:
     gate = f.accel_gate if f.accel_gate is not None else math.inf
     mN, mE, mD = (float(v) for v in f.field_n)
     h_ref = math.hypot(mN, mE)
-    norm_ref = math.sqrt(mN * mN + mE * mE + mD * mD)
-    dip_ref = atan2(mD, h_ref)
     psi_ref = atan2(mE, mN)
-    norm_gate = f.mag_norm_gate * norm_ref if f.mag_norm_gate is not None else math.inf
     dip_gate = f.mag_dip_gate if f.mag_dip_gate is not None else math.inf
     r_psi = (f.mag_noise / h_ref) ** 2
-    recovery = int(round(f.mag_recovery * f.rate_hz))
-    good_run = recovery  # consecutive magnetometer samples inside the gates
+    recovery = f.mag_recovery
+    max_rejection = f.mag_max_rejection if f.mag_max_rejection is not None else math.inf
+    r_psi_long = r_psi * f.mag_long_rejection_factor ** 2
+    ref_rate = 1.0 / f.mag_ref_tau if f.mag_ref_tau else 0.0
     lpf = 1.0 - math.exp(-dt / f.accel_tau) if f.accel_tau > 0 else 1.0
-    iw, ix, iy, iz = 1.0, 0.0, 0.0, 0.0  # strapdown frame I: gyro-only attitude, body → I
-    fbx, fby, fbz = (float(v) for v in acc[0])  # low-passed specific force in I
+    # State carried from one run() to the next (a live view feeds a recording in pieces):
+    c = f._carry or {
+        "k": 0,  # index of this run's first sample since the filter started
+        "norm_ref": math.sqrt(mN * mN + mE * mE + mD * mD), "dip_ref": atan2(mD, h_ref),  # gates' reference field
+        "good_since": -math.inf,  # time since which the field has passed the gates (trusted from the start)
+        "rejecting_since": None,  # time the current rejection began
+        "t_mag": None,  # time of the previous magnetometer sample
+        "I": (1.0, 0.0, 0.0, 0.0),  # strapdown frame I: gyro-only attitude, body → I
+        "f_I": tuple(float(v) for v in acc[0]),  # low-passed specific force in I
+    }
+    k_start, norm_ref, dip_ref = c["k"], c["norm_ref"], c["dip_ref"]
+    good_since, rejecting_since, t_mag = c["good_since"], c["rejecting_since"], c["t_mag"]
+    (iw, ix, iy, iz), (fbx, fby, fbz) = c["I"], c["f_I"]
+    norm_gate = f.mag_norm_gate * norm_ref if f.mag_norm_gate is not None else math.inf
     W = gyr.tolist()
     A = acc.tolist()
     M = mag.tolist() if mag is not None else None
@@ -755,19 +783,34 @@ def _mekf_loop(f: MultiplicativeEKF, gyr, acc, mag) -> AttitudeResult:
                 n_d = r20 * mx + r21 * my + r22 * mz
                 hm = math.hypot(n_n, n_e)
                 norm = sqrt(hm * hm + n_d * n_d)
-                if abs(norm - norm_ref) > norm_gate or abs(atan2(n_d, hm) - dip_ref) > dip_gate:
-                    good_run = 0
-                else:
-                    good_run += 1
-                if good_run < recovery:
+                dip = atan2(n_d, hm)
+                t_k = (k_start + k) * dt
+                if abs(norm - norm_ref) > norm_gate or abs(dip - dip_ref) > dip_gate:
+                    good_since = math.inf
+                    if rejecting_since is None:
+                        rejecting_since = t_k
+                elif good_since > t_k:
+                    good_since = t_k
+                trusted = t_k - good_since >= recovery
+                if trusted:
+                    rejecting_since = None
+                    if ref_rate and t_mag is not None:  # the reference follows a trusted field slowly
+                        a_ref = min(1.0, (t_k - t_mag) * ref_rate)
+                        norm_ref += a_ref * (norm - norm_ref)
+                        dip_ref += a_ref * (dip - dip_ref)
+                        norm_gate = f.mag_norm_gate * norm_ref if f.mag_norm_gate is not None else math.inf
+                t_mag = t_k
+                # rejected for longer than max_rejection: used again, with a larger σ (slowly)
+                if not trusted and t_k - rejecting_since <= max_rejection:
                     mag_rej[k] = True
                 else:
+                    rv = r_psi if trusted else r_psi_long
                     yp = psi_ref - atan2(n_e, n_n)
                     if yp > pi or yp <= -pi:
                         yp = pi - (pi - yp) % TWO_PI
                     Hm[0], Hm[1], Hm[2] = r20, r21, r22
                     PH = P @ Hm
-                    sp = float(Hm @ PH) + r_psi
+                    sp = float(Hm @ PH) + rv
                     Kp = PH / sp
                     P = P - np.outer(Kp, PH)
                     P = 0.5 * (P + P.T)
@@ -784,6 +827,8 @@ def _mekf_loop(f: MultiplicativeEKF, gyr, acc, mag) -> AttitudeResult:
     f.q = np.array([qw, qx, qy, qz])
     f.bias = np.array([bx, by, bz])
     f.P = P
+    f._carry = {"k": k_start + N, "norm_ref": norm_ref, "dip_ref": dip_ref, "good_since": good_since,
+                "rejecting_since": rejecting_since, "t_mag": t_mag, "I": (iw, ix, iy, iz), "f_I": (fbx, fby, fbz)}
     quat = np.array(quats, dtype=float).reshape(N, 4)
     quat *= np.where(quat[:, :1] < 0, -1.0, 1.0)
     R = quat_to_dcm(quat)

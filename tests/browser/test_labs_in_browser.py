@@ -107,7 +107,8 @@ def test_notebook_runs_and_renders_in_jupyterlab(page, jupyter_lab, name):
 
 
 def _check_slider_moves_figure(page, name):
-    panel = page.locator(".widget-vbox:has(.jupyter-matplotlib):has(.widget-slider)").last
+    # the tuning panel: a figure, sliders and an RMSE read-out (lab 04's later 3-D replay has sliders, no RMSE)
+    panel = page.locator(".widget-vbox:has(.jupyter-matplotlib):has(.widget-slider)").filter(has_text="RMSE").last
     panel.scroll_into_view_if_needed()
     canvas = panel.locator(".jupyter-matplotlib canvas").first
     readout = panel.get_by_text("RMSE").first
