@@ -2,10 +2,12 @@
 
     kfkit grade --lab 01 --out gradebook.csv submissions/
 
-For each submission, in its own sandboxed kernel (see :mod:`kfkit.grading.sandbox`):
+For each submission, in its own fresh, sandboxed kernel (see :mod:`kfkit.grading.sandbox`: the
+kit and the instructor's files read-only or hidden, no network; no sandbox, no grading):
 
-1. run the student's code cells top to bottom (cell tags removed, so nothing is skipped or
-   excused; errors do not stop the run), with a per-cell and a total timeout;
+1. run the student's code cells top to bottom (cell tags and metadata dropped, so nothing is
+   skipped or excused; errors do not stop the run), with a per-cell and a total timeout and an
+   output cap (see :mod:`kfkit.grading.runner`);
 2. for each checkpoint of the lab (``kfkit.checkpoints.labNN``), draw fresh cases in the
    grader's process (a new seed per submission, written in the feedback), send only their
    inputs to the kernel, call the student's function there, and receive only its outputs as
@@ -24,8 +26,8 @@ from pathlib import Path
 
 CELL_TIMEOUT = 30.0  # s per notebook cell and per checkpoint call
 TOTAL_TIMEOUT = 300.0  # s for one whole submission
-_PUBLIC = ("grade", "grade_submission", "lab_checkpoints", "find_submissions", "read_code_cells", "summary",
-           "Limits", "Row", "SubmissionGrade", "NotANotebook")
+_PUBLIC = ("grade", "grade_submission", "grade_checkpoints", "lab_checkpoints", "find_submissions", "read_code_cells",
+           "summary", "Limits", "Row", "SubmissionGrade", "NotANotebook", "NoSandbox")
 
 
 def __getattr__(name):
@@ -60,5 +62,8 @@ def add_parser(sub):
     p.add_argument("--seed", type=int, default=None, help="fix the random cases (to reproduce a grade)")
     p.add_argument("--update", action="store_true",
                    help="replace only these submissions' rows in an existing gradebook (regrade one student)")
+    p.add_argument("--no-sandbox", action="store_true",
+                   help="grade even where no isolation works (macOS, Windows): student code can then read and "
+                        "change your files; by default kfkit grade refuses")
     p.set_defaults(run=_cli)
     return p

@@ -5,8 +5,10 @@ root or as root of a user namespace), then:
 
 1. covers ``/tmp``, ``/var/tmp``, ``/dev/shm`` and the grader's scratch folder with private tmpfs
    (other submissions' folders disappear), and every top-most folder the sandbox user cannot
-   traverse (e.g. ``/root`` holding a pyenv Python) with an empty tmpfs, binding back only the
-   paths the kernel needs (the Python install, the kit);
+   traverse (e.g. ``/root`` holding a pyenv Python) or that the spec hides (the instructor's
+   home, the submissions, the gradebook's folder, the kit's ``solutions/``) with an empty tmpfs,
+   binding back only the paths the kernel needs (the Python install, the venv, the kit), wherever
+   they are (a checkout under ``/tmp`` included);
 2. binds the submission's own box folder back (the grader's end of the kernel's sockets), and
    mounts a private, size-limited tmpfs on its ``home/`` (the kernel's cwd and HOME);
 3. remounts every other mount read-only (the kit, the instructor's folders, the venv, /);
@@ -91,6 +93,7 @@ def mount_points():
 def isolate_files(spec):
     uid, gid = spec.get("uid"), spec.get("gid")
     box, needed = spec["box"], [p for p in spec["needed"] if os.path.exists(p)]
+    hidden = [p for p in spec.get("hide", []) if os.path.isdir(p)]
     mount(None, "/", None, MS_REC | MS_PRIVATE)
     private = [p for p in ("/tmp", "/var/tmp", "/dev/shm", spec["scratch"]) if os.path.isdir(p)]
     covers = {p: "mode=1777,size=256m" for p in private}
@@ -99,10 +102,13 @@ def isolate_files(spec):
             top = blocked_ancestor(path, uid, gid)
             if top is not None:
                 covers.setdefault(top, "mode=755,size=1m")
+    for path in hidden:  # a hidden folder holding what the kernel needs: covered, that part bound back
+        if any(inside(p, path) for p in needed + [box]):
+            covers.setdefault(path, "mode=755,size=1m")
     tops = sorted(covers, key=len)
     tops = [t for i, t in enumerate(tops) if not any(inside(t, o) for o in tops[:i])]
-    # O_PATH handles keep hidden folders reachable through /proc/self/fd after they are covered
-    rebind = [p for p in needed if any(inside(p, t) for t in tops) and not any(inside(p, o) for o in private)]
+    # O_PATH handles keep covered folders reachable through /proc/self/fd after they are covered
+    rebind = [p for p in needed if any(inside(p, t) for t in tops)]
     handles = {p: os.open(p, os.O_PATH) for p in rebind + [box]}
     for top in tops:
         mount("tmpfs", top, "tmpfs", MS_NOSUID | MS_NODEV, covers[top])
@@ -110,6 +116,12 @@ def isolate_files(spec):
         os.makedirs(path, exist_ok=True)
         mount(f"/proc/self/fd/{handles[path]}", path, None, MS_BIND | MS_REC)
         os.close(handles[path])
+    emptied = []
+    for path in sorted(hidden, key=len):  # the other hidden folders (e.g. solutions/ in the kit): an empty tmpfs
+        gone = any(inside(path, t) for t in tops) and not any(inside(path, p) for p in rebind)
+        if path not in covers and not gone and not any(inside(path, e) for e in emptied):
+            mount("tmpfs", path, "tmpfs", MS_NOSUID | MS_NODEV, "mode=755,size=1m")
+            emptied.append(path)
     owner = f",uid={uid},gid={gid}" if uid is not None else ""
     mount("tmpfs", spec["cwd"], "tmpfs", MS_NOSUID | MS_NODEV, "mode=700,size=512m" + owner)  # private, bounded
     writable = set(private) | {box}

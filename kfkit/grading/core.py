@@ -24,6 +24,7 @@ from .runner import KernelLost, KernelRun, Limits, OutOfTime  # noqa: F401 (Limi
 
 COLUMNS = ["submission", "checkpoint", "points", "max_points", "message"]
 MAX_NOTEBOOK_BYTES = 50 << 20
+MAX_MESSAGE = 600  # characters of one gradebook message (a student's output can make it long)
 
 
 @dataclass
@@ -56,6 +57,10 @@ class NotANotebook(ValueError):
     pass
 
 
+class NoSandbox(RuntimeError):
+    """No isolation works on this machine, and the instructor did not accept grading without it."""
+
+
 def lab_checkpoints(lab: str) -> list[cps.Checkpoint]:
     """The checkpoints lab ``lab`` ('1', '01') registers, in registration order."""
     nn = f"{int(lab):02d}" if str(lab).isdigit() else str(lab)
@@ -86,7 +91,8 @@ def find_submissions(paths) -> tuple[list[tuple[Path, str]], list[str]]:
             found.setdefault(p.resolve(), _display_name(p, Path(p.resolve().parent.name) / p.name))
         else:
             warnings.append(f"{p}: no such file or folder")
-    return list(found.items()), warnings
+    names = list(found.values())  # two files shown alike (same folder name elsewhere): full paths instead
+    return [(f, str(f) if names.count(n) > 1 else n) for f, n in found.items()], warnings
 
 
 def _display_name(path: Path, fallback: Path) -> str:
@@ -125,7 +131,11 @@ def read_code_cells(path: Path) -> list[str]:
 
 def _short(message: str, name: str) -> str:
     """A checkpoint line without its leading emoji and name (the gradebook has a column for that)."""
-    return re.sub(rf"^\S+ {re.escape(name)}: ", "", message)
+    return _clip(re.sub(rf"^\S+ {re.escape(name)}: ", "", message))
+
+
+def _clip(text: str, limit: int = MAX_MESSAGE) -> str:
+    return text if len(text) <= limit else text[:limit - 1] + "…"
 
 
 def _student_exception(type_name: str, message: str) -> Exception:
@@ -174,6 +184,9 @@ def judge(cp: cps.Checkpoint, cases: list, report: dict, defining_note: str | No
     except Exception as exc:  # a judge tripping over a strange output: zero, with the reason
         return Row(cp.name, 0, cp.points, "error",
                    f"the grader could not judge the output ({type(exc).__name__}: {str(exc)[:200]})")
+    if result.status == "not attempted":
+        return Row(cp.name, 0, cp.points, "not attempted",
+                   f"not attempted ({cp.function} still raises NotImplementedError)")
     return Row(cp.name, result.points, cp.points, result.status, _short(result.message, cp.name))
 
 
@@ -193,15 +206,38 @@ def _first_line(source: str) -> str:
     return line if len(line) <= 60 else line[:59] + "…"
 
 
+def grade_checkpoints(run: KernelRun, sources: list[str], checkpoints: list, seed: int):
+    """Draw each checkpoint's cases here (seeded by ``seed``), call the student's function in the
+    kernel of ``run``, and judge its outputs here; yields one row per checkpoint (OutOfTime passes)."""
+    for i, cp in enumerate(checkpoints):
+        try:
+            cases = cp.cases(np.random.default_rng([i, seed]))
+            report = run.call(cp.function, [c.args for c in cases])
+            row = judge(cp, cases, report, _defining_note(run, sources, cp.function))
+        except TimeoutError as exc:
+            row = Row(cp.name, 0, cp.points, "timed out", f"{cp.function} {exc} on the grader's cases")
+        except KernelLost as exc:
+            row = Row(cp.name, 0, cp.points, "timed out" if exc.timed_out else "error",
+                      f"calling {cp.function} on the grader's cases: {exc.why}")
+        except wire.WireError as exc:
+            row = Row(cp.name, 0, cp.points, "error", f"calling {cp.function}: {exc}")
+        except OutOfTime:
+            raise
+        except Exception as exc:  # the checkpoint's own code failed here: not the student's fault
+            row = Row(cp.name, 0, cp.points, "not graded",
+                      f"GRADER ERROR, regrade this submission: {type(exc).__name__}: {str(exc)[:200]}")
+        yield row
+
+
 def grade_submission(path: Path, checkpoints: list, sandbox: sb.Sandbox, limits: Limits,
-                     seed: int | None = None, name: str | None = None, protect=()) -> SubmissionGrade:
-    """Run and grade one notebook file; never raises for anything the file contains."""
+                     seed: int | None = None, name: str | None = None) -> SubmissionGrade:
+    """Run and grade one notebook file in a fresh kernel; never raises for anything the file contains."""
     start = time.monotonic()
     seed = secrets.randbits(63) if seed is None else int(seed)
     grade = SubmissionGrade(name or str(path), seed)
 
-    def fill(status, message, from_index=0):
-        for cp in checkpoints[from_index:]:
+    def fill(status, message):
+        for cp in checkpoints[len(grade.rows):]:
             grade.rows.append(Row(cp.name, 0, cp.points, status, message))
 
     try:
@@ -211,35 +247,18 @@ def grade_submission(path: Path, checkpoints: list, sandbox: sb.Sandbox, limits:
         grade.notes.append(str(exc))
         return grade
     try:
-        with KernelRun(sources, sandbox, limits, sb.protected_paths(protect)) as run:
-            done = 0
+        reserve = min(len(checkpoints) * limits.cell_timeout, limits.total_timeout / 2)  # for the grader's calls
+        with KernelRun(sources, sandbox, limits, reserve) as run:
             try:
                 run.run_notebook()
-                for i, cp in enumerate(checkpoints):
-                    try:
-                        cases = cp.cases(np.random.default_rng([i, seed]))
-                        report = run.call(cp.function, [c.args for c in cases])
-                        row = judge(cp, cases, report, _defining_note(run, sources, cp.function))
-                    except TimeoutError as exc:
-                        row = Row(cp.name, 0, cp.points, "timed out", f"{cp.function} {exc} on the grader's cases")
-                    except KernelLost as exc:
-                        row = Row(cp.name, 0, cp.points, "error", f"calling {cp.function}: {exc.why}")
-                    except wire.WireError as exc:
-                        row = Row(cp.name, 0, cp.points, "error", f"calling {cp.function}: {exc}")
-                    except OutOfTime:
-                        raise
-                    except Exception as exc:  # the checkpoint's own code failed here: not the student's fault
-                        row = Row(cp.name, 0, cp.points, "not graded",
-                                  f"GRADER ERROR, regrade this submission: {type(exc).__name__}: {str(exc)[:200]}")
-                    grade.rows.append(row)
-                    done = i + 1
+                grade.rows.extend(grade_checkpoints(run, sources, checkpoints, seed))
             except OutOfTime as exc:
-                fill("timed out", f"not graded: {exc}", done)
+                fill("timed out", f"timed out: not graded, {exc}")
             finally:
                 grade.notes += [f"code cell {i + 1} of {len(sources)} (`{_first_line(sources[i])}`): {note}"
                                 for i, note in sorted(run.cell_notes.items())]
     except RuntimeError as exc:  # the kernel could not start: a grader-side problem, said plainly
-        fill("not graded", f"GRADER ERROR, regrade this submission: {exc}", len(grade.rows))
+        fill("not graded", f"GRADER ERROR, regrade this submission: {exc}")
     grade.seconds = time.monotonic() - start
     return grade
 
@@ -279,7 +298,7 @@ def feedback_markdown(g: SubmissionGrade, lab: str, sandbox: sb.Sandbox) -> str:
         lines.append(f"| {r.checkpoint} | {r.points:g} / {r.max_points:g} | {icon.get(r.status, '❌')} {msg} |")
     if g.notes:
         lines += ["", "## While running your notebook", ""] + [f"- {n}".replace("\n", " ") for n in g.notes]
-    lines += ["", f"_Isolation: {sandbox.describe()}_", ""]
+    lines += ["", f"_Isolation: {sandbox.describe(full=False)}_", ""]
     return "\n".join(lines)
 
 
@@ -340,26 +359,31 @@ class _Progress:
 
 
 def _grade_one(args):
-    path, name, lab, sandbox, limits, seed, protect = args
-    return grade_submission(path, lab_checkpoints(lab), sandbox, limits, seed, name, protect)
+    path, name, lab, sandbox, limits, seed = args
+    return grade_submission(path, lab_checkpoints(lab), sandbox, limits, seed, name)
 
 
 def grade(paths, lab, out: Path, jobs: int = 1, limits: Limits | None = None, feedback_dir: Path | None = None,
-          seed: int | None = None, update: bool = False, progress: bool = True, sandbox: sb.Sandbox | None = None):
+          seed: int | None = None, update: bool = False, progress: bool = True, sandbox: sb.Sandbox | None = None,
+          unsandboxed: bool = False):
     """Grade notebooks (files or folders) for lab ``lab``; → (grades, summary text).
 
     Writes the gradebook ``out`` and ``feedback_dir/<submission>.md`` (default: next to the
     gradebook, ``<stem>_feedback/``). ``seed`` fixes the cases (to reproduce one grade).
+    Raises :class:`NoSandbox` when no isolation works here, unless ``unsandboxed``.
     """
     checkpoints = lab_checkpoints(lab)
     limits = limits or Limits()
     out = Path(out)
+    feedback_dir = Path(feedback_dir) if feedback_dir else out.with_name(out.stem + "_feedback")
     found, warnings = find_submissions(paths)
-    protect = sorted({str(Path(p).resolve().parent if Path(p).is_file() else Path(p).resolve()) for p in paths}
-                     | {str(out.resolve().parent)})
-    sandbox = sandbox or sb.probe(protect)
+    instructor = {Path(p).resolve().parent if Path(p).is_file() else Path(p).resolve() for p in paths}
+    instructor |= {out.resolve().parent, feedback_dir.resolve().parent}
+    sandbox = sandbox or sb.probe(sorted(map(str, instructor)))
+    if sandbox.mode == "none" and not unsandboxed:
+        raise NoSandbox(sandbox.warning)
     names = [n for _, n in found]
-    tasks = [(f, n, lab, sandbox, limits, seed, protect) for f, n in found]
+    tasks = [(f, n, lab, sandbox, limits, seed) for f, n in found]
     bar = _Progress(len(tasks)) if progress else None
     grades = [None] * len(tasks)
     if jobs <= 1 or len(tasks) <= 1:
@@ -383,7 +407,6 @@ def grade(paths, lab, out: Path, jobs: int = 1, limits: Limits | None = None, fe
                     grades[k] = g
                 bar and bar.step(names[k])
     write_gradebook(out, grades, update)
-    feedback_dir = Path(feedback_dir) if feedback_dir else out.with_name(out.stem + "_feedback")
     feedback_dir.mkdir(parents=True, exist_ok=True)
     lab_nn = checkpoints[0].name.split(".")[0]
     for g, fname in zip(grades, feedback_names([g.submission for g in grades])):
@@ -405,8 +428,15 @@ def cli(args) -> int:
         print("kfkit grade: no notebooks to grade", file=sys.stderr)
         return 1
     limits = Limits(cell_timeout=args.timeout, total_timeout=args.total_timeout)
-    grades, text = grade(args.submissions, args.lab, args.out, jobs=args.jobs, limits=limits,
-                         feedback_dir=args.feedback, seed=args.seed, update=args.update)
+    try:
+        grades, text = grade(args.submissions, args.lab, args.out, jobs=args.jobs, limits=limits,
+                             feedback_dir=args.feedback, seed=args.seed, update=args.update,
+                             unsandboxed=args.no_sandbox)
+    except NoSandbox as exc:
+        print(f"kfkit grade: cannot isolate the students' code on this machine, so nothing was graded: {exc}.\n"
+              "Grade on Linux with util-linux's 'unshare' (as root, or with user namespaces enabled), e.g. in a "
+              "Linux VM or container, or accept the risk with --no-sandbox.", file=sys.stderr)
+        return 2
     print(text)
     print(f"gradebook: {args.out}; feedback: {args.feedback or Path(args.out).with_name(Path(args.out).stem + '_feedback')}")
     return 1 if any("GRADER ERROR" in r.message for g in grades for r in g.rows) else 0

@@ -7,15 +7,21 @@ Modes, strongest first (``probe`` tries them in order and keeps the first that p
                process) with no capabilities and no_new_privs.
 ``userns``     not root, user namespaces enabled: the same namespaces inside a user namespace;
                the kernel stays uid 0 *there* but with every capability dropped.
-``none``       neither works: kernels run as the grader with only a temporary working folder.
-               The gradebook summary says so loudly.
+``none``       neither works: ``kfkit grade`` refuses to run student code unless told
+               ``--no-sandbox``; then kernels run as the grader with only a temporary working
+               folder, and the summary says so loudly.
+
+In both isolated modes the instructor's home and current folder, the kit's ``solutions/``, the
+submissions and the gradebook's folder are hidden (an empty read-only tmpfs over each, with only
+what the kernel must import bound back inside), and the network is an empty namespace.
 
 ``probe`` runs a tiny program through exactly the launch path the kernels use and checks that it
-cannot write into the kit, the venv or the instructor's folders, and whether it can reach the
-network; a mode is used only if that check passes.
+cannot write into the kit, the venv or the instructor's folders, cannot list the hidden ones, and
+whether it can reach the network; a mode is used only if that check passes.
 """
 from __future__ import annotations
 
+import functools
 import json
 import os
 import pwd
@@ -34,6 +40,7 @@ MEMORY_LIMIT = 4 << 30  # bytes of address space per kernel (RLIMIT_AS)
 FILE_SIZE_LIMIT = 256 << 20  # bytes per file the kernel writes
 PROCESS_LIMIT = 256  # processes and threads of one sandbox uid
 SANDBOX_UID_BASE = 1_000_000  # + grading process id: one uid per concurrent grader, none in /etc/passwd
+SYSTEM = ("/bin", "/dev", "/etc", "/lib", "/lib64", "/opt", "/proc", "/run", "/sbin", "/sys", "/usr", "/var")  # never hidden
 
 
 @dataclass
@@ -41,15 +48,19 @@ class Sandbox:
     mode: str  # "root", "userns" or "none"
     network_blocked: bool = False
     protected: list = field(default_factory=list)  # folders the probe found not writable
+    hidden: list = field(default_factory=list)  # folders the probe found empty from inside
     warning: str = ""
 
-    def describe(self) -> str:
+    def describe(self, full: bool = True) -> str:
+        """How kernels are isolated; ``full`` adds the folders (for the instructor, not the students)."""
         if self.mode == "none":
             return f"NOT ISOLATED: {self.warning}"
         how = {"root": "namespaces + read-only mounts + unprivileged uid",
                "userns": "user namespace + read-only mounts + no capabilities"}[self.mode]
         net = "network blocked" if self.network_blocked else "network NOT blocked"
-        return f"{how}; {net}; protected from writes: {', '.join(self.protected)}"
+        if not full:
+            return f"{how}; {net}"
+        return f"{how}; {net}; read-only: {', '.join(self.protected)}; hidden: {', '.join(self.hidden)}"
 
     def uid(self) -> tuple[int, int] | None:
         """The unprivileged uid/gid this grading process gives its kernels (mode 'root')."""
@@ -60,15 +71,14 @@ class Sandbox:
             uid += 1 << 22
         return uid, uid
 
-    def command(self, box: Path, scratch: Path, cwd: Path, connection_file: str, argv: list[str],
-                protect: list[str]) -> list[str]:
+    def command(self, box: Path, scratch: Path, cwd: Path, connection_file: str, argv: list[str]) -> list[str]:
         """The argv that runs ``argv`` in this sandbox (``argv`` unchanged in mode 'none')."""
         if self.mode == "none":
             return argv
         ids = self.uid()
         spec = {"box": str(box), "scratch": str(scratch), "cwd": str(cwd), "connection_file": connection_file,
-                "uid": ids and ids[0], "gid": ids and ids[1], "needed": needed_paths(), "protect": protect,
-                "memory": MEMORY_LIMIT, "file_size": FILE_SIZE_LIMIT, "processes": PROCESS_LIMIT}
+                "uid": ids and ids[0], "gid": ids and ids[1], "needed": needed_paths(), "protect": self.protected,
+                "hide": self.hidden, "memory": MEMORY_LIMIT, "file_size": FILE_SIZE_LIMIT, "processes": PROCESS_LIMIT}
         unshare = ["unshare"] + (["--user", "--map-root-user"] if self.mode == "userns" else [])
         unshare += ["--mount", "--net", "--pid", "--ipc", "--uts", "--fork", "--kill-child", "--mount-proc", "--"]
         return unshare + [sys.executable, "-I", str(LAUNCHER), json.dumps(spec), "--"] + argv
@@ -82,18 +92,38 @@ def _uid_taken(uid: int) -> bool:
         return False
 
 
+@functools.lru_cache(maxsize=1)
 def needed_paths() -> list[str]:
-    """Folders the kernel must read: the Python install, the venv, the kit and its import paths."""
+    """Folders the kernel must read: the Python install, the venv, the kit and its import paths.
+
+    The import paths are those of a fresh ``python -I`` (what the kernel gets: no PYTHONPATH, no
+    current folder), not this process's ``sys.path``, which may hold the instructor's folders.
+    """
+    isolated = subprocess.run([sys.executable, "-I", "-c", "import json, sys; print(json.dumps(sys.path))"],
+                              capture_output=True, text=True, check=True, env={"PATH": os.defpath})
     paths = {os.path.realpath(p) for p in (sys.base_prefix, sys.prefix, KIT_ROOT)}
     paths.add(os.path.dirname(os.path.realpath(sys.executable)))
-    paths |= {os.path.realpath(p) for p in [*sys.path, *sysconfig.get_paths().values()] if p}
+    paths |= {os.path.realpath(p) for p in [*json.loads(isolated.stdout), *sysconfig.get_paths().values()] if p}
     paths = sorted(p for p in paths if os.path.isdir(p))
     return [p for p in paths if not any(p.startswith(q.rstrip("/") + "/") for q in paths)]
 
 
 def protected_paths(extra=()) -> list[str]:
     """Folders a submission must not write: the kit, the venv, and the instructor's folders."""
-    paths = [KIT_ROOT, Path(sys.prefix), Path(__file__).resolve().parents[1], Path.cwd(), Path.home(), *extra]
+    return _existing_dirs([KIT_ROOT, Path(sys.prefix), Path(__file__).resolve().parents[1], Path.cwd(), Path.home(),
+                           *extra])
+
+
+def hidden_paths(extra=()) -> list[str]:
+    """Folders a submission must not even read: the instructor's home and current folder, the kit's
+    solutions, the submissions and the gradebook's folder (``extra``). What the kernel needs inside
+    them (a venv in the home folder, the kit in the current one) stays visible, read-only."""
+    needed = needed_paths()
+    return [p for p in _existing_dirs([Path.home(), Path.cwd(), KIT_ROOT / "solutions", *extra])
+            if p not in needed and not any(s == p or s.startswith(p.rstrip("/") + "/") for s in SYSTEM)]
+
+
+def _existing_dirs(paths) -> list[str]:
     seen = []
     for p in paths:
         p = os.path.realpath(p)
@@ -126,13 +156,20 @@ def kernel_env(box: Path) -> dict:
 
 PROBE = r"""
 import json, os, socket, sys
-report = {"network": False, "uid": os.getuid()}
-for folder in sys.argv[2:]:
+name, rest = sys.argv[1], sys.argv[2:]
+protect, hide = rest[:rest.index("--hide")], rest[rest.index("--hide") + 1:]
+report = {"network": False, "uid": os.getuid(), "hidden": {}}
+for folder in protect:
     try:  # left behind on purpose: the grader looks for it outside the sandbox
-        with open(os.path.join(folder, sys.argv[1]), "w") as f:
+        with open(os.path.join(folder, name), "w") as f:
             f.write("x")
     except OSError:
         pass
+for folder in hide:
+    try:
+        report["hidden"][folder] = sorted(os.listdir(folder))
+    except OSError:
+        report["hidden"][folder] = []
 try:
     socket.create_connection(("1.1.1.1", 53), timeout=2).close()
     report["network"] = True
@@ -155,7 +192,17 @@ def leaked_writes(name: str, folders: list[str]) -> list[str]:
     return leaked
 
 
-def run_in_sandbox(sandbox: Sandbox, argv: list[str], protect: list[str], timeout=60.0) -> subprocess.CompletedProcess:
+def leaked_listings(seen: dict, needed: list[str]) -> list[str]:
+    """Hidden folders whose listing from inside shows more than the way to what the kernel needs."""
+    leaked = []
+    for folder, names in seen.items():
+        allowed = {Path(p).relative_to(folder).parts[0] for p in needed if p.startswith(folder.rstrip("/") + "/")}
+        if set(names) - allowed:
+            leaked.append(folder)
+    return leaked
+
+
+def run_in_sandbox(sandbox: Sandbox, argv: list[str], timeout=60.0) -> subprocess.CompletedProcess:
     """Run ``argv`` (a short program, not a kernel) the way kernels run; used by the probe and tests."""
     scratch = Path(tempfile.mkdtemp(prefix="kfkit-grade-"))
     try:
@@ -163,16 +210,21 @@ def run_in_sandbox(sandbox: Sandbox, argv: list[str], protect: list[str], timeou
         box = make_box(scratch, sandbox)
         conn = box / "none.json"
         conn.write_text("{}")
-        cmd = sandbox.command(box, scratch, box / "home", str(conn), argv, protect)
+        cmd = sandbox.command(box, scratch, box / "home", str(conn), argv)
         return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=kernel_env(box),
                               cwd=box / "home" if sandbox.mode == "none" else "/")
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
 
 
-def probe(extra_protect=(), modes=None) -> Sandbox:
-    """The strongest sandbox that works here, checked by trying to write into protected folders."""
-    protect = protected_paths(extra_protect)
+def probe(extra=(), modes=None) -> Sandbox:
+    """The strongest sandbox that works here, checked from inside: it must not write into the
+    protected folders (the kit, the venv, ``extra`` …) nor see into the hidden ones.
+
+    ``extra``: the instructor's folders of this grading run (submissions, gradebook), both
+    protected and hidden.
+    """
+    protect, hide = protected_paths(extra), hidden_paths(extra)
     if modes is None:
         modes = ["root"] if os.geteuid() == 0 else ["userns"]
     reasons = []
@@ -180,9 +232,9 @@ def probe(extra_protect=(), modes=None) -> Sandbox:
         if shutil.which("unshare") is None:
             reasons.append("the 'unshare' command (util-linux) is not installed")
             break
-        sb, name = Sandbox(mode), f".kfkit-sandbox-probe-{os.getpid()}"
+        sb, name = Sandbox(mode, protected=protect, hidden=hide), f".kfkit-sandbox-probe-{os.getpid()}"
         try:
-            done = run_in_sandbox(sb, [sys.executable, "-c", PROBE, name, *protect], protect)
+            done = run_in_sandbox(sb, [sys.executable, "-c", PROBE, name, *protect, "--hide", *hide])
         except subprocess.TimeoutExpired:
             reasons.append(f"{mode}: the probe timed out")
             continue
@@ -196,8 +248,12 @@ def probe(extra_protect=(), modes=None) -> Sandbox:
         if leaked:
             reasons.append(f"{mode}: still writable: {', '.join(leaked)}")
             continue
+        seen = leaked_listings(report["hidden"], needed_paths())
+        if seen:
+            reasons.append(f"{mode}: still visible: {', '.join(seen)}")
+            continue
         sb.network_blocked = not report["network"] and not report["ifaces"]
-        sb.protected = protect
         return sb
-    return Sandbox("none", warning="student code runs with the grader's own permissions and can change "
-                                   "the kit and your files (" + ("; ".join(reasons) or "no isolation mode was tried") + ")")
+    return Sandbox("none", warning="student code would run with the grader's own permissions and could read and "
+                                   "change the kit and your files (" +
+                                   ("; ".join(reasons) or "no isolation mode was tried") + ")")

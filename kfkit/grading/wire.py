@@ -106,7 +106,8 @@ def decode(obj, depth=0):
         return _array(obj, depth)
     if "__object__" in obj:
         fields = obj.get("fields")
-        if not isinstance(fields, dict) or not all(isinstance(k, str) and k.isidentifier() for k in fields):
+        if not isinstance(fields, dict) or not all(isinstance(k, str) and k.isidentifier() and not k.startswith("__")
+                                                   for k in fields):
             raise WireError("malformed object")
         return Returned(**{k: decode(v, depth + 1) for k, v in fields.items()})
     if "__unsupported__" in obj:
