@@ -23,20 +23,11 @@ from threadpoolctl import threadpool_limits
 from kfkit import datasets, vehicle
 from kfkit.filters import compare_estimators, estimate_sideslip, sideslip
 from kfkit.metrics import rmse
+from timing import best_of
 
 SIGNALS = ("t", "delta", "yaw_rate", "ay", "vx")
 DRIVES = {"slalom 20 km/h": "06_slalom_20kmh", "slalom 80 km/h": "06_slalom_80kmh", "lane change 60 km/h": "06_lane_change"}
 CAR = vehicle.BicycleParams()
-
-
-def best_of(fn, repeats=5):
-    """Best CPU time (s) of this process over ``repeats`` runs: a busy shared machine does not distort it."""
-    times = []
-    for _ in range(repeats):
-        t0 = time.process_time()
-        fn()
-        times.append(time.process_time() - t0)
-    return min(times)
 
 
 def filterpy_sideslip(t, delta, yaw_rate, ay, vx, params=CAR, q=(1e-4, 1e-3), r=(0.003, 0.05), vx_step=0.05):
@@ -65,10 +56,10 @@ def speed_table():
         ours = estimate_sideslip(*sig, CAR).beta
         theirs = filterpy_sideslip(*sig)
         agree = np.max(np.abs(ours - theirs))
-        t_ours = best_of(lambda: estimate_sideslip(*sig, CAR))
-        t_bias = best_of(lambda: estimate_sideslip(*sig, CAR, bias_ay=True))
+        t_ours = best_of(lambda: estimate_sideslip(*sig, CAR), clock=time.process_time)
+        t_bias = best_of(lambda: estimate_sideslip(*sig, CAR, bias_ay=True), clock=time.process_time)
         with threadpool_limits(1, user_api="blas"):
-            t_fp = best_of(lambda: filterpy_sideslip(*sig))
+            t_fp = best_of(lambda: filterpy_sideslip(*sig), clock=time.process_time)
         n = len(rec)
         rows.append((label, n, n / t_ours, n / t_bias, n / t_fp, t_fp / t_ours, agree))
     print(f"{'drive':22s} {'samples':>8s} {'kfkit steps/s':>14s} {'+bias state':>12s} {'filterpy steps/s':>17s} "

@@ -13,7 +13,6 @@ import re
 import shutil
 import subprocess
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,7 @@ from kfkit import datasets
 from kfkit.checkpoints import lab05
 from kfkit.datasets import KIT_ROOT
 from kfkit.filters import TiltBiasKF, tilt
+from timing import best_of
 
 C_SOURCE = KIT_ROOT / "firmware" / "tilt_kf" / "tilt_kf.c"
 HOST_HARNESS = r"""
@@ -81,15 +81,6 @@ int main(void) {
 """
 
 
-def best_of(fn, repeats=5):
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
-
-
 def accuracy():
     rec = datasets.load("05_tilt_protocol")
     truth = rec.truth()
@@ -101,7 +92,7 @@ def accuracy():
     print("| estimate | roll RMSE, holds | pitch RMSE, holds | roll RMSE, whole | pitch RMSE, whole | bias error at 36 s (roll, pitch) |")
     print("| --- | --- | --- | --- | --- | --- |")
     rows = [("accelerometer only (six-face corrected)", None, None)]
-    rows += [(f"KF, q0, skip gate", "skip", {n: (q0, 1e-4 * q0) for n in axes})]
+    rows += [("KF, q0, skip gate", "skip", {n: (q0, 1e-4 * q0) for n in axes})]
     rows += [(f"KF, tuned on the holds, gate = {g}", g, tuned) for g in ("none", "skip", "inflate")]
     for label, gate, q in rows:
         cells, errs = [], []
