@@ -12,6 +12,22 @@ explicit path, else the student's own file saved by labs 02/03 (:func:`user_cali
 else the bundled default in ``data/`` (made by ``kfkit data regenerate`` from the labs' analyses
 of the bundled simulations). :func:`calibration_for` picks the one that belongs to a recording: the
 bundled default for the bundled recordings, the student's own for theirs.
+
+**A phone** (board ``"phone-phyphox"``) comes calibrated by its OS, and the kit's default for it is the
+identity, with the noise σ of :mod:`kfkit.phone`'s sensor model (``data/calibration_phone-phyphox.json``):
+
+- gyro bias 0: Android's ``TYPE_GYROSCOPE``, which phyphox reads, "MUST be calibrated and compensated while
+  in use" (Android CDD §7.3.4; AOSP "Sensor types": base sensors carry bias and temperature compensation,
+  ``TYPE_GYROSCOPE_UNCALIBRATED`` is the one without); phyphox on iOS reads CoreMotion's device-motion
+  rotation rate, whose bias Core Motion removes. What is left is a few hundredths of °/s, which lab 02 measures.
+- hard iron 0, soft iron I: phyphox reads the calibrated field (``TYPE_MAGNETIC_FIELD``, hard iron removed
+  online; ``TYPE_MAGNETIC_FIELD_UNCALIBRATED`` only if an experiment asks; iOS: device motion's calibrated
+  field), so an ellipsoid fit (lab 03) finds what the OS left, about 1 µT.
+- accelerometer bias 0, scale 1: an assumption. The CDD (§7.3.1) only recommends calibrating the accelerometer
+  in use, and iOS gives phyphox the raw accelerometer; a phone's six faces (lab 02) measure its offsets.
+
+Student-saved phone calibrations (labs 02 and 03) replace it as for a board. :func:`label_rests` finds and
+names the rests of a recording without labelled windows (a phyphox export), so labs 02 and 03 run on it.
 """
 from __future__ import annotations
 
@@ -111,6 +127,65 @@ def accel_six_face(faces, g=G):
                                    f"by the axis pointing up, in the body frame?")
         bias[i], scale[i] = (up + down) / 2, (up - down) / (2 * g)
     return bias, scale
+
+
+# --- finding the rests of an unlabelled recording -------------------------------------------------
+
+REST_MIN_S = 2.0  # s: a shorter still spell is a pause, not a pose
+REST_TRIM_S = 0.5  # s cut from both ends of a rest: the hand letting go, reaching for the stop button
+REST_WINDOW_S = 0.5  # s: the moving window the spreads below are taken over
+REST_GYRO_STD = np.radians(0.5)  # rad/s: at rest the gyro scatters by its noise (≈ 0.05–0.1 °/s), held by hand by °/s
+REST_ACCEL_STD = 0.15  # m/s²: at rest the noise (≈ 0.01–0.02 m/s²); a hand or a slow turn moves it more
+REST_G_TOLERANCE = 0.5  # m/s²: at rest |f| is g, up to the accelerometer's bias and scale errors
+FACE_MAX_TILT = np.radians(10.0)  # an axis within this of vertical names the face; six faces err by g(1 − cos δ)
+
+
+def _moving_mean_std(x, window):
+    from scipy.ndimage import uniform_filter1d
+
+    mean = uniform_filter1d(x, window, axis=0, mode="nearest")
+    var = uniform_filter1d(x * x, window, axis=0, mode="nearest") - mean**2
+    return mean, np.sqrt(np.maximum(var, 0.0))
+
+
+def label_rests(rec, min_s=REST_MIN_S, trim_s=REST_TRIM_S, max_tilt=FACE_MAX_TILT):
+    """A copy of ``rec`` whose ``phases`` mark its rests, for recordings without labelled windows
+    (a phone's phyphox export); labs 02 and 03 then read them like a guided capture's.
+
+    A sample is still where, over a moving ``REST_WINDOW_S``, every gyro and accelerometer axis
+    (body frame) scatters less than ``REST_GYRO_STD`` and ``REST_ACCEL_STD`` and |f| is within
+    ``REST_G_TOLERANCE`` of g. A still spell of at least ``min_s`` after cutting ``trim_s`` from both
+    ends is a rest, named by the body axis pointing up (its mean specific force reads +g: ``"x_up"``;
+    −g: ``"x_down"``, …, :data:`FACES`) when that axis is within ``max_tilt`` of vertical, else
+    ``"rest"``; a level rest (``"z_down"``) is also ``"stationary"``. Raises :class:`CalibrationError`
+    when there is none.
+    """
+    gyr, acc = rec.body("gyr"), rec.body("acc")
+    t = rec.t
+    window = max(3, int(round(REST_WINDOW_S * rec.rate_hz)))
+    _, gyr_std = _moving_mean_std(gyr, window)
+    acc_mean, acc_std = _moving_mean_std(acc, window)
+    still = ((gyr_std < REST_GYRO_STD).all(axis=1) & (acc_std < REST_ACCEL_STD).all(axis=1)
+             & (np.abs(np.linalg.norm(acc_mean, axis=1) - G) < REST_G_TOLERANCE))
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
+    phases = []
+    for first, stop in zip(edges[::2], edges[1::2]):
+        start, end = t[first] + trim_s, t[stop - 1] - trim_s
+        if end - start < min_s:
+            continue
+        f = acc[(t >= start) & (t < end)].mean(axis=0)
+        i = int(np.argmax(np.abs(f)))
+        tilted = np.arccos(min(1.0, abs(f[i]) / np.linalg.norm(f))) > max_tilt
+        label = "rest" if tilted else f"{'xyz'[i]}_{'up' if f[i] > 0 else 'down'}"
+        phases.append({"label": label, "start": float(start), "end": float(end)})
+        if label == "z_down":
+            phases.append({"label": "stationary", "start": float(start), "end": float(end)})
+    if not phases:
+        raise CalibrationError(f"{rec.path or 'recording'}: no rest of at least {min_s:g} s found (the gyro and the "
+                               f"accelerometer never stay still together): lay the board or phone down, let go, and "
+                               f"keep it still for a few seconds before moving it again")
+    meta = {**rec.meta, "phases": phases, "phases_from": "kfkit.calibration.label_rests"}
+    return type(rec)(meta, rec.data, rec.path)
 
 
 # --- Allan deviation ----------------------------------------------------------------------------
@@ -357,12 +432,12 @@ def bundled_calibration_path(board="nucleo-iks02a1") -> Path:
 
 def load_calibration(board="nucleo-iks02a1", path=None) -> Calibration:
     """The calibration labs 04/05 use: ``path`` if given, else the student's own (saved by labs 02/03,
-    :func:`user_calibration_path`), else the bundled default for ``board`` in ``data/``."""
+    :func:`user_calibration_path`), else the bundled default for ``board`` in ``data/`` (a phone,
+    ``"phone-phyphox"``: the identity its OS calibration leaves, see the module docstring)."""
     if path is not None:
         return Calibration.load(path)
-    from .sensors import BOARDS
-    if board not in BOARDS:
-        raise ValueError(f"unknown board {board!r}; known boards: {', '.join(sorted(BOARDS))}")
+    from .sensors import board as get_board
+    get_board(board)  # an unknown board name: ValueError naming the known ones
     for candidate in (user_calibration_path(board), bundled_calibration_path(board)):
         if candidate.exists():
             return Calibration.load(candidate)

@@ -173,6 +173,21 @@ def _calibration_mpu6050():
                                           "(60 s at rest, six faces; lab 05's biases)")
 
 
+def _calibration_phone():
+    """A phone's default calibration: the identity (its OS removes the gyro bias and the magnetometer's hard
+    iron; the accelerometer is assumed factory-calibrated: kfkit.calibration's docstring), with the noise σ of
+    kfkit.phone's sensor model at the rate a phyphox simple experiment asks for."""
+    from .calibration import Calibration
+    from .phone import phone_board
+
+    board = phone_board()
+    return Calibration(board=board.name, rate_hz=board.rate_hz, gyro_noise=[board.gyro.noise_std(board.rate_hz)] * 3,
+                       accel_noise=[board.accel.noise_std(board.rate_hz)] * 3, mag_noise=[board.mag.noise_std(board.rate_hz)] * 3,
+                       source="kfkit default for a phone: identity (its OS removes the gyro bias and the magnetometer's "
+                              "hard iron; the accelerometer is taken as factory-calibrated); noise σ of kfkit.phone's "
+                              "BMI160/AK09918-class model at 100 Hz")
+
+
 @dataclass(frozen=True)
 class Bundled:
     """How one bundled file is made, written and read (IMU recordings by default)."""
@@ -233,6 +248,7 @@ BUNDLED = {
     "03_headings": Bundled(_headings),
     "calibration_nucleo-iks02a1": Bundled(_calibration_nucleo, text=_calibration_json, read=_read_calibration, suffix=".json"),
     "calibration_mpu6050": Bundled(_calibration_mpu6050, text=_calibration_json, read=_read_calibration, suffix=".json"),
+    "calibration_phone-phyphox": Bundled(_calibration_phone, text=_calibration_json, read=_read_calibration, suffix=".json"),
     # a folder (suffix ""): ``text`` gives {file in the folder: text}
     "04_phone_attitude_tour": Bundled(_phone_attitude_tour, text=dict, read=_read_phone_export, suffix=""),
 }

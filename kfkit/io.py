@@ -248,6 +248,21 @@ def load_phyphox(path, mount="flat", require=("acc", "gyr")) -> Recording:
     return load(path, mount=mount, require=require)
 
 
+def load_any(path, mount="flat", require=("acc", "gyr")) -> Recording:
+    """A recording of your own, whatever made it: a file in the kit's format (a board's or a phone's
+    capture, lab 00) with :func:`load_recording`, else a phone's phyphox CSV export (a folder, a
+    ``.zip`` or a ``Raw Data.csv``) with :func:`load_phyphox` in the phone's ``mount``, with the
+    sensors ``require`` names."""
+    path = Path(path)
+    if path.is_file():
+        with open(path, "rb") as f:
+            if f.read(len(VERSION_PREFIX)) == VERSION_PREFIX.encode():
+                return load_recording(path)
+    elif not path.exists():
+        raise FileNotFoundError(f"no recording or phyphox export at {path}")
+    return load_phyphox(path, mount=mount, require=require)
+
+
 # --- public datasets ------------------------------------------------------------------------
 #: ENU → NED as a quaternion (w-x-y-z): R = [[0, 1, 0], [1, 0, 0], [0, 0, −1]] (swap x and y,
 #: negate z), a 180° turn about the axis (1, 1, 0)/√2. q_NED = Q_NED_ENU ⊗ q_ENU.

@@ -132,11 +132,16 @@ def nis_plot(t, values, dof=1, window=None, ax=None, alpha=0.05):
 
 
 def consistency(t, err, variance, y, S, dof=1, title=None):
-    """Three stacked panels sharing time: error ±2σ, innovations ±2√S, NIS with χ² bounds."""
-    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9.0, 7.5))
-    error_band(t, err, variance, ax=axes[0])
-    innovations(t, y, S, ax=axes[1])
-    nis_plot(t, nis(y, S), dof=dof, ax=axes[2])
+    """Three stacked panels sharing time: error ±2σ, innovations ±2√S, NIS with χ² bounds.
+
+    ``err`` None (a recording without truth): the two panels that need none, innovations and NIS.
+    """
+    panels = 2 if err is None else 3
+    fig, axes = plt.subplots(panels, 1, sharex=True, figsize=(9.0, 2.5 * panels))
+    if err is not None:
+        error_band(t, err, variance, ax=axes[0])
+    innovations(t, y, S, ax=axes[-2])
+    nis_plot(t, nis(y, S), dof=dof, ax=axes[-1])
     for ax in axes[:-1]:
         ax.set_xlabel("")
     if title:

@@ -200,8 +200,13 @@ BOARDS = {b.name: b for b in (NUCLEO_IKS02A1, MPU6050_GY521)}
 
 
 def board(name: str) -> Board:
-    """The :class:`Board` called ``name`` (one of :data:`BOARDS`)."""
+    """The :class:`Board` called ``name``: one of :data:`BOARDS`, or ``"phone-phyphox"``, a phone
+    (:func:`kfkit.phone.phone_board`: its sensor model; its mounting is each recording's own)."""
+    if name == "phone-phyphox":
+        from .phone import phone_board  # late import: kfkit.phone builds on this module
+
+        return phone_board()
     try:
         return BOARDS[name]
     except KeyError:
-        raise ValueError(f"unknown board {name!r}; known boards: {', '.join(sorted(BOARDS))}") from None
+        raise ValueError(f"unknown board {name!r}; known boards: {', '.join(sorted(BOARDS))}, phone-phyphox") from None

@@ -8,6 +8,7 @@ this figure redraws in place without flicker when a slider moves.
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import ipywidgets as W
@@ -30,7 +31,13 @@ def _interactive_canvas(fig):
         matplotlib.use(backend)  # …so hand the notebook its own back
 
     canvas = Canvas(fig)
-    FigureManager(canvas, 0)
+    with warnings.catch_warnings():
+        # ipympl's own bug (matplotlib/ipympl#611, #488): Toolbar.__init__ calls DOMWidget.__init__, whose
+        # cooperative super() reaches NavigationToolbar2WebAgg.__init__ without its canvas; traitlets catches
+        # the TypeError and warns. The toolbar is then built by its explicit second __init__ call and works.
+        warnings.filterwarnings("ignore", r"Passing unrecognized arguments to super\(Toolbar\)\.__init__\(\)",
+                                DeprecationWarning)
+        FigureManager(canvas, 0)
     canvas.header_visible = False
     canvas.footer_visible = False
     canvas.toolbar_position = "right"
@@ -41,12 +48,13 @@ class TuningPanel:
     """Sliders for a filter's tuning values, a figure of truth vs estimate, and the RMSE.
 
     ``run(**values)`` must return the estimated angle (rad) at the times ``t``. Moving a
-    slider re-runs it and redraws. ``set(**values)`` does the same from code.
+    slider re-runs it and redraws. ``set(**values)`` does the same from code. ``truth`` None
+    (a recording of your own): the estimate and the references only, and no RMSE (NaN).
     """
 
     def __init__(self, run, t, truth, sliders: dict, references: dict | None = None,
                  ylabel="roll", label="KF"):
-        self.run, self.t, self.truth = run, np.asarray(t), np.asarray(truth)
+        self.run, self.t, self.truth = run, np.asarray(t), None if truth is None else np.asarray(truth)
         self.sliders = {
             name: W.FloatLogSlider(value=v0, base=10, min=np.log10(lo), max=np.log10(hi), step=0.05,
                                    description=name, readout_format=".1e", continuous_update=True,
@@ -56,7 +64,8 @@ class TuningPanel:
         self.status = W.HTML()
         fig = Figure(figsize=(9.0, 4.8), layout="constrained")
         self.ax, self.ax_err = fig.subplots(2, 1, sharex=True, height_ratios=[2, 1])
-        self.ax.plot(self.t, np.degrees(self.truth), color=COLORS["truth"], lw=2.2, alpha=0.55, label="truth")
+        if self.truth is not None:
+            self.ax.plot(self.t, np.degrees(self.truth), color=COLORS["truth"], lw=2.2, alpha=0.55, label="truth")
         for name, (values, kind) in (references or {}).items():
             self.ax.plot(self.t, np.degrees(values), color=COLORS[kind], ls=STYLES.get(kind, "-"), lw=0.8,
                          alpha=0.6, label=name)
@@ -66,6 +75,9 @@ class TuningPanel:
         legend_on_top(self.ax, ncols=4, fontsize=8)
         self.ax_err.set_ylabel(f"{label} error (°)")
         self.ax_err.set_xlabel("time (s)")
+        if self.truth is None:
+            self.ax_err.text(0.5, 0.5, "no truth in this recording: no error to show", transform=self.ax_err.transAxes,
+                             ha="center", va="center", color=COLORS["truth"])
         self.canvas = _interactive_canvas(fig)
         self._quiet = False
         self.redraw()
@@ -91,13 +103,18 @@ class TuningPanel:
     def redraw(self):
         """Re-run the filter with the sliders' values, redraw, and return the RMSE (rad)."""
         estimate = np.asarray(self.run(**self.values), dtype=float)
+        self.line.set_ydata(np.degrees(estimate))
+        shown = ", ".join(f"{k} = {v:.2e}" for k, v in self.values.items())
+        if self.truth is None:
+            self.rmse = float("nan")
+            self.status.value = f"no truth in this recording, so no RMSE: judge the estimate against the references &nbsp; ({shown})"
+            self.canvas.draw_idle()
+            return self.rmse
         err = angle_error(estimate, self.truth)
         self.rmse = float(rmse(err, 0.0))
-        self.line.set_ydata(np.degrees(estimate))
         self.err_line.set_ydata(np.degrees(err))
         limit = max(1.0, np.nanpercentile(np.abs(np.degrees(err)), 99.5) * 1.2)
         self.ax_err.set_ylim(-limit, limit)
-        shown = ", ".join(f"{k} = {v:.2e}" for k, v in self.values.items())
         self.status.value = f"<b>RMSE = {np.degrees(self.rmse):.2f}°</b> &nbsp; ({shown})"
         self.canvas.draw_idle()
         return self.rmse
@@ -453,9 +470,10 @@ class CapturePanel:
         name = self.protocol.value
         self.coverage.layout.visibility = "visible" if name == "mag-rotations" else "hidden"
         if name is not None and self.port.value == "virtual":
-            board = PROTOCOLS[name].board
-            if board != self.board.value and name in ("tilt", "mag-rotations"):
-                self.board.value = board  # the board its lab uses (observing board calls _settings_changed)
+            p = PROTOCOLS[name]
+            one_lab = len(set(p.datasets.values())) == 1  # every board saves it for the same lab (not so: stationary)
+            if one_lab and p.board != self.board.value:
+                self.board.value = p.board  # the board its lab uses (observing board calls _settings_changed)
                 return
         self._settings_changed()
 

@@ -580,14 +580,15 @@ def test_saved_calibration_from_virtual_board_is_what_lab04_loads(lab00_recordin
 
 
 def run_solution_on(name, data_source):
-    """Execute solutions/<name> with its data-source cell replaced; the stored outputs, errors included."""
+    """Execute solutions/<name> with the values ``data_source`` names set in its data-source cell (the others keep
+    the cell's defaults); the stored outputs, errors included."""
     import nbformat
     from nbclient import NotebookClient
     path = datasets.KIT_ROOT / "solutions" / name
     nb = nbformat.read(path, as_version=4)
     cells = [c for c in nb.cells if c.source.startswith("# ▶ DATA SOURCE")]
     assert len(cells) == 1, f"{name}: expected one data-source cell"
-    cells[0].source = "\n".join(f"{k} = {v!r}" for k, v in data_source.items())
+    cells[0].source += "\n" + "\n".join(f"{k} = {v!r}" for k, v in data_source.items())
     NotebookClient(nb, timeout=120, allow_errors=True, kernel_name="python3",
                    resources={"metadata": {"path": str(path.parent)}}).execute()
     outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
@@ -618,3 +619,129 @@ def test_labs_02_and_03_run_top_to_bottom_on_virtual_board_recordings(lab00_reco
     errors, _ = run_solution_on("03_mag_alignment_heading.ipynb",
                                 {"AXIS_TURNS": None, "MAG_ROTATIONS": mine["mag-rotations"], "HEADINGS": None})
     assert errors and errors[0].startswith("CalibrationError") and "every orientation" in errors[0]
+
+
+# --- a phone: its default calibration, its saved one, its unlabelled exports ----------------------------------------
+
+PHONE = "phone-phyphox"
+
+
+def phone_export(folder, motion, seed, truth=False, unit=None):
+    """A simulated phone through ``motion`` as a phyphox export folder (kfkit's writer; the format itself is
+    tested in test_phyphox.py). Without ``truth``, like a real export: no kfkit_truth.csv, so no labels."""
+    from kfkit import phone, phyphox
+    files = phyphox.simple_experiment_files(phone.simulate_phone(motion, seed=seed, unit=unit))
+    if not truth:
+        files.pop(phyphox.TRUTH_FILE)
+    return phyphox.write_export(files, folder)
+
+
+def test_phone_default_is_the_identity_with_the_phone_models_noise(tmp_path, monkeypatch):
+    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
+    cal = C.load_calibration(PHONE)
+    assert cal == datasets.load(f"calibration_{PHONE}") and cal.source.startswith("kfkit default for a phone: identity")
+    assert cal.gyro_bias == [0.0] * 3 and cal.accel_bias == [0.0] * 3 and cal.accel_scale == [1.0] * 3
+    assert cal.mag_hard_iron == [0.0] * 3 and cal.mag_soft_iron == np.eye(3).tolist()
+    # the BMI160's datasheet densities (0.007 °/s/√Hz, 180 µg/√Hz) and 0.3 µT, per sample at 100 Hz
+    assert cal.rate_hz == 100.0
+    np.testing.assert_allclose(cal.gyro_noise, np.radians(0.007) * 10.0, rtol=1e-8)
+    np.testing.assert_allclose(cal.accel_noise, 180e-6 * G * 10.0, rtol=1e-8)
+    np.testing.assert_allclose(cal.mag_noise, 0.3)
+    tour = datasets.load("04_phone_attitude_tour")
+    assert C.calibration_for(tour) == cal  # the bundled export folder counts as bundled
+    gyr, acc, mag = cal.apply(tour)
+    for got, sensor in ((gyr, "gyr"), (acc, "acc"), (mag, "mag")):
+        np.testing.assert_array_equal(got, tour.body(sensor))  # the identity changes nothing, NaN rows stay NaN
+    with pytest.raises(ValueError, match="unknown board 'iphone'.*phone-phyphox"):
+        C.load_calibration("iphone")
+
+
+def test_a_saved_phone_calibration_round_trips_and_belongs_to_the_students_phone(tmp_path, monkeypatch):
+    from kfkit.io import load_any, save_recording
+    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
+    mine = C.Calibration(board=PHONE, rate_hz=100.2, gyro_bias=np.radians([0.03, -0.01, 0.02]), gyro_noise=[0.0012] * 3,
+                         accel_bias=[0.03, -0.04, 0.05], accel_scale=[1.002, 0.998, 1.001], accel_noise=[0.018] * 3,
+                         mag_hard_iron=[0.5, -0.3, 0.9], source="lab 02/03: my phone")
+    assert mine.save() == tmp_path / "home" / f"calibration_{PHONE}.json"
+    assert json.loads((tmp_path / "home" / f"calibration_{PHONE}.json").read_text())["board"] == PHONE
+    assert C.load_calibration(PHONE) == mine  # what lab 04 loads for a phone
+    export = load_any(phone_export(tmp_path / "export", sim.stationary(5.0, 100.0), seed=1))
+    capture = load_any(save_recording(export, tmp_path / "phone_capture.csv"))  # a live capture is in the kit's format
+    for own in (export, capture):
+        assert own.meta["board"] == PHONE and C.calibration_for(own) == mine
+    assert C.calibration_for(datasets.load("04_phone_attitude_tour")).source.startswith("kfkit default")
+    gyr, acc, _ = mine.apply(export)
+    np.testing.assert_allclose(mine.gyro_bias, np.radians([0.03, -0.01, 0.02]), rtol=1e-8)  # 9 significant digits
+    np.testing.assert_allclose(gyr, export.body("gyr") - np.array(mine.gyro_bias), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(acc, (export.body("acc") - [0.03, -0.04, 0.05]) / [1.002, 0.998, 1.001])
+
+
+def strip_phases(rec):
+    return type(rec)({**rec.meta, "phases": []}, rec.data, rec.path)
+
+
+@pytest.mark.parametrize("source", ["board", "phone export"])
+def test_label_rests_finds_and_names_the_six_faces(tmp_path, source):
+    motion = sim.six_faces(rate_hz=400.0 if source == "phone export" else 104.0, seed=5)
+    bias_s, scale = np.array([0.06, -0.04, 0.09]), np.array([1.01, 0.994, 1.003])
+    if source == "board":
+        rec = strip_phases(sim.simulate_imu(motion, seed=6, accel_bias=bias_s, accel_scale=scale, accel_bias_rw=0.0))
+    else:
+        from kfkit import phone
+        unit = {**phone.PHONE_UNIT, "accel_bias": bias_s, "accel_scale": scale, "accel_bias_rw": 0.0}
+        rec = load_recording_or_export(phone_export(tmp_path / "faces", motion, seed=6, unit=unit))
+        assert rec.phases == []  # a real export carries no labels
+    labelled = C.label_rests(rec)
+    truth = {label: (a, b) for a, b, label in motion.phases}  # the simulated protocol's own windows
+    found = [p for p in labelled.phases if p["label"] in C.FACES]
+    assert sorted(p["label"] for p in found) == sorted(C.FACES)
+    for p in found:
+        a, b = truth[p["label"]]
+        assert a <= p["start"] < p["end"] <= b and p["end"] - p["start"] > 0.7 * (b - a)
+    level = [p for p in labelled.phases if p["label"] == "stationary"]
+    assert [(p["start"], p["end"]) for p in level] == [(p["start"], p["end"]) for p in found if p["label"] == "z_down"]
+    b, s = C.accel_six_face({f: labelled.body("acc")[labelled.phase(f)] for f in C.FACES})
+    M = mount_matrix(rec.meta["mount"]["acc"])
+    np.testing.assert_allclose(b, M @ bias_s, atol=3e-3)  # the faces sit on a table tilted ~0.5°
+    np.testing.assert_allclose(s, np.abs(M) @ scale, atol=5e-4)
+
+
+def load_recording_or_export(path):
+    from kfkit.io import load_any
+    return load_any(path)
+
+
+def test_label_rests_names_only_rests_near_a_face_and_refuses_a_recording_without_rest():
+    for roll_deg, expected in ((5.0, {"z_down", "stationary"}), (15.0, {"rest"})):
+        rec = sim.simulate_imu(sim.stationary(6.0, 104.0, roll=np.radians(roll_deg)), seed=7)
+        assert {p["label"] for p in C.label_rests(rec).phases} == expected, roll_deg
+    held = sim.simulate_imu(sim.sine_roll(duration=20.0, rate_hz=104.0, still=0.0, vibration_rms=0.3, seed=8), seed=9)
+    with pytest.raises(C.CalibrationError, match="no rest of at least 2 s.*keep it still"):
+        C.label_rests(held)
+
+
+def test_labs_02_and_03_run_top_to_bottom_on_phone_exports(tmp_path, monkeypatch):
+    """A student with only a phone: three phyphox exports (no labels, no truth) through labs 02 and 03, and the
+    calibration the two labs save is the phone's, holding both labs' results."""
+    from kfkit import phone
+    from kfkit.io import load_any
+    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
+    exports = {"rest": phone_export(tmp_path / "rest", sim.stationary(120.0, 100.0), seed=11),
+               "faces": phone_export(tmp_path / "faces", sim.six_faces(rate_hz=200.0, seed=12), seed=13),
+               "tumbling": phone_export(tmp_path / "tumbling", sim.mag_rotations(rate_hz=200.0, seed=14), seed=15)}
+    mine = {k: str(v) for k, v in exports.items()}
+    errors, text = run_solution_on("02_bias_and_noise.ipynb",
+                                   {"STATIONARY": mine["rest"], "SIX_FACES": mine["faces"]})
+    assert errors == [] and "Warning" not in text
+    assert "rests found: z_down" in text and f"saved to {C.user_calibration_path(PHONE)}" in text
+    errors, text = run_solution_on("03_mag_alignment_heading.ipynb", {"AXIS_TURNS": None, "MAG_ROTATIONS": mine["tumbling"],
+                                                                       "HEADINGS": None})
+    assert errors == [] and "Warning" not in text and f"saved to {C.user_calibration_path(PHONE)}" in text
+    saved = C.load_calibration(PHONE)
+    assert saved.board == PHONE and mine["rest"] in saved.source and mine["tumbling"] in saved.source
+    rest = load_any(exports["rest"])
+    still = C.label_rests(rest).phase("stationary")
+    np.testing.assert_allclose(saved.gyro_bias, C.gyro_bias(rest.body("gyr")[still]), rtol=1e-6)  # lab 02's, kept
+    M = mount_matrix(rest.meta["mount"]["mag"])
+    np.testing.assert_allclose(saved.mag_hard_iron, M @ phone.PHONE_UNIT["mag_hard_iron"], atol=0.05)  # lab 03's fit
+    np.testing.assert_allclose(saved.accel_bias, M @ phone.PHONE_UNIT["accel_bias"], atol=3e-3)  # six faces

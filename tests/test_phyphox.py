@@ -403,3 +403,64 @@ def test_lab04_ekf_meets_its_budget_on_the_bundled_phone_recording(bundled_phone
                                field_n=FIELD_N)
     rmse = np.degrees(metrics.rmse(metrics.angle_error(result.euler, rec.truth()), 0.0))
     assert rmse[0] < 1.0 and rmse[1] < 1.0 and rmse[2] < 2.0, rmse
+
+
+# --- a phone recording in the labs: one loader for every source, recordings without truth -----------------------
+
+def test_load_any_reads_the_kits_format_and_every_phyphox_export_shape(tmp_path, tour_samples):
+    folder = write_simple_experiment(tmp_path / "export", tour_samples)
+    from_folder = io.load_any(folder)
+    assert from_folder.meta["source"] == "phone (phyphox export)"
+    archive = tmp_path / "export.zip"
+    with zipfile.ZipFile(archive, "w") as z:
+        for p in sorted(folder.glob("*.csv")):
+            z.write(p, p.name)
+    t, v = tour_samples["acc"]
+    write_set(tmp_path / "Raw Data.csv", ["Time (s)"] + ANDROID_LABELS["acc"], [t, v[:, 0], v[:, 1], v[:, 2]])
+    kit_file = io.save_recording(from_folder, tmp_path / "capture.csv")  # what a live phone capture writes
+    for path in (archive, kit_file):
+        rec = io.load_any(path)
+        for c in from_folder.columns:
+            np.testing.assert_array_equal(rec[c], from_folder[c], err_msg=f"{path.name}: {c}")
+    assert io.load_any(tmp_path / "Raw Data.csv", require=("acc",)).meta["phone"]["time_base"] == "accelerometer"
+    upright = io.load_any(folder, mount="upright")
+    assert upright.meta["mount_name"] == "upright" and upright.meta["mount"]["acc"] == [list(r) for r in phone.MOUNTS["upright"]]
+    with pytest.raises(FileNotFoundError, match="no recording or phyphox export at .*nowhere"):
+        io.load_any(tmp_path / "nowhere")
+    (tmp_path / "notes.csv").write_text("a,b\n1,2\n", encoding="utf-8")
+    with pytest.raises(RecordingError, match="notes.csv, line 1: no time column"):
+        io.load_any(tmp_path / "notes.csv")
+    with pytest.raises(RecordingError, match="no magnetometer"):
+        io.load_any(write_simple_experiment(tmp_path / "no_mag", tour_samples, sensors=("acc", "gyr")),
+                    require=("acc", "gyr", "mag"))
+
+
+def test_consistency_figure_and_tuning_panel_work_without_truth():
+    from kfkit import plots, widgets
+
+    rng = np.random.default_rng(0)
+    t = np.arange(500) / 100.0
+    y, S = rng.normal(0, 0.01, 500), np.full(500, 1e-4)
+    assert len(plots.consistency(t, None, S, y, S).axes) == 2  # innovations and NIS: they need no truth
+    assert len(plots.consistency(t, y, S, y, S).axes) == 3
+    panel = widgets.tune(lambda q: np.full(500, q), t, None, {"q": (1e-3, 1e-6, 1.0)})
+    assert np.isnan(panel.rmse) and "no truth" in panel.status.value
+    assert np.isnan(panel.set(q=1e-2)) and panel.line.get_ydata()[0] == pytest.approx(np.degrees(1e-2))
+    with_truth = widgets.tune(lambda q: np.full(500, q), t, np.zeros(500), {"q": (1e-3, 1e-6, 1.0)})
+    assert with_truth.rmse == pytest.approx(1e-3) and "RMSE" in with_truth.status.value
+
+
+def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
+    """A student's own phyphox export of lab 01's experiment (rest, then rolls by hand): no truth, no labels."""
+    from kfkit import sim
+    from test_calibration import run_solution_on
+
+    motion = sim.sine_roll(duration=40.0, rate_hz=400.0, amplitude=np.radians(30.0), freq_hz=0.1, still=5.0,
+                           vibration_rms=0.3, seed=21)
+    files = phyphox.simple_experiment_files(phone.simulate_phone(motion, seed=22))
+    files.pop(phyphox.TRUTH_FILE)
+    export = phyphox.write_export(files, tmp_path / "phyphox roll")
+    errors, text = run_solution_on("01_roll_kf_1d.ipynb", {"RECORDING": str(export)})
+    assert errors == [] and "Warning" not in text
+    assert "board phone-phyphox" in text and "no truth in this recording" in text and "RMSE accel only :" not in text
+    assert "q = " in text and "from the sliders" in text  # the tuned q falls back to the sliders' value
