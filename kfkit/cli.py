@@ -174,7 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="recording file to write (CSV, kit format)")
     p.add_argument("--baud", type=int, default=115200, help="default: %(default)s")
     p.add_argument("--json", action="store_true", help="print the statistics as one JSON object, no progress bar")
-    p.add_argument("--protocol", choices=["stationary", "six-faces", "tilt", "mag-rotations"],
+    p.add_argument("--protocol", choices=["stationary", "six-faces", "tilt", "mag-rotations", "axis-turns", "headings"],
                    help="guided protocol: prompts, phase labels; with --port virtual the board plays it")
     p.add_argument("--quick", action="store_true", help="short protocol durations (tests, demonstrations)")
     p.add_argument("--board", choices=["nucleo-iks02a1", "mpu6050"], help="virtual board type")

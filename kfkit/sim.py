@@ -143,8 +143,12 @@ def simulate_imu(motion: Motion, board="nucleo-iks02a1", seed=0, *, gyro_bias=No
     """Simulate the board's IMU over ``motion`` and return a recording in counts.
 
     gyro_bias, accel_bias  constant biases (3,) in the sensor frame, SI; by default drawn
-                           from N(0, (typical/2)²) per axis with the datasheet's typical offset
-    *_bias_rw              bias random-walk densities (rad/s/√s, m/s²/√s)
+                           from N(0, (typical/2)²) per axis with the datasheet's typical offset;
+                           or one per sample (N, 3): a bias path the caller carries from call to
+                           call (the virtual board's), with *_bias_rw = 0
+    *_bias_rw              bias random-walk densities (rad/s/√s, m/s²/√s); each call starts its walk
+                           at 0. The defaults are large for the boards' gyros (the bundled labs 02–04
+                           unit's walks at 4.4e-6): kept, since bundled recordings are made with them
     field_n                local magnetic field in NED, µT
     mag_rate_hz            magnetometer output rate; rows without a new sample are left
                            empty (NaN). Defaults to the board's.

@@ -227,3 +227,25 @@ def test_virtual_phone_answers_like_phyphox(vphone):
 def test_values_have_phyphox_8_significant_digits():
     assert format_number(9.80665) == "9.80665E0" and format_number(-0.00123456789) == "-1.2345679E-3"
     assert format_number(0.0) == "0E0" and format_number(float("nan")) == "null"
+
+
+def test_virtual_phone_clocks_and_bias_walks_run_on_across_its_loops():
+    """20 min from the virtual phone (its 30 s motion looped 40 times): no sample lost at a seam, and the Allan
+    curves follow the phone's white noise and its unit's walk (phone.PHONE_UNIT), each point within its 99.9 %
+    chi-square interval (tests/allan_oracle.py): the gyro as captured (the time base), the accelerometer as the
+    phone serves it (the capture interpolates it at the gyro's times, which changes its short-τ curve)."""
+    from allan_oracle import allan_curves, model_adev, outside_chi2_interval
+
+    with VirtualPhone(seed=3, speed=200.0) as vp:
+        rec = capture(vp.url, seconds=1200.0)
+        t_acc, acc = vp._series("acc", 1200.0)
+    s = rec.meta["capture"]["stats"]
+    assert (s["dropped"], s["bad_lines"]) == (0, 0) and len(rec) > 1200 * 100
+    assert np.all(np.diff(t_acc) > 0) and np.diff(t_acc).max() < 1.5 / phone.PHONE_RATES["acc"]  # no seams
+    series = {"gyr": (rec.sensor_si("gyr"), s["rate_hz"]), "acc": (acc, (len(t_acc) - 1) / (t_acc[-1] - t_acc[0]))}
+    for sensor, chip, K in (("gyr", phone.PHONE_GYRO, phone.PHONE_UNIT["gyro_bias_rw"]),
+                            ("acc", phone.PHONE_ACCEL, phone.PHONE_UNIT["accel_bias_rw"])):
+        x, rate = series[sensor]
+        taus, adev = allan_curves(x, rate)
+        model = model_adev(taus, chip.noise_density, K, phone.LSB[sensor], rate)
+        assert outside_chi2_interval(taus, adev, model, len(x), rate) == [], sensor

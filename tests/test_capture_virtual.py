@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import kfkit.capture as C
+from allan_oracle import allan_curves, loglog_slope, model_adev, outside_chi2_interval
 from kfkit import sim
 from kfkit.cli import main
 from kfkit.frames import G, MAG_FIELD_LONDON
@@ -282,6 +283,135 @@ def test_commands_h_and_s():
         assert isinstance(C.parse_line(port.readline()), C.Header)
 
 
+# --- the noise process: one bias random walk across the simulator's 1 s chunks ---------------------------------
+# Oracles: the datasheet densities N (kfkit.sensors), the configured walks K, allantools (tests/allan_oracle.py).
+
+def rest(board, seconds, rate_hz, sim_options=None, seed=7):
+    """A fast virtual recording of the board lying still, through the pty like any capture."""
+    return C.capture("virtual", seconds, virtual={"board": board, "rate_hz": rate_hz, "realtime": False, "seed": seed,
+                                                  "sim_options": sim_options})
+
+
+def curves_and_model(rec, sensor, chip, K):
+    """Allan curves of ``rec``'s ``sensor`` (SI, sensor frame) and the model of its datasheet density and walk K."""
+    x, rate = rec.sensor_si(sensor), rec.rate_hz
+    taus, adev = allan_curves(x, rate)
+    return taus, adev, model_adev(taus, chip.noise_density, K, rec.meta["sensors"][sensor]["sensitivity"], rate)
+
+
+def test_allan_deviation_shows_white_noise_then_the_walk_beyond_the_chunks():
+    """5 min at 104 Hz with a strong walk (τ_min < 1 s): slope −½ below the minimum, +½ from 5 s to 30 s, far past
+    the simulator's 1 s chunks (a walk restarted per chunk gives −½ there), at the level the densities give."""
+    from kfkit.sensors import board as get_board
+
+    K = {"gyr": 2e-4, "acc": 1e-3}  # rad/s/√s, m/s²/√s
+    rec = rest("nucleo-iks02a1", 300.0, 104.0, {"gyro_bias_rw": K["gyr"], "accel_bias_rw": K["acc"]})
+    spec = get_board("nucleo-iks02a1")
+    for sensor, chip in (("gyr", spec.gyro), ("acc", spec.accel)):
+        taus, adev, model = curves_and_model(rec, sensor, chip, K[sensor])
+        tau_min = np.sqrt(3) * chip.noise_density / K[sensor]  # 0.8 s, 1.0 s
+        assert abs(loglog_slope(taus, adev, 0.0, tau_min / 10) + 0.5) < 0.05, sensor
+        assert abs(loglog_slope(taus, adev, 5.0, 30.0) - 0.5) < 0.2, sensor
+        assert outside_chi2_interval(taus, adev, model, len(rec), rec.rate_hz) == [], sensor
+
+
+@pytest.mark.parametrize("board", ["nucleo-iks02a1", "mpu6050"])
+def test_allan_deviation_of_a_long_rest_at_the_boards_densities(board):
+    """40 min at rest at 12.5 Hz (the ISM330DHCX's lowest rate, as lab 02's bundled rest): every point of the Allan
+    curve within its 99.9 % interval of the datasheet's white noise plus the board's walk (BIAS_RANDOM_WALK)."""
+    from kfkit.sensors import board as get_board
+
+    rec = rest(board, 2400.0, 12.5)
+    spec, (K_gyro, K_accel) = get_board(board), C.virtual.BIAS_RANDOM_WALK[board]
+    for sensor, chip, K in (("gyr", spec.gyro, K_gyro), ("acc", spec.accel, K_accel)):
+        taus, adev, model = curves_and_model(rec, sensor, chip, K)
+        assert outside_chi2_interval(taus, adev, model, len(rec), rec.rate_hz) == [], sensor
+        assert taus.max() > 3 * np.sqrt(3) * chip.noise_density / K  # the curve reaches well past its minimum
+
+
+def test_angle_random_walk_of_a_two_minute_rest_is_the_datasheets():
+    """Lab 00's full stationary protocol (2 min, 104 Hz): the ARW read at τ = 1 s (kfkit.calibration) within the
+    99 % chi-square interval (allantools' edf for white noise) of N, quantisation and walk included."""
+    allantools = pytest.importorskip("allantools")
+    from kfkit.calibration import allan_deviation, angle_random_walk
+    from kfkit.sensors import board as get_board
+
+    rec = C.record_protocol("stationary", "virtual", fast=True, seed=7, prompt=None)
+    assert rec.t[-1] == pytest.approx(120.0, abs=0.01)
+    gyro = get_board("nucleo-iks02a1").gyro
+    x = rec.sensor_si("gyr")
+    taus, adev = allan_deviation(x, rec.rate_hz)
+    arw = angle_random_walk(taus, adev)
+    want = model_adev(1.0, gyro.noise_density, C.virtual.BIAS_RANDOM_WALK["nucleo-iks02a1"][0],
+                      rec.meta["sensors"]["gyr"]["sensitivity"], rec.rate_hz)
+    assert want == pytest.approx(gyro.noise_density, rel=0.01)  # at 1 s the white noise is all there is
+    m = int(round(rec.rate_hz))
+    edf = allantools.edf_greenhall(alpha=0, d=2, m=m, N=len(x) + 1, overlapping=True)
+    lo, hi = allantools.confidence_interval(want, edf, ci=0.99)
+    assert np.all((lo <= arw) & (arw <= hi)), (arw / want, lo / want, hi / want)
+
+
+def read_items(port, until_quiet=0.3):
+    """Parse every line a stopped board still sends, until it has been quiet for ``until_quiet`` s."""
+    port.timeout, items = until_quiet, []
+    while line := port.readline():
+        items.append(C.parse_line(line))
+    return items
+
+
+def samples_before_first_att(items):
+    first = next(i for i, item in enumerate(items) if isinstance(item, C.Message))
+    return sum(isinstance(item, C.Sample) for item in items[:first])
+
+
+def test_attitude_board_measures_the_bias_again_after_stop_and_start_as_the_sketch():
+    """firmware/mpu6050_tilt_kf: header, #NOTE, 2 s of samples alone, then sample + $ATT pairs; 's' stops, and
+    's' again restarts the 2 s bias measurement with new filters (the board may have moved meanwhile)."""
+    import serial
+
+    from kfkit.filters import TiltAttitude
+
+    sketch = (Path(__file__).parents[1] / "firmware/mpu6050_tilt_kf/mpu6050_tilt_kf.ino").read_text()
+    assert f'Serial.println(F("{C.virtual.ATTITUDE_NOTE.decode().rstrip()}"))' in sketch  # the sketch's words
+    with C.VirtualBoard(board="mpu6050", attitude=True, realtime=False, seed=5) as vb, \
+            serial.Serial(vb.port, timeout=1) as port:
+        port.write(b"h")
+        assert C.parse_line(port.readline()).params["filter"] == "tilt_kf"
+        assert port.readline() == C.virtual.ATTITUDE_NOTE
+        before = [C.parse_line(port.readline()) for _ in range(400)]
+        port.write(b"s")  # stop
+        before += read_items(port)
+        assert samples_before_first_att(before) == 200 and not any(isinstance(i, C.Note) for i in before)
+        time.sleep(0.3)
+        port.write(b"s")  # start again
+        port.timeout = 1
+        after = [C.parse_line(port.readline()) for _ in range(1 + 200 + 2 * 50)]  # note, bias, sample + $ATT pairs
+    assert isinstance(after[0], C.Note) and "keep the board still for 2 s" in after[0].text
+    assert sum(isinstance(i, C.Note) for i in after) == 1 and samples_before_first_att(after[1:]) == 200
+    # the $ATT lines after the restart are those of new filters fed only the samples after it
+    samples = [i for i in after if isinstance(i, C.Sample)]
+    fresh = TiltAttitude("mpu6050", 100.0)
+    expected = [fresh.update(s.values[2:5], s.values[5:8]) for s in samples]
+    got = [i.values for i in after if isinstance(i, C.Message)]
+    expected = np.degrees([e for e in expected if e is not None])[:len(got)]
+    assert len(got) > 10 and np.max(np.abs(np.array(got) - expected)) <= 0.005 + 1e-9  # two decimals on the wire
+    t_us = [i.t_us for i in before + after if isinstance(i, C.Sample)]
+    seq = [i.seq for i in before + after if isinstance(i, C.Sample)]
+    assert max(np.diff(t_us)) >= 300_000 and np.all(np.diff(seq) == 1)  # micros() ran on; seq did not restart
+
+
+def test_attitude_board_after_a_reset_sends_header_note_and_measures_again():
+    """A reset reboots the sketch: header, #NOTE, and 2 s of samples (200 at 100 Hz) without $ATT again."""
+    vb = C.VirtualBoard(board="mpu6050", attitude=True, realtime=False, faults={"reset": [300]}, seed=5)
+    with C.Recorder(vb, seconds=6.0) as rec:
+        assert rec.wait(10)
+    note = C.virtual.ATTITUDE_NOTE.decode().strip()[1:]
+    assert rec.stats.resets == 1 and rec.stats.notes == [note, note]
+    # (samples received before it, values): the first $ATT follows the 200th sample of each start
+    n = rec.stats.samples
+    assert [i for i, _ in rec.messages["ATT"]] == list(range(200, 301)) + list(range(500, n + 1))
+
+
 def test_guided_motion_phases_reach_the_recording(tmp_path):
     motion = C.protocol_motion("six-faces", 208.0, quick=True)
     r = C.capture("virtual", seconds=len(motion.t) / 208.0, out=tmp_path / "faces.csv",
@@ -332,14 +462,63 @@ def test_cli_guided_protocol_on_the_virtual_board(tmp_path, capsys):
     assert {p["label"] for p in rec.phases} == {"x_up", "x_down", "y_up", "y_down", "z_up", "z_down"}
 
 
+@pytest.mark.parametrize("name, labels", [("axis-turns", {"turn_x", "turn_y", "turn_z"}),
+                                          ("headings", {"heading_flat", "heading_tilted"})])
+def test_cli_records_lab03s_protocols(tmp_path, capsys, name, labels):
+    out = tmp_path / f"{name}.csv"
+    assert main(["capture", "--port", "virtual", "--protocol", name, "--quick", "--fast", "--out", str(out), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    rec = load_recording(out)
+    assert result["board"] == "nucleo-iks02a1" and {p["label"] for p in rec.phases} == labels
+    assert main(["capture", "--port", "virtual", "--protocol", name, "--board", "mpu6050", "--quick", "--out",
+                 str(tmp_path / "no.csv")]) == 2
+    assert "no magnetometer" in capsys.readouterr().err and not (tmp_path / "no.csv").exists()
+
+
 def test_record_protocol_on_a_real_port_labels_phases_from_the_prompts(tmp_path):
     """A port that is not "virtual" gets its phases from the prompt timeline (here a pty board at rest)."""
     prompts = []
     with C.VirtualBoard(rate_hz=100.0, board="mpu6050", realtime=False) as vb:
         rec = C.record_protocol("tilt", vb.port, tmp_path / "tilt.csv", quick=True, prompt=prompts.append)
-    steps = C.protocol_steps("tilt", C.protocol_motion("tilt", 100.0, quick=True))
-    assert [(p["start"], p["end"], p["label"]) for p in rec.phases] == [(a, b, lab) for a, b, lab, _ in steps if lab]
-    assert prompts and "level" in prompts[0]
+    motion = C.protocol_motion("tilt", 100.0, quick=True)
+    steps = C.protocol_steps("tilt", motion)
+    assert [(p["start"], p["end"], p["label"]) for p in rec.phases] == [tuple(ph) for ph in motion.phases]
+    # every instruction, in order, even though the fast board outruns the ten-a-second progress calls
+    assert [text.split(" s  ", 1)[1] for text in prompts] == [step[3] for step in steps] and "level" in prompts[0]
+
+
+def test_lab03_protocols_on_a_real_port_keep_one_window_per_phase(tmp_path):
+    """The axis turns' phases are prompted in five steps each (rest, turn, rest, back, rest) and the six headings
+    share a label: the recording's windows are still the motion's, one per phase and one per rest."""
+    for name in ("axis-turns", "headings"):
+        with C.VirtualBoard(board="nucleo-iks02a1", realtime=False) as vb:
+            rec = C.record_protocol(name, vb.port, tmp_path / f"{name}.csv", quick=True, prompt=None)
+        motion = C.protocol_motion(name, 104.0, quick=True)
+        assert [(p["start"], p["end"], p["label"]) for p in rec.phases] == [tuple(ph) for ph in motion.phases]
+
+
+@pytest.mark.parametrize("name", C.PROTOCOLS)
+@pytest.mark.parametrize("quick", [False, True])
+def test_each_prompt_list_has_one_text_per_segment(name, quick):
+    """A label's list of prompts is used up exactly: one text per rest or turn of its windows, in time order;
+    the steps tile the recording."""
+    p = C.PROTOCOLS[name]
+    motion = C.protocol_motion(name, 104.0, quick=quick)
+    steps = C.protocol_steps(name, motion)
+    assert steps[0][0] == 0.0 and steps[-1][1] == pytest.approx(len(motion.t) / 104.0, abs=1 / 104)
+    assert all(a[1] == pytest.approx(b[0]) for a, b in zip(steps, steps[1:]))
+    for label, texts in p.prompts.items():
+        if isinstance(texts, list):
+            assert [step[3] for step in steps if step[2] == label] == texts, label
+    for _, _, label, text in steps:
+        assert label is None or text == p.prompts[label] or text in p.prompts[label]
+
+
+def test_lab03_protocols_need_the_magnetometer():
+    assert C.dataset_name("axis-turns") == "03_axis_turns" and C.dataset_name("headings", "nucleo-iks02a1") == "03_headings"
+    for name in ("axis-turns", "headings", "mag-rotations"):
+        with pytest.raises(ValueError, match="not recorded with the mpu6050 \\(it has no magnetometer\\)"):
+            C.dataset_name(name, "mpu6050")
 
 
 KFKIT = Path(sys.executable).with_name("kfkit")  # the console script pip installed beside this Python

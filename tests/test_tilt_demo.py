@@ -36,11 +36,12 @@ def read_lines(board, n_lines, timeout=20.0):
 def test_virtual_board_emits_att_lines_that_track_the_truth():
     motion = driving_motion()
     with VirtualBoard(board="mpu6050", motion=motion, attitude=True, realtime=False, loop=False, seed=3) as board:
-        lines = read_lines(board, 1 + 199 + 2 * 1801)  # header, 199 samples alone, then sample + $ATT pairs
+        lines = read_lines(board, 2 + 199 + 2 * 1801)  # header, #NOTE, 199 samples alone, then sample + $ATT pairs
     header = parse_line(lines[0])
     assert header.board == "mpu6050" and header.params["messages"] == "ATT"
+    assert "keep the board still" in parse_line(lines[1]).text  # as the sketch, while it measures the gyro bias
     samples, atts, seq_of_att = [], [], []
-    for line in lines[1:]:
+    for line in lines[2:]:
         item = parse_line(line)
         if isinstance(item, Message):
             atts.append(item.values)

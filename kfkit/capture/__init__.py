@@ -4,7 +4,7 @@
 - :mod:`.ports`     ``find_boards`` (USB VID:PID), ``open_port`` and the capture errors
 - :mod:`.virtual`   ``VirtualBoard``: the IMU simulator streaming to a pseudo-terminal
 - :mod:`.recorder`  ``Recorder`` (reader thread, statistics, streamed file) and ``capture``
-- :mod:`.guided`    guided protocols (stationary, six faces, tilt, magnetometer rotations)
+- :mod:`.guided`    guided protocols (stationary, six faces, tilt, magnetometer rotations, axis turns, headings)
 """
 from .guided import PROTOCOLS, dataset_name, protocol_motion, protocol_steps, record_protocol, sphere_coverage
 from .ports import (KNOWN_USB_IDS, BoardDisconnectedError, BoardPort, CaptureError, NoDataError, PortBusyError,

@@ -6,6 +6,11 @@ writes lines to the master end at the board's real rate. Like an Arduino that re
 its port opens, it starts (header, then ``seq`` 0) when the host sends its first byte;
 afterwards ``h`` re-sends the header and ``s`` stops/starts streaming.
 
+The sensors' biases wander as one continuous random walk b(t) = b₀ + ∫ w dt (density K, one path
+carried from chunk to chunk of the simulation), so a long recording's Allan deviation turns up as
+K·√(τ/3) beyond its minimum, as a real sensor's does. Datasheets give no K for these chips; the
+values (:data:`BIAS_RANDOM_WALK`) put the Allan minimum where MEMS sensors of their class have it.
+
 Faults (``faults=`` dict; positions count every sample the board makes, from 0, across resets;
 a list of positions or a probability per sample, drawn from ``seed``):
 
@@ -33,6 +38,7 @@ import tty
 import numpy as np
 
 from .. import sim
+from ..datasets import NUCLEO_UNIT
 from ..frames import G
 from ..sensors import board as get_board
 from ..filters.tilt import TiltAttitude
@@ -40,6 +46,18 @@ from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_message, 
 
 FAULT_KINDS = ("corrupt", "drop", "truncate", "reset", "disconnect", "garbage", "silent")
 BOOT_US = 1500  # micros() when a sketch sends its first sample after a reset
+# what firmware/mpu6050_tilt_kf prints (Serial.println: CR LF) when it starts measuring the gyro bias
+ATTITUDE_NOTE = b"#NOTE,measuring gyro bias: keep the board still for 2 s\r\n"
+
+#: Bias random-walk densities K of each board's (gyro rad/s/√s, accelerometer m/s²/√s). With white noise of
+#: density N the Allan deviation σ²(τ) = N²/τ + K²τ/3 is lowest at τ = √3·N/K, at σ = (2NK/√3)^½.
+BIAS_RANDOM_WALK = {
+    # the bundled unit's (kfkit.datasets.NUCLEO_UNIT, labs 02–04): gyro minimum ≈ 4 °/h at τ ≈ 35 s,
+    # accelerometer ≈ 11 µg at τ ≈ 55 s
+    "nucleo-iks02a1": (NUCLEO_UNIT["gyro_bias_rw"], NUCLEO_UNIT["accel_bias_rw"]),
+    # a consumer part: gyro minimum ≈ 9 °/h at τ ≈ 8 s, accelerometer ≈ 70 µg at τ ≈ 70 s
+    "mpu6050": (2.0e-5, 1.0e-4),
+}
 
 
 def board_fields(b) -> tuple:
@@ -80,13 +98,16 @@ class VirtualBoard:
     start_seq    ``seq`` of the first sample: a board that was already streaming (a Nucleo does not
                  reset when its port opens); set near 2¹⁶ to exercise the wrap. Resets restart at 0.
     protocol_version  the version its header announces (≠ 1: a board kfkit cannot read)
-    sim_options  extra keyword arguments for ``sim.simulate_imu``
+    sim_options  extra keyword arguments for ``sim.simulate_imu``; ``gyro_bias``/``accel_bias`` (3,) fix
+                 the constant biases, ``gyro_bias_rw``/``accel_bias_rw`` the walks (default
+                 :data:`BIAS_RANDOM_WALK`), which run on across chunks, loops and resets
     extra_lines  callables ``f(board, n, truth_euler) → bytes | None`` adding lines of other
                  kinds after sample ``n`` (e.g. ``$ATT,…`` from the tilt firmware)
     attitude     True: behave like ``firmware/mpu6050_tilt_kf``, adding ``$ATT,roll_deg,pitch_deg*HH``
                  after each sample, computed from the sample's counts by the Python reference
-                 ``kfkit.filters.TiltAttitude`` (none during the first 2 s: gyro bias), and
-                 ``messages=ATT,filter=tilt_kf`` in the header
+                 ``kfkit.filters.TiltAttitude``, and ``messages=ATT,filter=tilt_kf`` in the header. Like
+                 the sketch it measures the gyro bias for 2 s (no ``$ATT``; :data:`ATTITUDE_NOTE` first)
+                 at start, after a reset, and each time ``s`` starts streaming again
     """
 
     def __init__(self, rate_hz=None, board="nucleo-iks02a1", motion=None, faults=None, seed=0, *,
@@ -99,6 +120,10 @@ class VirtualBoard:
         self.motion, self.loop, self.realtime = motion, loop, realtime
         self.seed, self.start_us, self.start_seq, self.chunk_s = seed, int(start_us), int(start_seq), chunk_s
         self.sim_options = dict(sim_options or {})
+        walks = BIAS_RANDOM_WALK.get(self.board.name, (0.0, 0.0))
+        self.bias_rw = {"gyro_bias": float(self.sim_options.pop("gyro_bias_rw", walks[0])),
+                        "accel_bias": float(self.sim_options.pop("accel_bias_rw", walks[1]))}
+        self._bias0 = {k: self.sim_options.pop(k) for k in ("gyro_bias", "accel_bias") if k in self.sim_options}
         self.extra_lines = list(extra_lines)
         faults = dict(faults or {})
         unknown = set(faults) - set(FAULT_KINDS)
@@ -110,6 +135,7 @@ class VirtualBoard:
         self.garbage, self.silent = bool(faults.get("garbage")), bool(faults.get("silent"))
         self.header = board_header(self.board, self.rate_hz, protocol_version)
         self.attitude = bool(attitude)
+        self._tilt = None  # the sketch's filters (attitude=True), new at each (re)start
         if self.attitude:
             self.header = self.header.rstrip(b"\n") + b",messages=ATT,filter=tilt_kf\n"  # as mpu6050_tilt_kf's
         self.fields = board_fields(self.board)
@@ -160,11 +186,17 @@ class VirtualBoard:
 
     # -- samples -----------------------------------------------------------------------------------
     def _chunks(self):
-        """Yield (counts (n, k) int, truth euler (n, 3)) chunks of the sample rows, forever or once."""
+        """Yield (counts (n, k) int, truth euler (n, 3)) chunks of the sample rows, forever or once.
+
+        Each chunk is simulated on its own (white noise seeded by [seed, chunk]); the bias path
+        b₀ + walk is carried over, so the noise process is one, whatever the chunk length.
+        """
         b, rate = self.board, self.rate_hz
         rng = np.random.default_rng(self.seed)
-        biases = {"gyro_bias": rng.normal(0.0, b.gyro.bias_typical / 2, 3),
-                  "accel_bias": rng.normal(0.0, b.accel.bias_typical / 2, 3)}
+        bias0 = {"gyro_bias": rng.normal(0.0, b.gyro.bias_typical / 2, 3),
+                 "accel_bias": rng.normal(0.0, b.accel.bias_typical / 2, 3)}
+        bias0 = {k: np.asarray(self._bias0.get(k, v), float) for k, v in bias0.items()}
+        walk_rng, walk = np.random.default_rng([self.seed, 1]), {k: np.zeros(3) for k in bias0}
         mag_rate = b.mag_rate_hz or rate
         last_mag, chunk_index = np.zeros(3), 0
         while True:
@@ -178,8 +210,12 @@ class VirtualBoard:
                 else:
                     s = slice(start, start + n)
                     m = sim.Motion(self.motion.t[s], rate, self.motion.euler[s], self.motion.omega_b[s], self.motion.acc_n[s])
-                rec = sim.simulate_imu(m, board=b, seed=self.seed + 1 + chunk_index, mag_rate_hz=mag_rate,
-                                       **biases, **self.sim_options)
+                biases = {}
+                for key, density in self.bias_rw.items():  # b_k = b₀ + Σ_{j≤k} w_j, w ~ N(0, K²/rate)
+                    path = walk[key] + np.cumsum(walk_rng.normal(0.0, density / np.sqrt(rate), (n, 3)), axis=0)
+                    walk[key], biases[key] = path[-1], bias0[key] + path
+                rec = sim.simulate_imu(m, board=b, seed=[self.seed, chunk_index], mag_rate_hz=mag_rate, **biases,
+                                       gyro_bias_rw=0.0, accel_bias_rw=0.0, **self.sim_options)
                 cols = [rec[c].astype(np.int64) for c in ("ax", "ay", "az", "gx", "gy", "gz")]
                 if b.mag is not None:
                     k = start + np.arange(n)
@@ -208,10 +244,16 @@ class VirtualBoard:
         new = 48 + (line[i] - 48 + 1 + int(self._rng.integers(9))) % 10  # a different digit
         return line[:i] + bytes([new]) + line[i + 1:]
 
+    def _start_attitude(self) -> bytes:
+        """(attitude=True) What the sketch does at each start: new filters, and the note to keep still."""
+        if not self.attitude:
+            return b""
+        self._tilt = TiltAttitude(self.board, self.rate_hz)
+        return ATTITUDE_NOTE
+
     def _lines(self):
         """Yield (n, bytes to send) per sample made, applying the faults."""
         since_reset, boot_us, seq0 = 0, self.start_us, self.start_seq
-        tilt = TiltAttitude(self.board, self.rate_hz) if self.attitude else None
         for counts, truth in self._chunks():
             for row, euler in zip(counts, truth):
                 n = self.samples_made
@@ -220,8 +262,7 @@ class VirtualBoard:
                 out = b""
                 if self._is_fault("reset", n):
                     since_reset, boot_us, seq0 = 0, BOOT_US, 0
-                    out += self.header
-                    tilt = TiltAttitude(self.board, self.rate_hz) if self.attitude else None
+                    out += self.header + self._start_attitude()
                 t_us = (boot_us + round(since_reset * 1e6 / self.rate_hz) + self._paused_us) % MICROS_MODULO
                 line = encode_sample((t_us, (seq0 + since_reset) % SEQ_MODULO, *row.tolist()))
                 since_reset += 1
@@ -233,7 +274,7 @@ class VirtualBoard:
                 elif self._is_fault("truncate", n):
                     line = line[: len(line) // 2] + b"\n"
                 out += line
-                angles = tilt.update(row[:3], row[3:6]) if tilt is not None else None
+                angles = self._tilt.update(row[:3], row[3:6]) if self._tilt is not None else None
                 if angles is not None:
                     out += encode_message("ATT", np.degrees(angles))
                 for extra in self.extra_lines:
@@ -252,7 +293,7 @@ class VirtualBoard:
                     if not self.connected:  # first contact: the board (re)starts, as on a DTR reset
                         self.connected, streaming = True, True
                         lines, t0 = self._lines(), time.monotonic()
-                        pending += b"" if self.silent else self.header
+                        pending += b"" if self.silent else self.header + self._start_attitude()
                     elif c == ord("h") and not self.silent:
                         pending += self.header
                     elif c == ord("s"):
@@ -261,6 +302,8 @@ class VirtualBoard:
                             gap = time.monotonic() - paused_at
                             t0 += gap
                             self._paused_us += int(gap * 1e6)
+                            if not self.silent:  # the board may have moved meanwhile: measure the bias again
+                                pending += self._start_attitude()
                         paused_at = None if streaming else time.monotonic()
                 if streaming and lines is not None and not self.silent:
                     due = int((time.monotonic() - t0) * self.rate_hz) + 1 if self.realtime else self.samples_made + 64

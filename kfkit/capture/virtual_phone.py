@@ -13,7 +13,9 @@ phyphox-android's ``RemoteServer`` does (docs: phyphox-docs ``docs/remote-interf
 
 One connection per request (HTTP/1.0, no keep-alive), as phyphox's server. The phone plays a
 :class:`kfkit.sim.Motion` (looped, fresh noise each time; default: lying flat and still) through
-:func:`kfkit.phone.simulate_phone`, so its noise, rates and timestamp jitter are a phone's.
+:func:`kfkit.phone.simulate_phone`, so its noise, rates and timestamp jitter are a phone's. The gyro's
+and accelerometer's bias random walks (``phone.PHONE_UNIT``) run on across the loops, one path per
+sensor, as a real phone's biases do.
 While measuring, its experiment clock runs at ``speed`` × real time and the buffers hold every
 sample up to it. Faults for tests: ``refuse_start`` (start answers false), ``pause_at`` (the phone
 pauses itself at that experiment time, s), ``hang_after`` (after that many ``/get`` requests it
@@ -40,6 +42,9 @@ import numpy as np
 from .. import phone, sim
 
 _COMPONENTS = ("x", "y", "z", "t")
+#: the phone unit's bias random-walk densities (rad/s/√s, m/s²/√s), walked here across loops instead
+_BIAS_WALKS = {"gyr": phone.PHONE_UNIT["gyro_bias_rw"], "acc": phone.PHONE_UNIT["accel_bias_rw"]}
+_UNIT_WITHOUT_WALKS = {**phone.PHONE_UNIT, "gyro_bias_rw": 0.0, "accel_bias_rw": 0.0}
 
 
 @dataclass(frozen=True)
@@ -98,7 +103,7 @@ class VirtualPhone:
 
     motion       a :class:`kfkit.sim.Motion` (sampled well above 100 Hz), looped; None: flat and still
     experiment   a name in :data:`EXPERIMENTS` (what is open in phyphox)
-    seed         seeds the phone's noise (loop k uses seed + k)
+    seed         seeds the phone's noise (loop k uses seed + k) and its bias walks
     speed        experiment seconds per wall-clock second while measuring (tests run faster)
     autostart    measure from the start, as if the student had pressed play
     rates, drop  passed to :func:`kfkit.phone.simulate_phone` (sensor rates, probability of a lost sample)
@@ -134,6 +139,9 @@ class VirtualPhone:
         self._loops: list = []  # per loop: {data: (t, values)}
         self._events = []
         self._generation = getattr(self, "_generation", -1) + 1
+        # bias walks b(t) = ∫ w dt (phone frame), carried from loop to loop: sensor → (time s, value (3,))
+        self._walk_rng = np.random.default_rng([self.seed, self._generation, 1])
+        self._walk = {sensor: (0.0, np.zeros(3)) for sensor in _BIAS_WALKS}
 
     def _start(self) -> bool:
         if self.faults.get("refuse_start"):
@@ -162,18 +170,36 @@ class VirtualPhone:
         while len(self._loops) <= k:
             i = len(self._loops)
             s = phone.simulate_phone(self.motion, seed=self.seed + 1000 * self._generation + i, rates=self.rates,
-                                     drop=self.drop, mount=self.mount)
+                                     drop=self.drop, mount=self.mount, unit=_UNIT_WITHOUT_WALKS)
             shift = i * self._duration - float(self.motion.t[0])
-            data = {k2: (s.t[k2] + shift, s.values[k2]) for k2 in phone.SENSORS}
-            data["lin"] = (s.t["acc"] + shift, s.values["acc"] - s.gravity)
+            data = {}
+            for sensor in phone.SENSORS:
+                t, v = s.t[sensor] + shift, s.values[sensor]
+                if i and len(t):  # each sensor's clock runs on across the seam: one period after the last sample
+                    t = t + (self._loops[-1][sensor][0][-1] + 1.0 / s.sim["rates_hz"][sensor] - t[0])
+                if sensor in _BIAS_WALKS:  # + the walk, back on the phone's fixed-point grid
+                    v = np.round((v + self._walk_path(sensor, t)) / phone.LSB[sensor]) * phone.LSB[sensor]
+                data[sensor] = (t, v)
+            data["lin"] = (data["acc"][0], data["acc"][1] - s.gravity)
             self._loops.append(data)
         return self._loops[k]
+
+    def _walk_path(self, sensor, t):
+        """The bias walk of ``sensor`` at times t (s, increasing), continuing its path: b_k = b_{k−1} + w_k,
+        w_k ~ N(0, K²·(t_k − t_{k−1})) with K the phone unit's density."""
+        t_last, b_last = self._walk[sensor]
+        dt = np.maximum(np.diff(np.concatenate([[t_last], t])), 0.0)
+        path = b_last + np.cumsum(self._walk_rng.normal(0.0, 1.0, (len(t), 3)) * (_BIAS_WALKS[sensor] * np.sqrt(dt))[:, None],
+                                  axis=0)
+        if len(t):
+            self._walk[sensor] = (float(t[-1]), path[-1])
+        return path
 
     def _series(self, data, t_now):
         """(times, values (N, 3)) of simulator stream ``data`` up to experiment time t_now."""
         if t_now < 0:
             return np.zeros(0), np.zeros((0, 3))
-        last = int(t_now // self._duration)
+        last = int(t_now // self._duration) + 1  # + 1: a loop may start up to a sample period early (seams above)
         ts, vs = zip(*(self._loop(k)[data] for k in range(last + 1)))
         t, v = np.concatenate(ts), np.concatenate(vs)
         n = int(np.searchsorted(t, t_now, side="right"))
