@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import serial.tools.list_ports
 
-from kfkit import calibration, capture, filters, frames, metrics, sensors
-from kfkit.capture import virtual as C_virtual
+import unit_truth
+from kfkit import calibration, capture, filters, frames, metrics
 from kfkit.filters.attitude import euler_to_quat
 from kfkit.io import load_recording
 from kfkit.widgets import capture_panel
@@ -185,60 +185,66 @@ def test_each_guided_dataset_is_saved_under_the_name_its_lab_reads(recorded):
 
 
 def test_lab02_bias_noise_and_six_faces_on_the_recordings(recorded):
+    """Lab 02's analysis of each board's rest and faces finds its unit (the bundled recordings', kfkit.datasets):
+    biases and scale within 4 standard deviations of white noise and bias walk (tests/unit_truth.py), noise σ at
+    the datasheet's."""
     _, recs = recorded
     for board in LAB_DATASETS:
         still, faces = recs[board, "stationary"], recs[board, "six-faces"]
         cal = calibration.calibrate(still, faces)
-        spec = faces.meta["sensors"]
-        # the virtual board has no scale error: six faces give s = 1 within the noise of 5 s rests
-        np.testing.assert_allclose(cal.accel_scale, 1.0, atol=3e-3)
-        # two independent bias estimates agree: six faces vs the level rest (the virtual table is level)
-        flat = calibration.accel_bias(still.body("acc"), [0.0, 0.0, -frames.G])
-        np.testing.assert_allclose(cal.accel_bias, flat, atol=0.02)
-        # corrected, every face reads |f| = g (within a few counts)
-        for face in calibration.FACES:
-            f = (faces.body("acc")[faces.phase(face)] - cal.accel_bias) / cal.accel_scale
-            assert abs(np.linalg.norm(f.mean(axis=0)) - frames.G) < 3 * spec["acc"]["sensitivity"] + 0.005
-        # the same board (seed) in both recordings: the gyro at rest on the faces reads lab 02's bias, within
-        # 4 standard errors of the two means (white noise σ per sample from the rest)
-        rest = np.zeros(len(faces), dtype=bool)
-        for face in calibration.FACES:
-            rest |= faces.phase(face)
-        on_faces = faces.body("gyr")[rest]
-        sem = np.asarray(cal.gyro_noise) * np.sqrt(1 / rest.sum() + 1 / len(still))
-        # + the board's bias walk: both means are over windows of one path from t = 0 (each virtual board plays it
-        # from its seed), Var(mean over [0, T]) = K²T/3; their (positive) covariance left out: an upper bound
-        walk = C_virtual.BIAS_RANDOM_WALK[board][0] * np.sqrt((faces.t[-1] + still.t[-1]) / 3)
-        assert np.all(np.abs(on_faces.mean(axis=0) - cal.gyro_bias) < 4 * np.hypot(sem, walk))
-        # lab 02's noise σ matches the datasheet density of kfkit.sensors, σ = N·√rate (quantisation adds < 1 %)
-        gyro_spec = sensors.board(board).gyro
-        np.testing.assert_allclose(cal.gyro_noise, gyro_spec.noise_std(still.rate_hz), rtol=0.1)
-        taus, adev = calibration.allan_deviation(still.body("gyr"), still.rate_hz)
-        # at short τ white noise rules the Allan curve: σ(τ) = N/√τ with N the datasheet density
-        k = int(np.argmin(np.abs(taus - 0.1)))
-        np.testing.assert_allclose(adev[k], gyro_spec.noise_std(1.0) / np.sqrt(taus[k]), rtol=0.1)
+        truth = unit_truth.body_truth(still)
+        # gyro bias: the mean of the 2 min rest
+        rest = still.phase("stationary")
+        sd = unit_truth.mean_sd(still, rest, "gyr", truth["gyro_bias_rw"])
+        assert np.all(np.abs(cal.gyro_bias - truth["gyro_bias"]) < 4 * sd), (board, (cal.gyro_bias - truth["gyro_bias"]) / sd)
+        # the same unit in the faces recording: its gyro at rest on the faces reads the same bias
+        on_faces = np.any([faces.phase(f) for f in calibration.FACES], axis=0)
+        sd = unit_truth.mean_sd(faces, on_faces, "gyr", truth["gyro_bias_rw"])
+        assert np.all(np.abs(faces.body("gyr")[on_faces].mean(axis=0) - truth["gyro_bias"]) < 4 * sd), board
+        # six faces: the unit's accelerometer bias and scale (as the slightly tilted faces show them)
+        bias, scale, sd_b, sd_s = unit_truth.six_face_target(faces, capture.protocol_motion("six-faces", faces.rate_hz))
+        assert np.all(np.abs(cal.accel_bias - bias) < 4 * sd_b), (board, (cal.accel_bias - bias) / sd_b)
+        assert np.all(np.abs(cal.accel_scale - scale) < 4 * sd_s), (board, (cal.accel_scale - scale) / sd_s)
+        # lab 02's noise σ (RMS of 10 s windows, scaled to the board's rate): the datasheet's with rounding, within 4
+        # standard deviations of a pooled sample σ, 1/√(2(n − windows)), plus the walk inside a window, K²w/6
+        n, windows = int(rest.sum()), int(rest.sum() // (calibration.NOISE_WINDOW_S * still.rate_hz))
+        for sensor, got, walk in (("gyr", cal.gyro_noise, truth["gyro_bias_rw"]), ("acc", cal.accel_noise, truth["accel_bias_rw"])):
+            sigma = unit_truth.sample_sigma(still, sensor)
+            drift = walk**2 * calibration.NOISE_WINDOW_S / 6 / (2 * sigma**2)  # relative σ added by the walk
+            assert np.all(np.abs(np.asarray(got) / sigma - 1) < 4 / np.sqrt(2 * (n - windows)) + drift), (board, sensor)
+        # (the Allan read-outs of this 2 min rest: tests/test_capture_virtual.py, against allantools' intervals)
 
 
-def test_lab03_and_lab04_magnetometer_and_attitude_on_the_recordings(recorded):
+def test_lab03_and_lab04_magnetometer_and_attitude_on_the_recordings(recorded, tmp_path, monkeypatch):
+    """Lab 03's fit of the recorded rotations finds the unit's hard and soft iron within the fit's linearised
+    uncertainty (4σ); lab 04's MEKF on them is right with labs 02/03's calibration of the recordings and with the kit's
+    bundled default (what load_calibration gives before a student saves one), and far off without any."""
     _, recs = recorded
     rot = recs["nucleo-iks02a1", "mag-rotations"]
     mag = rot.body("mag")
     assert capture.sphere_coverage(mag) >= 0.9  # what the panel's indicator asks for
-    hard, soft = calibration.fit_mag_calibration(mag)
     fresh = np.isfinite(mag[:, 0])
-    norms = np.linalg.norm(calibration.apply_mag_calibration(mag[fresh], hard, soft), axis=1)
-    field = np.linalg.norm(frames.MAG_FIELD_LONDON)
-    # the virtual board has no iron: the fit finds none, and calibrated norms are the local field
-    assert np.linalg.norm(hard) < 1.0 and np.abs(soft - np.eye(3) * np.mean(np.diag(soft))).max() < 0.02
-    assert abs(norms.mean() - field) < 0.05 and norms.std() < 0.02 * field
-    # lab 04: the attitude EKF on the same recording, calibrated by labs 02/03, against the motion played
-    cal = calibration.calibrate(recs["nucleo-iks02a1", "stationary"], recs["nucleo-iks02a1", "six-faces"], rot)
-    gyr, acc, mag_cal = cal.apply(rot)
-    result = filters.estimate_attitude(gyr, acc, mag_cal, rot.rate_hz, method="mekf", field_n=frames.MAG_FIELD_LONDON)
-    truth = capture.protocol_motion("mag-rotations", rot.rate_hz).euler
-    total, heading, tilt = metrics.attitude_errors(result.quat, euler_to_quat(truth))
+    hard, soft = calibration.fit_mag_calibration(mag)
+    truth = unit_truth.body_truth(rot)
+    sd_h, sd_S = unit_truth.mag_fit_sd(mag[fresh], truth["mag_hard_iron"], truth["mag_S"], unit_truth.sample_sigma(rot, "mag"))
+    assert np.all(np.abs(hard - truth["mag_hard_iron"]) < 4 * sd_h), (hard - truth["mag_hard_iron"]) / sd_h
+    assert np.all(np.abs(soft - truth["mag_S"]) < 4 * sd_S), (soft - truth["mag_S"]) / sd_S
+    # lab 04: the attitude MEKF on the same recording against the motion played
+    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))  # no calibration saved: the kit's default
+    truth_q = euler_to_quat(capture.protocol_motion("mag-rotations", rot.rate_hz).euler)
     settled = rot.t > 5.0
-    assert np.degrees(metrics.rmse(total[settled], 0.0)) < 1.0  # 0.25° here
+
+    def heading_rmse_deg(cal):
+        gyr, acc, mag_in = cal.apply(rot) if cal is not None else (rot.body("gyr"), rot.body("acc"), rot.body("mag"))
+        result = filters.estimate_attitude(gyr, acc, mag_in, rot.rate_hz, method="mekf", field_n=frames.MAG_FIELD_LONDON)
+        _, heading, _ = metrics.attitude_errors(result.quat, truth_q)
+        return np.degrees(metrics.rmse(heading[settled], 0.0))
+
+    own = calibration.calibrate(recs["nucleo-iks02a1", "stationary"], recs["nucleo-iks02a1", "six-faces"], rot)
+    default = calibration.calibration_for(rot)
+    assert default == calibration.Calibration.load(calibration.bundled_calibration_path("nucleo-iks02a1"))
+    assert heading_rmse_deg(own) < 1.0 and heading_rmse_deg(default) < 1.0  # 0.15–0.2° here
+    assert heading_rmse_deg(None) > 10.0  # raw: the unit's hard iron (≈ 15 µT) turns the heading by ≈ 20°
 
 
 def test_lab03_alignment_and_headings_on_the_recordings(recorded):
@@ -296,8 +302,8 @@ def test_lab05_tilt_filter_on_the_recordings(recorded):
         run = kf.run(gyr_raw[:, rate], angle, ok)  # raw gyro: the filter finds the bias itself
         held = np.isfinite(known) & (tilt.t > 3.0)
         assert np.degrees(metrics.rmse(run.angle[held], known[held])) < 0.5, axis  # 0.1–0.2° here
-        # its bias state agrees with lab 02's bias from the separate rest recording (same board): within the
-        # filter's error (≤ 0.02 °/s here) and 4σ of the board's bias walk between the rest's mean and the end
-        # of the tilt recording (Var ≤ K²(t_end + T_rest/3), as above)
-        walk = C_virtual.BIAS_RANDOM_WALK["mpu6050"][0] * np.sqrt(tilt.t[-1] + still.t[-1] / 3)
-        assert abs(run.bias[-1] - cal.gyro_bias[rate]) < np.radians(0.02) + 4 * walk, axis  # biases: 1–6 °/s
+        # its bias state at the end is the unit's bias b₀ + W(T) (tests/unit_truth.py): within the filter's error
+        # (≤ 0.02 °/s here) and 4 standard deviations of the walk, K·√T
+        truth = unit_truth.body_truth(tilt)
+        walk = truth["gyro_bias_rw"] * np.sqrt(tilt.t[-1] + 1.0 / tilt.rate_hz)
+        assert abs(run.bias[-1] - truth["gyro_bias"][rate]) < np.radians(0.02) + 4 * walk, axis  # biases: 1–2.5 °/s

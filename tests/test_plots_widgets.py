@@ -158,15 +158,17 @@ def test_live_attitude_applies_a_calibration_and_names_a_bad_method():
         widgets.LiveAttitude("ekf").update(rec)
 
 
-def test_live_view_follows_the_virtual_board():
-    """End to end: a virtual board on a pty, the recorder's thread, polls from this thread."""
+def test_live_view_follows_the_virtual_board(tmp_path, monkeypatch):
+    """End to end: a virtual board on a pty, the recorder's thread, polls from this thread; the board is the bundled
+    unit, so the kit's default calibration (nothing saved) corrects it."""
     from kfkit import capture
 
+    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
     angles = np.radians([17.0, -11.0, 57.0])
     motion = sim.stationary(20.0, 104.0, *angles)
     with capture.Recorder(capture.VirtualBoard(motion=motion, realtime=False, seed=1), seconds=8) as recorder:
         view = widgets.AttitudeView.live(lambda: recorder.recording(last_seconds=2.0),
-                                         estimator=widgets.LiveAttitude("mekf"), start=False)
+                                         estimator=widgets.LiveAttitude("mekf", calibration="auto"), start=False)
         recorder.done.wait(30)
         q = view.poll()
     got = Rotation.from_quat(np.r_[q[1:], q[0]])
@@ -175,14 +177,15 @@ def test_live_view_follows_the_virtual_board():
     assert view.estimator.t_last > 7.0
 
 
-def test_live_view_follows_the_capture_panel_on_the_virtual_board(tmp_path):
+def test_live_view_follows_the_capture_panel_on_the_virtual_board(tmp_path, monkeypatch):
     """Lab 04's wiring: the capture panel (virtual board) drives the 3-D view; nothing is drawn
     before record; when the panel stops, the view keeps the last attitude."""
     from scipy.spatial.transform import Rotation as Rot
 
+    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))  # nothing saved: the kit's default calibration
     panel = widgets.capture_panel(out_dir=tmp_path, fast=True)
     panel.port.value, panel.seconds.value = "virtual", 4.0
-    view = widgets.AttitudeView.live(panel, estimator=widgets.LiveAttitude("mekf"), start=False)
+    view = widgets.AttitudeView.live(panel, estimator=widgets.LiveAttitude("mekf", calibration="auto"), start=False)
     assert view.poll() is None and "t = " not in view.status.value  # not recording yet: nothing drawn
     panel.record()
     assert panel.recorder.done.wait(30)

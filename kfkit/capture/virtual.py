@@ -6,6 +6,13 @@ writes lines to the master end at the board's real rate. Like an Arduino that re
 its port opens, it starts (header, then ``seq`` 0) when the host sends its first byte;
 afterwards ``h`` re-sends the header and ``s`` stops/starts streaming.
 
+By default each board is the very unit the bundled recordings come from (:data:`UNITS`, read from
+:mod:`kfkit.datasets`): the Nucleo of labs 02–04 with its biases, accelerometer scale errors and hard and
+soft iron, the MPU6050 of lab 05 with its biases and scale errors. So the bundled calibration
+(``data/calibration_<board>.json``, what :func:`kfkit.calibration.load_calibration` gives before a student
+saves one) is the virtual board's too, and labs 02/03 on its recordings find the unit's parameters.
+``unit=None`` gives an ideal sensor instead: white noise and quantisation, nothing to calibrate.
+
 The sensors' biases wander as one continuous random walk b(t) = b₀ + ∫ w dt (density K, one path
 carried from chunk to chunk of the simulation), so a long recording's Allan deviation turns up as
 K·√(τ/3) beyond its minimum, as a real sensor's does. Datasheets give no K for these chips; the
@@ -27,6 +34,7 @@ a list of positions or a probability per sample, drawn from ``seed``):
 from __future__ import annotations
 
 import fcntl
+import inspect
 import os
 import select
 import sys
@@ -38,7 +46,7 @@ import tty
 import numpy as np
 
 from .. import sim
-from ..datasets import NUCLEO_UNIT
+from ..datasets import MPU6050_ACCEL_BIAS, MPU6050_ACCEL_SCALE, MPU6050_GYRO_BIAS, NUCLEO_UNIT
 from ..frames import G
 from ..sensors import board as get_board
 from ..filters.tilt import TiltAttitude
@@ -58,6 +66,43 @@ BIAS_RANDOM_WALK = {
     # a consumer part: gyro minimum ≈ 9 °/h at τ ≈ 8 s, accelerometer ≈ 70 µg at τ ≈ 70 s
     "mpu6050": (2.0e-5, 1.0e-4),
 }
+
+#: Each board's default unit (``VirtualBoard(unit="bundled")``): the sensor errors of the unit its bundled
+#: recordings are simulated with, as keyword arguments of ``sim.simulate_imu`` (sensor frame, SI, µT).
+UNITS = {
+    "nucleo-iks02a1": NUCLEO_UNIT,  # labs 02–04: biases, accelerometer scale, hard and soft iron, bias walks
+    # lab 05's board. Its walks are BIAS_RANDOM_WALK's: the bundled 05_* recordings (10–48 s) were made with
+    # sim.simulate_imu's default walks, 1e-4 on both, a gyro walk 5× what a long rest of such a part shows
+    "mpu6050": {"gyro_bias": MPU6050_GYRO_BIAS, "accel_bias": MPU6050_ACCEL_BIAS,
+                "accel_scale": MPU6050_ACCEL_SCALE, "gyro_bias_rw": BIAS_RANDOM_WALK["mpu6050"][0],
+                "accel_bias_rw": BIAS_RANDOM_WALK["mpu6050"][1]},
+}
+
+#: the errors a unit can have, with their shapes (``sim.simulate_imu`` keywords)
+UNIT_ERRORS = {"gyro_bias": (3,), "accel_bias": (3,), "accel_scale": (3,), "gyro_scale": (3,), "mag_hard_iron": (3,),
+               "mag_soft_iron": (3, 3), "gyro_bias_rw": (), "accel_bias_rw": ()}
+
+
+def unit_errors(board_name: str, unit="bundled") -> dict:
+    """The sensor errors (``sim.simulate_imu`` keywords, arrays) of a virtual ``board_name`` with ``unit``:
+    "bundled" → its entry in :data:`UNITS`, None → {} (an ideal sensor), a dict → itself (errors it leaves
+    out are zero). Unknown keys and wrong shapes raise ValueError."""
+    if isinstance(unit, str):
+        if unit != "bundled":
+            raise ValueError(f"unit must be 'bundled', None or a dict of sensor errors, got {unit!r}")
+        if board_name not in UNITS:
+            raise ValueError(f"no bundled unit for board {board_name!r} (known: {', '.join(UNITS)}); "
+                             "pass unit=None for an ideal sensor or a dict of its errors")
+        unit = UNITS[board_name]
+    unit = dict(unit or {})
+    unknown = sorted(set(unit) - set(UNIT_ERRORS))
+    if unknown:
+        raise ValueError(f"unknown sensor error(s) {', '.join(unknown)} in unit; known: {', '.join(UNIT_ERRORS)}")
+    errors = {k: np.array(v, float) for k, v in unit.items()}
+    for k, v in errors.items():
+        if v.shape != UNIT_ERRORS[k] or not np.all(np.isfinite(v)) or (k.endswith("_rw") and v < 0):
+            raise ValueError(f"unit {k}: expected finite values of shape {UNIT_ERRORS[k]} (a walk ≥ 0), got {unit[k]!r}")
+    return errors
 
 
 def board_fields(b) -> tuple:
@@ -91,16 +136,20 @@ class VirtualBoard:
     rate_hz      sample rate, Hz (default: the motion's, else the board's: 104 Nucleo, 100 MPU6050)
     board        "nucleo-iks02a1" or "mpu6050" (kfkit.sensors.BOARDS)
     motion       a sim.Motion to play (looped when ``loop``), or None: at rest, level, forever
+    unit         the sensor errors: "bundled" (default) the board's unit in :data:`UNITS`, the one its bundled
+                 recordings and calibration come from; None an ideal sensor (no bias, walk, scale error or
+                 iron: white noise and quantisation only); or a dict of ``sim.simulate_imu`` keywords
+                 (``gyro_bias``, ``accel_bias`` (3,), ``accel_scale``, ``gyro_scale``, ``mag_hard_iron``,
+                 ``mag_soft_iron``, ``gyro_bias_rw``, ``accel_bias_rw``; left out: none)
     faults       dict, see the module docstring
-    seed         seeds the sensor noise, biases and random faults
+    seed         seeds the sensor noise, the bias walks and random faults
     realtime     False: send as fast as the host reads (tests, benchmarks)
     start_us     micros() of the first sample (set near 2³² to exercise the wrap)
     start_seq    ``seq`` of the first sample: a board that was already streaming (a Nucleo does not
                  reset when its port opens); set near 2¹⁶ to exercise the wrap. Resets restart at 0.
     protocol_version  the version its header announces (≠ 1: a board kfkit cannot read)
-    sim_options  extra keyword arguments for ``sim.simulate_imu``; ``gyro_bias``/``accel_bias`` (3,) fix
-                 the constant biases, ``gyro_bias_rw``/``accel_bias_rw`` the walks (default
-                 :data:`BIAS_RANDOM_WALK`), which run on across chunks, loops and resets
+    sim_options  extra keyword arguments for ``sim.simulate_imu`` (e.g. ``field_n``), over the unit's errors
+                 (``gyro_bias_rw=…`` replaces the unit's walk); the walks run on across chunks, loops and resets
     extra_lines  callables ``f(board, n, truth_euler) → bytes | None`` adding lines of other
                  kinds after sample ``n`` (e.g. ``$ATT,…`` from the tilt firmware)
     attitude     True: behave like ``firmware/mpu6050_tilt_kf``, adding ``$ATT,roll_deg,pitch_deg*HH``
@@ -111,19 +160,23 @@ class VirtualBoard:
     """
 
     def __init__(self, rate_hz=None, board="nucleo-iks02a1", motion=None, faults=None, seed=0, *,
-                 realtime=True, loop=True, start_us=0, start_seq=0, chunk_s=1.0, sim_options=None, extra_lines=(),
-                 attitude=False, protocol_version=1):
+                 unit="bundled", realtime=True, loop=True, start_us=0, start_seq=0, chunk_s=1.0, sim_options=None,
+                 extra_lines=(), attitude=False, protocol_version=1):
         self.board = get_board(board) if isinstance(board, str) else board
         if motion is not None and rate_hz is not None and abs(float(rate_hz) - motion.rate_hz) > 1e-9:
             raise ValueError(f"rate_hz={rate_hz} differs from the motion's rate {motion.rate_hz} Hz")
         self.rate_hz = float(rate_hz or (motion.rate_hz if motion is not None else self.board.rate_hz))
         self.motion, self.loop, self.realtime = motion, loop, realtime
         self.seed, self.start_us, self.start_seq, self.chunk_s = seed, int(start_us), int(start_seq), chunk_s
-        self.sim_options = dict(sim_options or {})
-        walks = BIAS_RANDOM_WALK.get(self.board.name, (0.0, 0.0))
-        self.bias_rw = {"gyro_bias": float(self.sim_options.pop("gyro_bias_rw", walks[0])),
-                        "accel_bias": float(self.sim_options.pop("accel_bias_rw", walks[1]))}
-        self._bias0 = {k: self.sim_options.pop(k) for k in ("gyro_bias", "accel_bias") if k in self.sim_options}
+        self.unit = unit_errors(self.board.name, unit)  # the sensor errors it simulates
+        self.sim_options = {**self.unit, **(sim_options or {})}  # less the biases and walks: to sim.simulate_imu
+        reserved = {"motion", "board", "seed", "mag_rate_hz"}  # the board sets these itself
+        unknown = sorted(set(self.sim_options) - (set(inspect.signature(sim.simulate_imu).parameters) - reserved))
+        if unknown:
+            raise ValueError(f"sim_options: {', '.join(unknown)} cannot be set; give sim.simulate_imu keywords "
+                             f"other than {', '.join(sorted(reserved))}")
+        self.bias_rw = {key: float(self.sim_options.pop(f"{key}_rw", 0.0)) for key in ("gyro_bias", "accel_bias")}
+        self._bias0 = {key: np.asarray(self.sim_options.pop(key, np.zeros(3)), float) for key in self.bias_rw}
         self.extra_lines = list(extra_lines)
         faults = dict(faults or {})
         unknown = set(faults) - set(FAULT_KINDS)
@@ -191,11 +244,7 @@ class VirtualBoard:
         Each chunk is simulated on its own (white noise seeded by [seed, chunk]); the bias path
         b₀ + walk is carried over, so the noise process is one, whatever the chunk length.
         """
-        b, rate = self.board, self.rate_hz
-        rng = np.random.default_rng(self.seed)
-        bias0 = {"gyro_bias": rng.normal(0.0, b.gyro.bias_typical / 2, 3),
-                 "accel_bias": rng.normal(0.0, b.accel.bias_typical / 2, 3)}
-        bias0 = {k: np.asarray(self._bias0.get(k, v), float) for k, v in bias0.items()}
+        b, rate, bias0 = self.board, self.rate_hz, self._bias0
         walk_rng, walk = np.random.default_rng([self.seed, 1]), {k: np.zeros(3) for k in bias0}
         mag_rate = b.mag_rate_hz or rate
         last_mag, chunk_index = np.zeros(3), 0

@@ -256,7 +256,8 @@ class AttitudeResult:
     mag_used  (N,) True where a magnetometer update was made
     method    "euler-ekf" or "mekf"
     bias      (N, 3) gyro bias estimate, rad/s (mekf; zeros for euler-ekf)
-    mag_gated (N,) True where a magnetometer sample was rejected as disturbed (mekf; else all False)
+    mag_gated (N,) True where a magnetometer sample was not used: a disturbed field or a heading
+              outlier (mekf; all False for euler-ekf)
     """
 
     quat: np.ndarray
@@ -539,23 +540,26 @@ MEKF_GYRO_DENSITY = math.radians(0.02)
 MEKF_BIAS_RW = 1e-5
 #: Default accelerometer σ (m/s²), effective: sensor noise plus unmodelled linear acceleration.
 MEKF_ACCEL_NOISE = 0.5
-#: Default magnetometer σ (µT): heading σ = mag_noise / (horizontal field).
-MEKF_MAG_NOISE = 2.0
+#: Default magnetometer σ (µT) per axis and sample: the IIS2MDC's 0.3 µT RMS noise plus the residual of
+#: a hard/soft-iron calibration (≈ 0.5–1 µT); the same figure as the Euler EKF's. Heading σ per sample
+#: = mag_noise / (horizontal field): 3° at London's 19.5 µT.
+MEKF_MAG_NOISE = 1.0
 #: Magnetic disturbance gates: a sample is rejected when |‖m‖ − ‖m_ref‖| > MAG_NORM_GATE·‖m_ref‖
 #: or the dip angle (estimated with the current attitude) differs from the reference by > MAG_DIP_GATE.
 MAG_NORM_GATE = 0.1
 MAG_DIP_GATE = math.radians(10.0)
 #: After a rejected magnetometer sample, the field must pass the gates for MAG_RECOVERY seconds
-#: before it is used again (a disturbance fades in and out; its edges pass the gates).
+#: before it is used again (a disturbance fades in and out; its edges pass the gates). While the
+#: field is trusted, the reference norm and dip follow it with the time constant MAG_REF_TAU (s).
+#: These gates and times are VQF's defaults (Laidig & Seel 2023).
 MAG_RECOVERY = 1.0
-#: A disturbance is not rejected for ever: after MAG_MAX_REJECTION seconds of rejection the
-#: magnetometer is used again with its heading σ multiplied by MAG_LONG_REJECTION_FACTOR (a slower
-#: heading correction), so that a field that changed for good cannot leave the heading to the gyro
-#: alone indefinitely. While the field is trusted, the reference norm and dip follow it with the
-#: time constant MAG_REF_TAU (s). These three are VQF's defaults (Laidig & Seel 2023).
-MAG_MAX_REJECTION = 60.0
-MAG_LONG_REJECTION_FACTOR = 2.0
 MAG_REF_TAU = 20.0
+#: χ² gate (1 degree of freedom; 9 ≈ 3σ, 99.7 %) on the heading innovation, against the filter's own
+#: S = H P Hᵀ + R: (1) a single sample of a trusted field whose y²/S exceeds it is skipped (an outlier
+#: the norm and dip gates let through), for at most MAG_RECOVERY seconds in a row; (2) a rejected
+#: field whose heading, averaged over MAG_RECOVERY, agrees with the filter's within this gate for
+#: MAG_RECOVERY seconds is adopted as the new reference (a field that changed for good).
+MAG_NIS_GATE = 9.0
 #: Time constant (s) of the gyro-stabilised low-pass filter on the accelerometer (see MultiplicativeEKF).
 ACCEL_TAU = 1.0
 
@@ -579,8 +583,23 @@ class MultiplicativeEKF:
     out), and f̄_b = R(q_I)ᵀ f̄_I. ``accel_tau=None`` uses the raw accelerometer.
 
     The magnetometer corrects heading only (a heading measurement whose H has no tilt part), so a
-    disturbed field never tilts the estimate directly; and a sample is rejected as disturbed when
-    its norm or its dip angle differ from the reference by more than the gates.
+    disturbed field never tilts the estimate directly. Magnetic disturbances, in three layers:
+
+    1. gates: a sample whose norm or dip angle (with the current attitude) differs from the
+       reference by more than ``mag_norm_gate`` / ``mag_dip_gate`` marks the field as disturbed; it is
+       trusted again once it has passed the gates for ``mag_recovery`` s;
+    2. innovation gate: a trusted sample with y²/S > ``mag_nis_gate`` is skipped, for at most
+       ``mag_recovery`` s in a row (a field with the right norm and dip that keeps disagreeing means the
+       filter's heading, not the field, is wrong);
+    3. bounded rejection: while disturbed, the heading innovations ȳ are averaged (time constant
+       ``mag_recovery``, noise variance v̄ from σ_ψ²) and compared with the filter's own heading
+       variance σ_h² = H P Hᵀ. When v̄ ≤ σ_h² and ȳ² ≤ ``mag_nis_gate``·(σ_h² + v̄) for ``mag_recovery``
+       s, the field's heading agrees with the gyro's to within what the filter knows: it becomes the
+       new reference (its averaged norm and dip) and is used again. σ_h² grows without a magnetometer
+       (gyro noise, bias random walk), so any steady field is adopted in the end: at 100 Hz with the
+       defaults, one whose heading agrees within seconds, one 10° off after about 3.5 minutes — about
+       when the gyro alone is no better. (VQF instead uses a field again after 60 s of rejection; on
+       BROAD's trial 06 that follows a field 3–4° off for the second half of the motion.)
 
     Knobs (defaults from the sensor noise; see the module constants):
     rate_hz        sample rate, Hz
@@ -593,9 +612,10 @@ class MultiplicativeEKF:
                    None: learned from the first magnetometer samples (:func:`learn_field`)
     mag_norm_gate  relative norm gate (fraction of ‖m_ref‖), None = off
     mag_dip_gate   dip-angle gate (rad), None = off
-    mag_recovery   seconds the field must pass the gates after a rejection before it is used again
-    mag_max_rejection   seconds of rejection after which the magnetometer is used again, its heading
-                   σ multiplied by ``mag_long_rejection_factor``; None = reject for as long as disturbed
+    mag_recovery   seconds the field must pass the gates after a rejection before it is used again;
+                   also the averaging time and duration of the innovation tests (2, 3 above)
+    mag_nis_gate   χ² gate (1 dof) of the innovation tests 2 and 3; None = no innovation test, and a
+                   disturbed field is rejected for as long as it fails the gates
     mag_ref_tau    time constant (s) with which the reference norm and dip follow a trusted field; None = fixed
     accel_tau      time constant (s) of the gyro-stabilised accelerometer low-pass; None = raw
     q0, bias0      initial quaternion (w-x-y-z) and gyro bias (rad/s); default from the first
@@ -608,8 +628,8 @@ class MultiplicativeEKF:
     def __init__(self, rate_hz, gyro_noise=None, gyro_bias_rw=MEKF_BIAS_RW, accel_noise=MEKF_ACCEL_NOISE,
                  mag_noise=MEKF_MAG_NOISE, accel_gate=ACCEL_GATE, accel_gate_factor=ACCEL_GATE_FACTOR, field_n=None,
                  mag_norm_gate=MAG_NORM_GATE, mag_dip_gate=MAG_DIP_GATE, mag_recovery=MAG_RECOVERY,
-                 mag_max_rejection=MAG_MAX_REJECTION, mag_long_rejection_factor=MAG_LONG_REJECTION_FACTOR,
-                 mag_ref_tau=MAG_REF_TAU, accel_tau=ACCEL_TAU, q0=None, bias0=None, P0=None):
+                 mag_nis_gate=MAG_NIS_GATE, mag_ref_tau=MAG_REF_TAU, accel_tau=ACCEL_TAU, q0=None, bias0=None,
+                 P0=None):
         if not rate_hz > 0:
             raise ValueError(f"MultiplicativeEKF: rate_hz must be positive, got {rate_hz}")
         self.rate_hz = float(rate_hz)
@@ -624,8 +644,12 @@ class MultiplicativeEKF:
         self.mag_norm_gate = None if mag_norm_gate is None else float(mag_norm_gate)
         self.mag_dip_gate = None if mag_dip_gate is None else float(mag_dip_gate)
         self.mag_recovery = float(mag_recovery)
-        self.mag_max_rejection = None if mag_max_rejection is None else float(mag_max_rejection)
-        self.mag_long_rejection_factor = float(mag_long_rejection_factor)
+        if not self.mag_recovery > 0:
+            raise ValueError(f"MultiplicativeEKF: mag_recovery must be positive (s), got {mag_recovery}")
+        self.mag_nis_gate = None if mag_nis_gate is None else float(mag_nis_gate)
+        if self.mag_nis_gate is not None and not self.mag_nis_gate > 0:
+            raise ValueError(f"MultiplicativeEKF: mag_nis_gate must be positive (a χ² value, 9 ≈ 3σ) or None, "
+                             f"got {mag_nis_gate}")
         self.mag_ref_tau = None if mag_ref_tau is None else float(mag_ref_tau)
         self.accel_tau = float(accel_tau or 0.0)
         self.q = None if q0 is None else np.asarray(q0, dtype=float) / np.linalg.norm(q0)
@@ -663,27 +687,17 @@ def _mekf_loop(f: MultiplicativeEKF, gyr, acc, mag) -> AttitudeResult:
     mN, mE, mD = (float(v) for v in f.field_n)
     h_ref = math.hypot(mN, mE)
     psi_ref = atan2(mE, mN)
-    dip_gate = f.mag_dip_gate if f.mag_dip_gate is not None else math.inf
     r_psi = (f.mag_noise / h_ref) ** 2
-    recovery = f.mag_recovery
-    max_rejection = f.mag_max_rejection if f.mag_max_rejection is not None else math.inf
-    r_psi_long = r_psi * f.mag_long_rejection_factor ** 2
-    ref_rate = 1.0 / f.mag_ref_tau if f.mag_ref_tau else 0.0
     lpf = 1.0 - math.exp(-dt / f.accel_tau) if f.accel_tau > 0 else 1.0
     # State carried from one run() to the next (a live view feeds a recording in pieces):
     c = f._carry or {
         "k": 0,  # index of this run's first sample since the filter started
-        "norm_ref": math.sqrt(mN * mN + mE * mE + mD * mD), "dip_ref": atan2(mD, h_ref),  # gates' reference field
-        "good_since": -math.inf,  # time since which the field has passed the gates (trusted from the start)
-        "rejecting_since": None,  # time the current rejection began
-        "t_mag": None,  # time of the previous magnetometer sample
+        "mag_gate": _MagGate(f, r_psi),  # the magnetometer's disturbance logic and its clocks
         "I": (1.0, 0.0, 0.0, 0.0),  # strapdown frame I: gyro-only attitude, body → I
         "f_I": tuple(float(v) for v in acc[0]),  # low-passed specific force in I
     }
-    k_start, norm_ref, dip_ref = c["k"], c["norm_ref"], c["dip_ref"]
-    good_since, rejecting_since, t_mag = c["good_since"], c["rejecting_since"], c["t_mag"]
+    k_start, mag_gate = c["k"], c["mag_gate"]
     (iw, ix, iy, iz), (fbx, fby, fbz) = c["I"], c["f_I"]
-    norm_gate = f.mag_norm_gate * norm_ref if f.mag_norm_gate is not None else math.inf
     W = gyr.tolist()
     A = acc.tolist()
     M = mag.tolist() if mag is not None else None
@@ -782,35 +796,16 @@ def _mekf_loop(f: MultiplicativeEKF, gyr, acc, mag) -> AttitudeResult:
                 n_e = r10 * mx + r11 * my + r12 * mz
                 n_d = r20 * mx + r21 * my + r22 * mz
                 hm = math.hypot(n_n, n_e)
-                norm = sqrt(hm * hm + n_d * n_d)
-                dip = atan2(n_d, hm)
-                t_k = (k_start + k) * dt
-                if abs(norm - norm_ref) > norm_gate or abs(dip - dip_ref) > dip_gate:
-                    good_since = math.inf
-                    if rejecting_since is None:
-                        rejecting_since = t_k
-                elif good_since > t_k:
-                    good_since = t_k
-                trusted = t_k - good_since >= recovery
-                if trusted:
-                    rejecting_since = None
-                    if ref_rate and t_mag is not None:  # the reference follows a trusted field slowly
-                        a_ref = min(1.0, (t_k - t_mag) * ref_rate)
-                        norm_ref += a_ref * (norm - norm_ref)
-                        dip_ref += a_ref * (dip - dip_ref)
-                        norm_gate = f.mag_norm_gate * norm_ref if f.mag_norm_gate is not None else math.inf
-                t_mag = t_k
-                # rejected for longer than max_rejection: used again, with a larger σ (slowly)
-                if not trusted and t_k - rejecting_since <= max_rejection:
+                yp = psi_ref - atan2(n_e, n_n)
+                if yp > pi or yp <= -pi:
+                    yp = pi - (pi - yp) % TWO_PI
+                Hm[0], Hm[1], Hm[2] = r20, r21, r22
+                PH = P @ Hm
+                var_h = float(Hm @ PH)
+                if not mag_gate.use((k_start + k) * dt, sqrt(hm * hm + n_d * n_d), atan2(n_d, hm), yp, var_h):
                     mag_rej[k] = True
                 else:
-                    rv = r_psi if trusted else r_psi_long
-                    yp = psi_ref - atan2(n_e, n_n)
-                    if yp > pi or yp <= -pi:
-                        yp = pi - (pi - yp) % TWO_PI
-                    Hm[0], Hm[1], Hm[2] = r20, r21, r22
-                    PH = P @ Hm
-                    sp = float(Hm @ PH) + rv
+                    sp = var_h + r_psi
                     Kp = PH / sp
                     P = P - np.outer(Kp, PH)
                     P = 0.5 * (P + P.T)
@@ -827,8 +822,7 @@ def _mekf_loop(f: MultiplicativeEKF, gyr, acc, mag) -> AttitudeResult:
     f.q = np.array([qw, qx, qy, qz])
     f.bias = np.array([bx, by, bz])
     f.P = P
-    f._carry = {"k": k_start + N, "norm_ref": norm_ref, "dip_ref": dip_ref, "good_since": good_since,
-                "rejecting_since": rejecting_since, "t_mag": t_mag, "I": (iw, ix, iy, iz), "f_I": (fbx, fby, fbz)}
+    f._carry = {"k": k_start + N, "mag_gate": mag_gate, "I": (iw, ix, iy, iz), "f_I": (fbx, fby, fbz)}
     quat = np.array(quats, dtype=float).reshape(N, 4)
     quat *= np.where(quat[:, :1] < 0, -1.0, 1.0)
     R = quat_to_dcm(quat)
@@ -836,6 +830,76 @@ def _mekf_loop(f: MultiplicativeEKF, gyr, acc, mag) -> AttitudeResult:
     return AttitudeResult(quat=quat, euler=quat_to_euler(quat), P=P_att_n, y=y_out, S=S_out, nis=nis,
                           accel_gated=gated_out, mag_used=mag_out, method="mekf",
                           bias=np.array(biases, dtype=float).reshape(N, 3), mag_gated=mag_rej)
+
+
+class _MagGate:
+    """The MEKF's magnetic-disturbance logic (see :class:`MultiplicativeEKF`, layers 1–3), one
+    magnetometer sample at a time; its reference field and clocks carry from one run() to the next."""
+
+    __slots__ = ("norm_ref", "dip_ref", "norm_gate", "dip_gate", "recovery", "nis_gate", "ref_rate", "r_psi",
+                 "good_since", "t_prev", "nis_since", "mean", "adopt_since")
+
+    def __init__(self, f: MultiplicativeEKF, r_psi):
+        mN, mE, mD = (float(v) for v in f.field_n)
+        self.norm_ref, self.dip_ref = math.sqrt(mN * mN + mE * mE + mD * mD), math.atan2(mD, math.hypot(mN, mE))
+        self.norm_gate = f.mag_norm_gate if f.mag_norm_gate is not None else math.inf  # fraction of norm_ref
+        self.dip_gate = f.mag_dip_gate if f.mag_dip_gate is not None else math.inf
+        self.recovery = f.mag_recovery
+        self.nis_gate = f.mag_nis_gate if f.mag_nis_gate is not None else math.inf
+        self.ref_rate = 1.0 / f.mag_ref_tau if f.mag_ref_tau else 0.0
+        self.r_psi = r_psi  # heading variance of one sample, rad²
+        self.good_since = -math.inf  # time since which the field has passed the gates (trusted from the start)
+        self.t_prev = None  # time of the previous magnetometer sample
+        self.nis_since = None  # first of the trusted samples in a row that failed the innovation gate
+        self.mean = None  # while disturbed: averaged [heading innovation, its noise variance, norm, dip]
+        self.adopt_since = None  # since when the disturbed field's averaged heading agrees with the filter's
+
+    def use(self, t, norm, dip, y, var_h):
+        """True if the sample at time t (s) is to be used: field norm (µT) and dip (rad) seen with the
+        current attitude, heading innovation y (rad) and the filter's heading variance var_h = H P Hᵀ (rad²)."""
+        dt_m = t - self.t_prev if self.t_prev is not None else 0.0
+        self.t_prev = t
+        if abs(norm - self.norm_ref) > self.norm_gate * self.norm_ref or abs(dip - self.dip_ref) > self.dip_gate:
+            self.good_since = math.inf
+        elif self.good_since > t:
+            self.good_since = t
+        if t - self.good_since >= self.recovery:  # trusted
+            self.mean = None
+            if self.ref_rate:  # the reference follows a trusted field slowly
+                a = min(1.0, dt_m * self.ref_rate)
+                self.norm_ref += a * (norm - self.norm_ref)
+                self.dip_ref += a * (dip - self.dip_ref)
+            if y * y <= self.nis_gate * (var_h + self.r_psi):
+                self.nis_since = None
+                return True
+            if self.nis_since is None:
+                self.nis_since = t
+            return t - self.nis_since >= self.recovery  # an outlier, unless it has lasted
+        self.nis_since = None
+        if self.nis_gate == math.inf:
+            return False
+        # disturbed: average its heading innovation, norm and dip; v = variance of the averaged noise
+        if self.mean is None:
+            self.mean, self.adopt_since = [y, self.r_psi, norm, dip], None
+        else:
+            a = 1.0 - math.exp(-dt_m / self.recovery)
+            m = self.mean
+            d = y - m[0]
+            m[0] += a * (math.pi - (math.pi - d) % TWO_PI)  # wrapped
+            m[1] = (1.0 - a) ** 2 * m[1] + a * a * self.r_psi
+            m[2] += a * (norm - m[2])
+            m[3] += a * (dip - m[3])
+        y_mean, v_mean, norm_mean, dip_mean = self.mean
+        if v_mean <= var_h and y_mean * y_mean <= self.nis_gate * (var_h + v_mean):
+            if self.adopt_since is None:
+                self.adopt_since = t
+            if t - self.adopt_since >= self.recovery:  # agrees in heading: the field changed for good
+                self.norm_ref, self.dip_ref = norm_mean, dip_mean
+                self.good_since, self.mean = t - self.recovery, None
+                return True
+        else:
+            self.adopt_since = None
+        return False
 
 
 def _mekf_reset(qw, qx, qy, qz, bx, by, bz, dxs):

@@ -1,0 +1,41 @@
+"""Lab 04's solution run top to bottom on the other data sources its data-source cell takes: the bundled phone
+recording, and a student's own phyphox export (no truth, no labelled phases)."""
+import re
+
+import numpy as np
+
+from kfkit import phone, phyphox, sim
+from test_calibration import run_solution_on
+
+LAB = "04_ekf_attitude.ipynb"
+
+
+def rmse_row(text, name):
+    """The roll, pitch, yaw RMSE (°) of the wrap-up table's row ``name``."""
+    match = re.search(rf"^{re.escape(name)}\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+[\d.]+$", text, re.MULTILINE)
+    assert match, f"no wrap-up row {name!r} in the output"
+    return np.array([float(v) for v in match.groups()])
+
+
+def test_lab04_runs_on_the_bundled_phone_recording_within_its_budget():
+    errors, text = run_solution_on(LAB, {"RECORDING": "phone"})
+    assert errors == [] and "Warning" not in text
+    assert "board phone-phyphox" in text and "kfkit default for a phone" in text  # calibration_for picked the phone's
+    assert "04_phone_attitude_tour" in text  # the wrap-up table is the phone's
+    roll, pitch, yaw = rmse_row(text, "EKF (yours), calibrated")
+    assert roll < 1.0 and pitch < 1.0 and yaw < 2.0  # the lab's budget, now on a phone
+    assert (rmse_row(text, "MEKF (kfkit), calibrated")[:2] < 1.0).all()
+
+
+def test_lab04_runs_on_a_phone_export_without_truth(tmp_path):
+    """A student's own phyphox export of the tour (accelerometer, gyroscope, magnetometer): no truth, no labels."""
+    motion = sim.attitude_tour(rate_hz=400.0, translate_accel=2.0, vibration_rms=0.1, seed=61)
+    files = phyphox.simple_experiment_files(phone.simulate_phone(motion, seed=62))
+    files.pop(phyphox.TRUTH_FILE)
+    export = phyphox.write_export(files, tmp_path / "phyphox tour")
+    errors, text = run_solution_on(LAB, {"RECORDING": str(export)})
+    assert errors == [] and "Warning" not in text
+    assert "board phone-phyphox" in text and "no truth in this recording" in text
+    assert "NEES          needs the truth" in text and "NIS (6 rows)  mean" in text  # the NIS needs no truth
+    assert "EKF (yours), calibrated" not in text  # no RMSE table without a truth
+    assert "phone, EKF (yours): RMSE" in text  # section 12 still runs on the bundled phone recording
