@@ -521,6 +521,10 @@ def remount():
         raise OSError(ctypes.get_errno(), "mount")
 attempt("remount the kit read-write", remount)
 attempt("network", lambda: socket.create_connection(("1.1.1.1", 53), timeout=2))
+def loopback():  # the namespace's own 127.0.0.1 works (lab 00 serves its virtual phone there)
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        socket.create_connection(server.getsockname(), timeout=2).close()
+attempt("loopback", loopback)
 res["processes"] = len([p for p in os.listdir("/proc") if p.isdigit()])
 res["read kit"] = len(open(os.path.join(kit, "kfkit", "checkpoints", "lab01.py")).read()) > 0
 print(json.dumps(res))
@@ -550,6 +554,7 @@ def test_sandbox_refuses_writes_hides_instructor_files_and_blocks_the_network(in
                                 "read solutions", "remount")):
                 assert outcome in denied, (name, outcome)
         assert res["become root"] in denied | {"done"} and res["network"] == "ENETUNREACH"
+        assert res["loopback"] == "done"
         assert res["processes"] == 1 and res["read kit"] is True  # its own PID namespace; the kit stays readable
         assert (folder / "canary.txt").read_text() == "kept" and home.read_text() == "kept"
         assert not (KIT_ROOT / "kfkit" / "planted.py").exists() and not (SITE / "planted.pth").exists()

@@ -12,6 +12,8 @@ root or as root of a user namespace), then:
 2. binds the submission's own box folder back (the grader's end of the kernel's sockets), and
    mounts a private, size-limited tmpfs on its ``home/`` (the kernel's cwd and HOME);
 3. remounts every other mount read-only (the kit, the instructor's folders, the venv, /);
+   brings up the namespace's own loopback (a lab may serve itself on 127.0.0.1, as lab 00's
+   virtual phone does; the namespace has no other interface, so still no network);
 4. sets resource limits, drops privileges (another uid when real root; all capabilities when
    root of a user namespace) and sets no_new_privs, so the read-only mounts cannot be undone,
    and asks for SIGKILL when ``unshare`` (killed with the grader) goes away;
@@ -21,10 +23,13 @@ Any failure exits with status 70 and a one-line reason on stderr: the grader nev
 kernel half-isolated in a mode it did not announce.
 """
 import ctypes
+import fcntl
 import json
 import os
 import resource
 import signal
+import socket
+import struct
 import sys
 
 MS_RDONLY, MS_NOSUID, MS_NODEV, MS_NOEXEC = 1, 2, 4, 8
@@ -136,6 +141,14 @@ def isolate_files(spec):
                 fail(f"cannot make {point} read-only ({exc.strerror})")
 
 
+def loopback_up():
+    """Set IFF_UP on ``lo`` (SIOCGIFFLAGS / SIOCSIFFLAGS): a fresh network namespace starts with it down."""
+    SIOCGIFFLAGS, SIOCSIFFLAGS, IFF_UP = 0x8913, 0x8914, 0x1
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        flags = struct.unpack("16sH", fcntl.ioctl(s, SIOCGIFFLAGS, struct.pack("16sH", b"lo", 0)))[1]
+        fcntl.ioctl(s, SIOCSIFFLAGS, struct.pack("16sH", b"lo", flags | IFF_UP))
+
+
 def drop_privileges(spec):
     limits = {resource.RLIMIT_AS: spec["memory"], resource.RLIMIT_FSIZE: spec["file_size"],
               resource.RLIMIT_CORE: 0}
@@ -171,6 +184,7 @@ def main(argv):
         fail("usage: _launch.py SPEC_JSON -- COMMAND…")
     try:
         isolate_files(spec)
+        loopback_up()
         drop_privileges(spec)
         os.chdir(spec["cwd"])
     except OSError as exc:
