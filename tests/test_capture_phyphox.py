@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 import serial.tools.list_ports
 
-from kfkit import frames, phone, sim
-from kfkit.capture import CaptureError, Recorder, capture
+from kfkit import frames, phone
+from kfkit.capture import Recorder, capture
 from kfkit.capture.phyphox import (PhoneError, PhoneExperimentError, PhoneStoppedError, PhoneUnreachableError,
                                    PhyphoxClient, RemoteAccessOffError, parse_url)
 from kfkit.capture.virtual_phone import VirtualPhone, format_number

@@ -3,7 +3,6 @@
 nbval validates solutions/ separately (pytest collects solutions/*.ipynb with --nbval-lax).
 """
 import ast
-from pathlib import Path
 
 import nbformat
 import pytest

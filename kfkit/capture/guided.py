@@ -89,8 +89,8 @@ def _heading_prompt(deg, tilted, first):
     where = "north" if deg == 0 else f"{_POINTS[deg]} ({deg}° clockwise from north)"
     where = f"nose (printed X arrow) pointing {where}, still"
     if not tilted:
-        return f"flat on the table, {where}" + ("; find north first with a phone's compass, away from steel and "
-                                                "magnets" if first else "")
+        return f"flat on the table, {where}" + ("; find true north first (a map, or a phone's compass set to "
+                                                "true north), away from steel and magnets" if first else "")
     roll, pitch = HEADING_TILT_DEG
     how = (f"tilt the board, right edge about {roll}° down and nose about {-pitch}° down (prop up its back-left "
            f"corner on a book), " if first else "keep the tilt, ")

@@ -29,7 +29,6 @@ from __future__ import annotations
 import errno
 import http.client
 import json
-import math
 import socket
 import time
 import urllib.error
