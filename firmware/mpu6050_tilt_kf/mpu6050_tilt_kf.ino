@@ -6,7 +6,7 @@
 // The first 2 s after start measure the gyro bias: keep the board still and flat. See README.md.
 //
 // Wiring (GY-521): VCC 5 V (or 3.3 V), GND, SDA → A4, SCL → A5 on an Uno/Nano (SDA/SCL pins elsewhere).
-// Libraries: Wire (built in); firmware/tilt_kf and firmware/common (kfkit_protocol.h), passed to
+// Libraries: Wire (built in); firmware/tilt_kf and firmware/common (kfkit_protocol.h, kfkit_mpu6050.h), passed to
 // arduino-cli with --library (see README.md).
 
 #include <Arduino.h>
@@ -19,6 +19,7 @@
 #define KFKIT_FIELDS "t_us|seq|ax|ay|az|gx|gy|gz"
 #define KFKIT_HEADER_EXTRA "accel_fs_g=2,gyro_fs_dps=250,messages=ATT,filter=tilt_kf"
 #include <kfkit_protocol.h>
+#include <kfkit_mpu6050.h>
 #include <tilt_kf.h>
 
 // --- settings ---------------------------------------------------------------------------------
@@ -33,10 +34,7 @@ static const float ROLL_MIN_G = 0.5f;            // no roll update while sqrt(fy
 static const float ACCEL_BIAS_G[3] = {0.0f, 0.0f, 0.0f};
 static const float ACCEL_SCALE[3] = {1.0f, 1.0f, 1.0f};
 
-// --- MPU6050 registers (PS-MPU-6000A-00 / RM-MPU-6000A-00) ----------------------------------------
-static const uint8_t MPU_ADDRESS = 0x68;  // AD0 low
-static const uint8_t REG_SMPLRT_DIV = 0x19, REG_CONFIG = 0x1A, REG_GYRO_CONFIG = 0x1B, REG_ACCEL_CONFIG = 0x1C;
-static const uint8_t REG_ACCEL_XOUT_H = 0x3B, REG_PWR_MGMT_1 = 0x6B, REG_WHO_AM_I = 0x75;
+// --- MPU6050 counts (kfkit_mpu6050.h sets ±2 g and ±250 °/s) ----------------------------------------
 static const float ACCEL_LSB_PER_G = 16384.0f;  // ±2 g
 static const float GYRO_LSB_PER_DPS = 131.0f;   // ±250 °/s
 static const float DEG_PER_RAD = 57.29577951f;
@@ -49,22 +47,6 @@ static float gyroSum[2];
 static bool streaming = true;
 static bool filtersRunning = false;
 
-static void writeRegister(uint8_t reg, uint8_t value) {
-    Wire.beginTransmission(MPU_ADDRESS);
-    Wire.write(reg);
-    Wire.write(value);
-    Wire.endTransmission();
-}
-
-static bool readRegisters(uint8_t reg, uint8_t *buffer, uint8_t count) {
-    Wire.beginTransmission(MPU_ADDRESS);
-    Wire.write(reg);
-    if (Wire.endTransmission(false) != 0) return false;
-    if (Wire.requestFrom(MPU_ADDRESS, count) != count) return false;
-    for (uint8_t i = 0; i < count; i++) buffer[i] = Wire.read();
-    return true;
-}
-
 static void startFilters() {
     biasCount = 0;
     gyroSum[0] = gyroSum[1] = 0.0f;
@@ -74,20 +56,7 @@ static void startFilters() {
 
 void setup() {
     Serial.begin(BAUD);
-    Wire.begin();
-    Wire.setClock(400000);
-    uint8_t who = 0;
-    if (!readRegisters(REG_WHO_AM_I, &who, 1) || who != 0x68) {
-        for (;;) {  // nothing to stream: say why once a second
-            Serial.println(F("#ERROR,MPU6050 not found at 0x68: check VCC, GND, SDA, SCL"));
-            delay(1000);
-        }
-    }
-    writeRegister(REG_PWR_MGMT_1, 0x01);    // wake up, clock from the x gyro PLL
-    writeRegister(REG_CONFIG, 0x03);        // DLPF 44 Hz accel / 42 Hz gyro: below Nyquist at 100 Hz
-    writeRegister(REG_SMPLRT_DIV, 9);       // 1 kHz / (1 + 9) = 100 Hz
-    writeRegister(REG_GYRO_CONFIG, 0x00);   // ±250 °/s
-    writeRegister(REG_ACCEL_CONFIG, 0x00);  // ±2 g
+    mpu6050Begin(Serial);  // reports a missing or wrong chip once a second instead of streaming
 
     TiltKfInitialise(&rollKf, SAMPLE_PERIOD_S, &tiltKfDefaultSettings);
     TiltKfInitialise(&pitchKf, SAMPLE_PERIOD_S, &tiltKfDefaultSettings);
@@ -107,21 +76,20 @@ void loop() {
     nextSampleUs += SAMPLE_PERIOD_US;
     if ((int32_t) (micros() - nextSampleUs) > 0) nextSampleUs = micros() + SAMPLE_PERIOD_US;  // fell behind: skip, keep the period
 
-    uint8_t raw[14];
-    if (!readRegisters(REG_ACCEL_XOUT_H, raw, sizeof raw)) {
+    int16_t counts[6];  // ax ay az gx gy gz
+    if (!mpu6050Read(counts)) {
         Serial.println(F("#ERROR,MPU6050 read failed"));
+        seq++;  // the host sees a seq gap: a dropped sample
         return;
     }
-    int16_t counts[7];  // ax ay az temperature gx gy gz, big-endian registers
-    for (uint8_t i = 0; i < 7; i++) counts[i] = (int16_t) ((raw[2 * i] << 8) | raw[2 * i + 1]);
-    const int32_t sample[8] = {(int32_t) tUs, seq++, counts[0], counts[1], counts[2], counts[4], counts[5], counts[6]};
+    const int32_t sample[8] = {(int32_t) tUs, seq++, counts[0], counts[1], counts[2], counts[3], counts[4], counts[5]};
     kfkitSendSample(Serial, sample, 8);
 
     // Body frame FRD: the sensor's z points up when the board lies flat, so y and z flip (M_bs = diag(1, -1, -1)).
     float f[3] = {counts[0] / ACCEL_LSB_PER_G, -counts[1] / ACCEL_LSB_PER_G, -counts[2] / ACCEL_LSB_PER_G};
     for (uint8_t i = 0; i < 3; i++) f[i] = (f[i] - ACCEL_BIAS_G[i]) / ACCEL_SCALE[i];
-    const float p = counts[4] / GYRO_LSB_PER_DPS / DEG_PER_RAD;   // roll rate, rad/s
-    const float q = -counts[5] / GYRO_LSB_PER_DPS / DEG_PER_RAD;  // pitch rate, rad/s
+    const float p = counts[3] / GYRO_LSB_PER_DPS / DEG_PER_RAD;   // roll rate, rad/s
+    const float q = -counts[4] / GYRO_LSB_PER_DPS / DEG_PER_RAD;  // pitch rate, rad/s
     const float roll = TiltKfAccelerometerRoll(f[0], f[1], f[2]);
     const float pitch = TiltKfAccelerometerPitch(f[0], f[1], f[2]);
 
