@@ -124,6 +124,11 @@ def compare(expected, got, rtol=1e-6, atol=1e-9) -> str | None:
     return None
 
 
+def matches(rtol=1e-6, atol=1e-9) -> Callable:
+    """The judge that compares the answer with ``case.expected`` (:func:`compare` at these tolerances)."""
+    return lambda case, got: compare(case.expected, got, rtol=rtol, atol=atol)
+
+
 def run_checkpoint(cp: Checkpoint, answer: Callable, seed=None) -> CheckResult:
     """Run every case of ``cp`` on ``answer``; stop describing at the first failure."""
     cases = cp.cases(np.random.default_rng(seed))

@@ -7,7 +7,7 @@ from .. import datasets
 from ..filters import integrate_rate, roll_kf, roll_kf_predict, roll_kf_update
 from ..frames import G, accel_tilt, wrap_angle
 from ..metrics import angle_error, rmse
-from . import Case, Checkpoint, compare, register
+from . import Case, Checkpoint, compare, matches, register
 
 STILL_SECONDS = 5.0  # the bundled recording starts with the board at rest
 
@@ -97,11 +97,11 @@ register(
     Checkpoint("01.accel_roll", "accel_roll", _accel_roll_cases, _judge_accel_roll, points=1,
                hint="at rest f_y = −g·sin φ and f_z = −g·cos φ; which two numbers does atan2 need so that "
                     "level (f_z = −g) gives 0, not 180°?"),
-    Checkpoint("01.kf_predict", "kf_predict", _predict_cases, lambda c, got: compare(c.expected, got), points=1,
+    Checkpoint("01.kf_predict", "kf_predict", _predict_cases, matches(), points=1,
                hint="the gyro rate moves the roll forward by ω·dt, and the uncertainty only grows (by q)."),
-    Checkpoint("01.kf_update", "kf_update", _update_cases, lambda c, got: compare(c.expected, got), points=2,
+    Checkpoint("01.kf_update", "kf_update", _update_cases, matches(), points=2,
                hint="y = z − x, S = P + r, K = P/S; the new P is smaller than both P and r. Return (x, P, y, S)."),
-    Checkpoint("01.run_kf", "run_kf", _run_cases, lambda c, got: compare(c.expected, got, rtol=1e-6, atol=1e-9), points=2,
+    Checkpoint("01.run_kf", "run_kf", _run_cases, matches(rtol=1e-6, atol=1e-9), points=2,
                hint="start from x0, P0; at every sample predict with gyro_rate[k], then update with roll_acc[k]; "
                     "store x, P, y, S after each update and return four arrays."),
     Checkpoint("01.kf_beats_sensors", "run_kf", _beats_cases, _judge_beats, points=2, what="bundled recording",

@@ -6,7 +6,7 @@ import numpy as np
 from .. import calibration, datasets
 from ..frames import G, euler_to_dcm, mount_matrix
 from ..sensors import board as get_board
-from . import Case, Checkpoint, compare, register
+from . import Case, Checkpoint, compare, matches, register
 
 N_SIGMA = 4.0  # estimates on the bundled recording must lie within 4 standard uncertainties of the truth
 
@@ -202,19 +202,19 @@ def _judge_six_face_recording(case, got):
 
 
 register(
-    Checkpoint("02.gyro_bias", "gyro_bias", _gyro_bias_cases, lambda c, got: compare(c.expected, got, atol=1e-12), points=1,
+    Checkpoint("02.gyro_bias", "gyro_bias", _gyro_bias_cases, matches(atol=1e-12), points=1,
                hint="at rest the true rate is zero, so what is left on average, per axis, is the bias."),
     Checkpoint("02.noise_std", "noise_std", _noise_cases, _judge_noise, points=1,
                hint="the spread about the mean, per axis (axis=0), with the N − 1 of a sample standard deviation."),
     Checkpoint("02.accel_bias", "accel_bias", _accel_bias_cases, _judge_accel_bias, points=1,
                hint="at rest the accelerometer reads the specific force of the pose plus the bias."),
-    Checkpoint("02.six_face", "six_face", _six_face_cases, lambda c, got: compare(c.expected, got, rtol=1e-9, atol=1e-12),
+    Checkpoint("02.six_face", "six_face", _six_face_cases, matches(rtol=1e-9, atol=1e-12),
                points=2, hint="axis i reads s·g + b pointing up and −s·g + b pointing down: add and subtract the two means "
                               "of that axis's component. Return (bias, scale), each of shape (3,)."),
     Checkpoint("02.allan_deviation", "allan_deviation", _allan_cases, _judge_allan, points=2,
                hint="integrate to θ = cumsum(x)/rate (start at 0), then for each τ = m/rate use every overlapping "
                     "difference θ[k+2m] − 2θ[k+m] + θ[k]."),
-    Checkpoint("02.sigma_at_rate", "sigma_at_rate", _rate_cases, lambda c, got: compare(c.expected, got), points=1,
+    Checkpoint("02.sigma_at_rate", "sigma_at_rate", _rate_cases, matches(), points=1,
                hint="the density N = σ/√rate is the sensor's; the per-sample σ at another rate follows from it."),
     Checkpoint("02.gyro_bias_recording", "gyro_bias", _bias_recording_cases, _judge_within, points=1,
                what="bundled recording",

@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 from .. import calibration, datasets
 from ..frames import MAG_FIELD_LONDON, accel_tilt, declination, mag_heading, tilt_compensated_heading, wrap_angle
 from ..sensors import iis2mdc_mag
-from . import Case, Checkpoint, compare, fmt, register
+from . import Case, Checkpoint, compare, fmt, matches, register
 
 HEADING_LIMIT_DEG = 2.0  # RMS heading error allowed after calibration on the bundled recording
 PROPER_SIGNS = [np.diag(d) for d in ([1, 1, 1], [-1, 1, -1], [-1, -1, 1], [1, -1, -1])]  # det +1
@@ -169,7 +169,7 @@ def _judge_heading_recording(case, got):
 register(
     Checkpoint("03.counts_to_ut", "counts_to_ut", _counts_cases, _judge_counts, points=1,
                hint="the IIS2MDC gives 1.5 mG per count; convert gauss to µT."),
-    Checkpoint("03.alignment", "alignment_from_turns", _alignment_cases, lambda c, got: compare(c.expected, got), points=2,
+    Checkpoint("03.alignment", "alignment_from_turns", _alignment_cases, matches(), points=2,
                hint="per axis, does the magnetometer's angle go the same way as the gyro's (+1) or the opposite way "
                     "(−1)? Compare signs over the whole turn (e.g. the sign of Σ gyro·mag), not the sizes."),
     Checkpoint("03.mag_calibration", "mag_calibration", _ellipsoid_cases, _judge_ellipsoid, points=3,

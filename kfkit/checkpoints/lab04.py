@@ -14,7 +14,7 @@ from ..filters.attitude import (EULER_ACCEL_NOISE, EULER_GYRO_NOISE, EULER_MAG_N
                                 euler_rates)
 from ..frames import MAG_FIELD_LONDON, wrap_angle
 from ..metrics import angle_error, rmse
-from . import Case, Checkpoint, compare, fmt, register
+from . import Case, Checkpoint, compare, fmt, matches, register
 
 RECORDING = "04_attitude_tour"
 #: the full filter must reach these RMSEs on the bundled recording (rad): roll, pitch, yaw
@@ -244,7 +244,7 @@ register(
     Checkpoint("04.predict", "ekf_predict", _predict_cases, _judge_predict, points=2,
                hint="x⁻ = x + f(x, ω)·dt with ψ wrapped to (−π, π]; P⁻ = F P Fᵀ + Q with F = I + dt·A and A the "
                     "Jacobian ∂f/∂x given above (its third column is zero). Return (x, P)."),
-    Checkpoint("04.measurement", "measurement", _measurement_cases, lambda c, got: compare(c.expected, got), points=1,
+    Checkpoint("04.measurement", "measurement", _measurement_cases, matches(), points=1,
                hint="h = [R_bn·(0, 0, −g); R_bn·m_n] with R_bn = R_nbᵀ and R_nb = Rz(ψ) Ry(θ) Rx(φ) "
                     "(frames.euler_to_dcm); level and facing north it is [0, 0, −g, m_N, m_E, m_D]."),
     Checkpoint("04.jacobian", "jacobian", _jacobian_cases, _judge_jacobian, points=2, what="random states",
@@ -253,7 +253,7 @@ register(
     Checkpoint("04.numerical_jacobian", "numerical_jacobian", _numerical_jacobian_cases, _judge_numerical_jacobian,
                points=1, hint="column j is (h(x + ε eⱼ) − h(x − ε eⱼ)) / 2ε; with ε around 1e-6 both rounding "
                               "and truncation errors stay below 1e-8."),
-    Checkpoint("04.update", "ekf_update", _update_cases, lambda c, got: compare(c.expected, got, rtol=1e-6, atol=1e-9),
+    Checkpoint("04.update", "ekf_update", _update_cases, matches(rtol=1e-6, atol=1e-9),
                points=2, hint="y = z − h(x), S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x + K y (ψ wrapped), P = (I − K H) P; "
                               "with NaN in z[3:] keep only the first three rows of z, h, H and R. Return (x, P, y, S)."),
     Checkpoint("04.ekf_rmse", "run_ekf", _rmse_cases, _judge_rmse, points=2, what="runs on the bundled recording",

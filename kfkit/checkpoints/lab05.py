@@ -9,7 +9,7 @@ from scipy.optimize import minimize_scalar
 from .. import calibration, datasets, sensors
 from ..filters import KalmanFilter, TiltBiasKF, accel_static_ok, protocol_angles
 from ..frames import G, accel_tilt, mount_matrix, wrap_angle
-from . import Case, Checkpoint, compare, register
+from . import Case, Checkpoint, compare, matches, register
 
 BOARD = sensors.MPU6050_GY521
 GATES = ("none", "skip", "inflate")
@@ -299,21 +299,21 @@ def _judge_final(case, got):
 
 
 register(
-    Checkpoint("05.to_body", "to_body", _to_body_cases, lambda c, got: compare(c.expected, got, rtol=1e-9, atol=1e-12), points=1,
+    Checkpoint("05.to_body", "to_body", _to_body_cases, matches(rtol=1e-9, atol=1e-12), points=1,
                hint="counts / 16384 is in g and counts / 131 in °/s: convert to m/s² and rad/s, then to the body frame "
                     "(this sensor's z points up when the board is flat: y and z change sign)."),
-    Checkpoint("05.gyro_bias", "gyro_bias", _gyro_bias_cases, lambda c, got: compare(c.expected, got), points=1,
+    Checkpoint("05.gyro_bias", "gyro_bias", _gyro_bias_cases, matches(), points=1,
                hint="at rest the true rate is zero, so the bias is the average reading of each axis (not its spread)."),
-    Checkpoint("05.correct_accel", "correct_accel", _correct_cases, lambda c, got: compare(c.expected, got), points=1,
+    Checkpoint("05.correct_accel", "correct_accel", _correct_cases, matches(), points=1,
                hint="the sensor reads s·f + b: undo the offset first, then the scale; per axis."),
     Checkpoint("05.accel_tilt", "accel_tilt", _tilt_cases, _judge_tilt, points=1,
                hint="at rest f = [g sinθ, −g sinφ cosθ, −g cosφ cosθ]: roll from f_y and f_z, pitch from f_x against "
                     "the length of (f_y, f_z); level must give (0, 0)."),
     Checkpoint("05.static_ok", "static_ok", _static_cases, _judge_static, points=1,
                hint="compare the length of f (all three axes) with g; the test is |‖f‖ − g| < eps."),
-    Checkpoint("05.kf_predict", "kf_predict", _predict_cases, lambda c, got: compare(c.expected, got), points=1,
+    Checkpoint("05.kf_predict", "kf_predict", _predict_cases, matches(), points=1,
                hint="x⁻ = A x + B ω with A = [[1, −dt], [0, 1]], B = [dt, 0]; P⁻ = A P Aᵀ + diag(q_angle, q_bias)."),
-    Checkpoint("05.kf_update", "kf_update", _update_cases, lambda c, got: compare(c.expected, got), points=2,
+    Checkpoint("05.kf_update", "kf_update", _update_cases, matches(), points=2,
                hint="H = [1, 0]: y = z − x[0], S = P[0, 0] + r, K = P Hᵀ / S (a 2-vector); x + K y, (I − K H) P. "
                     "Return (x, P, y, S)."),
     Checkpoint("05.run_kf", "run_kf", _run_cases, _judge_run, points=2,

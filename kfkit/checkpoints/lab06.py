@@ -163,7 +163,7 @@ register(
     Checkpoint("06.discretize", "discretize", _discretize_cases, _judge_discretize, points=2,
                hint="one expm of the (n+1)×(n+1) matrix [[A, B], [0, 0]]·dt gives Ad and Bd; Van Loan's "
                     "expm([[−A, Qc], [0, Aᵀ]]·dt) gives Ad and Qd = Ad·(upper-right block)."),
-    Checkpoint("06.kf_step", "kf_step", _step_cases, lambda c, got: _judge_step(c, got), points=2,
+    Checkpoint("06.kf_step", "kf_step", _step_cases, _judge_step, points=2,
                hint="predict with the previous steering δ_{k−1}; the predicted measurement is C x⁻ + D δ_k; "
                     "return (x, P, y, S)."),
     Checkpoint("06.slalom_rmse", "run_sideslip", _slalom_cases, _judge_slalom, points=2, what="bundled slaloms",
