@@ -66,9 +66,7 @@ def _boards(args) -> int:
 
 
 def _capture(args) -> int:
-    import json
-
-    from .capture import CaptureError, CaptureStats, capture
+    from .capture import CaptureError, Recorder
     from .capture.guided import protocol_capture_options, step_at
 
     options, steps = {}, None
@@ -81,8 +79,7 @@ def _capture(args) -> int:
         elif args.port == "virtual":
             options["virtual"] = {"board": args.board or "nucleo-iks02a1", "rate_hz": args.rate, "realtime": not args.fast}
     except ValueError as e:
-        print(f"capture failed: {e}", file=sys.stderr)
-        return 2
+        return _capture_report(args, None, e, 2)
     seconds = seconds or 10.0
     started = []
 
@@ -102,25 +99,49 @@ def _capture(args) -> int:
         print(f"\r[{bar:<30}] {rec.elapsed:6.1f}/{seconds:.1f} s  samples {s.samples}  bad {s.bad_lines}  "
               f"dropped {s.dropped}", end="", file=sys.stderr, flush=True)
 
+    rec = Recorder(args.port, args.baud, args.out, seconds=seconds, **options)
     try:
-        rec = capture(args.port, seconds, args.out, baud=args.baud, progress=progress, **options)
+        rec.run(progress)
     except CaptureError as e:
-        if started:
-            print(file=sys.stderr)
-        print(f"capture failed: {e}", file=sys.stderr)
-        return 2
+        return _capture_report(args, rec, e, 2, newline=bool(started))
     except KeyboardInterrupt:  # the recorder has closed the port and written the file by now
-        print(f"\nstopped: what arrived is saved in {args.out}", file=sys.stderr)
-        return 130
-    stats = rec.meta["capture"]["stats"]
+        return _capture_report(args, rec, "stopped by Ctrl-C", 130, newline=True)
+    return _capture_report(args, rec, None, 0, newline=bool(started))
+
+
+def _capture_report(args, rec, error, code, newline=False) -> int:
+    """What a capture ends with, success or not: one JSON object (--json) or the statistics and where the data is.
+
+    JSON: the statistics (:meth:`CaptureStats.as_dict`), ``out`` (the file, null if nothing was saved), ``port``,
+    ``board`` (from the header, null if none came), ``clock_rate_hz`` (the file's ``rate_hz``: the board clock's,
+    :meth:`Recorder.clock_rate_hz`) and ``error`` (null, or the message; ``error_type`` its class)."""
+    import json
+
+    from .capture import CaptureStats
+
+    stats = rec.stats if rec is not None else CaptureStats()
+    saved = rec is not None and stats.samples > 0 and rec.out is not None and rec.out.exists()
+    clock = rec.clock_rate_hz() if rec is not None else float("nan")
     if args.json:
-        print(json.dumps({**stats, "out": str(args.out.resolve()), "port": rec.meta["capture"]["port"],
-                          "board": rec.meta.get("board")}))
-    else:
-        print(file=sys.stderr)
-        shown = CaptureStats(**{k: v if v is not None else float("nan") for k, v in stats.items() if k != "bad_lines"})
-        print(f"{shown}\nsaved {len(rec)} samples to {args.out}")
-    return 0
+        print(json.dumps({**stats.as_dict(), "out": str(rec.out) if saved else None,
+                          "port": str(rec.device) if rec is not None else args.port,
+                          "board": rec.header.board if rec is not None and rec.header else None,
+                          "clock_rate_hz": clock if clock > 0 else None,
+                          "error": None if error is None else str(error),
+                          "error_type": None if error is None else type(error).__name__}))
+        return code
+    if newline:
+        print(file=sys.stderr)  # end the progress line
+    if code == 130:
+        print(f"stopped: what arrived is saved in {args.out}" if saved else "stopped before any sample arrived",
+              file=sys.stderr)
+    elif error is not None:
+        print(f"capture failed: {error}", file=sys.stderr)
+    if rec is not None and rec.opened:
+        print(stats)
+    print(f"saved {stats.samples} samples to {args.out}" if saved else f"nothing saved: no samples arrived, {args.out} "
+          f"was not written")
+    return code
 
 
 def _demo(args) -> int:

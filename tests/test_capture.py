@@ -74,8 +74,9 @@ def test_tagged_message_and_note():
 
 def test_encoders_round_trip_and_header_checksum_is_optional():
     rng = np.random.default_rng(1)
-    for _ in range(200):
-        values = tuple(int(v) for v in rng.integers(-32768, 32768, 11))
+    for _ in range(200):  # the firmware's types: uint32 t_us, uint16 seq, int32 values
+        values = (int(rng.integers(0, 2**32)), int(rng.integers(0, 2**16)),
+                  *(int(v) for v in rng.integers(-2**31, 2**31, 9)))
         line = C.encode_sample(values)
         assert line.endswith(b"\n") and int(line[-3:-1], 16) == xor(line[1:-4])
         assert C.parse_line(line).values == values
@@ -84,6 +85,35 @@ def test_encoders_round_trip_and_header_checksum_is_optional():
     body = header[1:-1]
     assert isinstance(C.parse_line(b"#" + body + b"*%02X" % xor(body)), C.Header)
     assert C.parse_line(b"#" + body + b"*%02X" % (xor(body) ^ 1)).kind == "checksum"
+
+
+# The protocol's integer range is the firmware's (kfkit_protocol.h): uint32 t_us, uint16 seq, int32 fields. Every
+# value inside it is exact in float64; a value outside it (2^53 + 1 and 1e20 are not) must never reach a file.
+IN_RANGE = [(0, 0, -2**31, 2**31 - 1), (2**32 - 1, 2**16 - 1, 0), (7, 3)]
+OUT_OF_RANGE = [(2**32, 0, 1), (-1, 0, 1), (0, 2**16, 1), (0, -1, 1), (0, 0, 2**31), (0, 0, -2**31 - 1),
+                (0, 0, 5, 2**53 + 1), (0, 0, 10**20), (0, 0, -(10**20)), (2**64 + 5, 1, 2)]
+
+
+@pytest.mark.parametrize("values", IN_RANGE)
+def test_the_protocols_integer_range_is_accepted_exactly(values):
+    item = C.parse_line(C.encode_sample(values))
+    assert isinstance(item, C.Sample) and item.values == values
+    assert [int(float(v)) for v in item.values] == list(values)  # exact in float64 too
+
+
+@pytest.mark.parametrize("values", OUT_OF_RANGE)
+def test_values_outside_the_protocols_range_are_malformed(values):
+    item = C.parse_line(C.encode_sample(values))  # the checksum is right: only the range is wrong
+    assert isinstance(item, C.BadLine) and item.kind == "malformed", item
+    assert "range" in item.detail or "must be in" in item.detail
+
+
+@pytest.mark.parametrize("body", [b"1000,1,+5", b"1000,1, 5", b"1000,1,1_000", b"1000,1,--5", b"1000,1,-", b"1000,,5",
+                                  b"1000,1,5 ", "1000,1,\u0663".encode()])
+def test_integers_are_an_optional_minus_and_digits_only(body):
+    """int() would take '+5', ' 5', '1_000' or an Arabic-Indic digit: the protocol does not."""
+    item = C.parse_line(b"$" + body + b"*%02X" % xor(body))
+    assert isinstance(item, C.BadLine) and item.kind == "malformed" and "integer" in item.detail, item
 
 
 def test_every_single_byte_change_of_a_sample_is_rejected():
@@ -211,11 +241,12 @@ HEADER = C.encode_header("mpu6050", 100, ("t_us", "seq", "ax", "ay", "az", "gx",
 
 
 def loop_capture(payload: bytes, settle_s=0.05, **options):
-    """Record ``payload`` through pyserial's loop:// URL; keep reading ``settle_s`` after it arrived."""
+    """Record ``payload`` through pyserial's loop:// URL; keep reading ``settle_s`` after it arrived (the reader
+    parses every whole line of what it read before it looks at the clock again, so the counts are complete)."""
     rec = C.Recorder("loop://", **options).start()
     try:
         rec._serial.write(b"\n" + payload)  # the newline ends the echoed 'h' request
-        deadline = time.monotonic() + 5
+        deadline = time.monotonic() + 60  # a safety net only
         while rec.stats.bytes < len(payload) + 2 and not rec.done.is_set() and time.monotonic() < deadline:
             time.sleep(0.01)
         rec.done.wait(settle_s)
@@ -251,13 +282,13 @@ def test_wrong_field_count_duplicate_time_and_samples_before_header():
 
 def test_samples_without_a_header_say_which_sketch():
     lines = b"".join(C.encode_sample((10_000 * k, k, 0, 0, 0, 0, 0, 0)) for k in range(20))
-    rec = loop_capture(lines, settle_s=2.0, no_data_s=0.3)
+    rec = loop_capture(lines, settle_s=60.0, no_data_s=0.3)  # ends when the recorder gives up (after 0.3 s)
     assert isinstance(rec.error, C.CaptureError) and "no #KFKIT header" in str(rec.error)
     assert "firmware/nucleo_iks02a1_logger or firmware/mpu6050_logger" in str(rec.error)
 
 
 def test_header_but_no_samples_says_the_board_is_stopped():
-    rec = loop_capture(HEADER + b"#ERROR,MPU6050 read failed\n", settle_s=2.0, no_data_s=0.3)
+    rec = loop_capture(HEADER + b"#ERROR,MPU6050 read failed\n", settle_s=60.0, no_data_s=0.3)
     assert isinstance(rec.error, C.NoDataError)
     assert "header but no samples" in str(rec.error) and "the board said: ERROR,MPU6050 read failed" in str(rec.error)
 
@@ -281,7 +312,8 @@ def test_socket_url():
         with conn:
             conn.recv(1)  # the 'h' request
             conn.sendall(HEADER + b"".join(C.encode_sample((10_000 * k, k, 0, 0, 0, 0, 0, 0)) for k in range(20)))
-            time.sleep(0.5)
+            while conn.recv(4096):  # keep the connection until the recorder closes it (however slow it is)
+                pass
 
     thread = threading.Thread(target=serve)
     thread.start()

@@ -2,6 +2,7 @@
 the streamed file, the CLI. Expected statistics come from the fault positions, not from the code."""
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -18,7 +19,7 @@ from allan_oracle import allan_curves, loglog_slope, model_adev, outside_chi2_in
 from kfkit import sim
 from kfkit.cli import main
 from kfkit.frames import G, MAG_FIELD_LONDON
-from kfkit.io import load_recording
+from kfkit.io import load_recording, recording_text
 
 RATE = 1000.0
 N = 200  # samples the board makes in SECONDS of board time
@@ -38,10 +39,12 @@ def no_leaks():
 
 
 def record(faults=None, board="nucleo-iks02a1", out=None, seconds=SECONDS, board_options=None, **options):
+    """Record from a virtual board that sends as fast as it is read. The recorder's own (wall-clock) timeouts stay at
+    their defaults unless a test is about them, so a busy machine cannot make a clean stream look silent."""
     vb = C.VirtualBoard(rate_hz=RATE, board=board, faults=faults, realtime=False, seed=3, **(board_options or {}))
-    rec = C.Recorder(vb, out=out, seconds=seconds, no_data_s=0.4, garbage_s=0.3, **options)
+    rec = C.Recorder(vb, out=out, seconds=seconds, **options)
     with rec:
-        assert rec.wait(10)
+        assert rec.wait(120)  # a safety net: the capture ends by the board's clock (or an error) long before
     return rec
 
 
@@ -205,26 +208,34 @@ def test_disconnect_keeps_every_sample_on_disk(tmp_path):
 
 
 def test_streamed_file_is_flushed_while_recording(tmp_path):
-    """A real-time board: the file grows while the capture runs (flushed ≤ 1 s), not only at the end."""
+    """A real-time board: the file grows while the capture runs (flushed every flush_s), not only at the end, and
+    what is on disk is what was received, row for row."""
     out = tmp_path / "live.csv"
-    rec = C.Recorder(C.VirtualBoard(rate_hz=200.0, board="mpu6050"), out=out, seconds=30, flush_s=0.2).start()
+    rec = C.Recorder(C.VirtualBoard(rate_hz=200.0, board="mpu6050"), out=out, seconds=600, flush_s=0.2).start()
     try:
-        time.sleep(1.5)
-        rows = out.read_text().count("\n") - 2  # minus the two header lines
-        received = rec.stats.samples
+        deadline = time.monotonic() + 120  # a safety net: 0.2 s of flushing is all it takes
+        while (not out.exists() or out.read_text().count("\n") < 2 + 100) and time.monotonic() < deadline:
+            assert not rec.done.is_set(), rec.error
+            time.sleep(0.05)
+        streamed = out.read_text()
+        running = not rec.done.is_set()
+        received = rec.recording()
     finally:
         rec.stop()
-    assert received > 150 and received - 80 <= rows <= received  # at most 0.2 s (+ a read) behind
+    rows = streamed.split("\n")[2:-1]
+    assert running and len(rows) >= 100  # on disk while the 600 s capture was still running
+    assert rows == [line for line in recording_text(received).split("\n")[2:len(rows) + 2]]
 
 
 def test_board_that_stops_sending_mid_capture(tmp_path):
     out = tmp_path / "stalled.csv"
     with C.VirtualBoard(rate_hz=RATE, board="mpu6050", realtime=False) as vb:
         rec = C.Recorder(vb, out=out, seconds=60, no_data_s=0.5).start()
-        while rec.stats.samples < 100:
+        deadline = time.monotonic() + 120  # a safety net
+        while rec.stats.samples < 100 and time.monotonic() < deadline:
             time.sleep(0.01)
         rec._serial.write(b"s")  # the board stops streaming, as a crashed sketch or a loose cable would
-        assert rec.wait(10)
+        assert rec.wait(120)
         with pytest.raises(C.NoDataError, match=f"stopped sending.*after [0-9]+ samples.*saved in {out}"):
             rec.stop()
     assert len(load_recording(out)) == rec.stats.samples >= 100
@@ -232,12 +243,12 @@ def test_board_that_stops_sending_mid_capture(tmp_path):
 
 def test_wrong_baud_names_the_expected_rate():
     with pytest.raises(C.WrongBaudError, match="wrong baud rate.*115200 baud.*open at 9600.*baud=115200"):
-        record(faults={"garbage": True}, baud=9600)
+        record(faults={"garbage": True}, baud=9600, garbage_s=0.3)
 
 
 def test_silent_board_says_check_the_sketch():
     with pytest.raises(C.NoDataError, match="nothing received.*sketch is flashed"):
-        record(faults={"silent": True})
+        record(faults={"silent": True}, no_data_s=0.4)
 
 
 def test_unknown_protocol_version_over_a_pty():
@@ -608,3 +619,121 @@ def test_ctrl_c_keeps_what_arrived(tmp_path):
     assert proc.returncode == 130 and f"stopped: what arrived is saved in {out}" in err
     rec = load_recording(out)
     assert len(rec) > 20 and rec.meta["capture"]["stats"]["samples"] == len(rec)  # the final file, statistics included
+
+
+# --- what was streamed is what the final file holds: the protocol's whole integer range, exactly ------------------
+
+def test_every_accepted_value_reaches_the_final_file_exactly_and_out_of_range_lines_are_counted(tmp_path):
+    """Raw lines over a pty (a Nucleo header: its mx, my, mz are float columns, NaN where mag_new = 0): counts over the
+    whole int32 range, t_us across the 2³² wrap, seq across the 2¹⁶ wrap, and lines whose values lie outside the
+    protocol's range (2⁵³ + 1, 10²⁰, 2³¹, a negative t_us, seq 2¹⁶), each with a valid checksum. The out-of-range lines
+    are counted as malformed and nothing else; every accepted value is in the streamed file and, value for value and
+    character for character, in the final one."""
+    import tty
+
+    from kfkit.capture.virtual import board_header
+    from kfkit.sensors import board as get_board
+
+    n, step_us, start_us, start_seq = 400, 9615, 2**32 - 1_000_000, 65_400  # micros() wraps 1 s in, seq at 136
+    rng = np.random.default_rng(17)
+    counts = rng.integers(-2**31, 2**31, (n + 1, 9))
+    counts[:4] = [[-2**31] * 9, [2**31 - 1] * 9, [2**24 + 1] * 9, [-(2**24) - 1] * 9]  # the edges (2^24 + 1: not float32)
+    mag_new = (np.arange(n + 1) % 2 == 0).astype(int)
+    good = [C.encode_sample(((start_us + k * step_us) % 2**32, (start_seq + k) % 2**16, *counts[k], mag_new[k]))
+            for k in range(n + 1)]  # the last one is past `seconds`: it ends the capture by the board's clock
+    bad = [C.encode_sample(values) for values in (
+        (5, 1, 2**53 + 1, 0, 0, 0, 0, 0, 0, 0, 0, 1), (5, 1, 10**20, 0, 0, 0, 0, 0, 0, 0, 0, 1),
+        (5, 1, 0, 0, 0, 0, 0, 0, 2**31, 0, 0, 1), (5, 1, 0, 0, 0, 0, 0, 0, 0, 0, -2**31 - 1, 1),
+        (-5, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1), (5, 2**16, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1), (2**32, 1, *[0] * 9, 1))]
+    stream = bytearray(board_header(get_board("nucleo-iks02a1"), 104.0))
+    for k, line in enumerate(good):
+        stream += line + (bad[k // 50] if k % 50 == 25 and k // 50 < len(bad) else b"")  # 7 bad lines among them
+    out = tmp_path / "exact.csv"
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        rec = C.Recorder(os.ttyname(slave), out=out, seconds=(n - 0.5) * step_us * 1e-6).start()
+        try:
+            os.write(master, bytes(stream))  # the recorder reads concurrently
+            assert rec.wait(120), "the capture did not end by the board's clock"  # a safety net
+            streamed = out.read_text()  # flushed when the reader ended, not yet rewritten
+        finally:
+            rec.stop()
+    finally:
+        os.close(master)
+        os.close(slave)
+    s = rec.stats
+    assert (s.samples, s.malformed, s.bad_checksum, s.dropped, s.resets) == (n, len(bad), 0, 0, 0)
+    final = out.read_text()
+    assert final.split("\n")[2:] == streamed.split("\n")[2:]  # the rewrite changed the metadata only
+    for text in (streamed, final):
+        assert "9007199254740993" not in text and "100000000000000000000" not in text
+    for r in (load_recording(out), rec.recording()):
+        np.testing.assert_array_equal(r["seq"], (start_seq + np.arange(n)) % 2**16)
+        np.testing.assert_array_equal(np.column_stack([r[c] for c in ("ax", "ay", "az", "gx", "gy", "gz")]), counts[:n, :6])
+        mag, fresh = np.column_stack([r[c] for c in ("mx", "my", "mz")]), mag_new[:n] == 1
+        np.testing.assert_array_equal(mag[fresh], counts[:n][fresh, 6:].astype(float))  # exact: |v| < 2^53
+        assert np.isnan(mag[~fresh]).all()
+        np.testing.assert_allclose(r.t, np.round(np.arange(n) * step_us * 1e-6, 6), rtol=0, atol=1e-9)
+
+
+# --- kfkit capture when a capture fails: one JSON object, or the statistics and where the data is ----------------
+
+def run_cli(capsys, port, out, *extra):
+    code = main(["capture", "--port", port, "--seconds", "60", "--out", str(out), *extra])
+    return code, capsys.readouterr()
+
+
+CLI_FAILURES = {  # name: (board options, error class, words of its message, samples that arrive)
+    "no data": ({"faults": {"silent": True}}, "NoDataError", "nothing received", 0),
+    "stall mid-capture": ({"faults": {"stall": 120}}, "NoDataError", "stopped sending .* after 120 samples", 120),
+    "disconnect": ({"faults": {"disconnect": 150}}, "BoardDisconnectedError", "disconnected", 150),
+    "unknown protocol version": ({"protocol_version": 2}, "ProtocolVersionError", "unknown protocol", 0),
+}
+
+
+@pytest.mark.parametrize("as_json", [True, False], ids=["json", "human"])
+@pytest.mark.parametrize("case", CLI_FAILURES)
+def test_cli_capture_failure_still_reports_statistics_and_where_the_data_is(tmp_path, capsys, case, as_json):
+    board_options, error_type, words, samples = CLI_FAILURES[case]
+    out = tmp_path / "failed.csv"
+    with C.VirtualBoard(rate_hz=RATE, board="mpu6050", realtime=False, **board_options) as vb:
+        code, printed = run_cli(capsys, vb.port, out, *(["--json"] if as_json else []))
+    assert code == 2
+    saved = samples > 0
+    assert out.exists() == saved and (not saved or len(load_recording(out)) == samples)
+    if as_json:
+        (line,) = printed.out.splitlines()  # exactly one JSON object, nothing else on stdout
+        result = json.loads(line)
+        assert result["error_type"] == error_type and re.search(words, result["error"]), result["error"]
+        assert result["samples"] == samples and result["bad_lines"] == 0 and result["port"] == vb.port
+        assert result["out"] == (str(out.resolve()) if saved else None)
+        assert result["board"] == (None if case in ("no data", "unknown protocol version") else "mpu6050")
+        if saved:
+            assert f"is saved in {out.resolve()}" in result["error"]
+            assert result["clock_rate_hz"] == load_recording(out).rate_hz == RATE
+    else:
+        assert re.search(f"capture failed: .*{words}", printed.err)
+        assert printed.out.startswith(f"samples        {samples}") and "bad lines      0" in printed.out
+        assert printed.out.splitlines()[-1] == (f"saved {samples} samples to {out}" if saved
+                                                else f"nothing saved: no samples arrived, {out} was not written")
+
+
+@pytest.mark.parametrize("as_json", [True, False], ids=["json", "human"])
+def test_cli_capture_port_not_found_reports_too(tmp_path, capsys, as_json):
+    out = tmp_path / "x.csv"
+    code, printed = run_cli(capsys, "/dev/ttyNOPE", out, *(["--json"] if as_json else []))
+    assert code == 2 and not out.exists()
+    if as_json:
+        result = json.loads(printed.out)
+        assert result["error_type"] == "PortNotFoundError" and "/dev/ttyNOPE not found" in result["error"]
+        assert (result["samples"], result["out"], result["board"], result["port"]) == (0, None, None, "/dev/ttyNOPE")
+    else:
+        assert "capture failed: port /dev/ttyNOPE not found" in printed.err
+        assert printed.out == f"nothing saved: no samples arrived, {out} was not written\n"
+
+
+def test_cli_protocol_that_the_board_cannot_record_reports_in_json(tmp_path, capsys):
+    code, printed = run_cli(capsys, "virtual", tmp_path / "x.csv", "--protocol", "headings", "--board", "mpu6050", "--json")
+    result = json.loads(printed.out)
+    assert code == 2 and result["error_type"] == "ValueError" and "no magnetometer" in result["error"]

@@ -11,6 +11,11 @@ ASCII lines, ``\\n``-terminated (a ``\\r`` before it is ignored)::
 - ``$v0,v1,…*HH`` is a sample: integers in the header's ``fields`` order; ``HH`` (upper-case hex) is the
   XOR of every byte between ``$`` and ``*`` (NMEA 0183 style). ``t_us`` is the board's
   32-bit ``micros()``, ``seq`` a 16-bit counter that wraps at 65536.
+- Integer range (the firmware's types, ``kfkit_protocol.h``): 0 ≤ ``t_us`` < 2³² (uint32),
+  0 ≤ ``seq`` < 2¹⁶ (uint16), every other field −2³¹ ≤ v < 2³¹ (int32), written as an optional ``-``
+  and decimal digits. A field outside its range is a malformed line (counted and skipped, like any
+  bad line): every accepted value is exact in float64 and int64, so what the recorder streams and what
+  its final file holds are the same numbers.
 - ``$TAG,f1,f2,…*HH`` (first field starts with a letter) is a tagged message, e.g. the tilt
   firmware's ``$ATT,roll_deg,pitch_deg*HH``; decoders for tags live in :data:`MESSAGE_DECODERS`.
 - Other ``#`` lines are notes (``#ERROR,ISM330DHCX not found`` from a sketch that failed).
@@ -31,6 +36,8 @@ REQUIRED_HEADER_KEYS = ("board", "rate_hz", "fields")
 TIME_FIELDS = ("t_us", "seq")
 SEQ_MODULO = 1 << 16
 MICROS_MODULO = 1 << 32
+INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1  # a sample's fields after t_us and seq
+_INTEGER_BYTES = b"0123456789-,"  # all a sample body may hold (no '+', spaces or '_', which int() would take)
 
 
 @dataclass(frozen=True)
@@ -149,11 +156,18 @@ def parse_line(line: bytes):
         if parts[0][:1].isalpha():
             return _message(parts, line)
         try:
+            if body.translate(None, _INTEGER_BYTES):
+                raise ValueError
             values = Sample(map(int, parts))
         except ValueError:
             return BadLine("malformed", "a field is not an integer", line)
         if len(values) < 2:
             return BadLine("malformed", "a sample needs at least t_us and seq", line)
+        if values[0] >> 32 or values[1] >> 16:  # non-zero for a negative value too
+            return BadLine("malformed", f"t_us must be in [0, 2^32) and seq in [0, 2^16), got {values[0]}, {values[1]}",
+                           line)
+        if len(values) > 2 and (min(values[2:]) < INT32_MIN or max(values[2:]) > INT32_MAX):
+            return BadLine("malformed", "a field is outside the protocol's int32 range [-2^31, 2^31)", line)
         return values
     if first == 0x23:  # "#"
         if line.startswith(HEADER_PREFIX):

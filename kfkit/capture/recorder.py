@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import sensors
-from ..io import Recording, format_header, format_row, save_recording
+from ..io import INT_COLUMNS, Recording, format_header, format_row, save_recording
 from .ports import (BoardDisconnectedError, CaptureError, NoDataError, ProtocolVersionError, WrongBaudError,
                     SKETCHES, open_port, resolve_auto)
 from .protocol import MICROS_MODULO, SEQ_MODULO, BadLine, Header, Message, Note, Sample, parse_line
@@ -36,7 +36,6 @@ from .virtual import VirtualBoard
 
 DEFAULT_BAUD = 115200
 MAX_LINE_BYTES = 1024  # no newline in this many bytes: noise (a wrong baud rate), not a line
-SENSOR_FIELDS = ("ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz")
 MAG_FLAG = "mag_new"  # Nucleo sketch: 1 = mx,my,mz is a new reading, 0 = the last one repeated
 _SPEC_AT_RANGE = {  # chip → (accel spec at ±g, gyro spec at ±°/s), for headers that name a range
     "ISM330DHCX": (sensors.ism330dhcx_accel, sensors.ism330dhcx_gyro),
@@ -89,8 +88,12 @@ class CaptureStats:
         drops = ", ".join(f"{n} before sample {i} (t = {t:.3f} s)" for i, t, n in self.drops[:4])
         drops += " …" if len(self.drops) > 4 else ""
         resets = ", ".join(map(str, self.reset_positions[:8])) + (" …" if len(self.reset_positions) > 8 else "")
-        lines = [f"samples        {self.samples} (t = 0 … {self.duration_s:.2f} s): effective rate {self.rate_hz:.2f} Hz, "
-                 f"interval {self.dt_mean_us:.1f} µs, jitter {self.jitter_us:.1f} µs rms",
+        first = f"samples        {self.samples}"
+        if self.samples > 1:
+            first += f" (t = 0 … {self.duration_s:.2f} s): effective rate {self.rate_hz:.2f} Hz"
+        if math.isfinite(self.dt_mean_us):
+            first += f", interval {self.dt_mean_us:.1f} µs, jitter {self.jitter_us:.1f} µs rms"
+        lines = [first,
                  f"bad lines      {self.bad_lines} ({self.bad_checksum} bad checksum, {self.malformed} malformed)",
                  f"dropped        {self.dropped}" + (f": {drops}" if self.drops else ""),
                  f"board resets   {self.resets}" + (f", before sample {resets}" if self.resets else "")]
@@ -168,6 +171,8 @@ class Recorder:
         self.messages: dict[str, list] = {}  # tag → [(sample index, values)]
         self.error: CaptureError | None = None
         self.description = ""
+        self.device = port  # what was opened (a resolved "auto" or the virtual board's pty) once start() ran
+        self.opened = False  # the port was opened (statistics mean something)
         self._rows: list[tuple] = []
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -212,6 +217,7 @@ class Recorder:
         except BaseException:
             self._close_board()
             raise
+        self.opened = True
         if self.request_header:
             self._serial.write(b"h")
         self._t_open = time.monotonic()
@@ -233,6 +239,18 @@ class Recorder:
         if raise_error and self.error is not None:
             raise self.error
         return self.stats
+
+    def run(self, progress=None) -> Recording:
+        """Start, call ``progress(fraction, self)`` about ten times a second (fraction of ``seconds`` of board
+        time), stop when the capture ends, and return the Recording; raises the capture's error (its statistics
+        stay in ``self.stats``, what arrived in ``self.out``)."""
+        with self:
+            while not self.wait(0.1):
+                if progress is not None:
+                    progress(min(self.elapsed / self.seconds, 1.0) if self.seconds else 0.0, self)
+            if progress is not None and self.error is None:
+                progress(1.0, self)
+        return self.recording()
 
     def _close_board(self):
         if self._own_board and self.board is not None:
@@ -444,13 +462,23 @@ class Recorder:
             s.dt_mean_us = mean
             s.jitter_us = math.sqrt(max(self._dt_sq / self._dt_n - mean * mean, 0.0))
 
+    def clock_rate_hz(self) -> float:
+        """The sample rate of the board's own clock over the whole capture so far, Hz (NaN before two samples):
+        1 / mean interval of consecutive samples (gaps and resets left out), to 6 significant digits (≤ 5 ppm,
+        below a crystal's tolerance). A board's header states a nominal rate; a phone's is its first rows' guess."""
+        self._update_rates()
+        return float(f"{1e6 / self.stats.dt_mean_us:.6g}") if self._dt_n else float("nan")
+
     def _file_meta(self, final=False) -> dict:
         meta = dict(self.meta or {"rate_hz": 0.0, "source": "capture"})
         meta["capture"] = {"port": str(self.device), "baud": self.baud}
         if isinstance(self.port, VirtualBoard) or self.port == "virtual":
             meta["source"] = "capture (virtual board)"
         if final:
-            self._update_rates()
+            rate = self.clock_rate_hz()
+            if rate > 0:  # the whole capture's clock, not the header's (nominal or estimated) rate
+                meta["capture"]["header_rate_hz"] = meta["rate_hz"]
+                meta["rate_hz"] = rate
             meta["capture"]["stats"] = self.stats.as_dict()
             end = self.stats.duration_s + (1.0 / self.header.rate_hz if self.header else 0.0)
             phases = [{**p, "end": min(p["end"], end)} for p in self.phases or () if p["start"] < end]
@@ -471,13 +499,13 @@ class Recorder:
                 rate = self.header.rate_hz if self.header else 1.0
                 rows = self._rows[-int(last_seconds * rate * 1.5 + 16):]
         cols = self.columns or ["t", "seq"]
-        table = np.array(rows, dtype=float).reshape(len(rows), len(cols))
+        # column by column from the parsed values: counts go to int64 directly (never through float), so the
+        # final file holds exactly what was streamed
+        columns = list(zip(*rows)) if rows else [()] * len(cols)
+        data = {c: np.array(v, dtype=np.int64 if c in INT_COLUMNS else float) for c, v in zip(cols, columns)}
         if last_seconds is not None and len(rows):
-            table = table[table[:, 0] >= table[-1, 0] - last_seconds]
-        data = {}
-        for j, c in enumerate(cols):
-            data[c] = table[:, j] if c == "t" or c in ("mx", "my", "mz") or c not in SENSOR_FIELDS + ("seq",) \
-                else table[:, j].astype(np.int64)
+            keep = data["t"] >= data["t"][-1] - last_seconds
+            data = {c: v[keep] for c, v in data.items()}
         return Recording(self._file_meta(final=True), data, self.out)
 
     def _finish_file(self):
@@ -485,7 +513,9 @@ class Recorder:
             return
         self._file.close()
         self._file = None
-        if self.stats.samples:  # rewrite with the statistics and phases (atomically)
+        if not self.stats.samples:  # a header and nothing else: not a recording (it would not load)
+            self.out.unlink(missing_ok=True)
+        else:  # rewrite with the statistics and phases (atomically)
             tmp = self.out.with_name(self.out.name + ".tmp")
             save_recording(self.recording(), tmp)
             os.replace(tmp, self.out)
@@ -500,13 +530,6 @@ def capture(port="auto", seconds=10.0, out=None, baud=DEFAULT_BAUD, progress=Non
     ``progress(fraction, recorder)`` is called about ten times a second. Other keyword
     arguments go to :class:`Recorder` (``virtual=dict(motion=…)``, ``phases=…``, timeouts).
     Raises :class:`CaptureError` subclasses with what to do; on a disconnect the file keeps
-    every sample received.
+    every sample received. (:meth:`Recorder.run` does the same with the recorder in your hands.)
     """
-    rec = Recorder(port, baud, out, seconds=seconds, **options)
-    with rec:
-        while not rec.wait(0.1):
-            if progress is not None:
-                progress(min(rec.elapsed / seconds, 1.0), rec)
-        if progress is not None and rec.error is None:
-            progress(1.0, rec)
-    return rec.recording()
+    return Recorder(port, baud, out, seconds=seconds, **options).run(progress)

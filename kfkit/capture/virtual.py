@@ -28,6 +28,7 @@ a list of positions or a probability per sample, drawn from ``seed``):
 | truncate    | sends half the line (malformed)                                           |
 | reset       | reboots before it: header again, ``seq`` and ``t_us`` restart             |
 | disconnect  | (a position) closes the pty, as if unplugged                              |
+| stall       | (a position) stops sending, the port left open, as a crashed sketch       |
 | garbage     | (True) sends random bytes at the line rate, as a wrong baud rate looks    |
 | silent      | (True) sends nothing at all, as a board without the sketch                |
 """
@@ -52,7 +53,7 @@ from ..sensors import board as get_board
 from ..filters.tilt import TiltAttitude
 from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_message, encode_sample
 
-FAULT_KINDS = ("corrupt", "drop", "truncate", "reset", "disconnect", "garbage", "silent")
+FAULT_KINDS = ("corrupt", "drop", "truncate", "reset", "disconnect", "stall", "garbage", "silent")
 BOOT_US = 1500  # micros() when a sketch sends its first sample after a reset
 # what firmware/mpu6050_tilt_kf prints (Serial.println: CR LF) when it starts measuring the gyro bias
 ATTITUDE_NOTE = b"#NOTE,measuring gyro bias: keep the board still for 2 s\r\n"
@@ -184,7 +185,7 @@ class VirtualBoard:
             raise ValueError(f"unknown fault kind(s) {', '.join(sorted(unknown))}; known: {', '.join(FAULT_KINDS)}")
         self._rng = np.random.default_rng(seed)
         self.faults = {k: _positions(faults.get(k)) for k in ("corrupt", "drop", "truncate", "reset")}
-        self.disconnect_at = faults.get("disconnect")
+        self.disconnect_at, self.stall_at = faults.get("disconnect"), faults.get("stall")
         self.garbage, self.silent = bool(faults.get("garbage")), bool(faults.get("silent"))
         self.header = board_header(self.board, self.rate_hz, protocol_version)
         self.attitude = bool(attitude)
@@ -306,7 +307,7 @@ class VirtualBoard:
         for counts, truth in self._chunks():
             for row, euler in zip(counts, truth):
                 n = self.samples_made
-                if self.disconnect_at is not None and n >= self.disconnect_at:
+                if any(at is not None and n >= at for at in (self.disconnect_at, self.stall_at)):
                     return
                 out = b""
                 if self._is_fault("reset", n):
@@ -362,7 +363,7 @@ class VirtualBoard:
                         except StopIteration:
                             if self.disconnect_at is not None and self.samples_made >= self.disconnect_at:
                                 self._flush(pending, wait=0.01)
-                                self._drain()
+                                self._drain()  # returns once the host has read it all
                                 self._close_fds()  # unplugged
                                 return
                             lines = None
@@ -377,7 +378,7 @@ class VirtualBoard:
         except OSError:  # the pty went away under us (closed from outside)
             pass
 
-    def _drain(self, timeout=2.0):
+    def _drain(self, timeout=30.0):
         """Wait until the host has read what was sent (a pty drops unread bytes when it closes)."""
         deadline = time.monotonic() + timeout
         empty_since = None

@@ -16,8 +16,9 @@ One connection per request (HTTP/1.0, no keep-alive), as phyphox's server. The p
 :func:`kfkit.phone.simulate_phone`, so its noise, rates and timestamp jitter are a phone's. The gyro's
 and accelerometer's bias random walks (``phone.PHONE_UNIT``) run on across the loops, one path per
 sensor, as a real phone's biases do.
-While measuring, its experiment clock runs at ``speed`` × real time and the buffers hold every
-sample up to it. Faults for tests: ``refuse_start`` (start answers false), ``pause_at`` (the phone
+While measuring, its experiment clock runs at ``speed`` × real time, or (``step_s``) moves on by
+``step_s`` seconds at each ``/get``, so that the phone runs exactly as fast as it is polled whatever
+the machine's load (tests); the buffers hold every sample up to it. Faults for tests: ``refuse_start`` (start answers false), ``pause_at`` (the phone
 pauses itself at that experiment time, s), ``hang_after`` (after that many ``/get`` requests it
 stops answering, as a phone that left the network).
 
@@ -105,18 +106,22 @@ class VirtualPhone:
     experiment   a name in :data:`EXPERIMENTS` (what is open in phyphox)
     seed         seeds the phone's noise (loop k uses seed + k) and its bias walks
     speed        experiment seconds per wall-clock second while measuring (tests run faster)
+    step_s       instead of ``speed``: experiment seconds added by each ``/get`` while measuring (None: use speed)
     autostart    measure from the start, as if the student had pressed play
     rates, drop  passed to :func:`kfkit.phone.simulate_phone` (sensor rates, probability of a lost sample)
     faults       {"refuse_start": True, "pause_at": s, "hang_after": n}; see the module docstring
     """
 
     def __init__(self, motion=None, experiment="simple", seed=0, speed=1.0, autostart=False, rates=None,
-                 drop=0.0, faults=None, mount=phone.DEFAULT_MOUNT):
+                 drop=0.0, faults=None, mount=phone.DEFAULT_MOUNT, step_s=None):
         if experiment not in EXPERIMENTS:
             raise ValueError(f"unknown experiment {experiment!r}; known: {', '.join(EXPERIMENTS)}")
         self.title, self.inputs = EXPERIMENTS[experiment]
         self.motion = motion if motion is not None else sim.stationary(30.0, 200.0, yaw=np.radians(30.0))
         self.seed, self.speed, self.rates, self.drop, self.mount = seed, float(speed), rates, drop, mount
+        if step_s is not None and not step_s > 0:
+            raise ValueError(f"step_s must be a positive number of seconds (or None), got {step_s!r}")
+        self.step_s = step_s
         self.faults = dict(faults or {})
         unknown = set(self.faults) - {"refuse_start", "pause_at", "hang_after"}
         if unknown:
@@ -157,8 +162,9 @@ class VirtualPhone:
         self._events.append(("PAUSE", self._t_exp))
 
     def experiment_time(self) -> float:
-        """The phone's experiment time now, s (it stands still while paused)."""
-        t = self._t_exp + (time.monotonic() - self._wall) * self.speed if self.measuring else self._t_exp
+        """The phone's experiment time now, s (it stands still while paused; with ``step_s``, between polls)."""
+        running = self.measuring and self.step_s is None
+        t = self._t_exp + (time.monotonic() - self._wall) * self.speed if running else self._t_exp
         pause = self.faults.get("pause_at")
         if pause is not None and self.measuring and t >= pause:
             self._t_exp, self.measuring = float(pause), False
@@ -228,6 +234,8 @@ class VirtualPhone:
     def get(self, params) -> tuple[int, str]:
         """(HTTP status, JSON text) for /get with the query's (name, value) pairs."""
         with self._lock:
+            if self.measuring and self.step_s is not None:
+                self._t_exp += self.step_s
             t_now = self.experiment_time()
             series = {inp.data: self._series(inp.data, t_now) for inp in self.inputs}
             parts, seen = [], set()
