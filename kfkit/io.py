@@ -15,12 +15,18 @@ column-name line, then one row per sample::
 - Guided captures and simulations label time windows in the metadata:
   ``"phases": [{"label": "stationary", "start": 0.0, "end": 120.0}, …]`` (s, end excluded).
 
-Loading fails with :class:`RecordingError` naming the file and line.
+Loading fails with :class:`RecordingError` naming the file and line: for a header that is not the
+format's, metadata without a positive finite ``rate_hz`` or without ``sensors``/``mount`` entries for the
+sensor columns present, duplicate or unnamed columns, a count that is not an exact integer within ±2^53
+(exact both as int64 and as float64, so no count is ever rounded), a number that is not plain ASCII
+decimal, time that does not increase, and a last line without its newline (see :func:`load_recording`).
+A UTF-8 byte-order mark (Excel writes one) is accepted.
 """
 from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,6 +41,11 @@ INT_COLUMNS = frozenset({"seq", "ax", "ay", "az", "gx", "gy", "gz", "t_us", "sta
 OPTIONAL_INT_COLUMNS = frozenset({"mx", "my", "mz"})  # empty cell = no new sample (NaN)
 SENSOR_COLUMNS = {"acc": ("ax", "ay", "az"), "gyr": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
 TRUTH_COLUMNS = ("true_roll", "true_pitch", "true_yaw")
+BOM = "\ufeff"
+#: the largest count magnitude: integers up to 2^53 are exact as int64 and as float64 (counts() and NaN-able mag columns)
+MAX_COUNT = 2**53
+_INTEGER = re.compile(r"[+-]?[0-9]+")
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 
 
 class RecordingError(ValueError):
@@ -44,6 +55,38 @@ class RecordingError(ValueError):
         where = f"{path}" if line is None else f"{path}, line {line}"
         super().__init__(f"{where}: {message}")
         self.path, self.line = path, line
+
+
+def parse_count(text: str) -> int:
+    """An integer count in ASCII decimal digits with |n| ≤ :data:`MAX_COUNT` (2^53), never through float.
+
+    Raises ValueError saying why (callers add the file, line and column)."""
+    if not _INTEGER.fullmatch(text):
+        raise ValueError(f"{text!r} is not an integer count")
+    n = int(text)
+    if abs(n) > MAX_COUNT:
+        raise ValueError(f"{text} is out of range for a count (|n| ≤ 2^53 = {MAX_COUNT}): a corrupted value?")
+    return n
+
+
+def parse_number(text: str) -> float:
+    """A finite number in plain ASCII decimal or scientific notation (``-1.5``, ``9.80665E0``).
+
+    Stricter than ``float``, which also takes ``1_000``, non-ASCII digits, ``nan`` and ``inf``, and
+    overflows ``1e999`` to inf. Raises ValueError saying why."""
+    if text.lower().lstrip("+-") in ("nan", "inf", "infinity"):
+        raise ValueError(f"{text!r} is not a finite number")
+    if not _DECIMAL.fullmatch(text):
+        raise ValueError(f"{text!r} is not a number")
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{text!r} is not a finite number (beyond ±1.8e308)")
+    return value
+
+
+def positive_number(value) -> bool:
+    """True for a JSON number (not a bool) that is finite and > 0: a rate, a sensitivity."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
 
 
 @dataclass
@@ -117,11 +160,22 @@ class Recording:
         return Recording(dict(self.meta), {k: v[keep] for k, v in self.data.items()}, self.path)
 
 
+def _count_text(name: str, value) -> str:
+    """A count as the loader reads it back; a fractional, non-finite or out-of-range value is an error,
+    never truncated by ``int()``."""
+    if not isinstance(value, (int, np.integer)) and not (math.isfinite(value) and float(value).is_integer()):
+        raise ValueError(f"column {name!r}: {value!r} is not an integer count")
+    n = int(value)
+    if abs(n) > MAX_COUNT:
+        raise ValueError(f"column {name!r}: {n} is out of range for a count (|n| ≤ 2^53)")
+    return str(n)
+
+
 def _format_cell(name: str, value) -> str:
     if name in INT_COLUMNS:
-        return str(int(value))
+        return _count_text(name, value)
     if name in OPTIONAL_INT_COLUMNS:
-        return "" if math.isnan(value) else str(int(value))
+        return "" if math.isnan(value) else _count_text(name, value)
     if name == "t":
         return f"{value:.6f}"
     return f"{value:.9g}"
@@ -164,7 +218,43 @@ def _parse_header(path, line: str) -> dict:
         raise RecordingError(path, 1, f"the metadata is not valid JSON ({e.msg} at column {e.colno + len(MAGIC)})") from None
     if not isinstance(meta, dict) or "rate_hz" not in meta:
         raise RecordingError(path, 1, "the metadata must be a JSON object with at least 'rate_hz'")
+    if not positive_number(meta["rate_hz"]):
+        raise RecordingError(path, 1, f"metadata 'rate_hz' must be a positive finite number (Hz), got {meta['rate_hz']!r}")
     return meta
+
+
+def _check_meta(path, meta: dict, cols) -> None:
+    """What :class:`Recording`'s helpers read from the metadata, for the sensors whose columns are present:
+    ``sensors[s]["sensitivity"]`` > 0 (SI per count) and ``mount[s]`` a rotation; ``phases`` windows."""
+    present = [s for s, names in SENSOR_COLUMNS.items() if any(c in cols for c in names)]
+    for key in ("sensors", "mount"):
+        if present and not isinstance(meta.get(key), dict):
+            raise RecordingError(path, 1, f"the metadata has no {key!r} object, but the file has columns of "
+                                 f"{', '.join(present)}: each needs its {'sensitivity' if key == 'sensors' else 'mounting matrix'}")
+    for s in present:
+        spec = meta["sensors"].get(s)
+        if not isinstance(spec, dict) or not positive_number(spec.get("sensitivity")):
+            got = spec.get("sensitivity") if isinstance(spec, dict) else spec
+            raise RecordingError(path, 1, f"metadata sensors.{s}.sensitivity must be a positive finite number "
+                                 f"(SI units per count), got {got!r}")
+        try:
+            mount_matrix(meta["mount"].get(s))
+        except (ValueError, TypeError) as e:
+            raise RecordingError(path, 1, f"metadata mount.{s}: {e}") from None
+    check_phases(path, meta.get("phases", []))
+
+
+def check_phases(path, phases, line=1) -> None:
+    """Labelled windows must be a list of ``{"label": text, "start": s, "end": s}``, start < end, finite."""
+    if not isinstance(phases, list):
+        raise RecordingError(path, line, f"metadata 'phases' must be a list of {{label, start, end}}, got {phases!r}")
+    for i, p in enumerate(phases):
+        ok = (isinstance(p, dict) and isinstance(p.get("label"), str)
+              and all(isinstance(p.get(k), (int, float)) and not isinstance(p.get(k), bool) and math.isfinite(p[k])
+                      for k in ("start", "end")) and p["start"] < p["end"])
+        if not ok:
+            raise RecordingError(path, line, f"metadata phases[{i}] must be {{\"label\": text, \"start\": s, \"end\": s}} "
+                                 f"with start < end, got {p!r}")
 
 
 def _parse_columns(path, line: str) -> list[str]:
@@ -175,28 +265,26 @@ def _parse_columns(path, line: str) -> list[str]:
     dupes = sorted({c for c in cols if cols.count(c) > 1})
     if dupes:
         raise RecordingError(path, 2, f"duplicate column names: {', '.join(dupes)}")
+    if "" in cols:
+        raise RecordingError(path, 2, f"column {cols.index('') + 1} has no name (two commas in a row, or one at the end?)")
     return cols
 
 
 def _parse_cell(path, lineno: int, col: str, text: str):
     if col in OPTIONAL_INT_COLUMNS and text == "":
         return math.nan
-    if col in INT_COLUMNS or col in OPTIONAL_INT_COLUMNS:
-        try:
-            return int(text)
-        except ValueError:
-            raise RecordingError(path, lineno, f"column {col!r}: {text!r} is not an integer count") from None
     try:
-        value = float(text)
-    except ValueError:
-        raise RecordingError(path, lineno, f"column {col!r}: {text!r} is not a number") from None
-    if not math.isfinite(value):
-        raise RecordingError(path, lineno, f"column {col!r}: {text!r} is not a finite number")
-    return value
+        return parse_count(text) if col in INT_COLUMNS or col in OPTIONAL_INT_COLUMNS else parse_number(text)
+    except ValueError as e:
+        raise RecordingError(path, lineno, f"column {col!r}: {e}") from None
 
 
 def load_recording(path) -> Recording:
-    """Read and validate a recording; raises :class:`RecordingError` naming file and line."""
+    """Read and validate a recording; raises :class:`RecordingError` naming file and line.
+
+    A last line without its newline is rejected, not dropped: every writer of this format ends each
+    row with one, so its absence means the capture was interrupted mid-line and the line may hold a
+    number cut short (``-1234`` cut to ``-12`` still parses). The message says to delete that line."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -204,11 +292,13 @@ def load_recording(path) -> Recording:
         raise FileNotFoundError(f"no recording at {path}") from None
     except UnicodeDecodeError as e:
         raise RecordingError(path, None, f"not a text file ({e.reason} at byte {e.start})") from None
+    text = text.removeprefix(BOM)  # Excel's "CSV UTF-8" starts with one
     lines = text.split("\n")
     if len(lines) < 2 or not lines[0]:
         raise RecordingError(path, 1, "the file is empty: expected a metadata header line")
     meta = _parse_header(path, lines[0])
     cols = _parse_columns(path, lines[1])
+    _check_meta(path, meta, cols)
     truncated_tail = not text.endswith("\n")
     rows = lines[2:] if truncated_tail else lines[2:-1]
     while rows and not truncated_tail and not rows[-1].strip():
@@ -256,7 +346,7 @@ def load_any(path, mount="flat", require=("acc", "gyr")) -> Recording:
     path = Path(path)
     if path.is_file():
         with open(path, "rb") as f:
-            if f.read(len(VERSION_PREFIX)) == VERSION_PREFIX.encode():
+            if f.read(len(BOM.encode()) + len(VERSION_PREFIX)).removeprefix(BOM.encode()).startswith(VERSION_PREFIX.encode()):
                 return load_recording(path)
     elif not path.exists():
         raise FileNotFoundError(f"no recording or phyphox export at {path}")
@@ -301,32 +391,55 @@ def load_broad(path) -> Recording:
         raise FileNotFoundError(f"no BROAD trial at {path}")
     try:
         raw = scipy.io.loadmat(path)
-    except (ValueError, OSError, scipy.io.matlab.MatReadError) as e:
+    except NotImplementedError:  # scipy's answer to a v7.3 file, which is HDF5 inside
+        raise RecordingError(path, None, "a MATLAB v7.3 (HDF5) .mat file: BROAD trials are v5 .mat files; "
+                             "re-save it in MATLAB with save(name, '-v7') or use the trial from the dataset") from None
+    except (ValueError, TypeError, OSError, scipy.io.matlab.MatReadError) as e:
         raise RecordingError(path, None, f"not a readable MATLAB .mat file ({e})") from None
     missing = [f for f in BROAD_FIELDS if f not in raw]
     if missing:
         raise RecordingError(path, None, f"not a BROAD trial: missing field(s) {', '.join(missing)}; "
                              f"expected {', '.join(BROAD_FIELDS)}")
+
+    def numeric(name):
+        try:
+            return np.asarray(raw[name], dtype=float)
+        except (ValueError, TypeError):
+            raise RecordingError(path, None, f"field {name!r} must be numeric, got MATLAB class "
+                                 f"{np.asarray(raw[name]).dtype}") from None
+
     arrays = {}
     for name, width in (("imu_gyr", 3), ("imu_acc", 3), ("imu_mag", 3), ("opt_quat", 4)):
-        a = np.asarray(raw[name], dtype=float)
+        a = numeric(name)
         if a.ndim != 2 or a.shape[1] != width:
             raise RecordingError(path, None, f"field {name!r} must have shape (N, {width}), got {a.shape}")
         arrays[name] = a
     n = len(arrays["imu_gyr"])
+    if n < 2:
+        raise RecordingError(path, None, f"field 'imu_gyr' has {n} rows: a trial needs at least 2 samples")
     for name, a in arrays.items():
         if len(a) != n:
             raise RecordingError(path, None, f"field {name!r} has {len(a)} rows but imu_gyr has {n}")
-    movement = np.asarray(raw["movement"]).reshape(-1)
+    movement = numeric("movement").reshape(-1)
     if movement.size != n:
         raise RecordingError(path, None, f"field 'movement' has {movement.size} entries but imu_gyr has {n} rows")
-    rate = float(np.asarray(raw["sampling_rate"], dtype=float).reshape(-1)[0])
-    if not rate > 0:
-        raise RecordingError(path, None, f"field 'sampling_rate' must be positive, got {rate}")
-    for name in ("imu_gyr", "imu_acc"):
-        bad = np.flatnonzero(~np.isfinite(arrays[name]).all(axis=1))
-        if bad.size:
-            raise RecordingError(path, None, f"field {name!r} row {bad[0]} is not finite")
+    if not np.isin(movement, (0.0, 1.0)).all():
+        raise RecordingError(path, None, f"field 'movement' must hold 0 or 1, got {movement[~np.isin(movement, (0.0, 1.0))][0]}")
+    rates = numeric("sampling_rate").reshape(-1)
+    if rates.size != 1 or not positive_number(float(rates[0])):
+        raise RecordingError(path, None, f"field 'sampling_rate' must be one positive finite number (Hz), got {rates.tolist()}")
+    rate = float(rates[0])
+    for name in ("imu_gyr", "imu_acc", "imu_mag", "opt_quat"):  # NaN rows are gaps (no mag sample, markers unseen)
+        a = arrays[name]
+        finite = np.isfinite(a).all(axis=1)
+        bad = ~finite if name in ("imu_gyr", "imu_acc") else ~finite & ~np.isnan(a).all(axis=1)
+        if bad.any():
+            raise RecordingError(path, None, f"field {name!r} row {np.argmax(bad)} is not finite: {a[np.argmax(bad)].tolist()}")
+        if name == "opt_quat":
+            off = finite & (np.abs(np.linalg.norm(np.where(finite[:, None], a, 0.0), axis=1) - 1.0) > 0.01)
+            if off.any():
+                raise RecordingError(path, None, f"field 'opt_quat' row {np.argmax(off)} is not a unit quaternion "
+                                     f"(norm {np.linalg.norm(a[np.argmax(off)]):.4g})")
 
     q_ned = enu_to_ned_quat(arrays["opt_quat"])
     q_ned /= np.linalg.norm(q_ned, axis=1, keepdims=True)

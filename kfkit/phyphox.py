@@ -18,6 +18,13 @@ What phyphox writes (phyphox-android ``DataExport.java``, phyphox-ios ``Experime
   ``9.806650000E0``; iOS likewise); a column shorter than its set is padded with ``NaN`` (Android)
   or ``""`` (iOS). Android ends every line with a newline, iOS omits the last one.
 
+A last line without its newline may also be a copy cut short (``1.000000000E-3`` cut to ``1.000000``
+still parses), and nothing in the line tells the two apart. Inside a ``.zip`` the member's CRC-32
+proves the file is what the phone wrote, so the line is kept; in a folder or a single CSV it is
+dropped and counted (``meta["phone"]["skipped"][sensor]["unterminated_last_row"]``, with a line in
+``meta["phone"]["warnings"]``): one sample lost against a wrong value kept. A damaged zip, a zip holding
+two exports, and a garbled truth file are errors naming the file.
+
 Sensor axes and signs are the phone frame's (:mod:`kfkit.phone`); the accelerometer is the specific
 force on both platforms. :func:`load_phyphox` puts the sensors on the gyroscope's time base
 (:class:`kfkit.phone.OneClock`), stores fixed-point counts (:data:`kfkit.phone.LSB`) and the phone's
@@ -26,7 +33,6 @@ Simulated exports made by the kit add ``kfkit_truth.csv`` (the true attitude at 
 """
 from __future__ import annotations
 
-import io as _io
 import json
 import math
 import re
@@ -37,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from . import phone
-from .io import Recording, RecordingError
+from .io import BOM, Recording, RecordingError, check_phases, parse_count, parse_number
 
 SEPARATORS = (",", "\t", ";")
 #: sensor kinds phyphox exports, as named in its file format (``<sensor type="…">``)
@@ -68,6 +74,7 @@ class SensorTable:
     where: str  # the file, for messages
     skipped: dict
     file: str = ""  # its name in the export
+    warnings: tuple = ()  # rows dropped for a reason the student should see
 
 
 # --- reading one CSV --------------------------------------------------------------------------------
@@ -87,6 +94,9 @@ def _separator(header: str) -> str:
 def _classify_columns(where, labels, set_kind):
     """{"t": column, "x"/"y"/"z": column} and the kind ('acc', 'gyr', 'mag', 'lin', 'gra')."""
     time = [i for i, label in enumerate(labels) if _TIME.match(label)]
+    if len(time) > 1:
+        raise RecordingError(where, 1, f"{len(time)} time columns ({', '.join(labels[i] for i in time)}): "
+                             f"one sensor per file, as phyphox exports it")
     if not time:
         raise RecordingError(where, 1, f"no time column: the columns are {labels}. phyphox writes 'Time (s)' as the "
                              f"first column of every sensor (was the file edited, or exported from one graph?)")
@@ -99,7 +109,10 @@ def _classify_columns(where, labels, set_kind):
         if unit is None:
             raise RecordingError(where, 1, f"column {label!r}: unit {m['unit']!r} is not one phyphox exports "
                                  f"(m/s^2, rad/s, µT)")
-        axes.setdefault(m["axis"].lower(), i)
+        if m["axis"].lower() in axes:
+            raise RecordingError(where, 1, f"two {m['axis'].lower()} columns ({labels[axes[m['axis'].lower()]]!r} and "
+                                 f"{label!r}): one sensor per file, as phyphox exports it")
+        axes[m["axis"].lower()] = i
         names.add(m["name"].strip().lower())
         units.add(unit)
     missing = [a for a in "xyz" if a not in axes]
@@ -120,27 +133,33 @@ def _classify_columns(where, labels, set_kind):
 
 
 def _number(where, lineno, label, text, decimal_comma):
-    if text in ("", "NaN", "nan"):
+    if text in ("", "NaN", "nan"):  # padding of a shorter column (Android NaN, iOS empty)
         return math.nan
     try:
-        value = float(text.replace(",", ".") if decimal_comma else text)
-    except ValueError:
-        raise RecordingError(where, lineno, f"column {label!r}: {text!r} is not a number") from None
-    if math.isinf(value):
-        raise RecordingError(where, lineno, f"column {label!r}: {text!r} is not a finite number")
-    return value
+        return parse_number(text.replace(",", ".") if decimal_comma else text)
+    except ValueError as e:
+        raise RecordingError(where, lineno, f"column {label!r}: {e}") from None
 
 
-def read_sensor_csv(text: str, where, set_kind=None) -> SensorTable:
+def read_sensor_csv(text: str, where, set_kind=None, verified=False) -> SensorTable:
     """One phyphox CSV (any of its five variants) → :class:`SensorTable`. ``set_kind`` is the kind its
-    file name says, None to tell it from the labels. Errors name ``where`` and the line."""
-    lines = text.lstrip("\ufeff").splitlines()
+    file name says, None to tell it from the labels. ``verified``: the text is known whole (a zip
+    member, CRC-checked), so a last line without newline is kept; otherwise it is dropped and counted
+    (see the module docstring). Errors name ``where`` and the line."""
+    text = text.removeprefix(BOM)
+    lines = text.splitlines()
     if not lines or not lines[0].strip():
         raise RecordingError(where, 1, "the file is empty: expected phyphox's column labels, e.g. \"Time (s)\"")
     sep = _separator(lines[0])
     labels = _cells(lines[0], sep)
     columns, kind = _classify_columns(where, labels, set_kind)
     body = [(i + 2, line) for i, line in enumerate(lines[1:]) if line.strip()]
+    unterminated = not verified and bool(body) and body[-1][0] == len(lines) and not text.endswith(("\n", "\r"))
+    notes = ()
+    if unterminated:
+        lineno, _ = body.pop()
+        notes = (f"{where}, line {lineno}: the last line has no newline (an iOS export copied out of its zip, or a "
+                 f"file cut short), so a number in it may be cut: dropped",)
     decimal_comma = sep != "," and any("," in line for _, line in body[:50])
     wanted = [columns[c] for c in ("t", "x", "y", "z")]
     table = np.empty((len(body), 4))
@@ -165,34 +184,56 @@ def read_sensor_csv(text: str, where, set_kind=None) -> SensorTable:
                              f"(two recordings in one file?)")
     same = np.concatenate([[False], dt == 0])  # a repeated timestamp (to the µs) cannot be placed in time: keep the first
     table = table[~same]
-    skipped = {"empty_rows": int(padded.sum()), "incomplete_rows": int(bad.sum()), "repeated_times": int(same.sum())}
-    return SensorTable(kind, table[:, 0].copy(), table[:, 1:].copy(), str(where), skipped)
+    skipped = {"empty_rows": int(padded.sum()), "incomplete_rows": int(bad.sum()), "repeated_times": int(same.sum()),
+               "unterminated_last_row": int(unterminated)}
+    return SensorTable(kind, table[:, 0].copy(), table[:, 1:].copy(), str(where), skipped, warnings=notes)
 
 
 # --- the export: folder, zip or single file ------------------------------------------------------------
 
-def _export_files(path: Path) -> tuple[dict[str, tuple[str, str]], str]:
-    """{file name: (text, where)} of the top-level CSVs and meta/device.csv, and how to name the export."""
+def _export_files(path: Path) -> tuple[dict[str, tuple[str, str, bool]], str]:
+    """{file name: (text, where, verified)} of the top-level CSVs and meta/device.csv, and how to name the
+    export; ``verified`` is True for zip members (their CRC-32 was checked on reading)."""
     if path.is_dir():
         files = {p.name: p for p in sorted(path.glob("*.csv"))}
         device = path / "meta" / "device.csv"
         if device.is_file():
             files["meta/device.csv"] = device
-        return {name: (_decode(p.read_bytes()), str(p)) for name, p in files.items()}, str(path)
+        return {name: (_decode(p.read_bytes()), str(p), False) for name, p in files.items()}, str(path)
     if zipfile.is_zipfile(path):
-        out = {}
+        return _zip_files(path), str(path)
+    with open(path, "rb") as f:
+        looks_zip = f.read(2) == b"PK"
+    if looks_zip or path.suffix.lower() == ".zip":
+        raise RecordingError(path, None, "a damaged .zip file (cut short or corrupted: its table of contents is "
+                             "missing): copy or download the export from the phone again")
+    return {path.name: (_decode(path.read_bytes()), str(path), False)}, str(path)
+
+
+def _zip_files(path: Path) -> dict[str, tuple[str, str, bool]]:
+    """The CSVs of one export in a zip; files may sit at the top or in one folder (a zipped export folder).
+    macOS's ``__MACOSX/`` copies are skipped; two exports in one zip are an error."""
+    out, roots = {}, {}
+    try:
         with zipfile.ZipFile(path) as z:
             for info in z.infolist():
                 name = info.filename
-                if info.is_dir() or not name.lower().endswith(".csv"):
+                parts = name.split("/")
+                if info.is_dir() or not name.lower().endswith(".csv") or "__MACOSX" in parts or parts[-1].startswith("._"):
                     continue
-                key = "meta/device.csv" if name.endswith("meta/device.csv") else name.rsplit("/", 1)[-1]
-                if "/meta/" in f"/{name}" and key != "meta/device.csv":
+                folder = "/".join(parts[:-2] if len(parts) > 1 and parts[-2] == "meta" else parts[:-1])
+                roots.setdefault(folder, name)
+                if len(roots) > 1:
+                    first, second = roots.values()
+                    raise RecordingError(path, None, f"two exports in one zip ({first} and {second}): load each "
+                                         f"phyphox export on its own (unzip it and pass the folder of one)")
+                key = "meta/device.csv" if name.endswith("meta/device.csv") else parts[-1]
+                if len(parts) > 1 and parts[-2] == "meta" and key != "meta/device.csv":
                     continue
-                where = f"{name} in {path}"
-                out[key] = (_decode(z.read(info)), where)
-        return out, str(path)
-    return {path.name: (_decode(path.read_bytes()), str(path))}, str(path)
+                out[key] = (_decode(z.read(info)), f"{name} in {path}", True)
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError) as e:
+        raise RecordingError(path, None, f"a damaged .zip file ({e}): copy or download the export from the phone again") from None
+    return out
 
 
 def _decode(data: bytes) -> str:
@@ -216,9 +257,9 @@ def _device_properties(text: str) -> dict:
     return props
 
 
-def read_export(path) -> tuple[dict[str, SensorTable], dict, str | None, str]:
+def read_export(path) -> tuple[dict[str, SensorTable], dict, tuple | None, str]:
     """The sensors of a phyphox export (folder, .zip or one CSV): ({kind: SensorTable}, device
-    properties, the truth file's text or None, the export's name). Two files of one kind are an error.
+    properties, the truth file's (text, where, verified) or None, the export's name). Two files of one kind are an error.
     In a folder or zip, a CSV that is neither a known set nor a 3-axis sensor with a time column
     (another experiment's results) is left out; a single file given by path is always read."""
     path = Path(path)
@@ -226,15 +267,15 @@ def read_export(path) -> tuple[dict[str, SensorTable], dict, str | None, str]:
         raise FileNotFoundError(f"no phyphox export at {path}")
     files, name = _export_files(path)
     single = path.is_file() and not zipfile.is_zipfile(path)
-    truth = files.pop(TRUTH_FILE, (None, None))[0]
-    device = _device_properties(files.pop("meta/device.csv", ("", ""))[0])
+    truth = files.pop(TRUTH_FILE, None)
+    device = _device_properties(files.pop("meta/device.csv", ("", "", True))[0])
     tables: dict[str, SensorTable] = {}
-    for file_name, (text, where) in files.items():
+    for file_name, (text, where, verified) in files.items():
         stem = file_name[:-4] if file_name.lower().endswith(".csv") else file_name
         set_kind = SET_NAMES.get(stem.strip().lower())
         if set_kind is None and not single and stem.strip().lower() != "raw data" and not _is_sensor_header(text):
             continue
-        table = read_sensor_csv(text, where, set_kind)
+        table = read_sensor_csv(text, where, set_kind, verified)
         table.file = file_name
         if table.kind in tables:
             raise RecordingError(where, None, f"a second {KINDS[table.kind]} file besides {tables[table.kind].where}: "
@@ -277,17 +318,36 @@ def _sensor_meta(kind, device):
     return phone.sensor_metadata(kind, chip, full_scale)
 
 
-def _truth_euler(where, text, index, M):
+def _truth_euler(where, text, verified, index, M):
     """True [roll, pitch, yaw] (N, 3) of the body frame at the kept gyro rows, from kfkit_truth.csv
-    (quaternions phone → NED per gyro row): R_nb = R_ns M_bsᵀ. Also its metadata."""
+    (quaternions phone → NED per gyro row): R_nb = R_ns M_bsᵀ. Also its metadata. The kit writes every
+    line with its newline, so outside a zip a last line without one is an error (it may be cut short)."""
     from .filters.attitude import quat_to_dcm  # late import: filters import io
     from .frames import dcm_to_euler
 
-    lines = text.splitlines()
+    lines = text.removeprefix(BOM).splitlines()
     if not lines or not lines[0].startswith(TRUTH_MAGIC):
         raise RecordingError(where, 1, f"expected the header '{TRUTH_MAGIC.strip()} {{…json…}}'")
-    meta = json.loads(lines[0][len(TRUTH_MAGIC):])
-    table = np.loadtxt(_io.StringIO("\n".join(lines[2:])), delimiter=",", ndmin=2)
+    try:
+        meta = json.loads(lines[0][len(TRUTH_MAGIC):])
+    except json.JSONDecodeError as e:
+        raise RecordingError(where, 1, f"the metadata is not valid JSON ({e.msg} at column {e.colno + len(TRUTH_MAGIC)})") from None
+    if not isinstance(meta, dict):
+        raise RecordingError(where, 1, "the metadata must be a JSON object")
+    check_phases(where, meta.get("phases", []))
+    if len(lines) > 2 and not verified and not text.endswith(("\n", "\r")):
+        raise RecordingError(where, len(lines), "the last line is cut short (no newline at the end): regenerate the export")
+    table = np.empty((len(lines) - 2, 5)) if len(lines) > 2 else np.empty((0, 5))
+    for row, line in enumerate(lines[2:]):
+        cells = [c.strip() for c in line.split(",")]
+        if len(cells) != 5:
+            raise RecordingError(where, row + 3, f"expected 5 fields (row,true_qw,true_qx,true_qy,true_qz), got {len(cells)}")
+        try:
+            table[row] = [parse_count(cells[0])] + [parse_number(c) for c in cells[1:]]
+        except ValueError as e:
+            raise RecordingError(where, row + 3, str(e)) from None
+        if abs(np.linalg.norm(table[row, 1:]) - 1.0) > 1e-6:
+            raise RecordingError(where, row + 3, f"not a unit quaternion (norm {np.linalg.norm(table[row, 1:]):.9g})")
     if not np.array_equal(table[:, 0], np.arange(len(table))) or (len(index) and index[-1] >= len(table)):
         raise RecordingError(where, None, f"its rows must number the gyro rows 0, 1, 2, … ({len(table)} rows; "
                              f"the export's last used gyro row is {index[-1] if len(index) else None})")
@@ -344,9 +404,11 @@ def load_phyphox(path, mount=phone.DEFAULT_MOUNT, require=("acc", "gyr")) -> Rec
                       "rates_hz": {k: float((len(tables[k].t) - 1) / np.ptp(tables[k].t)) if len(tables[k].t) > 1 else None
                                    for k in present},
                       "dt_jitter_s": float(np.std(np.diff(t))), "skipped": {k: tables[k].skipped for k in present},
-                      "merge": clock.stats, "device": device}}
+                      "merge": clock.stats, "device": device,
+                      "warnings": [w for k in present for w in tables[k].warnings]}}
     if truth_text is not None:
-        euler, truth_meta = _truth_euler(f"{TRUTH_FILE} in {name}", truth_text, index, M)
+        text, where, verified = truth_text
+        euler, truth_meta = _truth_euler(where, text, verified, index, M)
         for i, c in enumerate(("true_roll", "true_pitch", "true_yaw")):
             data[c] = euler[:, i]
         meta["source"] = "simulated phone (phyphox export)"

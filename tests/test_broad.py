@@ -87,7 +87,7 @@ def test_filters_on_a_broad_format_file_agree_with_its_truth(tmp_path):
     (lambda d: d.update(imu_acc=np.zeros((10, 2))), r"'imu_acc' must have shape \(N, 3\)"),
     (lambda d: d.update(imu_mag=np.zeros((9, 3))), "'imu_mag' has 9 rows but imu_gyr has 10"),
     (lambda d: d.update(movement=np.zeros((3, 1))), "'movement' has 3 entries"),
-    (lambda d: d.update(sampling_rate=np.array([[0.0]])), "'sampling_rate' must be positive"),
+    (lambda d: d.update(sampling_rate=np.array([[0.0]])), "'sampling_rate' must be one positive finite number"),
     (lambda d: d["imu_gyr"].__setitem__((4, 1), np.nan), "'imu_gyr' row 4 is not finite"),
 ])
 def test_load_broad_names_the_bad_field(tmp_path, change, message):

@@ -1,4 +1,5 @@
 """kfkit.io: recording round trip, validation messages (file + line), Recording helpers."""
+import json
 import math
 import re
 
@@ -8,7 +9,11 @@ import pytest
 from kfkit.io import Recording, RecordingError, load_recording, recording_text, save_recording
 from kfkit.sim import simulate_imu, sine_roll, stationary
 
-HEADER = '# kfkit-recording v1 {"rate_hz": 100.0}\n'
+IDENTITY = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+#: what a recording with ax and mx columns must carry: each sensor's sensitivity and mounting
+SENSOR_META = {"sensors": {"acc": {"sensitivity": 0.001}, "mag": {"sensitivity": 0.15}},
+               "mount": {"acc": IDENTITY, "mag": IDENTITY}}
+HEADER = "# kfkit-recording v1 " + json.dumps({"rate_hz": 100.0, **SENSOR_META}) + "\n"
 COLUMNS = "t,seq,ax,mx,true_roll\n"
 ROWS = ["0.00,0,10,5,0.1\n", "0.01,1,-3,,0.2\n", "0.02,2,7,6,0.3\n"]
 GOOD = HEADER + COLUMNS + "".join(ROWS)
@@ -33,7 +38,8 @@ def load_error(path, line):
 
 
 def small_recording():
-    meta = {"board": "test", "rate_hz": 100.0, "description": "roll 30° ±, µT", "nested": {"a": [1, 2.5, None]}}
+    meta = {"board": "test", "rate_hz": 100.0, "description": "roll 30° ±, µT", "nested": {"a": [1, 2.5, None]},
+            **SENSOR_META}
     data = {
         "t": np.arange(5) / 100.0,
         "seq": np.arange(5, dtype=np.int64),

@@ -172,7 +172,9 @@ def tour_samples():
                                                (";", ",", True)])
 def test_every_csv_variant_loads_the_same(tmp_path, tour_samples, sep, decimal, ios):
     ref = io.load_phyphox(write_simple_experiment(tmp_path / "ref", tour_samples))
-    rec = io.load_phyphox(write_simple_experiment(tmp_path / "v", tour_samples, sep, decimal, ios))
+    folder = write_simple_experiment(tmp_path / "v", tour_samples, sep, decimal, ios)
+    # iOS omits the last newline: whole as the phone shares it (a zip, CRC-checked), so every row is kept
+    rec = io.load_phyphox(zip_folder(folder, tmp_path / "v.zip") if ios else folder)
     for c in ref.columns:
         np.testing.assert_array_equal(rec[c], ref[c], err_msg=c)
     # the counts are the SI values to the fixed-point LSB
@@ -180,6 +182,36 @@ def test_every_csv_variant_loads_the_same(tmp_path, tour_samples, sep, decimal, 
     kept = np.searchsorted(t, rec.t - 1e-6)  # the file's times carry ten significant digits
     np.testing.assert_allclose(rec.t, t[kept], atol=5e-7)  # µs: the kit's time resolution
     np.testing.assert_allclose(rec.sensor_si("gyr"), v[kept], atol=phone.LSB["gyr"] / 2 + 1e-12)
+
+
+def zip_folder(folder, archive, prefix=""):
+    """``folder``'s CSVs (and meta/) zipped as phyphox shares an export, under ``prefix`` inside."""
+    with zipfile.ZipFile(archive, "a" if archive.exists() else "w") as z:
+        for p in sorted(folder.rglob("*.csv")):
+            z.write(p, prefix + p.relative_to(folder).as_posix())
+    return archive
+
+
+def test_an_unterminated_last_line_outside_a_zip_is_dropped_and_counted(tmp_path, tour_samples):
+    """The class of `1.000000000E-3` cut to `1.000000`: a last line without newline may be cut mid-number,
+    so outside a zip (nothing proves it whole) it is dropped, counted and noted, never read."""
+    ref = io.load_phyphox(write_simple_experiment(tmp_path / "ref", tour_samples))
+    folder = write_simple_experiment(tmp_path / "cut", tour_samples)
+    gyro = folder / "Gyroscope.csv"
+    text = gyro.read_text(encoding="utf-8")
+    last = text.rstrip("\n").rsplit("\n", 1)[1]
+    cut = last.split(",")
+    cut[3] = cut[3][:8]  # '-1.234567890E-3' → '-1.23456': a valid number, 1000× too big
+    gyro.write_text(text.rstrip("\n").rsplit("\n", 1)[0] + "\n" + ",".join(cut), encoding="utf-8")
+    float(cut[3])  # the cut value parses: only the missing newline gives it away
+    rec = io.load_phyphox(folder)
+    n = len(text.rstrip("\n").split("\n")) - 1
+    assert rec.meta["phone"]["skipped"]["gyr"]["unterminated_last_row"] == 1
+    assert any("Gyroscope.csv, line" in w and str(n + 1) in w and "dropped" in w for w in rec.meta["phone"]["warnings"])
+    assert ref.meta["phone"]["warnings"] == [] and ref.meta["phone"]["skipped"]["gyr"]["unterminated_last_row"] == 0
+    assert len(rec) == len(ref) - 1  # the gyro is the time base: its last row is gone, the rest identical
+    for c in ref.columns:
+        np.testing.assert_array_equal(rec[c], ref[c][:-1], err_msg=c)
 
 
 def test_zip_folder_and_meta_files_agree(tmp_path, tour_samples):
