@@ -2,8 +2,9 @@
 
     kfkit grade --lab 01 --out gradebook.csv submissions/
 
-For each submission, in its own fresh, sandboxed kernel (see :mod:`kfkit.grading.sandbox`: the
-kit and the instructor's files read-only or hidden, no network; no sandbox, no grading):
+For each submission, in its own fresh, sandboxed kernel (see :mod:`kfkit.grading.sandbox`: a
+file system holding only what the kernel needs, read-only, no network; no sandbox, no grading),
+with memory and CPU time limited for all its processes together (:mod:`kfkit.grading.resources`):
 
 1. run the student's code cells top to bottom (cell tags and metadata dropped, so nothing is
    skipped or excused; errors do not stop the run), with a per-cell and a total timeout and an
@@ -17,7 +18,8 @@ kit and the instructor's files read-only or hidden, no network; no sandbox, no g
    (``kfkit.checkpoints``, kfkit's reference functions) enters that judgement.
 
 Writes ``gradebook.csv`` (``submission,checkpoint,points,max_points,message``), one Markdown
-feedback file per submission, and returns a summary with per-checkpoint pass rates.
+feedback file per submission (``<feedback>/<submission>.md``), and returns a summary with
+per-checkpoint pass rates.
 """
 from __future__ import annotations
 
@@ -57,6 +59,10 @@ def add_parser(sub):
                    help="seconds per notebook cell and per checkpoint call (default: %(default)g)")
     p.add_argument("--total-timeout", type=float, default=TOTAL_TIMEOUT,
                    help="seconds for one whole submission (default: %(default)g)")
+    p.add_argument("--max-memory", type=float, default=4.0, metavar="GB",
+                   help="memory all of one submission's processes may hold at once (default: %(default)g GB)")
+    p.add_argument("--max-cpu", type=float, default=None, metavar="S",
+                   help="CPU seconds one submission may use, all processes (default: --total-timeout)")
     p.add_argument("--feedback", type=Path, default=None,
                    help="folder for the per-submission Markdown feedback (default: <out stem>_feedback/)")
     p.add_argument("--seed", type=int, default=None, help="fix the random cases (to reproduce a grade)")

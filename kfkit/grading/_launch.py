@@ -1,23 +1,26 @@
 """Sandbox launcher: run as ``unshare … -- python _launch.py SPEC_JSON -- COMMAND…`` (stdlib only).
 
 It starts inside fresh mount, network, PID, IPC and UTS namespaces (made by ``unshare``, as real
-root or as root of a user namespace), then:
+root or as root of a user namespace), joins the submission's cgroup when the grader made one, then
+builds the kernel's whole file system as a **whitelist** and moves into it:
 
-1. covers ``/tmp``, ``/var/tmp``, ``/dev/shm`` and the grader's scratch folder with private tmpfs
-   (other submissions' folders disappear), and every top-most folder the sandbox user cannot
-   traverse (e.g. ``/root`` holding a pyenv Python) or that the spec hides (the instructor's
-   home, the submissions, the gradebook's folder, the kit's ``solutions/``) with an empty tmpfs,
-   binding back only the paths the kernel needs (the Python install, the venv, the kit), wherever
-   they are (a checkout under ``/tmp`` included);
-2. binds the submission's own box folder back (the grader's end of the kernel's sockets), and
-   mounts a private, size-limited tmpfs on its ``home/`` (the kernel's cwd and HOME);
-3. remounts every other mount read-only (the kit, the instructor's folders, the venv, /);
-   brings up the namespace's own loopback (a lab may serve itself on 127.0.0.1, as lab 00's
-   virtual phone does; the namespace has no other interface, so still no network);
-4. sets resource limits, drops privileges (another uid when real root; all capabilities when
-   root of a user namespace) and sets no_new_privs, so the read-only mounts cannot be undone,
-   and asks for SIGKILL when ``unshare`` (killed with the grader) goes away;
-5. execs COMMAND (the kernel, or the isolation probe).
+1. a fresh tmpfs becomes the new root; into it, read-only and at their real paths, go only the
+   system folders (``/usr``, ``/etc``, ``/bin`` … or their symbolic links) and the paths of
+   ``spec["visible"]`` (the Python install, the venv, the kit's ``kfkit/`` and ``data/``: never the
+   kit's repository root, so no ``.git``, ``solutions/`` or ``tests/``);
+2. its own ``/tmp``, ``/run`` (``/var/run`` and ``/var/tmp`` link there) and ``/dev/shm`` (private,
+   size-limited tmpfs), a minimal ``/dev`` (null, zero, full, random, urandom, tty, and a new
+   devpts instance with its ptmx: lab 00's virtual board uses a pty), ``/proc`` of its PID namespace,
+   and the submission's box folder (the grader's end of the kernel's sockets) with a private,
+   size-limited tmpfs on its ``home/`` (the kernel's cwd and HOME);
+3. ``pivot_root`` into it and detach the old root: nothing else of the machine is reachable any
+   more (no other checkout of the kit, no pip cache, no socket file of the host);
+4. remounts everything read-only except /tmp, /run, /dev/shm, the pty instance and the box; brings
+   up the namespace's own loopback (lab 00 serves its virtual phone on 127.0.0.1; there is no other
+   interface, so no network);
+5. sets resource limits, drops privileges (another uid when real root; all capabilities when root
+   of a user namespace) and sets no_new_privs, so the mounts cannot be undone, and asks for SIGKILL
+   when ``unshare`` (killed with the grader) goes away; then execs COMMAND.
 
 Any failure exits with status 70 and a one-line reason on stderr: the grader never runs a
 kernel half-isolated in a mode it did not announce.
@@ -26,6 +29,7 @@ import ctypes
 import fcntl
 import json
 import os
+import platform
 import resource
 import signal
 import socket
@@ -33,13 +37,18 @@ import struct
 import sys
 
 MS_RDONLY, MS_NOSUID, MS_NODEV, MS_NOEXEC = 1, 2, 4, 8
-MS_REMOUNT, MS_BIND, MS_MOVE, MS_REC, MS_PRIVATE = 32, 4096, 8192, 16384, 1 << 18
+MS_REMOUNT, MS_BIND, MS_REC, MS_PRIVATE = 32, 4096, 16384, 1 << 18
 MS_NOATIME, MS_NODIRATIME, MS_RELATIME = 1024, 2048, 1 << 21
+MNT_DETACH = 2
 # statvfs f_flag bit → mount flag that a remount must keep (locked in a user namespace)
 KEEP = {os.ST_NOSUID: MS_NOSUID, os.ST_NODEV: MS_NODEV, os.ST_NOEXEC: MS_NOEXEC,
         os.ST_NOATIME: MS_NOATIME, os.ST_NODIRATIME: MS_NODIRATIME, os.ST_RELATIME: MS_RELATIME}
 PR_SET_PDEATHSIG, PR_CAPBSET_DROP, PR_SET_SECUREBITS, PR_SET_NO_NEW_PRIVS, PR_CAP_AMBIENT = 1, 24, 28, 38, 47
 SECBITS_LOCKED_NOROOT = 0x2F  # NOROOT, NO_SETUID_FIXUP and KEEP_CAPS_LOCKED, each with its lock
+SYS_PIVOT_ROOT = {"x86_64": 155, "aarch64": 41, "riscv64": 41, "ppc64le": 203, "s390x": 217}  # glibc has no wrapper
+SYSTEM = ("/usr", "/bin", "/sbin", "/lib", "/lib32", "/lib64", "/libx32", "/etc")
+DEVICES = ("null", "zero", "full", "random", "urandom", "tty")
+WRITABLE = ("/tmp", "/run", "/dev/shm", "/dev/pts")  # besides the box
 
 libc = ctypes.CDLL(None, use_errno=True)
 
@@ -49,40 +58,24 @@ def fail(what):
     sys.exit(70)
 
 
+def _check(result, what):
+    if result != 0:
+        err = ctypes.get_errno()
+        raise OSError(err, f"{what}: {os.strerror(err)}")
+
+
 def mount(src, target, fstype, flags, data=None):
     enc = lambda s: None if s is None else os.fsencode(s)  # noqa: E731
-    if libc.mount(enc(src), enc(target), enc(fstype), ctypes.c_ulong(flags), enc(data)) != 0:
-        err = ctypes.get_errno()
-        raise OSError(err, f"mount {src} on {target}: {os.strerror(err)}")
+    _check(libc.mount(enc(src), enc(target), enc(fstype), ctypes.c_ulong(flags), enc(data)),
+           f"mount {src} on {target}")
 
 
 def prctl(option, arg):
-    if libc.prctl(option, ctypes.c_ulong(arg), 0, 0, 0) != 0:
-        err = ctypes.get_errno()
-        raise OSError(err, f"prctl({option}): {os.strerror(err)}")
+    _check(libc.prctl(option, ctypes.c_ulong(arg), 0, 0, 0), f"prctl({option})")
 
 
 def inside(path, folder):
     return path == folder or path.startswith(folder.rstrip("/") + "/")
-
-
-def traversable(path, uid, gid):
-    st = os.stat(path)
-    if st.st_uid == uid:
-        return bool(st.st_mode & 0o100)
-    if st.st_gid == gid:
-        return bool(st.st_mode & 0o010)
-    return bool(st.st_mode & 0o001)
-
-
-def blocked_ancestor(path, uid, gid):
-    """The top-most folder on the way to ``path`` that ``uid`` cannot enter, or None."""
-    parts = path.strip("/").split("/")
-    for i in range(1, len(parts) + 1):
-        folder = "/" + "/".join(parts[:i])
-        if not traversable(folder, uid, gid):
-            return folder
-    return None
 
 
 def mount_points():
@@ -95,50 +88,88 @@ def mount_points():
     return points
 
 
-def isolate_files(spec):
-    uid, gid = spec.get("uid"), spec.get("gid")
-    box, needed = spec["box"], [p for p in spec["needed"] if os.path.exists(p)]
-    hidden = [p for p in spec.get("hide", []) if os.path.isdir(p)]
-    mount(None, "/", None, MS_REC | MS_PRIVATE)
-    private = [p for p in ("/tmp", "/var/tmp", "/dev/shm", spec["scratch"]) if os.path.isdir(p)]
-    covers = {p: "mode=1777,size=256m" for p in private}
-    if uid is not None:  # real root dropping to another uid: make the kernel's files reachable
-        for path in needed:
-            top = blocked_ancestor(path, uid, gid)
-            if top is not None:
-                covers.setdefault(top, "mode=755,size=1m")
-    for path in hidden:  # a hidden folder holding what the kernel needs: covered, that part bound back
-        if any(inside(p, path) for p in needed + [box]):
-            covers.setdefault(path, "mode=755,size=1m")
-    tops = sorted(covers, key=len)
-    tops = [t for i, t in enumerate(tops) if not any(inside(t, o) for o in tops[:i])]
-    # O_PATH handles keep covered folders reachable through /proc/self/fd after they are covered
-    rebind = [p for p in needed if any(inside(p, t) for t in tops)]
-    handles = {p: os.open(p, os.O_PATH) for p in rebind + [box]}
-    for top in tops:
-        mount("tmpfs", top, "tmpfs", MS_NOSUID | MS_NODEV, covers[top])
-    for path in rebind + [box]:
-        os.makedirs(path, exist_ok=True)
-        mount(f"/proc/self/fd/{handles[path]}", path, None, MS_BIND | MS_REC)
-        os.close(handles[path])
-    emptied = []
-    for path in sorted(hidden, key=len):  # the other hidden folders (e.g. solutions/ in the kit): an empty tmpfs
-        gone = any(inside(path, t) for t in tops) and not any(inside(path, p) for p in rebind)
-        if path not in covers and not gone and not any(inside(path, e) for e in emptied):
-            mount("tmpfs", path, "tmpfs", MS_NOSUID | MS_NODEV, "mode=755,size=1m")
-            emptied.append(path)
-    owner = f",uid={uid},gid={gid}" if uid is not None else ""
-    mount("tmpfs", spec["cwd"], "tmpfs", MS_NOSUID | MS_NODEV, "mode=700,size=512m" + owner)  # private, bounded
-    writable = set(private) | {box}
+def _bind(source, target, root):
+    """Bind ``source`` (a path or ``/proc/self/fd/N``) at ``root + target``, recursively."""
+    dest = root + target
+    if os.path.isdir(source):
+        os.makedirs(dest, mode=0o755, exist_ok=True)
+    else:
+        os.makedirs(os.path.dirname(dest), mode=0o755, exist_ok=True)
+        open(dest, "a").close()
+    mount(source, dest, None, MS_BIND | MS_REC)
+
+
+def build_root(spec, root):
+    """Fill the tmpfs at ``root`` with the whitelist (see the module docstring, steps 1–2)."""
+    box, cwd = spec["box"], spec["cwd"]
+    box_handle = os.open(box, os.O_PATH | os.O_DIRECTORY)  # box lies under the folder the new root covers
+    mount("tmpfs", root, "tmpfs", MS_NOSUID | MS_NODEV, "mode=755,size=16m")
+    for path, options in (("/tmp", "mode=1777,size=256m"), ("/run", "mode=755,size=1m"),
+                          ("/dev", "mode=755,size=1m")):
+        os.makedirs(root + path, mode=0o755, exist_ok=True)
+        mount("tmpfs", root + path, "tmpfs", MS_NOSUID | (0 if path == "/dev" else MS_NODEV), options)
+    for path in SYSTEM:
+        if os.path.islink(path):  # merged /usr: /bin → usr/bin
+            os.symlink(os.readlink(path), root + path)
+        elif os.path.isdir(path):
+            _bind(path, path, root)
+    for path in spec["visible"]:  # after /tmp: a checkout under /tmp (CI) is bound inside it
+        if not any(inside(path, s) for s in SYSTEM if os.path.isdir(s) and not os.path.islink(s)):
+            _bind(path, path, root)
+    os.makedirs(root + "/var", mode=0o755, exist_ok=True)
+    os.symlink("../run", root + "/var/run")
+    os.symlink("../tmp", root + "/var/tmp")
+    for name in DEVICES:
+        _bind(f"/dev/{name}", f"/dev/{name}", root)
+    os.mkdir(root + "/dev/pts")
+    mount("devpts", root + "/dev/pts", "devpts", MS_NOSUID | MS_NOEXEC, "newinstance,ptmxmode=0666,mode=0620")
+    os.symlink("pts/ptmx", root + "/dev/ptmx")
+    os.mkdir(root + "/dev/shm")
+    mount("tmpfs", root + "/dev/shm", "tmpfs", MS_NOSUID | MS_NODEV, "mode=1777,size=256m")
+    for name, target in (("fd", "/proc/self/fd"), ("stdin", "/proc/self/fd/0"), ("stdout", "/proc/self/fd/1"),
+                         ("stderr", "/proc/self/fd/2")):
+        os.symlink(target, f"{root}/dev/{name}")
+    _bind("/proc", "/proc", root)  # unshare --mount-proc made it: this PID namespace's only
+    _bind(f"/proc/self/fd/{box_handle}", box, root)
+    os.close(box_handle)
+    owner = f",uid={spec['uid']},gid={spec['gid']}" if spec.get("uid") is not None else ""
+    mount("tmpfs", root + cwd, "tmpfs", MS_NOSUID | MS_NODEV, "mode=700,size=512m" + owner)  # private, bounded
+
+
+def pivot(root):
+    """Make ``root`` the file system's root and detach the old one (``pivot_root(".", ".")``)."""
+    number = SYS_PIVOT_ROOT.get(platform.machine())
+    if number is None:
+        raise OSError(0, f"pivot_root: unknown system call number on {platform.machine()}")
+    os.chdir(root)
+    _check(libc.syscall(ctypes.c_long(number), b".", b"."), "pivot_root")
+    _check(libc.umount2(b".", MNT_DETACH), "detaching the old root")
+    os.chdir("/")
+
+
+def make_read_only(box):
+    """Remount every mount read-only except the writable ones, /proc and the box."""
     for point in mount_points():
-        if point in writable or inside(point, "/proc") or inside(point, box):
+        if point in WRITABLE or inside(point, "/proc") or inside(point, box):
             continue
+        kept = sum(m for bit, m in KEEP.items() if os.statvfs(point).f_flag & bit)
         try:
-            kept = sum(m for bit, m in KEEP.items() if os.statvfs(point).f_flag & bit)
             mount(None, point, None, MS_REMOUNT | MS_BIND | MS_RDONLY | kept)
         except OSError as exc:
-            if any(inside(p, point) or inside(point, p) for p in spec["protect"]) or point == "/":
-                fail(f"cannot make {point} read-only ({exc.strerror})")
+            fail(f"cannot make {point} read-only ({exc.strerror})")
+
+
+def isolate_files(spec):
+    mount(None, "/", None, MS_REC | MS_PRIVATE)
+    build_root(spec, spec["scratch"])
+    pivot(spec["scratch"])
+    make_read_only(spec["box"])
+
+
+def join_cgroup(path):
+    """Move this process (and so everything it starts) into the submission's cgroup v2."""
+    with open(os.path.join(path, "cgroup.procs"), "w") as f:
+        f.write("0")
 
 
 def loopback_up():
@@ -183,6 +214,8 @@ def main(argv):
     if argv[2] != "--" or len(argv) < 4:
         fail("usage: _launch.py SPEC_JSON -- COMMAND…")
     try:
+        if spec.get("cgroup"):
+            join_cgroup(spec["cgroup"])
         isolate_files(spec)
         loopback_up()
         drop_privileges(spec)

@@ -20,7 +20,7 @@ from .. import __version__
 from .. import checkpoints as cps
 from . import sandbox as sb
 from . import wire
-from .runner import KernelLost, KernelRun, Limits, OutOfTime  # noqa: F401 (Limits is public)
+from .runner import KernelLost, KernelRun, Limits, OutOfTime, StoppedByLimit  # noqa: F401 (Limits is public)
 
 COLUMNS = ["submission", "checkpoint", "points", "max_points", "message"]
 MAX_NOTEBOOK_BYTES = 50 << 20
@@ -103,7 +103,13 @@ def _display_name(path: Path, fallback: Path) -> str:
 
 
 def read_code_cells(path: Path) -> list[str]:
-    """The code cells' sources of a notebook file; NotANotebook with the reason if it is not one.
+    """The code cells' sources of a notebook file; NotANotebook with the reason if it is not one."""
+    return read_notebook(path)[0]
+
+
+def read_notebook(path: Path) -> tuple[list[str], list[str]]:
+    """The code cells' sources and, for each, how a student finds it (:func:`cell_label`);
+    NotANotebook with the reason if the file is not a notebook.
 
     Only the sources are kept: tags (``skip-execution``, ``raises-exception``, …), the kernelspec
     and every other metadata field are dropped, so they cannot change how the grader runs it.
@@ -118,15 +124,39 @@ def read_code_cells(path: Path) -> list[str]:
         raise NotANotebook(f"cannot read it ({exc.strerror})") from None
     try:
         nb = nbformat.reads(text, as_version=4)
-        cells = [c for c in nb.cells if c.get("cell_type") == "code"]
-        sources = [c.source if isinstance(c.source, str) else "".join(c.source) for c in cells]
+        sources, labels, heading = [], [], None
+        for c in nb.cells:
+            source = c.source if isinstance(c.source, str) else "".join(c.source)
+            if c.get("cell_type") == "markdown" and isinstance(source, str):
+                heading = _last_heading(source) or heading
+            elif c.get("cell_type") == "code":
+                sources.append(source)
+                labels.append(cell_label(source, heading) if isinstance(source, str) else "")
     except nbformat.reader.NotJSONError:
         raise NotANotebook("the file is not valid JSON (a damaged or renamed file?)") from None
     except Exception as exc:  # any other shape problem: not a notebook we can run
         raise NotANotebook(f"not a Jupyter notebook ({type(exc).__name__}: {str(exc)[:200]})") from None
     if not all(isinstance(s, str) for s in sources):
         raise NotANotebook("a code cell's source is not text")
-    return sources
+    return sources, labels
+
+
+def _last_heading(markdown: str) -> str | None:
+    headings = [ln.lstrip("#").strip() for ln in markdown.splitlines() if re.match(r"#{1,6}\s", ln)]
+    return headings[-1] if headings else None
+
+
+def cell_label(source: str, heading: str | None) -> str:
+    """How a student finds a code cell: its first line, the functions it defines, its section.
+
+    e.g. ``the cell `def kf_update(x, P, z, r):` in section "3. The update"``.
+    """
+    defined = re.findall(r"^def\s+(\w+)\s*\(", source, re.M)
+    first = _first_line(source)
+    label = f"the cell `{first}`"
+    if len(defined) > 1 or (defined and not first.startswith(f"def {defined[0]}")):
+        label += f" (defining {', '.join(defined)})"
+    return label + (f' in section "{_clip(heading, 60)}"' if heading else " before the first heading")
 
 
 def _short(message: str, name: str) -> str:
@@ -231,7 +261,10 @@ def grade_checkpoints(run: KernelRun, sources: list[str], checkpoints: list, see
 
 def grade_submission(path: Path, checkpoints: list, sandbox: sb.Sandbox, limits: Limits,
                      seed: int | None = None, name: str | None = None) -> SubmissionGrade:
-    """Run and grade one notebook file in a fresh kernel; never raises for anything the file contains."""
+    """Run and grade one notebook file in a fresh kernel; never raises for anything the file contains.
+
+    Over its memory or CPU-time limit the submission is stopped: the checkpoints not graded yet
+    score 0 with the limit and the measured value (status "over limit")."""
     start = time.monotonic()
     seed = secrets.randbits(63) if seed is None else int(seed)
     grade = SubmissionGrade(name or str(path), seed)
@@ -241,7 +274,7 @@ def grade_submission(path: Path, checkpoints: list, sandbox: sb.Sandbox, limits:
             grade.rows.append(Row(cp.name, 0, cp.points, status, message))
 
     try:
-        sources = read_code_cells(Path(path))
+        sources, labels = read_notebook(Path(path))
     except NotANotebook as exc:
         fill("not graded", f"not graded: {exc}")
         grade.notes.append(str(exc))
@@ -252,11 +285,16 @@ def grade_submission(path: Path, checkpoints: list, sandbox: sb.Sandbox, limits:
             try:
                 run.run_notebook()
                 grade.rows.extend(grade_checkpoints(run, sources, checkpoints, seed))
+            except StoppedByLimit as exc:
+                where = (labels[run.current] if run.current < len(sources) else
+                         f"the grader's call of {checkpoints[len(grade.rows)].function}")
+                text = f"stopped: the submission {exc} while running {where} ({run.meter_kind})"
+                fill("over limit", f"not graded, {text}")
+                grade.notes.append(text)
             except OutOfTime as exc:
                 fill("timed out", f"timed out: not graded, {exc}")
             finally:
-                grade.notes += [f"code cell {i + 1} of {len(sources)} (`{_first_line(sources[i])}`): {note}"
-                                for i, note in sorted(run.cell_notes.items())]
+                grade.notes += [f"{labels[i]}: {note}" for i, note in sorted(run.cell_notes.items())]
     except RuntimeError as exc:  # the kernel could not start: a grader-side problem, said plainly
         fill("not graded", f"GRADER ERROR, regrade this submission: {exc}")
     grade.seconds = time.monotonic() - start
@@ -264,17 +302,51 @@ def grade_submission(path: Path, checkpoints: list, sandbox: sb.Sandbox, limits:
 
 
 # ---------------------------------------------------------------------------- outputs
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r", "'")  # a spreadsheet reads a cell starting so as a formula
+
+
 def _csv_safe(text: str) -> str:
-    """Keep spreadsheet programs from reading a cell as a formula."""
-    return "'" + text if text[:1] in ("=", "+", "-", "@") else text
+    """Keep spreadsheet programs from reading a cell as a formula: a leading ``'`` (also before a
+    leading ``'``, so that :func:`_csv_unsafe` undoes it exactly)."""
+    return "'" + text if text.startswith(FORMULA_START) else text
 
 
-def write_gradebook(path: Path, grades: list[SubmissionGrade], update: bool = False):
+def _csv_unsafe(text: str) -> str:
+    """The value :func:`_csv_safe` was given."""
+    return text[1:] if text.startswith("'") else text
+
+
+def read_gradebook(path: Path) -> list[SubmissionGrade]:
+    """The submissions of a gradebook, in its order, with their rows (status: passed when full points).
+
+    Raises ValueError naming the file and line when it is not a kfkit gradebook."""
+    grades: dict[str, SubmissionGrade] = {}
+    with open(path, newline="", encoding="utf-8") as f:
+        reader = csv.DictReader(f)
+        if reader.fieldnames != COLUMNS:
+            raise ValueError(f"{path}: line 1 should be the header {','.join(COLUMNS)}, not {reader.fieldnames}")
+        for r in reader:
+            try:
+                points, max_points = float(r["points"]), float(r["max_points"])
+            except (TypeError, ValueError):
+                raise ValueError(f"{path}, line {reader.line_num}: points and max_points should be numbers, not "
+                                 f"{r['points']!r} and {r['max_points']!r}") from None
+            name = _csv_unsafe(r["submission"])
+            status = "passed" if points == max_points > 0 else "failed"
+            grades.setdefault(name, SubmissionGrade(name, 0)).rows.append(
+                Row(r["checkpoint"], points, max_points, status, _csv_unsafe(r["message"] or "")))
+    return list(grades.values())
+
+
+def merge_grades(old: list[SubmissionGrade], new: list[SubmissionGrade]) -> list[SubmissionGrade]:
+    """``old`` with each regraded submission replaced where it was; new submissions at the end."""
+    fresh = {g.submission: g for g in new}
+    merged = [fresh.pop(g.submission, g) for g in old]
+    return merged + [g for g in new if g.submission in fresh]
+
+
+def write_gradebook(path: Path, grades: list[SubmissionGrade]):
     rows = []
-    if update and path.exists():
-        regraded = {g.submission for g in grades}
-        with open(path, newline="", encoding="utf-8") as f:
-            rows = [r for r in csv.DictReader(f) if r.get("submission") not in regraded]
     for g in grades:
         rows += [{"submission": _csv_safe(g.submission), "checkpoint": r.checkpoint, "points": f"{r.points:g}",
                   "max_points": f"{r.max_points:g}", "message": _csv_safe(r.message)} for r in g.rows]
@@ -303,10 +375,13 @@ def feedback_markdown(g: SubmissionGrade, lab: str, sandbox: sb.Sandbox) -> str:
 
 
 def feedback_names(names: list[str]) -> list[str]:
-    """A unique, file-system-safe Markdown file name per submission."""
+    """The feedback file of each submission: its gradebook name with ``.md`` for ``.ipynb``, as a
+    path under the feedback folder (``submissions/alice.ipynb`` → ``submissions/alice.md``;
+    nbgrader's ``submitted/alice/lab01/x.ipynb`` → ``submitted/alice/lab01/x.md``), unique."""
     out, used = [], set()
     for n in names:
-        base = re.sub(r"[^A-Za-z0-9._-]+", "_", n.removesuffix(".ipynb")).strip("._") or "submission"
+        parts = [p for p in Path(n.removesuffix(".ipynb")).parts if p not in ("/", ".", "..")] or ["submission"]
+        base = str(Path(*parts))
         cand, k = base, 1
         while cand in used:
             k += 1
@@ -316,13 +391,20 @@ def feedback_names(names: list[str]) -> list[str]:
     return out
 
 
-def summary(grades: list[SubmissionGrade], checkpoints: list, sandbox: sb.Sandbox, warnings=()) -> str:
+def summary(grades: list[SubmissionGrade], checkpoints: list, sandbox: sb.Sandbox, warnings=(),
+            whole_class: list[SubmissionGrade] | None = None) -> str:
+    """What the instructor reads at the end: isolation, pass rates per checkpoint and totals over
+    ``whole_class`` (the whole gradebook after ``--update``; default: ``grades``, this run's)."""
     lines = []
     if sandbox.mode == "none":
         lines += ["!" * 78, f"WARNING: {sandbox.describe()}", "!" * 78]
     lines += [f"warning: {w}" for w in warnings]
+    seconds = np.mean([g.seconds for g in grades]) if grades else 0.0
+    lines.append(f"{len(grades)} submission(s) graded, {seconds:.1f} s per submission; isolation: {sandbox.describe()}")
+    grades = grades if whole_class is None else whole_class
     n = len(grades)
-    lines.append(f"{n} submission(s) graded; isolation: {sandbox.describe()}")
+    if whole_class is not None:
+        lines.append(f"the whole gradebook ({n} submissions):")
     if n:
         width = max(len(cp.name) for cp in checkpoints)
         lines.append(f"{'checkpoint':{width}s}  passed  rate   mean points")
@@ -333,8 +415,7 @@ def summary(grades: list[SubmissionGrade], checkpoints: list, sandbox: sb.Sandbo
             lines.append(f"{cp.name:{width}s}  {passed:3d}/{len(rows):<3d} {100 * passed / max(len(rows), 1):4.0f} %"
                          f"  {mean:.2f} / {cp.points}")
         totals = [g.points for g in grades]
-        lines.append(f"total: mean {np.mean(totals):.2f} / {grades[0].max_points:g}, "
-                     f"median {np.median(totals):g}; {np.mean([g.seconds for g in grades]):.1f} s per submission")
+        lines.append(f"total: mean {np.mean(totals):.2f} / {grades[0].max_points:g}, median {np.median(totals):g}")
         errors = [g.submission for g in grades if any("GRADER ERROR" in r.message for r in g.rows)]
         if errors:
             lines.append(f"GRADER ERROR for {len(errors)} submission(s), regrade them: {', '.join(errors)}")
@@ -375,6 +456,7 @@ def grade(paths, lab, out: Path, jobs: int = 1, limits: Limits | None = None, fe
     checkpoints = lab_checkpoints(lab)
     limits = limits or Limits()
     out = Path(out)
+    earlier = read_gradebook(out) if update and out.exists() else None  # a damaged one: said before grading
     feedback_dir = Path(feedback_dir) if feedback_dir else out.with_name(out.stem + "_feedback")
     found, warnings = find_submissions(paths)
     instructor = {Path(p).resolve().parent if Path(p).is_file() else Path(p).resolve() for p in paths}
@@ -406,12 +488,13 @@ def grade(paths, lab, out: Path, jobs: int = 1, limits: Limits | None = None, fe
                               for cp in checkpoints]
                     grades[k] = g
                 bar and bar.step(names[k])
-    write_gradebook(out, grades, update)
-    feedback_dir.mkdir(parents=True, exist_ok=True)
+    whole_class = merge_grades(earlier, grades) if earlier is not None else None
+    write_gradebook(out, whole_class or grades)
     lab_nn = checkpoints[0].name.split(".")[0]
     for g, fname in zip(grades, feedback_names([g.submission for g in grades])):
+        (feedback_dir / fname).parent.mkdir(parents=True, exist_ok=True)
         (feedback_dir / fname).write_text(feedback_markdown(g, lab_nn, sandbox), encoding="utf-8")
-    return grades, summary(grades, checkpoints, sandbox, warnings)
+    return grades, summary(grades, checkpoints, sandbox, warnings, whole_class)
 
 
 def cli(args) -> int:
@@ -427,7 +510,8 @@ def cli(args) -> int:
             print(f"kfkit grade: {w}", file=sys.stderr)
         print("kfkit grade: no notebooks to grade", file=sys.stderr)
         return 1
-    limits = Limits(cell_timeout=args.timeout, total_timeout=args.total_timeout)
+    limits = Limits(cell_timeout=args.timeout, total_timeout=args.total_timeout, memory=int(args.max_memory * (1 << 30)),
+                    cpu_time=args.max_cpu if args.max_cpu is not None else args.total_timeout)
     try:
         grades, text = grade(args.submissions, args.lab, args.out, jobs=args.jobs, limits=limits,
                              feedback_dir=args.feedback, seed=args.seed, update=args.update,
@@ -436,6 +520,9 @@ def cli(args) -> int:
         print(f"kfkit grade: cannot isolate the students' code on this machine, so nothing was graded: {exc}.\n"
               "Grade on Linux with util-linux's 'unshare' (as root, or with user namespaces enabled), e.g. in a "
               "Linux VM or container, or accept the risk with --no-sandbox.", file=sys.stderr)
+        return 2
+    except ValueError as exc:  # the gradebook to --update is not one
+        print(f"kfkit grade: {exc}", file=sys.stderr)
         return 2
     print(text)
     print(f"gradebook: {args.out}; feedback: {args.feedback or Path(args.out).with_name(Path(args.out).stem + '_feedback')}")

@@ -10,6 +10,8 @@ Outputs of student cells are counted and dropped (only error names are kept), so
 costs nothing but its transfer; a cell that prints more than ``Limits.max_cell_output`` is
 stopped the same way (its kernel restarted, as a thread may go on printing), and no single
 message above ``Limits.max_message`` is even received (ZeroMQ's MAXMSGSIZE on the grader's sockets).
+Memory and CPU time are limited per submission, all its processes together
+(:mod:`kfkit.grading.resources`): over either, the submission is stopped (:class:`StoppedByLimit`).
 """
 from __future__ import annotations
 
@@ -35,6 +37,7 @@ from nbclient import NotebookClient
 from nbclient.exceptions import CellTimeoutError, DeadKernelError
 
 from . import CELL_TIMEOUT, TOTAL_TIMEOUT
+from . import resources
 from . import sandbox as sb
 from . import wire
 
@@ -65,6 +68,8 @@ class Limits:
     output_bytes: int = 1 << 20  # output of one student cell beyond which it is reported as huge
     max_cell_output: int = 64 << 20  # output of one cell beyond which it is stopped
     max_message: int = 256 << 20  # bytes of one message from the kernel beyond which it is not even read
+    memory: int = 4 << 30  # bytes all the submission's processes may hold at once
+    cpu_time: float = TOTAL_TIMEOUT  # s of CPU time (all processes, user + system; the warm-up not counted)
 
 
 def _die_with_grader():
@@ -83,6 +88,14 @@ class KernelLost(Exception):
 
 class OutOfTime(Exception):
     pass
+
+
+class StoppedByLimit(OutOfTime):
+    """The submission went over its memory or CPU-time limit and was killed (``over`` says which)."""
+
+    def __init__(self, over: resources.OverLimit):
+        super().__init__(str(over))
+        self.over = over
 
 
 class _SandboxKernelManager(AsyncKernelManager):
@@ -159,8 +172,13 @@ class KernelRun:
         self.skipped: set[int] = set()
         self.cell_notes: dict[int, str] = {}
         self.restarts = 0
+        self.current = 0  # index of the cell running (len(sources): the grader's calls)
         self.last_timeout = limits.cell_timeout
-        self.scratch = self.box = self.client = self.log = None
+        self.scratch = self.box = self.client = self.log = self.watchdog = None
+        self.cpu_used, self.memory_peak, self.over = 0.0, 0, None  # over all the kernels of this submission
+        self.cgroup_parent = None
+        if sandbox.mode != "none":
+            self.cgroup_parent, self.cgroup_missing = resources.cgroup_v2_parent()
 
     # kernel lifecycle
     def __enter__(self):
@@ -177,11 +195,17 @@ class KernelRun:
         self._stop()
         shutil.rmtree(self.scratch, ignore_errors=True)
 
+    @property
+    def meter_kind(self) -> str:
+        return resources.Cgroup.kind if self.cgroup_parent else resources.ProcessTree.kind
+
     def _start(self):
         self.box = sb.make_box(self.scratch, self.sandbox)
         km = _SandboxKernelManager(kernel_name="python3", transport="ipc", ip=str(self.box / "ipc"),
                                    connection_file=str(self.box / "kernel.json"))
-        km.wrap = lambda argv: self.sandbox.command(self.box, self.scratch, self.box / "home", km.connection_file, argv)
+        cgroup = resources.Cgroup(self.cgroup_parent, self.limits.memory) if self.cgroup_parent else None
+        km.wrap = lambda argv: self.sandbox.command(self.box, self.scratch, self.box / "home", km.connection_file,
+                                                    argv, cgroup=cgroup and cgroup.path)
         km.max_message = self.limits.max_message
         nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(s) for s in self.sources])
         self.client = _Client(nb, km, self.limits.max_cell_output, timeout=int(self.limits.cell_timeout),
@@ -200,8 +224,14 @@ class KernelRun:
             if self.sandbox.uid():  # sockets exist now: the kernel may write only in its tmpfs home and /tmp
                 os.chown(self.box, 0, 0)
                 self.box.chmod(0o711)
+            meter = cgroup or resources.ProcessTree(km.provisioner.pid)
             self._quiet(WARM_UP, max(WARM_UP_TIMEOUT, self.limits.cell_timeout))
+            warm_up = meter.usage().cpu  # the grader's imports are not charged to the student
+            self.watchdog = resources.Watchdog(meter, self.limits.memory, self.limits.cpu_time,
+                                               cpu_before=self.cpu_used - warm_up)
         except Exception as exc:
+            if cgroup is not None and self.watchdog is None:
+                cgroup.close()
             self._stop()
             raise RuntimeError(f"the kernel did not start ({type(exc).__name__}: {exc}); "
                                f"kernel log: {self._log_tail()}") from None
@@ -219,13 +249,26 @@ class KernelRun:
             except Exception:  # already dead: nothing left to stop
                 pass
         self.client = None
+        if self.watchdog is not None:
+            self.watchdog.stop()
+            self.cpu_used, self.over = self.watchdog.cpu_used, self.over or self.watchdog.over
+            self.memory_peak = max(self.memory_peak, self.watchdog.peak.memory)
+            self.watchdog = None
         if self.log is not None:
             self.log.close()
             self.log = None
 
+    def _check_limits(self):
+        """Raise StoppedByLimit when the watchdog killed this submission (after the kernel is stopped)."""
+        if self.watchdog is not None and self.watchdog.over is not None:
+            self._stop()
+        if self.over is not None:
+            raise StoppedByLimit(self.over)
+
     def _restart(self):
         self.restarts += 1
         self._stop()
+        self._check_limits()
         if self.restarts > MAX_RESTARTS:
             raise OutOfTime(f"the kernel had to be restarted more than {MAX_RESTARTS} times")
         self._check_time()
@@ -247,6 +290,7 @@ class KernelRun:
     def _execute(self, index: int, source: str, capture: list | None = None) -> tuple[str, dict | None]:
         """Run ``source``; → (status, error) with status 'ok', 'error' or 'timeout'. Raises KernelLost."""
         self._check_time()
+        self.current = index
         client = self.client
         cells = client.nb.cells
         while len(cells) <= index:
@@ -257,14 +301,17 @@ class KernelRun:
         try:
             client.execute_cell(cell, index, store_history=False)
         except DeadKernelError:
+            self._check_limits()
             raise KernelLost(index, "the kernel died (sys.exit in a thread, os._exit, a crash or too much memory)") from None
         except CellTimeoutError:  # the reply came, its output did not: the kernel's output thread is gone
+            self._check_limits()
             if client.timed_out:
                 raise KernelLost(index, f"timed out after {self.last_timeout:g} s and ignored the interrupt",
                                  timed_out=True) from None
             raise KernelLost(index, "the kernel stopped sending output (it printed more than it could send)") from None
         finally:
             client.capture = None
+        self._check_limits()
         if client.flooded:
             raise KernelLost(index, f"printed more than {self.limits.max_cell_output >> 20} MB of output (stopped)")
         if client.timed_out:

@@ -2,22 +2,24 @@
 
 Modes, strongest first (``probe`` tries them in order and keeps the first that passes):
 
-``root``       running as root: new mount/net/PID/IPC/UTS namespaces, everything read-only except
-               the submission's box and a private /tmp, then another uid (one per grading
-               process) with no capabilities and no_new_privs.
-``userns``     not root, user namespaces enabled: the same namespaces inside a user namespace;
-               the kernel stays uid 0 *there* but with every capability dropped.
+``root``       running as root: new mount/net/PID/IPC/UTS namespaces and a file system that holds
+               only what the kernel needs (a whitelist, see ``_launch.py``), read-only except the
+               submission's box and a private /tmp, then another uid (one per grading process)
+               with no capabilities and no_new_privs.
+``userns``     not root, user namespaces enabled: the same inside a user namespace; the kernel
+               stays uid 0 *there* but with every capability dropped.
 ``none``       neither works: ``kfkit grade`` refuses to run student code unless told
                ``--no-sandbox``; then kernels run as the grader with only a temporary working
                folder, and the summary says so loudly.
 
-In both isolated modes the instructor's home and current folder, the kit's ``solutions/``, the
-submissions and the gradebook's folder are hidden (an empty read-only tmpfs over each, with only
-what the kernel must import bound back inside), and the network is an empty namespace.
+In both isolated modes the kernel's root file system is a fresh tmpfs into which only the system
+folders (:data:`SYSTEM`), the Python install, the venv and the kit's ``kfkit/`` and ``data/`` are
+bound, read-only, at their real paths (:func:`visible_paths`): the kit's repository (``.git``,
+``solutions/``, ``tests/``), the instructor's folders, other copies of the kit, pip's cache and the
+host's socket files are not hidden, they are simply not there. The network is an empty namespace.
 
-``probe`` runs a tiny program through exactly the launch path the kernels use and checks that it
-cannot write into the kit, the venv or the instructor's folders, cannot list the hidden ones, and
-whether it can reach the network; a mode is used only if that check passes.
+``probe`` runs a tiny program through exactly the launch path the kernels use and checks those
+guarantees from inside (see :data:`PROBE`); a mode is used only if that check passes.
 """
 from __future__ import annotations
 
@@ -28,7 +30,6 @@ import pwd
 import shutil
 import subprocess
 import sys
-import sysconfig
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,31 +37,33 @@ from pathlib import Path
 from ..datasets import KIT_ROOT
 
 LAUNCHER = Path(__file__).with_name("_launch.py")
-MEMORY_LIMIT = 4 << 30  # bytes of address space per kernel (RLIMIT_AS)
+MEMORY_LIMIT = 4 << 30  # bytes of address space per kernel process (RLIMIT_AS; the submission's total: Limits)
 FILE_SIZE_LIMIT = 256 << 20  # bytes per file the kernel writes
 PROCESS_LIMIT = 256  # processes and threads of one sandbox uid
 SANDBOX_UID_BASE = 1_000_000  # + grading process id: one uid per concurrent grader, none in /etc/passwd
-SYSTEM = ("/bin", "/dev", "/etc", "/lib", "/lib64", "/opt", "/proc", "/run", "/sbin", "/sys", "/usr", "/var")  # never hidden
+SYSTEM = ("/usr", "/bin", "/sbin", "/lib", "/lib32", "/lib64", "/libx32", "/etc")  # bound read-only (as _launch.py)
+PRIVATE = ("/tmp", "/run", "/var", "/dev", "/proc")  # the sandbox's own (fresh tmpfs, minimal /dev, its /proc)
 
 
 @dataclass
 class Sandbox:
     mode: str  # "root", "userns" or "none"
     network_blocked: bool = False
-    protected: list = field(default_factory=list)  # folders the probe found not writable
-    hidden: list = field(default_factory=list)  # folders the probe found empty from inside
+    visible: list = field(default_factory=list)  # the only folders bound in, read-only (besides SYSTEM)
     warning: str = ""
 
     def describe(self, full: bool = True) -> str:
         """How kernels are isolated; ``full`` adds the folders (for the instructor, not the students)."""
         if self.mode == "none":
             return f"NOT ISOLATED: {self.warning}"
-        how = {"root": "namespaces + read-only mounts + unprivileged uid",
-               "userns": "user namespace + read-only mounts + no capabilities"}[self.mode]
+        how = {"root": "namespaces + whitelisted read-only file system + unprivileged uid",
+               "userns": "user namespace + whitelisted read-only file system + no capabilities"}[self.mode]
         net = "network blocked" if self.network_blocked else "network NOT blocked"
         if not full:
             return f"{how}; {net}"
-        return f"{how}; {net}; read-only: {', '.join(self.protected)}; hidden: {', '.join(self.hidden)}"
+        system = [p for p in SYSTEM if os.path.isdir(p) and not os.path.islink(p)]
+        return (f"{how}; {net}; the only folders visible, read-only: {', '.join(system + self.visible)}; "
+                f"private: /tmp, /run, /dev/shm, its home")
 
     def uid(self) -> tuple[int, int] | None:
         """The unprivileged uid/gid this grading process gives its kernels (mode 'root')."""
@@ -71,14 +74,20 @@ class Sandbox:
             uid += 1 << 22
         return uid, uid
 
-    def command(self, box: Path, scratch: Path, cwd: Path, connection_file: str, argv: list[str]) -> list[str]:
-        """The argv that runs ``argv`` in this sandbox (``argv`` unchanged in mode 'none')."""
+    def command(self, box: Path, scratch: Path, cwd: Path, connection_file: str, argv: list[str],
+                cgroup: Path | None = None) -> list[str]:
+        """The argv that runs ``argv`` in this sandbox (``argv`` unchanged in mode 'none').
+
+        ``scratch`` (the box's parent, private to this kernel) becomes the new root's mount point;
+        ``cgroup``: the submission's cgroup v2 folder, joined before anything else.
+        """
         if self.mode == "none":
             return argv
         ids = self.uid()
         spec = {"box": str(box), "scratch": str(scratch), "cwd": str(cwd), "connection_file": connection_file,
-                "uid": ids and ids[0], "gid": ids and ids[1], "needed": needed_paths(), "protect": self.protected,
-                "hide": self.hidden, "memory": MEMORY_LIMIT, "file_size": FILE_SIZE_LIMIT, "processes": PROCESS_LIMIT}
+                "uid": ids and ids[0], "gid": ids and ids[1], "visible": self.visible or visible_paths(),
+                "cgroup": str(cgroup) if cgroup else None,
+                "memory": MEMORY_LIMIT, "file_size": FILE_SIZE_LIMIT, "processes": PROCESS_LIMIT}
         unshare = ["unshare"] + (["--user", "--map-root-user"] if self.mode == "userns" else [])
         unshare += ["--mount", "--net", "--pid", "--ipc", "--uts", "--fork", "--kill-child", "--mount-proc", "--"]
         return unshare + [sys.executable, "-I", str(LAUNCHER), json.dumps(spec), "--"] + argv
@@ -92,35 +101,41 @@ def _uid_taken(uid: int) -> bool:
         return False
 
 
+def inside(path: str, folder: str) -> bool:
+    return path == folder or path.startswith(folder.rstrip("/") + "/")
+
+
 @functools.lru_cache(maxsize=1)
-def needed_paths() -> list[str]:
-    """Folders the kernel must read: the Python install, the venv, the kit and its import paths.
+def visible_paths() -> list[str]:
+    """Folders bound into the kernel's file system besides :data:`SYSTEM`: what a fresh ``python -I``
+    imports from (the Python install, the venv, their import paths, where ``kfkit`` is found:
+    editable-install finders keep working because the kit is bound at its real path) and the
+    bundled ``data/``. Any of them holding the kit's repository root is replaced by the kit's
+    ``kfkit/`` and ``data/`` alone: never ``.git``, ``solutions/`` or ``tests/``.
 
     The import paths are those of a fresh ``python -I`` (what the kernel gets: no PYTHONPATH, no
     current folder), not this process's ``sys.path``, which may hold the instructor's folders.
     """
-    isolated = subprocess.run([sys.executable, "-I", "-c", "import json, sys; print(json.dumps(sys.path))"],
-                              capture_output=True, text=True, check=True, env={"PATH": os.defpath})
-    paths = {os.path.realpath(p) for p in (sys.base_prefix, sys.prefix, KIT_ROOT)}
+    code = ("import importlib.util, json, sys; spec = importlib.util.find_spec('kfkit'); "
+            "print(json.dumps([sys.path, list(spec.submodule_search_locations or []) if spec else []]))")
+    fresh = subprocess.run([sys.executable, "-I", "-c", code], capture_output=True, text=True, check=True,
+                           env={"PATH": os.defpath}, cwd="/")
+    path, kfkit_dirs = json.loads(fresh.stdout)
+    kit = os.path.realpath(KIT_ROOT)
+    paths = {os.path.realpath(p) for p in (sys.base_prefix, sys.prefix, *path, *kfkit_dirs) if p}
     paths.add(os.path.dirname(os.path.realpath(sys.executable)))
-    paths |= {os.path.realpath(p) for p in [*json.loads(isolated.stdout), *sysconfig.get_paths().values()] if p}
-    paths = sorted(p for p in paths if os.path.isdir(p))
-    return [p for p in paths if not any(p.startswith(q.rstrip("/") + "/") for q in paths)]
+    paths = {p for p in paths if not inside(kit, p)} | {os.path.join(kit, "kfkit"), os.path.join(kit, "data")}
+    system = [os.path.realpath(s) for s in SYSTEM if os.path.isdir(s) and not os.path.islink(s)]
+    paths = sorted(p for p in paths if os.path.isdir(p) and not any(inside(p, s) for s in system))
+    return [p for p in paths if not any(p != q and inside(p, q) for q in paths)]
 
 
-def protected_paths(extra=()) -> list[str]:
-    """Folders a submission must not write: the kit, the venv, and the instructor's folders."""
-    return _existing_dirs([KIT_ROOT, Path(sys.prefix), Path(__file__).resolve().parents[1], Path.cwd(), Path.home(),
-                           *extra])
-
-
-def hidden_paths(extra=()) -> list[str]:
-    """Folders a submission must not even read: the instructor's home and current folder, the kit's
-    solutions, the submissions and the gradebook's folder (``extra``). What the kernel needs inside
-    them (a venv in the home folder, the kit in the current one) stays visible, read-only."""
-    needed = needed_paths()
-    return [p for p in _existing_dirs([Path.home(), Path.cwd(), KIT_ROOT / "solutions", *extra])
-            if p not in needed and not any(s == p or s.startswith(p.rstrip("/") + "/") for s in SYSTEM)]
+def instructor_paths(extra=()) -> list[str]:
+    """Folders a submission must not even see: the instructor's home and current folder, the kit's
+    repository (its ``.git``, ``solutions/``, ``tests/``), the submissions and the gradebook's
+    folder (``extra``); what the kernel needs inside them (the kit's package, a venv in the home
+    folder) is bound at its own path and nothing else of them is there."""
+    return _existing_dirs([Path.home(), Path.cwd(), KIT_ROOT, KIT_ROOT / ".git", KIT_ROOT / "solutions", *extra])
 
 
 def _existing_dirs(paths) -> list[str]:
@@ -155,21 +170,28 @@ def kernel_env(box: Path) -> dict:
 
 
 PROBE = r"""
-import json, os, socket, sys
-name, rest = sys.argv[1], sys.argv[2:]
-protect, hide = rest[:rest.index("--hide")], rest[rest.index("--hide") + 1:]
-report = {"network": False, "uid": os.getuid(), "hidden": {}}
-for folder in protect:
-    try:  # left behind on purpose: the grader looks for it outside the sandbox
-        with open(os.path.join(folder, name), "w") as f:
+import json, os, socket, stat, sys
+args = json.loads(sys.argv[1])
+report = {"network": False, "uid": os.getuid(), "root": sorted(os.listdir("/")), "written": [], "seen": {},
+          "sockets": []}
+for folder in args["write"]:
+    try:  # left behind on purpose if it works: the grader looks for it outside the sandbox too
+        with open(os.path.join(folder, args["name"]), "w") as f:
             f.write("x")
+        report["written"].append(folder)
     except OSError:
         pass
-for folder in hide:
+for folder in args["absent"]:
     try:
-        report["hidden"][folder] = sorted(os.listdir(folder))
+        report["seen"][folder] = sorted(os.listdir(folder))
     except OSError:
-        report["hidden"][folder] = []
+        pass
+for top in ("/tmp", "/run", "/dev", "/var"):  # the private folders hold no socket file but the kernel's own
+    for where, dirs, files in os.walk(top):
+        for f in files:
+            path = os.path.join(where, f)
+            if not path.startswith(args["box"] + "/") and stat.S_ISSOCK(os.lstat(path).st_mode):
+                report["sockets"].append(path)
 try:
     socket.create_connection(("1.1.1.1", 53), timeout=2).close()
     report["network"] = True
@@ -193,7 +215,7 @@ def leaked_writes(name: str, folders: list[str]) -> list[str]:
 
 
 def leaked_listings(seen: dict, needed: list[str]) -> list[str]:
-    """Hidden folders whose listing from inside shows more than the way to what the kernel needs."""
+    """Folders whose listing from inside shows more than the way to what the kernel needs."""
     leaked = []
     for folder, names in seen.items():
         allowed = {Path(p).relative_to(folder).parts[0] for p in needed if p.startswith(folder.rstrip("/") + "/")}
@@ -202,14 +224,45 @@ def leaked_listings(seen: dict, needed: list[str]) -> list[str]:
     return leaked
 
 
-def run_in_sandbox(sandbox: Sandbox, argv: list[str], timeout=60.0) -> subprocess.CompletedProcess:
-    """Run ``argv`` (a short program, not a kernel) the way kernels run; used by the probe and tests."""
+def root_entries(visible: list[str], box: str) -> set[str]:
+    """The names ``/`` may hold inside the sandbox: the top folder of everything bound or made there."""
+    return {Path(p).parts[1] for p in [*SYSTEM, *PRIVATE, *visible, box] if os.path.lexists(p) or p in PRIVATE}
+
+
+def check_report(report: dict, visible: list[str], box: str) -> list[str]:
+    """What the probe's report shows broken (empty when every guarantee holds)."""
+    broken = []
+    extra = set(report["root"]) - root_entries(visible, box)
+    if extra:
+        broken.append(f"/ holds more than the whitelist: {', '.join(sorted(extra))}")
+    if report["written"]:
+        broken.append(f"still writable: {', '.join(report['written'])}")
+    seen = leaked_listings(report["seen"], visible)
+    if seen:
+        broken.append(f"still visible: {', '.join(seen)}")
+    if report["sockets"]:
+        broken.append(f"socket files of the host: {', '.join(report['sockets'])}")
+    return broken
+
+
+def run_in_sandbox(sandbox: Sandbox, argv: list[str], timeout=60.0, args: dict | None = None,
+                   box_files: dict | None = None) -> subprocess.CompletedProcess:
+    """Run ``argv`` (a short program, not a kernel) the way kernels run; used by the probe and tests.
+
+    ``args``: a dict passed as one more JSON argument, with ``"box"`` (the box's path) added to it;
+    ``box_files``: {name: text} written into the box first.
+    """
     scratch = Path(tempfile.mkdtemp(prefix="kfkit-grade-"))
     try:
         scratch.chmod(0o711)
         box = make_box(scratch, sandbox)
         conn = box / "none.json"
         conn.write_text("{}")
+        for name, text in (box_files or {}).items():
+            (box / name).write_text(text)
+        if args is not None:
+            args["box"] = str(box)
+            argv = [*argv, json.dumps(args)]
         cmd = sandbox.command(box, scratch, box / "home", str(conn), argv)
         return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=kernel_env(box),
                               cwd=box / "home" if sandbox.mode == "none" else "/")
@@ -218,13 +271,15 @@ def run_in_sandbox(sandbox: Sandbox, argv: list[str], timeout=60.0) -> subproces
 
 
 def probe(extra=(), modes=None) -> Sandbox:
-    """The strongest sandbox that works here, checked from inside: it must not write into the
-    protected folders (the kit, the venv, ``extra`` …) nor see into the hidden ones.
+    """The strongest sandbox that works here, checked from inside: ``/`` holds only the whitelist,
+    nothing in it is writable (the kit's package, the venv, ``/`` itself), the instructor's folders
+    and the kit's repository (``.git``, ``solutions/``) show nothing but the way to the kit's package
+    and the venv, no host socket file is there, and the kernel's imports work.
 
-    ``extra``: the instructor's folders of this grading run (submissions, gradebook), both
-    protected and hidden.
+    ``extra``: the instructor's folders of this grading run (submissions, gradebook).
     """
-    protect, hide = protected_paths(extra), hidden_paths(extra)
+    visible, absent = visible_paths(), instructor_paths(extra)
+    write = ["/", *visible, *absent]
     if modes is None:
         modes = ["root"] if os.geteuid() == 0 else ["userns"]
     reasons = []
@@ -232,25 +287,23 @@ def probe(extra=(), modes=None) -> Sandbox:
         if shutil.which("unshare") is None:
             reasons.append("the 'unshare' command (util-linux) is not installed")
             break
-        sb, name = Sandbox(mode, protected=protect, hidden=hide), f".kfkit-sandbox-probe-{os.getpid()}"
+        sb, name = Sandbox(mode, visible=visible), f".kfkit-sandbox-probe-{os.getpid()}"
+        args = {"name": name, "write": write, "absent": absent}
         try:
-            done = run_in_sandbox(sb, [sys.executable, "-c", PROBE, name, *protect, "--hide", *hide])
+            done = run_in_sandbox(sb, [sys.executable, "-c", PROBE], args=args)
         except subprocess.TimeoutExpired:
             reasons.append(f"{mode}: the probe timed out")
             continue
         finally:
-            leaked = leaked_writes(name, protect)
+            leaked = leaked_writes(name, write)
         if done.returncode != 0:
             last = (done.stderr.strip().splitlines() or ["no message"])[-1]
             reasons.append(f"{mode}: {last}")
             continue
         report = json.loads(done.stdout.strip().splitlines()[-1])
-        if leaked:
-            reasons.append(f"{mode}: still writable: {', '.join(leaked)}")
-            continue
-        seen = leaked_listings(report["hidden"], needed_paths())
-        if seen:
-            reasons.append(f"{mode}: still visible: {', '.join(seen)}")
+        broken = check_report(report, visible, args["box"]) + ([f"written outside: {', '.join(leaked)}"] if leaked else [])
+        if broken:
+            reasons.append(f"{mode}: {'; '.join(broken)}")
             continue
         sb.network_blocked = not report["network"] and not report["ifaces"]
         return sb

@@ -1,0 +1,109 @@
+"""The gradebook and the feedback files, without kernels: round-trips, --update, names, cell labels."""
+import csv
+from pathlib import Path
+
+import nbformat
+import pytest
+
+from kfkit.datasets import KIT_ROOT
+from kfkit.grading import core, sandbox
+
+CHECKPOINTS = core.lab_checkpoints("01")
+BOX = sandbox.Sandbox("root", True, ["/x"])
+AWKWARD = [f"{c}bob.ipynb" for c in ("=", "+", "-", "@", "\t", "\r", "'", "'=")] + [
+    "a,b.ipynb", 'say "hi".ipynb', "two\nlines.ipynb", "plain/alice.ipynb", "=cmd|' /C calc'!A0.ipynb"]
+
+
+def grade_of(name, points, seconds=1.0, message="ok"):
+    rows = [core.Row(cp.name, points if points is not None else cp.points, cp.points,
+                     "passed" if points is None or points == cp.points else "failed", message) for cp in CHECKPOINTS]
+    return core.SubmissionGrade(name, 1, rows, seconds=seconds)
+
+
+def test_every_awkward_name_and_message_round_trips(tmp_path):
+    path = tmp_path / "g.csv"
+    grades = [grade_of(n, None, message=n.replace(".ipynb", " said so")) for n in AWKWARD]
+    core.write_gradebook(path, grades)
+    back = core.read_gradebook(path)
+    assert [g.submission for g in back] == AWKWARD
+    assert [[r.message for r in g.rows] for g in back] == [[r.message for r in g.rows] for g in grades]
+    with open(path, newline="", encoding="utf-8") as f:  # what a spreadsheet sees: no cell starts a formula
+        cells = [v for row in csv.reader(f) for v in row]
+    assert not [v for v in cells if v[:1] in "=+-@\t\r"]
+
+
+def test_update_replaces_in_place_keeps_order_and_never_duplicates(tmp_path):
+    path = tmp_path / "g.csv"
+    core.write_gradebook(path, [grade_of(n, 0) for n in AWKWARD])
+    for name in AWKWARD:  # regrade each, one at a time, as --update does
+        merged = core.merge_grades(core.read_gradebook(path), [grade_of(name, None)])
+        core.write_gradebook(path, merged)
+    back = core.read_gradebook(path)
+    assert [g.submission for g in back] == AWKWARD  # same order, one entry each
+    assert all(g.points == g.max_points for g in back)
+    merged = core.merge_grades(back, [grade_of("zed.ipynb", 0)])
+    assert [g.submission for g in merged] == AWKWARD + ["zed.ipynb"]  # a new student goes last
+
+
+def test_update_prints_the_whole_class_summary(tmp_path, monkeypatch):
+    """grade(update=True) with the kernels replaced: the summary covers the gradebook, not one student."""
+    out = tmp_path / "g.csv"
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    for name in ("alice", "bob", "carol"):
+        nbformat.write(nbformat.v4.new_notebook(), subs / f"{name}.ipynb")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(core, "_grade_one", lambda task: grade_of(task[1], 0))
+    core.grade([subs], "01", out, progress=False, sandbox=BOX)
+    monkeypatch.setattr(core, "_grade_one", lambda task: grade_of(task[1], None))
+    grades, text = core.grade([subs / "bob.ipynb"], "01", out, progress=False, sandbox=BOX, update=True)
+    assert [g.submission for g in core.read_gradebook(out)] == ["subs/alice.ipynb", "subs/bob.ipynb", "subs/carol.ipynb"]
+    assert "the whole gradebook (3 submissions)" in text
+    line = next(s for s in text.splitlines() if s.startswith("01.kf_update"))
+    assert "1/3" in line and "33 %" in line
+    assert "total: mean 2.67 / 8" in text  # (0 + 8 + 0) / 3
+    assert (tmp_path / "g_feedback" / "subs" / "bob.md").exists()
+
+
+def test_a_damaged_gradebook_to_update_is_named_before_grading(tmp_path, monkeypatch):
+    out = tmp_path / "g.csv"
+    out.write_text("name,score\nalice,3\n")
+    monkeypatch.setattr(core, "_grade_one", lambda task: pytest.fail("graded although the gradebook is damaged"))
+    with pytest.raises(ValueError, match=r"g\.csv: line 1 should be the header submission,checkpoint"):
+        core.grade([tmp_path], "01", out, progress=False, sandbox=BOX, update=True)
+    out.write_text("submission,checkpoint,points,max_points,message\nalice,01.kf_update,two,2,ok\n")
+    with pytest.raises(ValueError, match=r"g\.csv, line 2: points and max_points should be numbers, not 'two'"):
+        core.read_gradebook(out)
+
+
+def test_feedback_files_are_named_like_the_submission_and_stay_unique():
+    names = ["submissions/alice.ipynb", "submitted/alice/lab01/01_roll_kf_1d.ipynb",
+             "submitted/bob/lab01/01_roll_kf_1d.ipynb", "/abs/x.ipynb", "../up/x.ipynb", "abs/x.ipynb"]
+    files = core.feedback_names(names)
+    assert files[:3] == ["submissions/alice.md", "submitted/alice/lab01/01_roll_kf_1d.md",
+                         "submitted/bob/lab01/01_roll_kf_1d.md"]
+    assert len(set(files)) == len(files) and not [f for f in files if f.startswith("/") or ".." in Path(f).parts]
+
+
+def test_cells_are_named_by_first_line_function_and_section():
+    """A student finds "the cell `def kf_update(…)` in section …" in their notebook; "code cell 7 of 25" they cannot."""
+    sources, labels = core.read_notebook(KIT_ROOT / "solutions" / "01_roll_kf_1d.ipynb")
+    nb = nbformat.read(KIT_ROOT / "solutions" / "01_roll_kf_1d.ipynb", as_version=4)
+    i = next(k for k, s in enumerate(sources) if "\ndef kf_update(" in "\n" + s)
+    code = [c for c in nb.cells if c.cell_type == "code"][i]
+    position = nb.cells.index(code)
+    heading = next(line.lstrip("#").strip() for c in reversed(nb.cells[:position]) if c.cell_type == "markdown"
+                   for line in reversed(c.source.splitlines()) if line.startswith("#"))
+    assert "kf_update" in labels[i] and labels[i].startswith("the cell `def ")
+    assert labels[i].endswith(f'in section "{heading}"')
+    assert core.cell_label("import numpy as np\n\ndef f(x):\n    return x", None) == \
+        "the cell `import numpy as np` (defining f) before the first heading"
+
+
+def test_sandbox_description_lists_each_folder_once_and_truthfully():
+    text = sandbox.Sandbox("root", True, sandbox.visible_paths()).describe()
+    visible = text.split("visible, read-only: ")[1].split(";")[0].split(", ")
+    assert len(visible) == len(set(visible)) and "hidden" not in text
+    assert str(KIT_ROOT / "kfkit") in visible and str(KIT_ROOT) not in visible
+    short = sandbox.Sandbox("root", True, ["/x"]).describe(full=False)
+    assert "/x" not in short and "network blocked" in short
