@@ -48,6 +48,12 @@ BIAS_INSTABILITY_FACTOR = float(np.sqrt(2 * np.log(2) / np.pi))
 
 NOISE_WINDOW_S = 10.0  # s: noise σ over windows this short leaves the bias wander out
 MIN_MAG_SPREAD = 0.1  # smallest/largest principal variance of a usable magnetometer rotation
+#: smallest principal standard deviation of a usable rotation's readings, as a fraction of the field norm B:
+#: a tumble covering the sphere spreads B/√3 ≈ 0.58·B along every axis, a hemisphere 0.29·B along its axis, a
+#: board turned about one axis ~0 along it, a board left still only its noise (~0.01·B)
+MIN_MAG_COVERAGE = 0.1
+ACCEL_SCALE_RANGE = (0.5, 2.0)  # what six faces can give: each axis must read beyond ±g/2 (accel_six_face)
+MAX_SOFT_IRON_CONDITION = 1e3  # eigenvalue ratio of S beyond which the correction is (nearly) singular
 
 
 class CalibrationError(ValueError):
@@ -265,9 +271,11 @@ def fit_mag_calibration(mag, field_norm=None, min_samples=50, min_spread=MIN_MAG
     soft iron cannot be seen from norms alone and stays in the mounting.
 
     Rows that are all NaN (no new magnetometer sample) are dropped. Raises :class:`CalibrationError`
-    for too few samples, partly non-finite rows, or when the rotations cover
-    too little of the sphere (the smallest principal variance of the readings below ``min_spread``
-    of the largest: a board only turned flat gives a thin ellipse, not an ellipsoid).
+    for too few samples, partly non-finite rows, or when the rotations cover too little of the sphere,
+    judged against the field itself: the readings' standard deviation along each principal direction
+    must reach :data:`MIN_MAG_COVERAGE` · B (a still board's noise cloud, or a board turned about one
+    axis only, spreads ~0 along some direction however round the cloud is), and the smallest principal
+    variance must reach ``min_spread`` of the largest (a board only turned flat gives a thin ellipse).
     """
     raw = np.asarray(mag, dtype=float)
     if raw.ndim == 2 and raw.shape[1] == 3:
@@ -277,7 +285,19 @@ def fit_mag_calibration(mag, field_norm=None, min_samples=50, min_spread=MIN_MAG
     centre, scale = m.mean(axis=0), m.std(axis=0).max()
     if scale == 0:
         raise CalibrationError("mag: all readings are equal: the board did not move")
+    if not (np.isfinite(B) and B > 0):
+        raise CalibrationError(f"field_norm must be the local field's magnitude in µT (positive), got {field_norm!r}")
     spread = np.linalg.eigvalsh(np.cov(m.T))
+    sigma = np.sqrt(np.maximum(spread, 0.0))  # µT along the principal directions, smallest first
+    if sigma[0] < MIN_MAG_COVERAGE * B:
+        still = sigma[-1] < MIN_MAG_COVERAGE * B
+        raise CalibrationError(
+            f"mag: the rotations cover too little of the sphere: the readings spread only {sigma[0]:.2g} µT along their narrowest direction (and {sigma[-1]:.2g} µT along "
+            f"the widest), under {MIN_MAG_COVERAGE:.0%} of the {B:.3g} µT field: "
+            + ("the board hardly turned (this is sensor noise around one reading). " if still else
+               "the board turned about one axis only, so the field was never seen along that axis. ")
+            + "Record again, turning the board slowly through every orientation — figure eights, on its side and upside "
+              "down — for about a minute (and pass field_norm= your local field if it is far from London's)")
     if spread[0] < min_spread * spread[-1]:
         raise CalibrationError(
             f"mag: the rotations cover too little of the sphere (smallest/largest spread {spread[0] / spread[-1]:.3f} < "
@@ -336,16 +356,39 @@ class Calibration:
               "mag_hard_iron": (3,), "mag_soft_iron": (3, 3), "mag_noise": (3,)}
 
     def __post_init__(self):
+        """Checks every field: shapes, finite, noise ≥ 0, accel_scale within :data:`ACCEL_SCALE_RANGE`,
+        S symmetric positive definite with eigenvalue ratio ≤ :data:`MAX_SOFT_IRON_CONDITION`, rate_hz > 0."""
+        if not isinstance(self.board, str) or not self.board:
+            raise CalibrationError(f"Calibration.board must be a board name, got {self.board!r}")
+        if not isinstance(self.source, str):
+            raise CalibrationError(f"Calibration.source must be text, got {self.source!r}")
+        if isinstance(self.rate_hz, bool) or not isinstance(self.rate_hz, (int, float, np.number)) \
+                or not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise CalibrationError(f"Calibration.rate_hz must be a positive finite number (Hz), got {self.rate_hz!r}")
         for name, shape in self.SHAPES.items():
-            value = np.asarray(getattr(self, name), dtype=float)
+            try:
+                value = np.asarray(getattr(self, name), dtype=float)
+            except (ValueError, TypeError):
+                raise CalibrationError(f"Calibration.{name}: expected numbers of shape {shape}, got {getattr(self, name)!r}") from None
             if value.shape != shape:
                 raise CalibrationError(f"Calibration.{name}: expected shape {shape}, got {value.shape}")
             if not np.isfinite(value).all():
                 raise CalibrationError(f"Calibration.{name}: holds NaN or inf: {value.tolist()}")
             setattr(self, name, [float(f"{v:.9g}") for v in value.ravel()] if value.ndim == 1
                     else [[float(f"{v:.9g}") for v in row] for row in value])
-        if np.any(np.asarray(self.accel_scale) <= 0):
-            raise CalibrationError(f"Calibration.accel_scale must be positive, got {self.accel_scale}")
+        lo, hi = ACCEL_SCALE_RANGE
+        if not all(lo <= s <= hi for s in self.accel_scale):
+            raise CalibrationError(f"Calibration.accel_scale must lie within {lo:g} … {hi:g} (1 = exact; it divides the "
+                                   f"reading), got {self.accel_scale}")
+        for name in ("gyro_noise", "accel_noise", "mag_noise"):
+            if min(getattr(self, name)) < 0:
+                raise CalibrationError(f"Calibration.{name} is a standard deviation: it cannot be negative, got {getattr(self, name)}")
+        S = np.asarray(self.mag_soft_iron)
+        w = np.linalg.eigvalsh((S + S.T) / 2)
+        if not np.allclose(S, S.T, rtol=1e-6, atol=1e-9 * np.abs(S).max()) or w[0] <= 0 or w[-1] > MAX_SOFT_IRON_CONDITION * w[0]:
+            raise CalibrationError(f"Calibration.mag_soft_iron must be symmetric positive definite and not (nearly) singular "
+                                   f"(eigenvalues {', '.join(f'{x:.3g}' for x in w)}), got {self.mag_soft_iron}: "
+                                   f"fit it again with fit_mag_calibration")
         self.rate_hz = float(self.rate_hz)
 
     def to_json(self) -> str:
@@ -354,8 +397,11 @@ class Calibration:
 
     @classmethod
     def from_json(cls, text: str, where="calibration") -> "Calibration":
+        """A calibration file's text. Stricter than the constructor: every field but ``source`` must be
+        there (no default stands in for a measurement) and the board must be one the kit knows. A noise σ
+        of 0 means "not measured" (a board without magnetometer, a lab that saved before measuring it)."""
         try:
-            d = json.loads(text)
+            d = json.loads(text.removeprefix("\ufeff"))
         except json.JSONDecodeError as e:
             raise CalibrationError(f"{where}: not valid JSON ({e.msg}, line {e.lineno})") from None
         if not isinstance(d, dict):
@@ -363,9 +409,16 @@ class Calibration:
         unknown = sorted(set(d) - {f for f in cls.__dataclass_fields__})
         if unknown:
             raise CalibrationError(f"{where}: unknown fields {', '.join(unknown)}")
+        missing = [f for f in cls.__dataclass_fields__ if f not in d and f != "source"]
+        if missing:
+            raise CalibrationError(f"{where}: missing fields {', '.join(missing)}: a calibration file needs every "
+                                   f"measurement; save one again from labs 02/03 (Calibration.save)")
+        from .sensors import board as get_board
         try:
-            return cls(**d)
-        except CalibrationError as e:
+            cal = cls(**d)
+            get_board(cal.board)
+            return cal
+        except (CalibrationError, ValueError) as e:
             raise CalibrationError(f"{where}: {e}") from None
 
     def save(self, path=None) -> Path:
@@ -387,7 +440,11 @@ class Calibration:
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"no calibration file at {path}")
-        return cls.from_json(path.read_text(encoding="utf-8"), where=str(path))
+        try:
+            text = path.read_bytes().decode("utf-8")
+        except UnicodeDecodeError as e:
+            raise CalibrationError(f"{path}: not a text file ({e.reason} at byte {e.start})") from None
+        return cls.from_json(text, where=str(path))
 
     def apply(self, rec_or_arrays):
         """Corrected body-frame (gyr, acc, mag) from a Recording or a tuple (gyr, acc[, mag]) of (N, 3).

@@ -28,7 +28,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from .frames import G
-from .io import Recording, RecordingError
+from .io import Recording, RecordingError, check_phases, parse_number, positive_number
 
 KMH = 1.0 / 3.6  # m/s per km/h
 
@@ -485,13 +485,9 @@ def _read_rows(path, lines, first_lineno, header, columns, delimiter=","):
         for name, i in index.items():
             text = cells[i].strip()
             try:
-                v = float(text)
-            except ValueError:
-                what = "is empty" if not text else f"{text!r} is not a number"
-                raise RecordingError(path, lineno, f"column {header[i]!r} ({name}): {what}") from None
-            if not math.isfinite(v):
-                raise RecordingError(path, lineno, f"column {header[i]!r} ({name}): {text!r} is not a finite number")
-            values[name].append(v)
+                values[name].append(parse_number(text))
+            except ValueError as e:
+                raise RecordingError(path, lineno, f"column {header[i]!r} ({name}): {'is empty' if not text else e}") from None
         t = values["t"][-1]
         if t_prev is not None and t <= t_prev:
             raise RecordingError(path, lineno, f"time (column {header[index['t']]!r}) does not increase: {t:.10g} after {t_prev:.10g}")
@@ -502,20 +498,25 @@ def _read_rows(path, lines, first_lineno, header, columns, delimiter=","):
     return {name: np.asarray(v) for name, v in values.items()}, np.asarray(linenos)
 
 
-def _read_text(path) -> list[str]:
+def _read_text(path) -> tuple[list[str], bool]:
+    """The file's lines (a UTF-8 byte-order mark dropped) and whether the last one ends in a newline."""
     path = Path(path)
     try:
-        return path.read_text(encoding="utf-8-sig").splitlines()
+        text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise FileNotFoundError(f"no file at {path}") from None
     except UnicodeDecodeError as e:
         raise RecordingError(path, None, f"not a text file ({e.reason} at byte {e.start})") from None
+    return text.splitlines(), text.endswith(("\n", "\r"))
 
 
 def load_vehicle(path) -> Recording:
-    """Read a vehicle recording (``# kfkit-vehicle v1`` format); errors name the file and line."""
+    """Read a vehicle recording (``# kfkit-vehicle v1`` format); errors name the file and line.
+
+    The kit writes every line with its newline, so a last line without one is rejected (a copy cut
+    short may have cut a number in it: ``0.0123`` to ``0.01`` still parses)."""
     path = Path(path)
-    lines = _read_text(path)
+    lines, terminated = _read_text(path)
     if not lines or not lines[0].startswith(VEHICLE_MAGIC):
         shown = lines[0][:60] if lines else ""
         raise RecordingError(path, 1, f"expected the header '{VEHICLE_MAGIC.strip()} {{…json…}}', got {shown!r}; "
@@ -524,9 +525,19 @@ def load_vehicle(path) -> Recording:
         meta = json.loads(lines[0][len(VEHICLE_MAGIC):])
     except json.JSONDecodeError as e:
         raise RecordingError(path, 1, f"the metadata is not valid JSON ({e.msg})") from None
+    if not isinstance(meta, dict) or not positive_number(meta.get("rate_hz")):
+        got = meta.get("rate_hz") if isinstance(meta, dict) else meta
+        raise RecordingError(path, 1, f"the metadata must be a JSON object with 'rate_hz' a positive finite number (Hz), got {got!r}")
+    check_phases(path, meta.get("phases", []))
     if len(lines) < 2:
         raise RecordingError(path, 2, "no column-name line")
+    if not terminated and len(lines) > 2:
+        raise RecordingError(path, len(lines), "the last line is cut short (no newline at the end): the file was "
+                             "probably copied or written incompletely; delete this line to load the rows before it")
     header = [c.strip() for c in lines[1].split(",")]
+    dupes = sorted({c for c in header if header.count(c) > 1})
+    if dupes:
+        raise RecordingError(path, 2, f"duplicate column names: {', '.join(dupes)}")
     wanted = [c for c in VEHICLE_COLUMNS + VEHICLE_TRUTH if c in header or c in VEHICLE_COLUMNS]
     data, _ = _read_rows(path, lines[2:], 3, header, {c: c for c in wanted})
     return Recording(meta, data, path)
@@ -544,7 +555,10 @@ def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter="
     divided by this ratio (e.g. 16) to give the road-wheel angle. ``negate``: kit names whose
     sign is flipped to ISO 8855 (y left, z up): a y-right/z-down logger needs ('yaw_rate', 'ay').
     Lines starting with ``comment`` are skipped; the first other line is the header; a trailing
-    delimiter is allowed. Everything is converted to SI and t starts at 0 (the file's first time
+    delimiter is allowed. A last line without its newline may be a row cut short mid-number (the
+    file copied or written incompletely): it is dropped, with a warning naming the file and line
+    that is also kept in ``meta['warnings']`` (most writers end every line; losing one row is
+    safer than reading a cut number). Everything is converted to SI and t starts at 0 (the file's first time
     is kept in ``meta['t0']``, s). V_x = 0 (standing) is valid (:func:`~kfkit.filters.estimate_sideslip`
     handles it); V_x < 0 (reversing) is not. Errors name the file, line and column; a warning
     names the file when the signs of δ, r and a_y disagree in the turns (:func:`sign_check`).
@@ -572,7 +586,11 @@ def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter="
         scale[name] = UNITS[name][unit] * (-1.0 if name in negate else 1.0)
     if steer_ratio is not None:
         scale["delta"] /= steer_ratio
-    lines = _read_text(path)
+    lines, terminated = _read_text(path)
+    notes = []
+    if not terminated and lines and lines[-1].strip():
+        notes.append(f"{path}, line {len(lines)}: the last line has no newline, so a number in it may be cut short: dropped")
+        lines = lines[:-1]
     skip = 0
     while skip < len(lines) and (not lines[skip].strip() or lines[skip].lstrip().startswith(comment)):
         skip += 1
@@ -591,12 +609,14 @@ def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter="
     raw["t"] = raw["t"] - t0  # before scaling: epoch timestamps in ms keep their resolution
     data = {k: raw[k] * scale[k] for k in VEHICLE_COLUMNS + VEHICLE_TRUTH if k in raw}
     t0 *= scale["t"]
+    if len(data["t"]) < 2:
+        raise RecordingError(path, int(linenos[0]), "only one data row: a drive needs at least two (its rate is the rows' spacing)")
     dt = np.diff(data["t"])
-    meta = {"rate_hz": float(1.0 / np.median(dt)) if len(dt) else 0.0, "source": str(path), "t0": t0,
+    meta = {"rate_hz": float(1.0 / np.median(dt)), "source": str(path), "t0": t0,
             "columns": dict(columns), "units": {k: units.get(k, next(iter(UNITS[k]))) for k in columns},
-            "negated": list(negate), "steer_ratio": steer_ratio}
-    for problem in sign_check(data["delta"], data["yaw_rate"], data["ay"], data["vx"]):
-        warnings.warn(f"{path}: {problem}", stacklevel=2)
+            "negated": list(negate), "steer_ratio": steer_ratio, "warnings": notes}
+    for problem in notes + [f"{path}: {p}" for p in sign_check(data["delta"], data["yaw_rate"], data["ay"], data["vx"])]:
+        warnings.warn(problem, stacklevel=2)
     return Recording(meta, data, path)
 
 

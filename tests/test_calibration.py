@@ -269,6 +269,41 @@ def test_fit_rejects_poor_coverage_and_says_what_to_do():
         C.fit_mag_calibration(rec.body("mag"))
 
 
+def field_seen_from(rotations, field=MAG_FIELD_LONDON, noise=0.3, seed=0):
+    """Magnetometer readings (µT, body) of the field seen from ``rotations`` (body → NED), with noise."""
+    rng = np.random.default_rng(seed)
+    return rotations.inv().apply(field) + rng.normal(0.0, noise, (len(rotations), 3))
+
+
+def test_fit_judges_coverage_against_the_field_not_the_cloud_shape():
+    # A still board: isotropic noise around one reading. Its shape is round (it passes a relative
+    # smallest/largest check), but it spans 0.3 µT of a 49 µT field: no ellipsoid is in it.
+    still = field_seen_from(Rotation.identity(600))
+    variances = np.linalg.eigvalsh(np.cov(still.T))
+    assert variances[0] / variances[-1] > C.MIN_MAG_SPREAD  # the old relative check would have let it through
+    with pytest.raises(C.CalibrationError, match=r"spread only 0\.\d+ µT.*the board hardly turned.*every orientation"):
+        C.fit_mag_calibration(still)
+    # Turned about one axis only (a ring): the field is never seen along that axis.
+    for axis in ("z", "x"):
+        ring = field_seen_from(Rotation.from_euler(axis, np.linspace(0, 2 * np.pi, 600)[:, None]))
+        with pytest.raises(C.CalibrationError, match="turned about one axis only.*every orientation"):
+            C.fit_mag_calibration(ring)
+    # A tumble through every orientation, with known iron: the fit recovers it (oracle: the simulated truth).
+    rotations = Rotation.random(2000, random_state=3)
+    h = np.array([8.0, -5.0, 12.0])
+    S_true = np.array([[1.1, 0.05, 0.0], [0.05, 0.9, -0.04], [0.0, -0.04, 1.0]])
+    raw = field_seen_from(rotations, noise=0.05) @ np.linalg.inv(S_true).T + h  # m_cal = S (m − h)
+    hard, soft = C.fit_mag_calibration(raw)
+    np.testing.assert_allclose(hard, h, atol=0.05)
+    np.testing.assert_allclose(soft, S_true, atol=0.005)
+    # The same tumble where the field is half London's (South America), still judged with London's B: it passes.
+    weak = field_seen_from(rotations, field=np.asarray(MAG_FIELD_LONDON) * 0.5, noise=0.05)
+    np.testing.assert_allclose(np.linalg.norm(C.apply_mag_calibration(weak, *C.fit_mag_calibration(weak)), axis=1),
+                               B_LONDON, rtol=0.01)
+    with pytest.raises(C.CalibrationError, match="field_norm must be"):
+        C.fit_mag_calibration(raw, field_norm=-1.0)
+
+
 @pytest.mark.parametrize("bad, match", [
     (np.zeros((10, 3)), "10 samples, at least 50"),
     (np.ones((60, 3)), "all readings are equal"),
@@ -337,19 +372,68 @@ def test_bundled_default_is_the_reference_analysis_of_the_bundled_recordings():
     assert made == datasets.load("calibration_nucleo-iks02a1")
 
 
+GOOD_FILE = json.loads(C.Calibration(board="nucleo-iks02a1", gyro_noise=[1e-3] * 3, accel_noise=[6e-3] * 3,
+                                     mag_noise=[0.3] * 3, source="test").to_json())
+
+
+def changed(**fields):
+    """GOOD_FILE's JSON with ``fields`` replaced (a value of ... removes the field)."""
+    d = {k: v for k, v in {**GOOD_FILE, **fields}.items() if v is not ...}
+    return json.dumps(d, allow_nan=True)
+
+
 @pytest.mark.parametrize("text, match", [
     ("{", "not valid JSON"),
     ("[1, 2]", "JSON object"),
-    ('{"gyro_bias": [1, 2]}', r"gyro_bias: expected shape \(3,\), got \(2,\)"),
-    ('{"colour": "red"}', "unknown fields colour"),
-    ('{"accel_scale": [1, 0, 1]}', "must be positive"),
-])
+    ("{}", "missing fields board, rate_hz, gyro_bias"),  # loaded as an all-zero calibration before
+    (changed(mag_soft_iron=...), "missing fields mag_soft_iron"),
+    (changed(gyro_bias=[1, 2]), r"gyro_bias: expected shape \(3,\), got \(2,\)"),
+    (changed(gyro_bias=["a", 0, 0]), r"gyro_bias: expected numbers of shape \(3,\)"),
+    (changed(gyro_bias={"x": 1}), r"gyro_bias: expected numbers"),
+    (changed(colour="red"), "unknown fields colour"),
+    (changed(accel_scale=[1, 0, 1]), r"accel_scale must lie within 0\.5 … 2"),
+    (changed(accel_scale=[1, -1, 1]), r"accel_scale must lie within"),
+    (changed(accel_scale=[1, 1e-9, 1]), r"accel_scale must lie within"),
+    (changed(accel_bias=[float("nan"), 0, 0]), "accel_bias: holds NaN or inf"),
+    (changed(mag_hard_iron=[float("inf"), 0, 0]), "mag_hard_iron: holds NaN or inf"),
+    (changed(gyro_noise=[-1e-3, 1e-3, 1e-3]), "gyro_noise is a standard deviation: it cannot be negative"),
+    (changed(mag_soft_iron=[[0, 0, 0]] * 3), "mag_soft_iron must be symmetric positive definite and not .*singular"),
+    (changed(mag_soft_iron=[[1, 0, 0], [0, 1, 0], [0, 0, 1e-6]]), "mag_soft_iron .* singular"),
+    (changed(mag_soft_iron=[[1, 0.5, 0], [0, 1, 0], [0, 0, 1]]), "mag_soft_iron must be symmetric"),
+    (changed(mag_soft_iron=[[-1, 0, 0], [0, 1, 0], [0, 0, 1]]), "mag_soft_iron must be symmetric positive definite"),
+    (changed(rate_hz=0), "rate_hz must be a positive finite number"),
+    (changed(rate_hz=-104), "rate_hz must be a positive finite number"),
+    (changed(rate_hz=float("nan")), "rate_hz must be a positive finite number"),
+    (changed(rate_hz="104"), "rate_hz must be a positive finite number"),
+    (changed(rate_hz=True), "rate_hz must be a positive finite number"),
+    (changed(board=3), "board must be a board name"),
+    (changed(board="arduino-nano"), "unknown board 'arduino-nano'"),
+], ids=["json", "list", "empty", "missing-field", "shape", "text", "object", "unknown", "scale-zero", "scale-negative",
+        "scale-tiny", "nan", "inf", "noise-negative", "soft-iron-zero", "soft-iron-singular", "soft-iron-asymmetric",
+        "soft-iron-reflection", "rate-zero", "rate-negative", "rate-nan", "rate-text", "rate-bool", "board-number",
+        "board-unknown"])
 def test_calibration_file_errors_name_the_file(tmp_path, text, match):
     path = tmp_path / "bad.json"
     path.write_text(text)
     with pytest.raises(C.CalibrationError, match=match) as e:
         C.Calibration.load(path)
     assert str(path) in str(e.value)
+    with pytest.raises(C.CalibrationError, match=re.escape(str(path))):
+        C.load_calibration("nucleo-iks02a1", path=path)
+
+
+def test_calibration_file_with_a_byte_order_mark_loads_and_binary_is_named(tmp_path):
+    path = tmp_path / "bom.json"
+    path.write_bytes(b"\xef\xbb\xbf" + changed().encode())  # Notepad's "UTF-8 with BOM"
+    assert C.Calibration.load(path) == C.Calibration(**GOOD_FILE)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")
+    with pytest.raises(C.CalibrationError, match=re.escape(str(path)) + ": not a text file"):
+        C.Calibration.load(path)
+
+
+def test_every_bundled_calibration_passes_the_file_checks():
+    for board in ("nucleo-iks02a1", "mpu6050", "phone-phyphox"):
+        assert C.Calibration.load(C.bundled_calibration_path(board)).board == board
 
 
 def test_user_recording_round_trips_through_the_kit_format(tmp_path):
