@@ -4,7 +4,8 @@ A live capture records with the recorder's statistics (rate, jitter, dropped sam
 statistical expectations), the phone's physics (specific force g up, the heading it lies at), its
 metadata; and the errors: remote access off, an unreachable phone, an experiment without the
 sensors, phyphox refusing to start, a phone that pauses or stops answering mid-capture (what arrived
-is saved). Every server is on 127.0.0.1 and stops by itself.
+is saved). Every server is on 127.0.0.1 and stops by itself. Most phones here step their clock by a fixed
+amount per poll (``step_s``), so a busy machine makes a test slower, never different.
 """
 import json
 import socket
@@ -30,14 +31,14 @@ STILL_YAW = 30.0  # the virtual phone's default: flat and still, top edge 30° e
 
 @pytest.fixture
 def vphone():
-    with VirtualPhone(speed=8.0, seed=3) as vp:
+    with VirtualPhone(step_s=0.8, seed=3) as vp:
         yield vp
 
 
 def test_live_capture_records_with_the_recorders_statistics(tmp_path):
     """20 s of a phone flat and still, 5 % of its samples lost: every sample or loss is counted."""
     p_drop = 0.05
-    with VirtualPhone(speed=10.0, seed=5, drop=p_drop) as vp:
+    with VirtualPhone(step_s=1.0, seed=5, drop=p_drop) as vp:
         rec = capture(vp.url, seconds=20.0, out=tmp_path / "phone.csv")
         assert vp.requests["keep_alive"] == 0 and vp.requests["get"] > 10  # one connection per request
         assert not vp.measuring  # the capture started the phone, so it stopped it again
@@ -64,6 +65,29 @@ def test_live_capture_records_with_the_recorders_statistics(tmp_path):
     assert saved.meta["sensors"]["gyr"]["sensitivity"] == phone.LSB["gyr"] and saved.meta["mount_name"] == "flat"
     assert saved.meta["phone"]["experiment"] == "Phone IMU" and "kfkit" in saved.meta["phone"]["device"]["deviceBrand"]
     np.testing.assert_array_equal(saved.body("gyr"), rec.body("gyr"))
+
+
+def test_the_file_carries_the_whole_captures_clock_rate_and_a_90_degree_turn_integrates_to_90(tmp_path):
+    """A phone whose gyro runs at 401.9 Hz with 0.3 ms of timestamp jitter: the header's rate is a guess from the first
+    rows (it was 0.7 % to 1.55 % off, and a 90° turn integrated to 1.4° wrong); the final file's rate_hz must be the
+    phone clock's over the whole capture, within 4σ of the jitter's effect on it (√2·σ_t/T) plus its rounding, and the
+    turn about body x (sim.axis_turns) must integrate to 90° with it."""
+    from kfkit import sim
+
+    served, seconds = 401.9, 6.0
+    motion = sim.axis_turns(hold=2.0, move=1.5, rate_hz=1000.0)  # rest 2 s, roll 90° in 1.5 s, rest 2 s, …
+    with VirtualPhone(motion, seed=11, step_s=0.5, rates={"gyr": served, "acc": 400.7}) as vp:
+        capture(vp.url + "?timeout=60", seconds=seconds, out=tmp_path / "turn.csv")
+    rec = load_recording(tmp_path / "turn.csv")
+    header_rate = rec.meta["capture"]["header_rate_hz"]
+    tolerance = 4 * np.sqrt(2) * phone.TIMESTAMP_JITTER / seconds + 5e-6
+    assert abs(rec.rate_hz / served - 1) < tolerance, (rec.rate_hz, header_rate)
+    assert rec.meta["capture"]["stats"]["dt_mean_us"] == pytest.approx(1e6 / rec.rate_hz, rel=5e-6)
+    # the roll about body x, from the rest before it (bias removed as lab 02 does) to the rest after it
+    gyr_x = rec.body("gyr")[:, 0]
+    bias = gyr_x[rec.t < 1.5].mean()
+    turned = np.degrees(np.sum(gyr_x[rec.t < 4.5] - bias) / rec.rate_hz)
+    assert turned == pytest.approx(90.0, abs=0.1), (turned, np.degrees(np.sum(gyr_x[rec.t < 4.5] - bias) / header_rate))
 
 
 def test_capture_of_a_phone_already_measuring_skips_old_data_and_leaves_it_running(tmp_path):
@@ -138,7 +162,7 @@ def test_an_unreachable_phone_times_out_with_advice():
         t0 = time.monotonic()
         with pytest.raises(PhoneUnreachableError, match="no answer .* within 0.5 s.*same Wi-Fi"):
             Recorder(url).start()
-        assert time.monotonic() - t0 < 3.0
+        assert time.monotonic() - t0 < 60.0  # a safety net: it gave up (after 0.5 s), it did not hang
 
 
 def test_a_server_that_is_not_phyphox():
@@ -184,7 +208,7 @@ def test_phyphox_refusing_to_start():
 
 
 def test_a_phone_that_pauses_mid_capture_keeps_what_arrived(tmp_path):
-    with VirtualPhone(speed=8.0, faults={"pause_at": 4.0}) as vp:
+    with VirtualPhone(step_s=0.8, faults={"pause_at": 4.0}) as vp:
         with pytest.raises(PhoneStoppedError, match="stopped measuring"):
             capture(vp.url, seconds=30.0, out=tmp_path / "paused.csv")
     rec = load_recording(tmp_path / "paused.csv")
@@ -192,9 +216,9 @@ def test_a_phone_that_pauses_mid_capture_keeps_what_arrived(tmp_path):
 
 
 def test_a_phone_that_stops_answering_mid_capture_keeps_what_arrived(tmp_path):
-    with VirtualPhone(speed=4.0, faults={"hang_after": 15}) as vp:
+    with VirtualPhone(step_s=0.4, faults={"hang_after": 15}) as vp:
         with pytest.raises(PhoneUnreachableError, match="no answer"):
-            capture(vp.url + "?timeout=0.5", seconds=60.0, out=tmp_path / "lost.csv")
+            capture(vp.url + "?timeout=5", seconds=60.0, out=tmp_path / "lost.csv")  # 5 s: a busy machine answers
     rec = load_recording(tmp_path / "lost.csv")
     assert len(rec) > 100 and rec.meta["capture"]["stats"]["samples"] == len(rec)
 
@@ -236,8 +260,8 @@ def test_virtual_phone_clocks_and_bias_walks_run_on_across_its_loops():
     phone serves it (the capture interpolates it at the gyro's times, which changes its short-τ curve)."""
     from allan_oracle import allan_curves, model_adev, outside_chi2_interval
 
-    with VirtualPhone(seed=3, speed=200.0) as vp:
-        rec = capture(vp.url, seconds=1200.0)
+    with VirtualPhone(seed=3, step_s=20.0) as vp:  # its clock moves 20 s per poll, however long a poll takes
+        rec = capture(vp.url + "?timeout=120", seconds=1200.0)
         t_acc, acc = vp._series("acc", 1200.0)
     s = rec.meta["capture"]["stats"]
     assert (s["dropped"], s["bad_lines"]) == (0, 0) and len(rec) > 1200 * 100

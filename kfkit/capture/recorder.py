@@ -187,6 +187,7 @@ class Recorder:
         self._reached = False  # ``seconds`` of board time have arrived
         self._dt_sum = self._dt_sq = 0.0
         self._dt_n = 0
+        self._span_us = self._span_periods = 0  # board time and sample periods between samples, resets left out
         self._mag_index = None
         self._header_again = False
 
@@ -435,7 +436,10 @@ class Recorder:
         elif gap:  # the first missing sample was due one interval (of gap + 1) after the previous one
             s.dropped += gap
             s.drops.append((s.samples, round(prev[2] + dt_us * 1e-6 / (gap + 1), 6), gap))
-        elif prev is not None:
+        if prev is not None and not reset:  # a gap of g missing samples spans g + 1 periods
+            self._span_us += dt_us
+            self._span_periods += gap + 1
+        if prev is not None and not reset and not gap:
             self._dt_sum += dt_us
             self._dt_sq += dt_us * dt_us
             self._dt_n += 1
@@ -464,10 +468,11 @@ class Recorder:
 
     def clock_rate_hz(self) -> float:
         """The sample rate of the board's own clock over the whole capture so far, Hz (NaN before two samples):
-        1 / mean interval of consecutive samples (gaps and resets left out), to 6 significant digits (≤ 5 ppm,
-        below a crystal's tolerance). A board's header states a nominal rate; a phone's is its first rows' guess."""
-        self._update_rates()
-        return float(f"{1e6 / self.stats.dt_mean_us:.6g}") if self._dt_n else float("nan")
+        periods / board time between the first and the last sample, a gap of g missing samples counting g + 1
+        periods and a reset none (r = 10⁶ · Σ(g + 1) / Σ Δt_us), to 6 significant digits (≤ 5 ppm, below a
+        crystal's tolerance). Timestamp jitter σ_t enters only at the ends: √2·σ_t / duration. A board's header
+        states a nominal rate; a phone's is a guess from its first rows."""
+        return float(f"{1e6 * self._span_periods / self._span_us:.6g}") if self._span_us else float("nan")
 
     def _file_meta(self, final=False) -> dict:
         meta = dict(self.meta or {"rate_hz": 0.0, "source": "capture"})
