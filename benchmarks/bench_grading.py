@@ -2,7 +2,8 @@
 
     python benchmarks/bench_grading.py [--copies 20] [--jobs 1 2]
 
-Each copy runs in its own sandboxed kernel (start, all cells, five checkpoint calls, judging).
+Each copy runs in its own sandboxed kernel (start, all cells, five checkpoint calls, judging),
+watched by the memory/CPU-time limits.
 Reports wall time, seconds per submission, the speed-up against the first ``--jobs`` value and
 the 1-minute load average after each run (other work on the machine slows both); every copy must
 score full marks (the table says so), or the figures mean nothing. Budget: under 60 s a submission.
@@ -15,7 +16,7 @@ import time
 from pathlib import Path
 
 from kfkit.datasets import KIT_ROOT
-from kfkit.grading import core, sandbox
+from kfkit.grading import core, resources, sandbox
 
 
 def main():
@@ -30,8 +31,10 @@ def main():
         for k in range(args.copies):
             shutil.copy(KIT_ROOT / "solutions" / "01_roll_kf_1d.ipynb", subs / f"student{k:02d}.ipynb")
         box = sandbox.probe([str(work)])
+        parent, why = resources.cgroup_v2_parent()
         print(f"{args.copies} copies of solutions/01_roll_kf_1d.ipynb; {os.cpu_count()} cores; "
-              f"load average {os.getloadavg()[0]:.1f}; isolation: {box.mode}\n")
+              f"load average {os.getloadavg()[0]:.1f}; isolation: {box.describe(full=False)}; memory and CPU "
+              f"limits: {resources.Cgroup.kind if parent else resources.ProcessTree.kind + ' (' + why + ')'}\n")
         print("| --jobs | wall (s) | s per submission | mean time in a worker (s) | speed-up | all full marks | load after |")
         print("| --- | --- | --- | --- | --- | --- | --- |")
         first = None

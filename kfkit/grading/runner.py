@@ -259,8 +259,9 @@ class KernelRun:
             self.log = None
 
     def _check_limits(self):
-        """Raise StoppedByLimit when the watchdog killed this submission (after the kernel is stopped)."""
-        if self.watchdog is not None and self.watchdog.over is not None:
+        """Raise StoppedByLimit when the watchdog killed this submission, or the kernel's OOM killer did
+        in its cgroup (a fresh sample sees that); the kernel is stopped first."""
+        if self.watchdog is not None and self.watchdog.sample() is not None:
             self._stop()
         if self.over is not None:
             raise StoppedByLimit(self.over)
