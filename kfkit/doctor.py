@@ -8,16 +8,16 @@ still runs in a half-installed environment.
 from __future__ import annotations
 
 import os
+import re
 import sys
 from importlib import metadata
 from pathlib import Path
 
 OK, FAIL, WARN = "✅", "❌", "⚠️"
 INSTALL_HINT = "run: python -m pip install -r environment.txt"
-PACKAGES = (
-    "numpy", "scipy", "matplotlib", "ipywidgets", "ipympl",
-    "jupyterlab", "pyserial", "threadpoolctl", "cloudpickle", "nbval", "filterpy", "nbclient",
-)
+# the packages to check are the pins of the kit's environment.txt (the kit is installed editable, -e .)
+ENVIRONMENT = Path(__file__).resolve().parents[1] / "environment.txt"
+PIN = re.compile(r"([A-Za-z0-9][A-Za-z0-9._-]*)==([A-Za-z0-9][A-Za-z0-9.+!_-]*)")
 # JupyterLab front-end extension folder -> Python package that ships it
 LABEXTENSIONS = {
     "@jupyter-widgets/jupyterlab-manager": "ipywidgets",
@@ -34,13 +34,46 @@ def python_line() -> str:
     return f"{OK} Python {version} ({sys.executable})"
 
 
+def read_pins(path: Path) -> dict[str, str]:
+    """The exact pins ``name==version`` of pip requirements file ``path``, in file order.
+
+    Blank lines, comments (``#`` at the start or after a space) and ``-e`` lines are skipped; any other
+    line raises ValueError naming the file, the line and what was expected.
+    """
+    pins = {}
+    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        text = re.sub(r"(^|\s)#.*", "", line).strip()
+        if not text or text.startswith(("-e ", "--editable ")):
+            continue
+        match = PIN.fullmatch(text)
+        if not match:
+            raise ValueError(f"{path}, line {number}: expected an exact pin 'name==version' or '-e .', got {line!r}")
+        pins[match[1]] = match[2]
+    return pins
+
+
 def package_lines() -> list[str]:
+    """One line per pin of environment.txt: ✅ as pinned, ⚠️ another version, ❌ missing."""
+    try:
+        pins = read_pins(ENVIRONMENT)
+    except FileNotFoundError:
+        return [f"{WARN} {ENVIRONMENT} not found (kfkit installed without the kit's folder): package versions not checked"]
+    except ValueError as e:
+        return [f"{FAIL} cannot read the package list: {e}"]
     lines = []
-    for name in PACKAGES:
+    for name, pinned in pins.items():
         try:
-            lines.append(f"{OK} {name} {metadata.version(name)}")
+            installed = metadata.version(name)
         except metadata.PackageNotFoundError:
             lines.append(f"{FAIL} {name} is not installed; {INSTALL_HINT}")
+            continue
+        if installed == pinned:
+            lines.append(f"{OK} {name} {installed}")
+        else:
+            lines.append(
+                f"{WARN} {name} {installed} is installed, the labs are tested with {pinned} "
+                f"(environment.txt); if something misbehaves, {INSTALL_HINT}"
+            )
     return lines
 
 

@@ -38,7 +38,7 @@ def test_healthy_environment_is_ok(healthy):
     assert all(line.startswith(("✅", "⚠️")) for line in lines)
     assert "✅ serial port /dev/ttyACM0: STM32 STLink [0483:374B]" in lines
     assert f"✅ bundled data: 2 CSV files in {healthy / 'data'}" in lines
-    assert any(line.startswith("✅ numpy ") for line in lines)
+    assert any(line.split()[1:2] == ["numpy"] for line in lines)  # ✅, or ⚠️ when not the pinned version
 
 
 def test_find_labextension(tmp_path):
@@ -72,6 +72,47 @@ def test_missing_package_fails(healthy, monkeypatch):
     text, ok = doctor.doctor_report()
     assert not ok
     assert "❌ filterpy is not installed; run: python -m pip install -r environment.txt" in text.splitlines()
+
+
+def test_read_pins_skips_comments_and_the_editable_kit(tmp_path):
+    env = tmp_path / "environment.txt"
+    env.write_text("# the labs\n\njupyter_client==8.10.0\nipympl==0.10.0  # widgets\n-e .\npyserial==3.5\n")
+    assert doctor.read_pins(env) == {"jupyter_client": "8.10.0", "ipympl": "0.10.0", "pyserial": "3.5"}
+
+
+@pytest.mark.parametrize("line", ["numpy>=2", "numpy", "-r other.txt", "numpy == 2.4.6 extra"])
+def test_a_line_that_is_no_exact_pin_names_file_and_line(healthy, monkeypatch, line):
+    env = healthy / "environment.txt"
+    env.write_text(f"# pins\nscipy==1.17.1\n{line}\n")
+    with pytest.raises(ValueError, match=rf"environment.txt, line 3: expected an exact pin 'name==version'"):
+        doctor.read_pins(env)
+    monkeypatch.setattr(doctor, "ENVIRONMENT", env)
+    text, ok = doctor.doctor_report()
+    assert not ok
+    assert f"❌ cannot read the package list: {env}, line 3: expected an exact pin 'name==version' or '-e .', got {line!r}" in text
+
+
+def test_another_version_is_advice_and_a_missing_one_must_be_fixed(healthy, monkeypatch):
+    env = healthy / "environment.txt"
+    installed = doctor.metadata.version("numpy")
+    env.write_text(f"numpy=={installed}\nscipy==0.1\nno-such-package-kfkit==1.0\n-e .\n")
+    monkeypatch.setattr(doctor, "ENVIRONMENT", env)
+    text, ok = doctor.doctor_report()
+    lines = text.splitlines()
+    assert not ok
+    assert f"✅ numpy {installed}" in lines
+    [scipy] = [line for line in lines if "scipy" in line]
+    assert scipy.startswith("⚠️") and "is installed, the labs are tested with 0.1 (environment.txt)" in scipy
+    assert "❌ no-such-package-kfkit is not installed; run: python -m pip install -r environment.txt" in lines
+    env.write_text(f"numpy=={installed}\nscipy==0.1\n")
+    assert doctor.doctor_report()[1]  # a version other than the pin is only advice
+
+
+def test_kit_without_environment_file_warns(healthy, monkeypatch):
+    monkeypatch.setattr(doctor, "ENVIRONMENT", healthy / "missing" / "environment.txt")
+    text, ok = doctor.doctor_report()
+    assert ok
+    assert any(line.startswith("⚠️") and "package versions not checked" in line for line in text.splitlines())
 
 
 def test_no_serial_ports_is_only_a_warning(healthy, monkeypatch):

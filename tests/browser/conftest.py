@@ -41,7 +41,7 @@ def browser():
     path = chromium_path()
     if path is None:
         pytest.skip("no Chromium installed (Debian: apt-get install chromium); browser tests need a real browser")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -r environment.txt)")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install -r requirements-test.txt)")
     with sync_api.sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=path, headless=True, args=CHROMIUM_FLAGS)
         yield browser

@@ -1,0 +1,130 @@
+"""The two installs: environment.txt (the labs) holds everything kfkit and the notebooks import, and
+requirements-test.txt (environment.txt plus the test tools) is what the README and CI install.
+
+Requirement lines are parsed with ``packaging`` and imports mapped to distributions with
+``importlib.metadata.packages_distributions``, independently of kfkit.doctor's own reader.
+"""
+import ast
+import re
+import sys
+from importlib import metadata
+
+import nbformat
+import pytest
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
+
+from kfkit.datasets import KIT_ROOT
+
+ENVIRONMENT = KIT_ROOT / "environment.txt"
+TEST_REQUIREMENTS = KIT_ROOT / "requirements-test.txt"
+
+
+def requirement_lines(path):
+    """(line number, text) of every line of ``path`` that is not blank or a comment."""
+    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        text = line.split(" #")[0].strip()
+        if text and not text.startswith("#"):
+            yield number, text
+
+
+def pins(path):
+    """{canonical name: version} of the requirements in ``path`` (not following ``-r``)."""
+    found = {}
+    for number, text in requirement_lines(path):
+        if text.startswith("-"):
+            continue
+        req = Requirement(text)
+        [spec] = req.specifier
+        assert spec.operator == "==" and "*" not in spec.version, f"{path.name}:{number}: {text} is no exact pin"
+        name = canonicalize_name(req.name)
+        assert name not in found, f"{path.name}:{number}: {req.name} pinned twice"
+        found[name] = spec.version
+    return found
+
+
+def test_both_files_pin_exactly_and_the_test_file_extends_the_student_file():
+    student, test_only = pins(ENVIRONMENT), pins(TEST_REQUIREMENTS)
+    assert not student.keys() & test_only.keys(), "a package pinned in both files"
+    options = [text for _, text in requirement_lines(ENVIRONMENT) if text.startswith("-")]
+    assert options == ["-e ."]
+    first_number, first = next(requirement_lines(TEST_REQUIREMENTS))
+    assert first == "-r environment.txt", f"requirements-test.txt:{first_number} should start with -r environment.txt"
+    assert [text for _, text in requirement_lines(TEST_REQUIREMENTS) if text.startswith("-")] == [first]
+
+
+def third_party_modules(tree):
+    """Top-level names of the absolute imports in ``tree`` (functions' deferred imports included)."""
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {alias.name.split(".")[0] for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0:
+            names.add(node.module.split(".")[0])
+    return names - set(sys.stdlib_module_names) - {"kfkit", "__future__"}
+
+
+def distributions(modules, where):
+    """{module: canonical distribution name}; fails for a module no installed distribution provides."""
+    providers = metadata.packages_distributions()
+    missing = sorted(m for m in modules if m not in providers)
+    assert not missing, f"{where} imports {missing}, which no installed distribution provides"
+    return {m: canonicalize_name(providers[m][0]) for m in modules}
+
+
+def kfkit_imports():
+    modules = set()
+    for path in sorted((KIT_ROOT / "kfkit").rglob("*.py")):
+        modules |= third_party_modules(ast.parse(path.read_text(encoding="utf-8"), filename=str(path)))
+    return distributions(modules, "kfkit/")
+
+
+def test_kfkit_imports_only_what_the_student_install_pins_and_pyproject_declares():
+    import tomllib
+
+    imported = kfkit_imports()
+    student = pins(ENVIRONMENT)
+    unpinned = {m: d for m, d in imported.items() if d not in student}
+    assert not unpinned, f"kfkit imports {unpinned}, not pinned in environment.txt (a student install lacks them)"
+    project = tomllib.loads((KIT_ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    declared = {canonicalize_name(Requirement(r).name) for r in project["dependencies"]}
+    undeclared = {m: d for m, d in imported.items() if d not in declared}
+    assert not undeclared, f"kfkit imports {undeclared}, not in pyproject.toml's dependencies"
+
+
+def test_test_tools_are_not_what_kfkit_needs():
+    """The test-only pins (the packages a student does not get) are never imported by kfkit."""
+    assert not set(kfkit_imports().values()) & pins(TEST_REQUIREMENTS).keys()
+
+
+@pytest.mark.parametrize("notebook", sorted((KIT_ROOT / "solutions").glob("*.ipynb")), ids=lambda p: p.stem)
+def test_each_lab_imports_only_what_the_student_install_pins(notebook):
+    modules = set()
+    for cell in nbformat.read(notebook, as_version=4).cells:
+        if cell.cell_type == "code":
+            python = re.sub(r"(?m)^\s*[%!].*$", "", cell.source)  # IPython magics and shell lines
+            modules |= third_party_modules(ast.parse(python))
+    imported = distributions(modules, notebook.name)
+    student = pins(ENVIRONMENT)
+    assert not {m: d for m, d in imported.items() if d not in student}, f"{notebook.name} needs a package environment.txt lacks"
+
+
+def fenced_commands(section):
+    """The lines of the ```bash block right under README heading ``section``."""
+    readme = (KIT_ROOT / "README.md").read_text(encoding="utf-8")
+    match = re.search(rf"^## {re.escape(section)}\n+```bash\n(.*?)\n```", readme, flags=re.M | re.S)
+    assert match, f"README.md has no ```bash block right under '## {section}'"
+    return match[1].splitlines()
+
+
+def test_readme_quick_start_installs_the_student_file_and_tests_the_test_file():
+    [quick] = fenced_commands("Quick start (students)")
+    assert quick.startswith("python -m pip install -r environment.txt && ")
+    [tests] = fenced_commands("Tests")
+    assert tests.startswith("python -m pip install -r requirements-test.txt && python -m pytest")
+
+
+def test_ci_runs_exactly_the_readme_test_command():
+    [tests] = fenced_commands("Tests")
+    ci = (KIT_ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+    assert tests in ci, f".ci/run does not run the README's test command {tests!r}"
