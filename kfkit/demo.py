@@ -149,14 +149,19 @@ class AttitudeStream:
         return self._thread.is_alive()
 
     def waiting_for(self) -> str | None:
-        """None while $ATT lines arrive (or the board may still be measuring its bias), else what is wrong."""
+        """None while $ATT lines arrive (or the board may still be measuring its bias), else what is wrong.
+
+        Samples without $ATT are judged by the board's clock (NO_ATTITUDE_S · rate_hz samples, whatever the
+        host's speed); only a board that sends no sample at all is judged by the host's clock (NO_ATTITUDE_S)."""
         if self.error:
             return self.error
-        if self.counts["ATT"] or self.started is None or time.monotonic() - self.started < NO_ATTITUDE_S:
+        if self.counts["ATT"] or self.started is None:
             return None
-        if self.counts["samples"]:
+        if self.counts["samples"] >= NO_ATTITUDE_S * self.rate_hz:
             return (f"{self.port} sends samples but no $ATT lines: flash firmware/mpu6050_tilt_kf "
                     f"(mpu6050_logger sends raw samples only)")
+        if self.counts["samples"] or time.monotonic() - self.started < NO_ATTITUDE_S:
+            return None
         if self.counts["bad"]:
             return f"{self.port} sends only unreadable lines ({self.counts['bad']}): wrong baud rate? try --baud 115200"
         return f"nothing received from {self.port} in {NO_ATTITUDE_S:g} s: is the board plugged in and its sketch flashed?"
@@ -328,17 +333,34 @@ class TiltDemoPanel:
         self.canvas = _interactive_canvas(self.fig)
         self.timer = self.canvas.new_timer(interval=int(1000 / fps))
         self.timer.add_callback(self.refresh)
+        self.closed = False
         start, stop = W.Button(description="drive", icon="play"), W.Button(description="stop", icon="stop")
-        start.on_click(lambda _: self.timer.start())
+        start.on_click(lambda _: self.start())
         stop.on_click(lambda _: self.close())
         self.widget = W.VBox([W.HBox([start, stop]), self.canvas])
 
-    def refresh(self):
-        self.draw()
+    def start(self):
+        """Start the timer (not after close(): the stream is gone)."""
+        if not self.closed:
+            self.timer.start()
+
+    def refresh(self) -> None:
+        """One timer tick: advance and draw. Returns None (a timer callback). Once the stream has stopped (the board
+        was unplugged) the last frame, with the reason, is drawn and the timer stops; an error stops it too."""
+        try:
+            self.draw()
+        except Exception as e:  # a timer callback has no one to raise to: show it, stop
+            self.timer.stop()
+            self.fig.axes[0].texts[0].set_text(f"the demo stopped: {e!r}")
+        else:
+            if not self.stream.alive:
+                self.timer.stop()
         self.canvas.draw_idle()
+        return None
 
     def close(self):
         self.timer.stop()
+        self.closed = True
         self._stack.close()
 
     def _ipython_display_(self):

@@ -207,7 +207,7 @@ class AttitudeView:
     - live: ``AttitudeView.live(source)`` follows a capture panel (:func:`capture_panel`: whatever it
       is recording, the virtual board or a real one), a :class:`kfkit.capture.Recorder`, or any
       ``source()`` returning the latest Recording, polled by a timer on the kernel's thread.
-    ``show(k)`` draws sample k; ``draw(q, t)`` draws any quaternion.
+    ``show(k)`` draws sample k; ``draw(q, t)`` draws any quaternion; ``close()`` stops and removes it.
     """
 
     SIZE = (0.8, 0.5, 0.1)  # box length along body x, y, z (display units)
@@ -252,7 +252,7 @@ class AttitudeView:
         ax.legend(loc="upper left", fontsize=8, title="body axes", title_fontsize=8)
         self.canvas = _interactive_canvas(fig)
         self.status = W.HTML()
-        self.timer, self.source, self.estimator = None, None, None
+        self.timer, self.source, self.estimator, self.latest = None, None, None, None
         controls = []
         if self.quat is not None:
             n = len(self.quat)
@@ -306,50 +306,113 @@ class AttitudeView:
     def live(cls, source, estimator=None, interval_ms=100, start=True, seconds=2.0, **view_options):
         """A view that polls ``source`` every ``interval_ms`` on the kernel's main thread and draws
         the attitude that ``estimator.update(rec)`` returns (default: a :class:`LiveAttitude`, Euler
-        EKF). ``source``: a :class:`CapturePanel` (its recording while it records), a Recorder, or a
-        callable returning the latest Recording; the last ``seconds`` of it are read each tick.
-        Start and stop buttons; ``poll()`` does one tick."""
+        EKF). ``source``: a :class:`CapturePanel` (its recording while it records; the view starts with
+        each of its captures), a Recorder, or a callable returning the latest Recording; the last
+        ``seconds`` of it are read each tick. The timer stops by itself once the capture has ended
+        (after drawing its last attitude), failed, or the view is closed. Start and stop buttons;
+        ``poll()`` does one tick; ``latest`` is the last attitude drawn (w-x-y-z) or None."""
         view = cls(**view_options)
-        view.source, view.estimator = _latest_samples(source, seconds), estimator or LiveAttitude()
+        view.source, view.estimator = _LiveSource(source, seconds), estimator or LiveAttitude()
         view.timer = view.canvas.new_timer(interval=interval_ms)
         view.timer.add_callback(view.poll)
         run, stop = W.Button(description="start", icon="play"), W.Button(description="stop", icon="stop")
-        run.on_click(lambda _: view.timer.start())
+        run.on_click(lambda _: view.start())
         stop.on_click(lambda _: view.timer.stop())
         view.widget = W.VBox([W.HBox([run, stop]), view.status, view.canvas])
+        view.source.follow(view.start)
         if start:
-            view.timer.start()
+            view.start()
         return view
 
-    def poll(self):
-        """One live tick: read the source, feed the estimator, redraw; returns the quaternion or None
-        (nothing recorded yet). An error stops the timer and is shown in the status line."""
+    def start(self):
+        """Start polling the live source (nothing to follow yet, as a capture panel before record: wait for it)."""
+        if self.source.waiting():
+            self.status.value = "waiting for the capture panel to record …"
+            return
+        self.timer.start()
+
+    def poll(self) -> None:
+        """One live tick (the timer's callback, so it returns None: matplotlib's timer removes a callback that
+        returns 0 and cannot compare an array): read the source, feed the estimator, draw ``self.latest``.
+        Stops the timer once the source has ended (its last samples drawn), on an error (shown in the
+        status line), or when the view was closed."""
+        if self.canvas.comm is None:  # the view was closed (close(), or its widget)
+            self.timer.stop()
+            return None
         try:
-            rec = self.source()
+            ended = self.source.ended()  # before reading: the snapshot then holds everything it will ever hold
+            rec = self.source.snapshot()
             q = self.estimator.update(rec)
         except Exception as e:  # a timer callback has no one to raise to: show it, stop polling
-            if self.timer is not None:
-                self.timer.stop()
+            self.timer.stop()
             self.status.value = f"<b style='color:{COLORS['bound']}'>❌ {e}</b>"
             return None
-        if q is not None and rec is not None and len(rec):
+        if q is not None and q is not self.latest and rec is not None and len(rec):
+            self.latest = q
             self.draw(q, float(rec.t[-1]))
-        return q
+        if ended:
+            self.timer.stop()
+        return None
+
+    def close(self):
+        """Stop the timer, stop following the source, and close the widgets."""
+        if self.timer is not None:
+            self.timer.stop()
+        if self.source is not None:
+            self.source.follow(None)
+        self.widget.close()
+        self.canvas.close()
 
     def _repr_mimebundle_(self, **kwargs):
         return self.widget._repr_mimebundle_(**kwargs)
 
 
-def _latest_samples(source, seconds):
-    """A callable returning the latest Recording (or None) of a CapturePanel, a Recorder or a callable."""
-    if hasattr(source, "recorder") and hasattr(source, "record"):  # a CapturePanel: follow what it records
-        return lambda: None if source.recorder is None else source.recorder.recording(last_seconds=seconds)
-    if hasattr(source, "recording") and callable(source.recording):  # a Recorder
-        return lambda: source.recording(last_seconds=seconds)
-    if callable(source):
-        return source
-    raise TypeError(f"AttitudeView.live: source must be a capture panel, a Recorder or a callable returning a "
-                    f"Recording, got {type(source).__name__}")
+class _LiveSource:
+    """What a live view follows: a CapturePanel, a Recorder or a callable returning the latest Recording (or None).
+
+    ``snapshot()`` the last ``seconds`` of it; ``ended()`` True once no new sample can come (a recorder's reader has
+    stopped; a panel has finished its capture); ``waiting()`` True while a panel has not started recording;
+    ``follow(callback)`` calls back when a panel starts a new capture (None: stop following)."""
+
+    def __init__(self, source, seconds):
+        self.panel = self.recorder = self.function = None
+        if hasattr(source, "recorder") and hasattr(source, "record"):  # a CapturePanel: follow what it records
+            self.panel = source
+        elif hasattr(source, "recording") and callable(source.recording):  # a Recorder
+            self.recorder = source
+        elif callable(source):
+            self.function = source
+        else:
+            raise TypeError(f"AttitudeView.live: source must be a capture panel, a Recorder or a callable returning a "
+                            f"Recording, got {type(source).__name__}")
+        self.seconds, self._callback = seconds, None
+
+    def snapshot(self):
+        if self.function is not None:
+            return self.function()
+        if self.recorder is not None:
+            return self.recorder.recording(last_seconds=self.seconds)
+        rec = self.panel.recorder
+        if rec is None:  # finished: the saved recording (or None: never recorded, or nothing arrived)
+            return self.panel.recording
+        return rec.recording(last_seconds=self.seconds)
+
+    def ended(self) -> bool:
+        if self.recorder is not None:
+            return self.recorder.done.is_set()
+        return self.panel is not None and self.panel.recorder is None
+
+    def waiting(self) -> bool:
+        return self.panel is not None and self.panel.recorder is None
+
+    def follow(self, callback):
+        if self.panel is None:
+            return
+        if self._callback is not None and self._callback in self.panel.on_record:
+            self.panel.on_record.remove(self._callback)
+        self._callback = callback
+        if callback is not None:
+            self.panel.on_record.append(callback)
 
 
 def attitude_view(t, quat, truth=None, stride=None) -> AttitudeView:
@@ -401,8 +464,9 @@ class CapturePanel:
     a progress bar, the live signals of the last ``window_s`` seconds, statistics and the saved file.
 
     The live plot is redrawn by a timer of the figure's canvas (``canvas.new_timer``), which runs on
-    the kernel's main thread (ipykernel's event loop); the recorder's reader thread never draws.
-    ``record()``, ``stop()`` and ``refresh()`` do from code what the buttons and the timer do.
+    the kernel's main thread (ipykernel's event loop); the recorder's reader thread never draws. The
+    timer runs only while a capture does. ``record()``, ``stop()`` and ``refresh()`` do from code what
+    the buttons and the timer do; ``on_record`` callbacks run when a capture starts (a live 3-D view).
     A guided protocol labels its phases in the recording and saves it under the name labs 02–05
     look for (``kfkit.capture.dataset_name``: e.g. ``05_six_faces.csv`` for an MPU6050).
     """
@@ -413,6 +477,7 @@ class CapturePanel:
         # quick: the protocols' short durations; fast: the virtual board runs faster than real time
         self.out_dir, self.window_s, self.quick, self.fast = Path(out_dir), window_s, quick, fast
         self.recorder, self.recording, self.steps = None, None, None
+        self.on_record = []  # callables run when a capture starts (AttitudeView.live follows the panel with one)
         self.boards = {b.port: b for b in find_boards()}
         options = [(str(b), b.port) for b in self.boards.values()] + [("phone (phyphox remote access)", "phone"),
                                                                        ("virtual board (simulated)", "virtual")]
@@ -535,25 +600,29 @@ class CapturePanel:
         self.progress.value, self.progress.description, self.coverage.value = 0.0, "0 %", 0.0
         self.status.value = f"recording from {self.recorder.description} …"
         self.timer.start()
+        for callback in list(self.on_record):
+            callback()
 
     def stop(self):
         """Stop now (the stop button); what arrived is saved."""
         if self.recorder is not None:
             self._finish()
 
-    def _finish(self):
+    def _finish(self, draw=True):
         from .capture import CaptureError
 
         self.timer.stop()
         rec, self.recorder = self.recorder, None
         self.record_button.disabled, self.stop_button.disabled = False, True
+        completed = rec.done.is_set() and rec.error is None  # the reader ended by itself: all the seconds arrived
         try:
             stats = rec.stop()
         except CaptureError as e:
             self._show_error(e)
             stats = rec.stats
-        self._draw(rec)
-        if rec.error is None and rec.elapsed > 0 and rec.done.is_set():
+        if draw:
+            self._draw(rec)
+        if completed and rec.elapsed > 0:
             self.progress.value, self.progress.description = 1.0, "100 %"
         if rec.stats.samples:
             self.recording = rec.recording()
@@ -567,15 +636,35 @@ class CapturePanel:
             self.status.value = f"<b>done</b>: {saved}<br><pre style='line-height:1.2'>{text}</pre>"
         else:
             self.status.value += f"<br><pre style='line-height:1.2'>{text}</pre>"
+        if self.steps:  # the guided protocol's last instruction no longer applies: say how it ended
+            if completed:
+                ended = f"✅ {self.protocol.label} finished"
+            else:
+                ended = f"⏹ {self.protocol.label} stopped at {rec.elapsed:.1f} of {self.seconds.value:g} s"
+            self.prompt.value = f"<b>{ended}</b>: {saved}"
 
     def _show_error(self, error):
         self.status.value = f"<b style='color:{COLORS['bound']}'>❌ {error}</b>"
 
-    def refresh(self):
-        """One timer tick: progress, prompt, statistics, coverage and the live plot; finish when done."""
+    def refresh(self) -> None:
+        """One timer tick: progress, prompt, statistics, coverage and the live plot; finish when done.
+        Returns None (a timer callback); an unexpected error stops the capture (what arrived is saved) and is shown."""
         rec = self.recorder
         if rec is None:
-            return
+            self.timer.stop()
+            return None
+        try:
+            self._tick(rec)
+        except Exception as e:  # a timer callback has no one to raise to: stop, keep the data, say why
+            self.timer.stop()
+            try:
+                if self.recorder is not None:  # (the error may have come from _finish itself)
+                    self._finish(draw=False)  # (drawing may be what failed)
+            finally:
+                self._show_error(f"the panel stopped on an unexpected error ({e!r}); what arrived is saved in {rec.out}")
+        return None
+
+    def _tick(self, rec):
         fraction = min(rec.elapsed / self.seconds.value, 1.0)
         self.progress.value, self.progress.description = fraction, f"{100 * fraction:.0f} %"
         if self.steps:

@@ -23,8 +23,8 @@ def panel(monkeypatch, tmp_path):
     p.stop()
 
 
-def run_until_done(p, timeout=20.0):
-    deadline = time.monotonic() + timeout
+def run_until_done(p, timeout=120.0):
+    deadline = time.monotonic() + timeout  # a safety net: the capture ends by the board's clock
     while p.recorder is not None and time.monotonic() < deadline:
         p.refresh()  # what the canvas timer calls on the kernel's main thread
         time.sleep(0.05)
@@ -46,6 +46,42 @@ def test_guided_tilt_protocol_records_labelled_phases(panel, tmp_path):
     assert len(rec) == len(panel.recording) == round(panel.seconds.value * 100)
     assert "done" in panel.status.value and panel.progress.value == 1.0
     assert len(panel.lines["acc"][0].get_xdata()) > 0  # the live plot was drawn
+
+
+def test_after_a_guided_protocol_the_prompt_says_it_finished_and_what_was_saved(panel, tmp_path):
+    """Issue 18: after six faces the prompt kept the last instruction with "(0 s)"."""
+    panel.protocol.value = "six-faces"
+    panel.record()
+    run_until_done(panel)
+    saved = tmp_path / "02_six_faces.csv"
+    assert "(0 s)" not in panel.prompt.value and "Six faces" in panel.prompt.value and "finished" in panel.prompt.value
+    assert f"saved {len(load_recording(saved))} samples to <code>{saved}</code>" in panel.prompt.value
+    assert panel.timer._timer is None  # the panel's timer runs only while a capture does
+
+
+def test_a_protocol_stopped_early_says_where_it_stopped(panel, tmp_path):
+    panel.fast = False  # real time, so that stop() comes before the end
+    panel.protocol.value = "six-faces"
+    panel.record()
+    assert panel.recorder.wait(0.3) is False  # still recording (13.5 s of board time in real time)
+    panel.stop()
+    assert "stopped at" in panel.prompt.value and "finished" not in panel.prompt.value
+    assert panel.progress.value < 1.0
+
+
+def test_an_error_inside_a_timer_tick_stops_the_capture_and_keeps_the_data(panel, tmp_path, monkeypatch, caplog):
+    """A callback that raised would raise again on every tick (tornado logs each): the panel stops, saves, says why."""
+    import logging
+
+    panel.seconds.value = 30.0
+    panel.record()
+    assert panel.recorder.done.wait(120)  # fast: 30 s of board time arrive
+    monkeypatch.setattr(panel.live, "update", lambda snap: 1 / 0)
+    with caplog.at_level(logging.ERROR):
+        panel.timer._on_timer()  # what the canvas timer calls
+    assert panel.recorder is None and panel.timer._timer is None and not caplog.records
+    assert "ZeroDivisionError" in panel.status.value and "capture.csv" in panel.status.value
+    assert len(load_recording(tmp_path / "capture.csv")) > 0
 
 
 def test_stop_early_clips_phases_and_saves(panel, tmp_path):

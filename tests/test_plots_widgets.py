@@ -123,10 +123,11 @@ def test_live_view_follows_a_growing_recording_and_a_reset():
 
     estimator.update = counting_update
     view = widgets.AttitudeView.live(source, estimator=estimator, start=False)
-    assert view.poll() is None  # nothing has arrived yet
+    assert view.poll() is None and view.latest is None  # nothing has arrived yet (and a timer callback returns None)
     for n in range(52, len(rec) + 1, 52):  # half a second per tick
         arrived["n"] = n
-        q = view.poll()
+        assert view.poll() is None
+        q = view.latest
     # fed in half-second pieces, the filter ends where one run over the whole recording ends
     whole = filters.EulerAttitudeEKF(rec.rate_hz).run(rec.body("gyr"), rec.body("acc"), rec.body("mag"))
     np.testing.assert_allclose(q, whole.quat[-1], atol=1e-9)
@@ -169,8 +170,9 @@ def test_live_view_follows_the_virtual_board(tmp_path, monkeypatch):
     with capture.Recorder(capture.VirtualBoard(motion=motion, realtime=False, seed=1), seconds=8) as recorder:
         view = widgets.AttitudeView.live(lambda: recorder.recording(last_seconds=2.0),
                                          estimator=widgets.LiveAttitude("mekf", calibration="auto"), start=False)
-        recorder.done.wait(30)
-        q = view.poll()
+        assert recorder.done.wait(120)  # a safety net: the board's 8 s end it
+        view.poll()
+        q = view.latest
     got = Rotation.from_quat(np.r_[q[1:], q[0]])
     true = Rotation.from_euler("ZYX", angles[::-1])
     assert (true.inv() * got).magnitude() < np.radians(3.0)  # heading from a learned field: magnetic north
@@ -186,15 +188,18 @@ def test_live_view_follows_the_capture_panel_on_the_virtual_board(tmp_path, monk
     panel = widgets.capture_panel(out_dir=tmp_path, fast=True)
     panel.port.value, panel.seconds.value = "virtual", 4.0
     view = widgets.AttitudeView.live(panel, estimator=widgets.LiveAttitude("mekf", calibration="auto"), start=False)
-    assert view.poll() is None and "t = " not in view.status.value  # not recording yet: nothing drawn
+    view.poll()
+    assert view.latest is None and "t = " not in view.status.value  # not recording yet: nothing drawn
     panel.record()
-    assert panel.recorder.done.wait(30)
-    q = view.poll()
+    assert panel.recorder.done.wait(120)  # a safety net
+    view.poll()
+    q = view.latest
     # the virtual board lies level and north-facing (the MEKF's north: the field it learned)
     assert Rot.from_quat(np.r_[q[1:], q[0]]).magnitude() < np.radians(2.0)
     assert "t = " in view.status.value
     panel.refresh()  # the panel's timer tick: finishes and saves
-    assert panel.recorder is None and view.poll() is q
+    view.poll()
+    assert panel.recorder is None and view.latest is q
     with pytest.raises(TypeError, match="source must be a capture panel, a Recorder or a callable"):
         widgets.AttitudeView.live(42)
 
@@ -209,4 +214,95 @@ def test_live_attitude_finds_the_boards_calibration_and_shows_a_wrong_one():
     np.testing.assert_allclose(q, filters.estimate_attitude(gyr, acc, mag, rec.rate_hz, method="mekf").quat[-1], atol=1e-12)
     view = widgets.AttitudeView.live(lambda: rec, estimator=widgets.LiveAttitude(calibration=Calibration(board="mpu6050")),
                                      start=False)
-    assert view.poll() is None and "calibration is for board 'mpu6050'" in view.status.value
+    view.poll()
+    assert view.latest is None and "calibration is for board 'mpu6050'" in view.status.value
+
+
+# --- the live views' timers, through matplotlib's own timer machinery ------------------------------------------
+
+def run_timer_on_tornado(timer, stop_when, safety_s=120.0):
+    """Run ``timer`` (ipympl's TimerTornado) on a real tornado IOLoop, as ipykernel does, until ``stop_when()`` or the
+    timer stopped itself; matplotlib's TimerBase._on_timer calls the callbacks and judges what they return, and
+    tornado logs what they raise (as the Jupyter server log showed). Returns the number of ticks."""
+    import asyncio
+    import time
+
+    ticks = {"n": 0}
+    on_timer = timer._on_timer
+
+    def counting():
+        ticks["n"] += 1
+        on_timer()
+
+    timer._on_timer = counting
+    loop = asyncio.new_event_loop()
+    asyncio.set_event_loop(loop)
+    try:
+        async def until_done():
+            timer.start()
+            deadline = time.monotonic() + safety_s  # a safety net only
+            while timer._timer is not None and not stop_when() and time.monotonic() < deadline:
+                await asyncio.sleep(0.02)
+        loop.run_until_complete(until_done())
+    finally:
+        timer._on_timer = on_timer
+        asyncio.set_event_loop(None)
+        loop.close()
+    return ticks["n"]
+
+
+def test_live_view_timer_runs_clean_and_stops_when_the_capture_ends(tmp_path, monkeypatch, caplog):
+    """Lab 04's view on a Recorder, driven by the real timer: no callback error (poll returned the quaternion array
+    and matplotlib's `if ret == 0` raised on every tick), and the timer stops by itself once the capture has ended,
+    after drawing its last attitude."""
+    import logging
+
+    from scipy.spatial.transform import Rotation
+
+    from kfkit import capture, sim
+
+    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
+    angles = np.radians([12.0, -8.0, 40.0])
+    board = capture.VirtualBoard(motion=sim.stationary(30.0, 104.0, *angles), seed=2)  # real time: many ticks
+    with caplog.at_level(logging.ERROR):
+        with capture.Recorder(board, seconds=1.5) as recorder:
+            view = widgets.AttitudeView.live(recorder, estimator=widgets.LiveAttitude("mekf", calibration="auto"),
+                                             interval_ms=50, start=False)
+            ticks = run_timer_on_tornado(view.timer, stop_when=lambda: False)
+            assert recorder.done.is_set()
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text  # not one traceback
+    assert view.timer._timer is None and ticks >= 3  # it ticked while recording, then stopped by itself
+    assert view.timer.callbacks == [(view.poll, (), {})]  # and poll was never dropped for returning 0
+    assert view.latest is not None and view.estimator.t_last == pytest.approx(1.5 - 1 / 104, abs=1e-6)  # the last sample
+    got = Rotation.from_quat(np.r_[view.latest[1:], view.latest[0]])
+    assert (Rotation.from_euler("ZYX", angles[::-1]).inv() * got).magnitude() < np.radians(3.0)
+
+
+def test_live_view_on_the_panel_starts_with_each_capture_stops_after_it_and_when_closed(tmp_path, monkeypatch):
+    import serial.tools.list_ports
+
+    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
+    monkeypatch.setattr(serial.tools.list_ports, "comports", lambda include_links=False: [])
+    panel = widgets.capture_panel(out_dir=tmp_path, fast=True)
+    panel.port.value, panel.seconds.value = "virtual", 1.0
+    view = widgets.AttitudeView.live(panel)  # start=True before the panel records: it waits, no timer
+    assert view.timer._timer is None and "waiting for the capture panel" in view.status.value
+    for capture_number in range(2):  # each capture starts the view, its end stops it
+        panel.record()
+        assert view.timer._timer is not None, capture_number
+        assert panel.recorder.done.wait(120)  # a safety net
+        panel.timer._on_timer()  # the panel's tick: it finishes and saves
+        assert panel.recorder is None and panel.timer._timer is None
+        view.timer._on_timer()  # the view's tick: draws the end of the saved recording and stops
+        assert view.timer._timer is None and view.estimator.t_last == pytest.approx(1.0 - 1 / 104, abs=1e-6)
+    view.start()
+    assert view.timer._timer is None  # nothing being recorded: nothing to poll
+    view.close()
+    panel.record()
+    assert view.timer._timer is None and not panel.on_record  # a closed view follows nothing
+    panel.stop()
+    other = widgets.AttitudeView.live(lambda: None, interval_ms=50)  # a callable: runs until closed
+    assert other.timer._timer is not None
+    other.canvas.close()  # its widget closed (as by the notebook): the next tick stops the timer
+    other.timer._on_timer()
+    assert other.timer._timer is None

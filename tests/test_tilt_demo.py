@@ -222,7 +222,7 @@ def test_notebook_panel_drives_the_game_from_the_virtual_board():
 
     panel = TiltDemoPanel("virtual", fast=True)
     try:
-        deadline = time.monotonic() + 15
+        deadline = time.monotonic() + 120  # a safety net: the game advances by board time
         while panel.game.time < 3.0 and time.monotonic() < deadline:
             panel.refresh()
             time.sleep(0.05)
@@ -247,3 +247,27 @@ def test_demo_window_opens_and_closes_after_its_seconds(tmp_path):
                           "--seconds", "3"], capture_output=True, text=True, timeout=60, env=env)
     assert run.returncode == 0, run.stderr
     assert "bad lines 0" in run.stdout and " s driven" in run.stdout
+
+
+@pytest.mark.filterwarnings("ignore:Passing unrecognized arguments:DeprecationWarning")  # ipympl's toolbar
+def test_notebook_panel_timer_stops_when_the_board_is_unplugged_and_after_close():
+    """Through matplotlib's timer (TimerBase._on_timer): the tick returns None, draws the reason once the board is
+    gone and stops; after close() the drive button cannot restart it."""
+    from kfkit.demo import TiltDemoPanel
+
+    board = VirtualBoard(board="mpu6050", motion=driving_motion(), attitude=True, realtime=False, loop=False,
+                         faults={"disconnect": 400}).start()
+    try:
+        panel = TiltDemoPanel(board.port)
+        panel.timer.start()
+        deadline = time.monotonic() + 120  # a safety net
+        while panel.timer._timer is not None and time.monotonic() < deadline:
+            panel.timer._on_timer()
+            time.sleep(0.01)
+        assert panel.timer._timer is None and panel.timer.callbacks == [(panel.refresh, (), {})]
+        assert "board unplugged?" in panel.fig.axes[0].texts[0].get_text().replace("\n", " ")
+        panel.close()
+        panel.start()
+        assert panel.timer._timer is None
+    finally:
+        board.close()
