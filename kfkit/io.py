@@ -239,8 +239,9 @@ def _check_meta(path, meta: dict, cols) -> None:
                                  f"(SI units per count), got {got!r}")
         try:
             mount_matrix(meta["mount"].get(s))
-        except (ValueError, TypeError) as e:
-            raise RecordingError(path, 1, f"metadata mount.{s}: {e}") from None
+        except (ValueError, TypeError):
+            raise RecordingError(path, 1, f"metadata mount.{s} must be a 3×3 rotation matrix M_bs (body ← sensor; "
+                                 f"orthonormal, det +1), got {meta['mount'].get(s)!r}") from None
     check_phases(path, meta.get("phases", []))
 
 
@@ -394,8 +395,8 @@ def load_broad(path) -> Recording:
     except NotImplementedError:  # scipy's answer to a v7.3 file, which is HDF5 inside
         raise RecordingError(path, None, "a MATLAB v7.3 (HDF5) .mat file: BROAD trials are v5 .mat files; "
                              "re-save it in MATLAB with save(name, '-v7') or use the trial from the dataset") from None
-    except (ValueError, TypeError, OSError, scipy.io.matlab.MatReadError) as e:
-        raise RecordingError(path, None, f"not a readable MATLAB .mat file ({e})") from None
+    except Exception as e:  # noqa: BLE001 — a damaged file makes scipy's reader raise anything (IndexError, zlib.error, …)
+        raise RecordingError(path, None, f"not a readable MATLAB .mat file, or a damaged one ({type(e).__name__}: {e})") from None
     missing = [f for f in BROAD_FIELDS if f not in raw]
     if missing:
         raise RecordingError(path, None, f"not a BROAD trial: missing field(s) {', '.join(missing)}; "
@@ -436,7 +437,8 @@ def load_broad(path) -> Recording:
         if bad.any():
             raise RecordingError(path, None, f"field {name!r} row {np.argmax(bad)} is not finite: {a[np.argmax(bad)].tolist()}")
         if name == "opt_quat":
-            off = finite & (np.abs(np.linalg.norm(np.where(finite[:, None], a, 0.0), axis=1) - 1.0) > 0.01)
+            with np.errstate(over="ignore"):  # a garbled 1e300 overflows to inf: still "not a unit quaternion"
+                off = finite & (np.abs(np.linalg.norm(np.where(finite[:, None], a, 0.0), axis=1) - 1.0) > 0.01)
             if off.any():
                 raise RecordingError(path, None, f"field 'opt_quat' row {np.argmax(off)} is not a unit quaternion "
                                      f"(norm {np.linalg.norm(a[np.argmax(off)]):.4g})")

@@ -37,6 +37,7 @@ import json
 import math
 import re
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -231,7 +232,9 @@ def _zip_files(path: Path) -> dict[str, tuple[str, str, bool]]:
                 if len(parts) > 1 and parts[-2] == "meta" and key != "meta/device.csv":
                     continue
                 out[key] = (_decode(z.read(info)), f"{name} in {path}", True)
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError) as e:
+    except RecordingError:
+        raise
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError, ValueError, zlib.error) as e:
         raise RecordingError(path, None, f"a damaged .zip file ({e}): copy or download the export from the phone again") from None
     return out
 

@@ -1,5 +1,6 @@
 """kfkit.io.load_broad: a small file in BROAD's format written here, and the real trials when present."""
 import glob
+import re
 from pathlib import Path
 
 import numpy as np
@@ -146,3 +147,73 @@ def test_mekf_on_a_whole_real_trial(path):
     res = estimate_attitude(rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz, method="mekf")
     total, _, _ = attitude_errors(res.quat, q)
     assert np.degrees(np.sqrt(np.nanmean(total[rec["movement"]] ** 2))) < 2.0
+
+
+def minimal_trial(**changes):
+    data = {"imu_gyr": np.zeros((10, 3)), "imu_acc": np.tile([0, 0, G], (10, 1)), "imu_mag": np.ones((10, 3)),
+            "opt_quat": np.tile([1.0, 0, 0, 0], (10, 1)), "sampling_rate": np.array([[100.0]]),
+            "movement": np.ones((10, 1), np.uint8)}
+    data.update(changes)
+    return {k: v for k, v in data.items() if v is not None}
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"sampling_rate": np.array([[np.inf]])}, r"'sampling_rate' must be one positive finite number \(Hz\), got \[inf\]"),
+    ({"sampling_rate": np.array([[np.nan]])}, r"'sampling_rate' must be one positive finite number"),
+    ({"sampling_rate": np.zeros((0, 0))}, r"'sampling_rate' must be one positive finite number \(Hz\), got \[\]"),
+    ({"sampling_rate": np.array([[100.0, 200.0]])}, r"got \[100.0, 200.0\]"),
+    ({"sampling_rate": None}, r"missing field\(s\) sampling_rate"),
+    ({"sampling_rate": np.array(["fast"])}, r"'sampling_rate' must be numeric"),
+    ({"movement": np.full((10, 1), 2.0)}, r"'movement' must hold 0 or 1, got 2"),
+    ({"opt_quat": np.tile([2.0, 0, 0, 0], (10, 1))}, r"'opt_quat' row 0 is not a unit quaternion \(norm 2\)"),
+    ({"opt_quat": np.tile([np.nan, 0, 0, 0], (10, 1))}, r"'opt_quat' row 0 is not finite"),
+    ({"imu_mag": np.full((10, 3), np.inf)}, r"'imu_mag' row 0 is not finite"),
+    ({"imu_gyr": np.zeros((1, 3)), "imu_acc": np.zeros((1, 3)), "imu_mag": np.zeros((1, 3)),
+      "opt_quat": np.array([[1.0, 0, 0, 0]]), "movement": np.ones((1, 1))}, "at least 2 samples"),
+], ids=["rate-inf", "rate-nan", "rate-empty", "rate-two", "rate-missing", "rate-text", "movement", "quat-norm",
+        "quat-partial-nan", "mag-inf", "one-sample"])
+def test_load_broad_checks_the_rate_and_the_truth(tmp_path, changes, message):
+    path = tmp_path / "bad.mat"
+    scipy.io.savemat(path, minimal_trial(**changes))
+    with pytest.raises(RecordingError, match=re.escape(str(path)) + ": .*" + message):
+        load_broad(path)
+
+
+def test_load_broad_names_a_v73_file_and_gaps_stay_gaps(tmp_path):
+    # MATLAB v7.3 files are HDF5 with a 128-byte MAT header whose version field is 0x0200 (scipy refuses them).
+    path = tmp_path / "v73.mat"
+    header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 HDF5 schema 1.00 ."
+    path.write_bytes(header.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02" + b"IM" + b"\x89HDF\r\n\x1a\n" + b"\x00" * 512)
+    with pytest.raises(RecordingError, match=re.escape(str(path)) + r": a MATLAB v7.3 \(HDF5\) .mat file.*-v7"):
+        load_broad(path)
+    ok = tmp_path / "gaps.mat"  # NaN rows are gaps the filters skip: a magnetometer without a sample, markers unseen
+    mag, quat = np.ones((10, 3)), np.tile([1.0, 0, 0, 0], (10, 1))
+    mag[3], quat[4] = np.nan, np.nan
+    scipy.io.savemat(ok, minimal_trial(imu_mag=mag, opt_quat=quat))
+    rec = load_broad(ok)
+    assert np.isnan(rec["mx"][3]) and np.isnan(rec["true_qw"][4]) and rec.rate_hz == 100.0
+
+
+def test_fuzzed_broad_files_load_the_same_numbers_or_name_the_file(tmp_path):
+    """A .mat file has no checksum, so a garbled number inside it cannot be seen; a cut file always can."""
+    from test_io import check_fuzzed
+
+    good = tmp_path / "good.mat"
+    write_trial(good, n=200)
+    ref = load_broad(good)
+
+    def same(rec):
+        return all(np.array_equal(rec[c], ref[c], equal_nan=True) for c in ref.columns)
+
+    cut = check_fuzzed(tmp_path / "fuzzed.mat", load_broad, good.read_bytes(), RecordingError, same, garble=False)
+    assert cut["rejected"] > 100  # a few cuts lose only the unused fields after the trial's: identical numbers
+    path = tmp_path / "garbled.mat"  # garbled anywhere: nothing but the loader's own error may come out
+    original = good.read_bytes()
+    for k in np.random.default_rng(1).integers(0, len(original), 200):
+        data = bytearray(original)
+        data[k] ^= 0xFF
+        path.write_bytes(bytes(data))
+        try:
+            load_broad(path)
+        except RecordingError as e:
+            assert str(path) in str(e)

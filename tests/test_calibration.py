@@ -880,3 +880,16 @@ def test_labs_02_and_03_run_top_to_bottom_on_phone_exports(tmp_path, monkeypatch
     M = mount_matrix(rest.meta["mount"]["mag"])
     np.testing.assert_allclose(saved.mag_hard_iron, M @ phone.PHONE_UNIT["mag_hard_iron"], atol=0.05)  # lab 03's fit
     np.testing.assert_allclose(saved.accel_bias, M @ phone.PHONE_UNIT["accel_bias"], atol=3e-3)  # six faces
+
+
+def test_fuzzed_calibration_files_load_the_same_numbers_or_name_the_file(tmp_path):
+    from test_io import check_fuzzed
+
+    good = C.bundled_calibration_path("nucleo-iks02a1").read_bytes()
+    ref = C.Calibration.from_json(good.decode())
+
+    def same(cal):  # a garbled letter in the free-text source is harmless; every number must be the reference's
+        return {**vars(cal), "source": ""} == {**vars(ref), "source": ""}
+
+    outcome = check_fuzzed(tmp_path / "fuzzed.json", C.Calibration.load, good, C.CalibrationError, same)
+    assert outcome["rejected"] > 100 and outcome["loaded"] > 0

@@ -236,3 +236,158 @@ def test_phase_windows_select_samples_and_survive_a_round_trip(tmp_path):
     assert not (rec.phase("still") & rec.phase("turn")).any()
     with pytest.raises(KeyError, match="no phase 'six'.*still, turn"):
         rec.phase("six")
+
+
+# --- counts are exact integers; numbers are plain ASCII decimal ------------------------------------
+
+@pytest.mark.parametrize("col, cell, expect", [
+    (2, "1e20", "'ax': '1e20' is not an integer count"),
+    (2, str(2**53 + 1), "'ax': 9007199254740993 is out of range for a count"),  # int64 holds it, float64 would not
+    (2, str(2**70), "'ax': 1180591620717411303424 is out of range"),  # beyond int64: was a raw OverflowError
+    (3, str(-(2**53) - 1), "'mx': -9007199254740993 is out of range"),  # the NaN-able column is float64
+    (3, "1e20", "'mx': '1e20' is not an integer count"),
+    (2, "1_000", "'ax': '1_000' is not an integer count"),  # int() takes it
+    (2, "\u0661\u0662", "is not an integer count"),  # Arabic-Indic "12": int() takes it too
+    (4, "1_0.5", "'true_roll': '1_0.5' is not a number"),  # float() takes it
+    (4, "1e999", "'true_roll': '1e999' is not a finite number"),  # float() makes it inf
+    (1, "1.0", "'seq': '1.0' is not an integer count"),
+], ids=["1e20", "2^53+1", "2^70", "mag-2^53+1", "mag-1e20", "underscore", "unicode-digits", "float-underscore",
+        "overflow", "seq"])
+def test_counts_never_pass_through_float_and_numbers_are_plain_decimal(tmp_path, col, cell, expect):
+    cells = ROWS[1].rstrip("\n").split(",")
+    cells[col] = cell
+    msg = load_error(write(tmp_path, with_row(1, ",".join(cells) + "\n")), 4)
+    assert expect in msg
+
+
+def test_the_largest_exact_count_loads_exactly(tmp_path):
+    edge = f"0.01,1,{-(2**53)},{2**53},0.2\n"
+    rec = load_recording(write(tmp_path, with_row(1, edge)))
+    assert rec["ax"].dtype == np.int64 and int(rec["ax"][1]) == -(2**53)
+    assert rec["mx"][1] == float(2**53) and int(rec["mx"][1]) == 2**53
+
+
+def test_the_writer_refuses_a_count_it_would_have_to_round(tmp_path):
+    rec = small_recording()
+    for bad in (12.7, np.nan, float(2**60)):
+        rec.data["ax"] = np.array([0, 1, bad, 3, 4], dtype=float)
+        with pytest.raises(ValueError, match=r"column 'ax': .* (not an integer count|out of range)"):
+            save_recording(rec, tmp_path / "r.csv")
+    rec.data["ax"] = np.array([0, 1, 2, 3, 4], dtype=float)  # whole floats are counts: written as integers
+    assert load_recording(save_recording(rec, tmp_path / "r.csv"))["ax"].tolist() == [0, 1, 2, 3, 4]
+
+
+# --- metadata ------------------------------------------------------------------------------------
+
+def with_meta(changes):
+    """GOOD with its metadata changed: {"a.b": value} sets meta["a"]["b"]; a value of ... removes it."""
+    meta = {"rate_hz": 100.0, **json.loads(json.dumps(SENSOR_META))}
+    for key, value in changes.items():
+        *parents, leaf = key.split(".")
+        node = meta
+        for k in parents:
+            node = node[k]
+        if value is ...:
+            del node[leaf]
+        else:
+            node[leaf] = value
+    return "# kfkit-recording v1 " + json.dumps(meta) + "\n" + COLUMNS + "".join(ROWS)
+
+
+@pytest.mark.parametrize("changes, expect", [
+    ({"rate_hz": -104.0}, "'rate_hz' must be a positive finite number (Hz), got -104.0"),
+    ({"rate_hz": 0}, "'rate_hz' must be a positive finite number"),
+    ({"rate_hz": float("nan")}, "'rate_hz' must be a positive finite number (Hz), got nan"),
+    ({"rate_hz": "104"}, "got '104'"),
+    ({"rate_hz": True}, "got True"),
+    ({"rate_hz": None}, "got None"),
+    ({"sensors": ...}, "no 'sensors' object, but the file has columns of acc, mag"),
+    ({"mount": ...}, "no 'mount' object"),
+    ({"sensors.mag": ...}, "sensors.mag.sensitivity must be a positive finite number (SI units per count), got None"),
+    ({"sensors.acc": {"sensitivity": -0.001}}, "sensors.acc.sensitivity must be a positive finite number"),
+    ({"sensors.acc": {"sensitivity": 0}}, "sensors.acc.sensitivity"),
+    ({"sensors.acc": {"sensitivity": "0.001"}}, "sensors.acc.sensitivity"),
+    ({"mount.acc": [[1, 0, 0], [0, 1, 0], [0, 0, -1]]}, "mount.acc must be a 3×3 rotation matrix M_bs"),
+    ({"mount.mag": "flat"}, "mount.mag must be a 3×3 rotation matrix M_bs (body ← sensor; orthonormal, det +1), got 'flat'"),
+    ({"phases": [{"label": "rest", "start": 1.0}]}, "phases[0] must be"),
+    ({"phases": [{"label": "rest", "start": 2.0, "end": 1.0}]}, "with start < end"),
+    ({"phases": "rest"}, "'phases' must be a list"),
+], ids=["rate-negative", "rate-zero", "rate-nan", "rate-text", "rate-bool", "rate-null", "no-sensors", "no-mount",
+        "no-mag-sensor", "sensitivity-negative", "sensitivity-zero", "sensitivity-text", "mount-reflection",
+        "mount-name", "phase-no-end", "phase-backwards", "phases-not-list"])
+def test_metadata_the_helpers_read_is_checked_on_loading(tmp_path, changes, expect):
+    assert expect in load_error(write(tmp_path, with_meta(changes)), 1)
+
+
+def test_a_recording_without_sensor_columns_needs_no_sensor_metadata(tmp_path):
+    rec = load_recording(write(tmp_path, '# kfkit-recording v1 {"rate_hz": 50}\nt,seq,true_roll\n0,0,0.5\n0.02,1,0.6\n'))
+    assert rec.columns == ["t", "seq", "true_roll"] and rec.rate_hz == 50.0
+
+
+def test_a_column_without_a_name_is_an_error(tmp_path):
+    assert "column 3 has no name" in load_error(write(tmp_path, HEADER + "t,seq,,ax\n0,0,1,2\n"), 2)
+
+
+def test_a_byte_order_mark_is_accepted_by_load_recording_and_load_any(tmp_path):
+    from kfkit.io import load_any
+
+    path = write(tmp_path, b"\xef\xbb\xbf" + GOOD.encode())  # Excel's "CSV UTF-8"
+    ref = load_recording(write(tmp_path, GOOD, "plain.csv"))
+    for rec in (load_recording(path), load_any(path)):
+        assert rec.meta == ref.meta
+        for c in ref.columns:
+            np.testing.assert_array_equal(rec[c], ref[c])
+
+
+# --- fuzz: a truncated or garbled file loads the same numbers or raises the loader's own error ---------
+
+def fuzz_variants(data: bytes, seed=0, n_garbled=150):
+    """(label, bytes): the file cut at every byte of its last 300 and at random offsets, and copies with one
+    byte replaced by a character that cannot complete a different number (so a garble is never undetectable)."""
+    rng = np.random.default_rng(seed)
+    cuts = sorted(set(range(max(0, len(data) - 300), len(data))) | set(rng.integers(0, len(data), 60).tolist()))
+    for k in cuts:
+        yield f"cut at {k}", data[:k]
+    for k in rng.integers(0, len(data), n_garbled):
+        yield f"byte {k} → x", data[:k] + b"x" + data[k + 1:]
+        yield f"byte {k} → NUL", data[:k] + b"\x00" + data[k + 1:]
+
+
+def check_fuzzed(path, load, good: bytes, error, same, names=None, garble=True):
+    """Every variant of ``good``, written to ``path``, either makes ``load(path)`` raise ``error`` naming the
+    file (or ``names``: the export folder it is part of) or loads so that ``same(loaded)`` holds; returns
+    how many of each. ``garble=False``: cuts only (for formats without a checksum over binary numbers)."""
+    outcome = {"loaded": 0, "rejected": 0}
+    for label, data in fuzz_variants(good, n_garbled=150 if garble else 0):
+        path.write_bytes(data)
+        try:
+            got = load(path)
+        except error as e:
+            assert str(names or path) in str(e), f"{label}: the message does not name the file: {e}"
+            outcome["rejected"] += 1
+            continue
+        except Exception as e:  # noqa: BLE001 — the point: nothing else may escape
+            raise AssertionError(f"{label}: {type(e).__name__} escaped the loader: {e}") from None
+        assert same(got), f"{label}: loaded different numbers"
+        outcome["loaded"] += 1
+    return outcome
+
+
+def same_rows(ref):
+    """True when ``rec`` holds the first rows of ``ref`` exactly, in every column they share."""
+    def check(rec):
+        n = len(rec)
+        return 0 < n <= len(ref) and all(np.array_equal(rec[c], ref[c][:n], equal_nan=True)
+                                         for c in rec.columns if c in ref.data)
+    return check
+
+
+def test_fuzzed_recordings_load_the_same_numbers_or_name_the_file(tmp_path):
+    from kfkit.io import load_any
+
+    rec = simulate_imu(sine_roll(duration=2.0, rate_hz=50.0), seed=4)
+    good = recording_text(rec).encode()
+    ref = load_recording(write(tmp_path, good, "ref.csv"))
+    for load in (load_recording, load_any):
+        outcome = check_fuzzed(tmp_path / "fuzzed.csv", load, good, RecordingError, same_rows(ref))
+        assert outcome["rejected"] > 100 and outcome["loaded"] > 0  # both paths exercised

@@ -8,6 +8,8 @@ readings come from scipy's Rotation applied to the phone's axes as Android docum
 y up the screen, z out of it; the accelerometer reads +g on z face up).
 """
 import math
+import re
+import shutil
 import zipfile
 
 import numpy as np
@@ -496,3 +498,101 @@ def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
     assert errors == [] and "Warning" not in text
     assert "board phone-phyphox" in text and "no truth in this recording" in text and "RMSE accel only :" not in text
     assert "q = " in text and "from the sliders" in text  # the tuned q falls back to the sliders' value
+
+
+# --- damaged or doubled exports, garbled truth, fuzz ------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def small_export(tmp_path_factory):
+    """A short simulated simple-experiment export with its truth file, as a folder and as a zip."""
+    from kfkit import sim
+
+    samples = phone.simulate_phone(sim.stationary(duration=1.0, rate_hz=100.0), seed=5)
+    folder = phyphox.write_export(phyphox.simple_experiment_files(samples), tmp_path_factory.mktemp("small") / "export")
+    return folder, zip_folder(folder, folder.parent / "export.zip"), io.load_phyphox(folder)
+
+
+def test_a_cut_or_damaged_zip_is_called_a_damaged_zip(tmp_path, small_export):
+    _, archive, _ = small_export
+    data = archive.read_bytes()
+    for name, content in (("cut.zip", data[: len(data) // 2]), ("cut-no-suffix", data[: len(data) - 30])):
+        path = tmp_path / name
+        path.write_bytes(content)  # was reported as "a CSV without a time column"
+        with pytest.raises(RecordingError, match=re.escape(str(path)) + ": a damaged .zip file.*again"):
+            io.load_phyphox(path)
+        with pytest.raises(RecordingError, match="damaged .zip"):
+            io.load_any(path)
+    crc = tmp_path / "crc.zip"  # a flipped byte inside a stored member: the CRC-32 tells
+    with zipfile.ZipFile(crc, "w", zipfile.ZIP_STORED) as z:
+        z.write(small_export[0] / "Gyroscope.csv", "Gyroscope.csv")
+    raw = bytearray(crc.read_bytes())
+    k = raw.index(b"E-") + 1
+    raw[k] = ord("+")
+    crc.write_bytes(bytes(raw))
+    with pytest.raises(RecordingError, match=re.escape(str(crc)) + ": a damaged .zip file .*CRC"):
+        io.load_phyphox(crc, require=("gyr",))
+
+
+def test_a_zip_with_two_exports_is_an_error_and_macos_copies_are_skipped(tmp_path, small_export):
+    folder, _, ref = small_export
+    two = zip_folder(folder, zip_folder(folder, tmp_path / "two.zip", "first/"), "second/")
+    with pytest.raises(RecordingError, match=r"two exports in one zip \(first/.*second/.*load each"):
+        io.load_phyphox(two)
+    mac = zip_folder(folder, tmp_path / "mac.zip", "export/")  # Finder's "Compress" adds __MACOSX/._* copies
+    with zipfile.ZipFile(mac, "a") as z:
+        z.writestr("__MACOSX/export/._Gyroscope.csv", b"\x00\x05\x16\x07 binary resource fork")
+    rec = io.load_phyphox(mac)
+    for c in ref.columns:
+        np.testing.assert_array_equal(rec[c], ref[c], err_msg=c)
+
+
+def test_duplicate_columns_are_named(tmp_path, tour_samples):
+    t, v = tour_samples["acc"]
+    for labels, message in ((["Time (s)", "Time (s)"] + ANDROID_LABELS["acc"], "2 time columns"),
+                            (["Time (s)"] + ANDROID_LABELS["acc"] + ["Acceleration x (m/s^2)"], "two x columns")):
+        raw = tmp_path / "Raw Data.csv"
+        write_set(raw, labels, [t] * (len(labels) - 3) + [v[:, 0], v[:, 1], v[:, 2]])
+        with pytest.raises(RecordingError, match=re.escape(str(raw)) + ", line 1: " + message):
+            io.load_phyphox(raw, require=("acc",))
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda lines: [lines[0].replace('"phases"', '"phases" "')] + lines[1:], r"line 1: the metadata is not valid JSON"),
+    (lambda lines: [lines[0][:40]] + lines[1:], r"line 1: the metadata is not valid JSON"),
+    (lambda lines: lines[:5] + [lines[5].replace(",", ";", 1)] + lines[6:], r"line 6: expected 5 fields"),
+    (lambda lines: lines[:5] + [lines[5].replace("0.", "O.", 1)] + lines[6:], r"line 6: .* is not a number"),
+    (lambda lines: lines[:5] + ["3.5" + lines[5][1:]] + lines[6:], r"line 6: '3.5' is not an integer count"),
+    (lambda lines: lines[:5] + [lines[5].replace(",", ",2", 1)] + lines[6:], r"line 6: not a unit quaternion"),
+    (lambda lines: lines[:-1] + [lines[-1][:-3]], r"line \d+: the last line is cut short"),
+], ids=["json", "json-cut", "fields", "number", "row-index", "not-unit", "cut"])
+def test_a_garbled_truth_file_is_named_with_its_line(small_export, tmp_path, edit, message):
+    folder = tmp_path / "export"
+    shutil.copytree(small_export[0], folder)
+    truth = folder / phyphox.TRUTH_FILE
+    lines = truth.read_text(encoding="utf-8").rstrip("\n").split("\n")
+    changed = edit(lines)
+    truth.write_text("\n".join(changed) + ("" if message.endswith("cut short") else "\n"), encoding="utf-8")
+    with pytest.raises(RecordingError, match=re.escape(str(truth)) + ", " + message):
+        io.load_phyphox(folder)
+
+
+def test_fuzzed_exports_load_the_same_numbers_or_name_the_file(tmp_path, small_export):
+    """The gyroscope CSV cut or garbled in a folder, and the zip cut or garbled: the loader's own error naming
+    the file, or the reference's first rows exactly (a cut last line is dropped, never read)."""
+    from test_io import check_fuzzed
+
+    folder, archive, ref = small_export
+    sensors = [c for c in ref.columns if c[0] in "agm" and len(c) == 2] + ["t"]
+
+    def prefix(rec):
+        n = len(rec)
+        return 0 < n <= len(ref) and all(np.array_equal(rec[c], ref[c][:n], equal_nan=True) for c in sensors)
+
+    copy = tmp_path / "export"
+    shutil.copytree(folder, copy)
+    gyro = copy / "Gyroscope.csv"
+    good = gyro.read_bytes()
+    outcome = check_fuzzed(gyro, lambda _: io.load_phyphox(copy), good, RecordingError, prefix, names=copy)
+    assert outcome["loaded"] > 100 and outcome["rejected"] > 10
+    outcome = check_fuzzed(tmp_path / "fuzzed.zip", io.load_phyphox, archive.read_bytes(), RecordingError, prefix)
+    assert outcome["rejected"] > 100

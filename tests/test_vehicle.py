@@ -1,4 +1,5 @@
 """kfkit.vehicle: bicycle models against physics and independent oracles, scenarios, vehicle CSVs."""
+import json
 import math
 import warnings
 
@@ -415,3 +416,69 @@ def test_flipped_signs_are_named_and_negate_fixes_them(tmp_path, short_drive, fl
     np.testing.assert_allclose(fixed["ay"], short_drive["ay"], rtol=1e-8, atol=1e-10)
     np.testing.assert_allclose(fixed["yaw_rate"], short_drive["yaw_rate"], rtol=1e-8, atol=1e-10)
     assert fixed.meta["negated"] == list(flip)
+
+
+# --- bad input to the loaders: cut lines, metadata, numbers, fuzz --------------------------------------------
+
+def test_load_vehicle_rejects_a_cut_last_line_bad_metadata_and_duplicate_columns(tmp_path, short_drive):
+    path = V.save_vehicle(short_drive, tmp_path / "drive.csv")
+    text = path.read_text()
+    cut = tmp_path / "cut.csv"
+    cut.write_text(text[:-4])  # '0.0123456' cut to '0.01234': it still parses
+    with pytest.raises(RecordingError, match=r"cut\.csv, line \d+: the last line is cut short"):
+        V.load_vehicle(cut)
+    header, rest = text.split("\n", 1)
+    meta = json.loads(header[len(V.VEHICLE_MAGIC):])
+    for rate in (0, -100.0, float("nan"), "100", None):
+        bad = tmp_path / "rate.csv"
+        bad.write_text(V.VEHICLE_MAGIC + json.dumps({**meta, "rate_hz": rate}) + "\n" + rest)
+        with pytest.raises(RecordingError, match=r"rate\.csv, line 1: .*'rate_hz' a positive finite number"):
+            V.load_vehicle(bad)
+    phases = tmp_path / "phases.csv"
+    phases.write_text(V.VEHICLE_MAGIC + json.dumps({**meta, "phases": [{"label": "x", "start": 3, "end": 1}]}) + "\n" + rest)
+    with pytest.raises(RecordingError, match=r"phases\.csv, line 1: metadata phases\[0\]"):
+        V.load_vehicle(phases)
+    dup = tmp_path / "dup.csv"
+    columns, rows = rest.split("\n", 1)
+    dup.write_text(header + "\n" + columns + ",vx\n" + "\n".join(r + ",1" for r in rows.rstrip("\n").split("\n")) + "\n")
+    with pytest.raises(RecordingError, match=r"dup\.csv, line 2: duplicate column names: vx"):
+        V.load_vehicle(dup)
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    assert V.load_vehicle(bom).meta == V.load_vehicle(path).meta
+
+
+def test_student_csv_drops_a_last_line_without_newline_with_a_warning(tmp_path):
+    cut = STUDENT.rstrip("\n")[:-2]  # the last row's Beta '0.7' cut to '0': a wrong number that parses
+    with pytest.warns(UserWarning, match=r"mycar\.csv, line 5: the last line has no newline.*dropped"):
+        rec = V.load_vehicle_csv(student_csv(tmp_path, cut), MAPPING, UNITS, delimiter=";")
+    assert len(rec) == 2 and rec.meta["warnings"] and "line 5" in rec.meta["warnings"][0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert V.load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";").meta["warnings"] == []
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda s: s.replace("10;1.5;2.5", "10;1_5;2.5"), r"line 4: column 'Steer \[deg\]' \(delta\): '1_5' is not a number"),
+    (lambda s: s.replace("10;1.5;2.5", "10;1e999;2.5"), r"line 4: column 'Steer \[deg\]' \(delta\): '1e999' is not a finite"),
+    (lambda s: s.replace("10;1.5;2.5", "10;\u0661;2.5"), r"line 4: column 'Steer \[deg\]' \(delta\): .* is not a number"),
+    (lambda s: "\n".join(s.split("\n")[:3]) + "\n", r"line 3: only one data row"),
+], ids=["underscore", "overflow", "unicode-digit", "one-row"])
+def test_student_csv_numbers_are_plain_decimal_and_a_drive_has_two_rows(tmp_path, edit, message):
+    with pytest.raises(RecordingError, match=r"mycar\.csv, " + message):
+        V.load_vehicle_csv(student_csv(tmp_path, edit(STUDENT)), MAPPING, UNITS, delimiter=";")
+
+
+def test_fuzzed_vehicle_files_load_the_same_numbers_or_name_the_file(tmp_path, short_drive):
+    from test_io import check_fuzzed, same_rows
+
+    own = V.vehicle_text(V.Recording(short_drive.meta, {k: v[:60] for k, v in short_drive.data.items()}))
+    ref = V.load_vehicle(student_csv(tmp_path, own))
+    outcome = check_fuzzed(tmp_path / "fuzzed.csv", V.load_vehicle, own.encode(), RecordingError, same_rows(ref))
+    assert outcome["rejected"] > 100
+    ref = V.load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the dropped-line warnings are the point elsewhere
+        outcome = check_fuzzed(tmp_path / "fuzzed.csv", lambda p: V.load_vehicle_csv(p, MAPPING, UNITS, delimiter=";"),
+                               STUDENT.encode(), RecordingError, same_rows(ref))
+    assert outcome["rejected"] > 100 and outcome["loaded"] > 0
