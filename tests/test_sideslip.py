@@ -238,7 +238,10 @@ def test_lab06_checkpoints_pass_the_reference_and_name_the_classic_mistakes():
     assert run_checkpoint(get("06.bicycle_model"), V.linear_model, seed=1).ok
     assert run_checkpoint(get("06.discretize"), V.discretize, seed=1).ok
     assert run_checkpoint(get("06.kf_step"), sideslip_step, seed=1).ok
-    assert run_checkpoint(get("06.slalom_rmse"), lambda params, **s: estimate_sideslip(**s, params=params).beta).ok
+    def kfkit_run(params, r_std=(0.003, 0.05), model=V.linear_model, **s):  # run_sideslip's signature
+        return estimate_sideslip(**s, params=params, gyro_noise=r_std[0], accel_noise=r_std[1], model=model).beta
+
+    assert run_checkpoint(get("06.slalom_rmse"), kfkit_run).ok
 
     copied = run_checkpoint(get("06.bicycle_model"), V.miscopied_linear_model, seed=1)
     assert not copied.ok and "widely copied model" in copied.message
@@ -251,14 +254,11 @@ def test_lab06_checkpoints_pass_the_reference_and_name_the_classic_mistakes():
     no_d = run_checkpoint(get("06.kf_step"), no_d_term, seed=1)
     assert not no_d.ok and "misses the D-term" in no_d.message
     zero = run_checkpoint(get("06.slalom_rmse"), lambda t, **_: np.zeros_like(t))
-    assert not zero.ok and "0/2 bundled slaloms" in zero.message and "expected under 0.5°" in zero.message
+    assert not zero.ok and "0/3 bundled slaloms" in zero.message and "expected under 0.5°" in zero.message
 
     # the copied model stays under 0.5° at 20 km/h (β there is mostly kinematic) but not at 80 km/h
-    def copied_model_filter(t, delta, yaw_rate, ay, vx, params):
-        return estimate_sideslip(t, delta, yaw_rate, ay, vx, params, model=V.miscopied_linear_model).beta
-
-    copied_run = run_checkpoint(get("06.slalom_rmse"), copied_model_filter)
-    assert not copied_run.ok and "1/2" in copied_run.message and "80 km/h" in copied_run.message
+    copied_run = run_checkpoint(get("06.slalom_rmse"), lambda **s: kfkit_run(**s, model=V.miscopied_linear_model))
+    assert not copied_run.ok and "1/3" in copied_run.message and "80 km/h" in copied_run.message
     assert "expected under 0.1°" in copied_run.message
 
     def b_as_a_row(params, vx):

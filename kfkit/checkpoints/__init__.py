@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+import textwrap
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -69,6 +70,7 @@ class CheckResult:
 #: one module per lab, ``labNN.py`` beside this file; each registers its checkpoints on import
 LABS = tuple(sorted(m.name for m in pkgutil.iter_modules(__path__) if m.name.startswith("lab")))
 REGISTRY: dict[str, Checkpoint] = {}
+MESSAGE_WIDTH = 100  # characters per printed line of a check
 
 
 def register(*checkpoints: Checkpoint) -> None:
@@ -86,31 +88,101 @@ def get(name: str) -> Checkpoint:
         raise KeyError(f"no checkpoint {name!r}; known: {', '.join(sorted(REGISTRY))}") from None
 
 
-def fmt(value) -> str:
-    """Compact display of an input or output: numbers to 4 significant digits, long arrays summarised."""
+def fmt(value, digits: int = 4) -> str:
+    """Compact display of an input or output: numbers to ``digits`` significant digits, long arrays summarised."""
     if isinstance(value, (tuple, list)):
-        return "(" + ", ".join(fmt(v) for v in value) + ")"
+        return "(" + ", ".join(fmt(v, digits) for v in value) + ")"
     if isinstance(value, np.ndarray) and value.ndim > 0:
         if value.size <= 4:
-            return "[" + ", ".join(fmt(v) for v in value.ravel()) + "]"
-        return f"array of {value.size} values [{fmt(value.flat[0])}, {fmt(value.flat[1])}, …]"
+            return "[" + ", ".join(fmt(v, digits) for v in value.ravel()) + "]"
+        return f"array of shape {value.shape} [{fmt(value.flat[0], digits)}, {fmt(value.flat[1], digits)}, …]"
+    if isinstance(value, (bool, np.bool_)):
+        return repr(bool(value))
+    if isinstance(value, (int, np.integer)):
+        return repr(int(value))  # not numpy 2's np.int64(1)
     if isinstance(value, (float, np.floating)):
-        return f"{float(value) + 0.0:.4g}"  # + 0.0 shows −0 as 0
+        return f"{float(value) + 0.0:.{digits}g}"  # + 0.0 shows −0 as 0
     return repr(value)
+
+
+def fmt_pair(expected, got) -> tuple[str, str]:
+    """``expected`` and ``got`` (numbers) with the fewest significant digits (at least 4) that tell them apart."""
+    for digits in range(4, 18):
+        e, g = fmt(expected, digits), fmt(got, digits)
+        if e != g:
+            break
+    return e, g
 
 
 def call_repr(function: str, args: dict) -> str:
     return f"{function}(" + ", ".join(f"{k}={fmt(v)}" for k, v in args.items()) + ")"
 
 
+def _count(n: int) -> str:
+    return f"{n:,}"
+
+
+def nonfinite_problem(got, expected=None, where="") -> str | None:
+    """Why ``got`` is not an answer when it holds NaN or ±inf where ``expected`` holds a finite number (or where
+    the structure of ``expected`` is unknown); None otherwise. Every judge runs after this: a comparison with
+    NaN is False, so ``ours >= limit`` or ``err > tol`` would let a NaN answer through."""
+    if isinstance(got, dict):
+        return next((p for k, v in got.items() if (p := nonfinite_problem(v, None, f"{where}[{k!r}]"))), None)
+    if isinstance(got, (tuple, list)) and not _numeric(got):
+        same = isinstance(expected, (tuple, list)) and len(expected) == len(got)
+        return next((p for i, v in enumerate(got)
+                     if (p := nonfinite_problem(v, expected[i] if same else None, f"{where}output {i + 1} of {len(got)}"))), None)
+    if not _numeric(got):
+        return None
+    g = np.asarray(got, dtype=float)
+    bad = ~np.isfinite(g)
+    if expected is not None and _numeric(expected):
+        e = np.asarray(expected, dtype=float)
+        if e.shape == g.shape:
+            bad &= np.isfinite(e)
+    if not bad.any():
+        return None
+    kinds = " or ".join(k for k, m in (("NaN", np.isnan(g)), ("inf", np.isinf(g))) if (m & bad).any())
+    label = f"{where}: " if where else ""
+    if g.ndim == 0:
+        return f"{label}got {kinds} where a finite number is expected"
+    first = np.unravel_index(int(np.argmax(bad)), g.shape)
+    index = int(first[0]) if g.ndim == 1 else tuple(int(i) for i in first)
+    return (f"{label}{_count(int(bad.sum()))} of {_count(g.size)} values are {kinds} (the first at index {index}): "
+            "every value must be a finite number")
+
+
+def _numeric(value) -> bool:
+    """True for a number or a (nested) sequence/array of numbers of one shape."""
+    if isinstance(value, (str, bytes)) or value is None:
+        return False
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError):
+        return False
+    return a.dtype.kind in "biuf"
+
+
+def _first_difference(e: np.ndarray, g: np.ndarray, rtol, atol) -> str:
+    """'at index 7: expected 0.1234567, got 0.1234599' for the first element outside tolerance."""
+    bad = ~np.isclose(g, e, rtol=rtol, atol=atol, equal_nan=True)
+    first = np.unravel_index(int(np.argmax(bad)), e.shape)
+    index = int(first[0]) if e.ndim == 1 else tuple(int(i) for i in first)
+    want, have = fmt_pair(e[first], g[first])
+    return f"first difference at index {index}: expected {want}, got {have}"
+
+
 def compare(expected, got, rtol=1e-6, atol=1e-9) -> str | None:
-    """None if ``got`` matches ``expected`` (same structure, numbers within tolerance), else why not."""
+    """None if ``got`` matches ``expected`` (same structure, numbers within tolerance), else why not:
+    a wrong count or shape is named as such, a wrong value shows the first element that differs."""
     if isinstance(expected, tuple):
         if not isinstance(got, (tuple, list)) or len(got) != len(expected):
-            return f"expected {len(expected)} values {fmt(expected)}, got {fmt(got)}"
-        for e, g in zip(expected, got):
-            if compare(e, g, rtol, atol) is not None:
-                return f"expected {fmt(expected)}, got {fmt(tuple(got))}"
+            n = len(got) if isinstance(got, (tuple, list)) else 1
+            return f"expected {len(expected)} values {fmt(expected)}, got {n} value{'s' * (n != 1)}: {fmt(got)}"
+        for i, (e, g) in enumerate(zip(expected, got)):
+            problem = compare(e, g, rtol, atol)
+            if problem is not None:
+                return f"value {i + 1} of {len(expected)}: {problem}"
         return None
     try:
         g = np.asarray(got, dtype=float)
@@ -118,10 +190,22 @@ def compare(expected, got, rtol=1e-6, atol=1e-9) -> str | None:
         return f"expected a number or array like {fmt(expected)}, got {type(got).__name__} {fmt(got)}"
     e = np.asarray(expected, dtype=float)
     if g.shape != e.shape:
-        return f"expected shape {e.shape}, got shape {g.shape}"
-    if not np.allclose(g, e, rtol=rtol, atol=atol, equal_nan=True):
-        return f"expected {fmt(expected)}, got {fmt(got)}"
-    return None
+        return f"shape mismatch: expected shape {e.shape}, got shape {g.shape}"
+    if np.allclose(g, e, rtol=rtol, atol=atol, equal_nan=True):
+        return None
+    if e.ndim == 0:
+        want, have = fmt_pair(float(e), float(g))
+        text = f"expected {want}, got {have}"
+    else:
+        text = f"expected {fmt(e)}, got {fmt(g)}; {_first_difference(e, g, rtol, atol)}"
+    if np.any(e != 0) and np.allclose(g, np.degrees(e), rtol=max(rtol, 1e-9), atol=atol):
+        text += " — that is the answer in degrees: return radians"
+    return text
+
+
+def structural(problem: str | None) -> bool:
+    """True when :func:`compare`'s ``problem`` is about the answer's form (count, shape, type), not its values."""
+    return problem is not None and any(p in problem for p in ("shape mismatch", "expected a number or array", " values: "))
 
 
 def matches(rtol=1e-6, atol=1e-9) -> Callable:
@@ -141,9 +225,11 @@ def run_checkpoint(cp: Checkpoint, answer: Callable, seed=None) -> CheckResult:
             msg = f"⏳ {head}not attempted yet ({cp.function} still raises NotImplementedError: fill it in, run its cell, then this one)"
             return CheckResult(cp.name, "not attempted", 0, total, 0, cp.points, msg)
         except Exception as exc:  # the student's code failed: report it, never crash the notebook
-            msg = f"❌ {head}{call_repr(cp.function, case.args)} raised {type(exc).__name__}: {exc}. Hint: {cp.hint}"
+            where = f"on {case.label}, " if case.label else ""
+            msg = (f"❌ {head}{where}{call_repr(cp.function, case.args)} raised {type(exc).__name__}: {exc}. "
+                   f"Hint: {cp.hint}")
             return CheckResult(cp.name, "error", passed, total, 0, cp.points, msg)
-        problem = cp.judge(case, got)
+        problem = nonfinite_problem(got, case.expected) or cp.judge(case, got)
         if problem is None:
             passed += 1
         elif first_failure is None:
@@ -157,5 +243,11 @@ def run_checkpoint(cp: Checkpoint, answer: Callable, seed=None) -> CheckResult:
 def check(name: str, answer: Callable, seed=None) -> CheckResult:
     """Check the student's function ``answer`` against checkpoint ``name``; print and return the result."""
     result = run_checkpoint(get(name), answer, seed)
-    print(result.message)
+    print(wrap_message(result.message))
     return result
+
+
+def wrap_message(message: str, width: int = MESSAGE_WIDTH) -> str:
+    """``message`` broken into lines of at most ``width`` characters at spaces only, so that no number,
+    formula or name is split (a narrow notebook would otherwise break it anywhere)."""
+    return textwrap.fill(message, width, subsequent_indent="   ", break_long_words=False, break_on_hyphens=False)

@@ -5,7 +5,7 @@ import numpy as np
 
 from ..capture import board_time, checksum
 from ..capture.protocol import MICROS_MODULO
-from . import Case, Checkpoint, compare, register
+from . import Case, Checkpoint, compare, fmt_pair, register, structural
 
 
 def _checksum_cases(rng):
@@ -32,12 +32,13 @@ def _time_cases(rng):
 
 def _judge_time(case, got):
     problem = compare(case.expected, got, rtol=0, atol=1e-9)
-    if problem is None or "shape" in problem or problem.startswith("expected a number"):
+    if problem is None or structural(problem):
         return problem
     g, e, t_us = np.asarray(got, dtype=float), case.expected, case.args["t_us"]
     k = int(np.argmax(~np.isclose(g, e, rtol=0, atol=1e-9)))
-    where = f" (t_us went {t_us[k - 1]} → {t_us[k]})" if k else ""
-    return f"at sample {k}: expected t = {e[k]:.6f} s, got {g[k]:.6f} s{where}"
+    where = f" (t_us went {int(t_us[k - 1])} → {int(t_us[k])})" if k else ""
+    want, have = fmt_pair(e[k], g[k])
+    return f"at sample {k}: expected t = {want} s, got {have} s{where}"
 
 
 register(

@@ -7,14 +7,17 @@ from .. import datasets
 from ..filters import integrate_rate, roll_kf, roll_kf_predict, roll_kf_update
 from ..frames import G, accel_tilt, wrap_angle
 from ..metrics import angle_error, rmse
-from . import Case, Checkpoint, compare, matches, register
+from . import Case, Checkpoint, compare, fmt_pair, matches, register, structural
 
 STILL_SECONDS = 5.0  # the bundled recording starts with the board at rest
 
 
 def _accel_roll_cases(rng):
+    """Level first, then a generic roll (where a sign flip, a half turn and swapped arguments all differ),
+    the quarter and near-half turns, and random rolls; last, an array."""
     cases = []
-    for roll in np.concatenate([[0.0, np.pi / 2, -np.pi / 2, 3.0, -3.0], rng.uniform(-np.pi, np.pi, 7)]):
+    generic = rng.uniform(0.3, 1.2) * rng.choice([-1, 1])
+    for roll in np.concatenate([[0.0, generic, np.pi / 2, -np.pi / 2, 3.0, -3.0], rng.uniform(-np.pi, np.pi, 6)]):
         f = np.array([0.0, -G * np.sin(roll), -G * np.cos(roll)]) * rng.uniform(0.8, 1.2)
         cases.append(Case({"ay": f[1], "az": f[2]}, roll))
     rolls = rng.uniform(-np.pi, np.pi, 20)
@@ -24,13 +27,15 @@ def _accel_roll_cases(rng):
 
 def _judge_accel_roll(case, got):
     problem = compare(case.expected, got, atol=1e-9)
-    if problem is None or "shape" in problem or problem.startswith("expected a number"):
+    if problem is None or structural(problem):
         return problem
-    got = np.asarray(got, dtype=float)
-    if np.allclose(np.abs(wrap_angle(got - case.expected)), np.pi, atol=1e-6):
-        return problem + " — exactly 180° off"
-    if np.allclose(wrap_angle(got + case.expected), 0.0, atol=1e-9):
-        return problem + " — the sign is flipped"
+    got, want = np.asarray(got, dtype=float), case.expected
+    if np.allclose(wrap_angle(got + want), 0.0, atol=1e-9):  # before 180°: at ±90° a flip is also a half turn
+        return problem + " — the sign is flipped: roll to the right makes f_y negative, so use −f_y"
+    if np.allclose(np.abs(wrap_angle(got - want)), np.pi, atol=1e-6):
+        return problem + " — exactly 180° off: level (f_z = −g) must give 0, so atan2 needs −f_z as its second argument"
+    if np.allclose(wrap_angle(got + want - np.pi / 2), 0.0, atol=1e-9):
+        return problem + " — the atan2 arguments are swapped: atan2(y, x) takes the sine-like component first"
     return problem
 
 
@@ -58,6 +63,22 @@ def _run_cases(rng):
     return cases
 
 
+def _judge_run(case, got):
+    """(x, P, y, S) against the reference, naming the first sample where x, P, y or S differ."""
+    problem = compare(case.expected, got, rtol=1e-6, atol=1e-9)
+    if problem is None or structural(problem):
+        return problem
+    for name, e, g in zip("xPyS", case.expected, got):
+        g = np.asarray(g, dtype=float)
+        bad = ~np.isclose(g, e, rtol=1e-6, atol=1e-9)
+        if bad.any():
+            k = int(np.argmax(bad))
+            want, have = fmt_pair(e[k], g[k])
+            return (f"{name} first differs at sample {k}: expected {want}, got {have}"
+                    + (" (sample 0 already: start from x0, P0 and predict before the first update)" if k == 0 else ""))
+    return problem
+
+
 TUNED_Q = 1e-7  # rad², near the best q the lab's sweep finds on the bundled recording (5.6e-8)
 
 
@@ -78,6 +99,13 @@ def _beats_cases(rng):
     return [Case(args, {"truth": truth, "single": single}, "the bundled recording 01_roll_sine")]
 
 
+#: The fused RMSE must be below this fraction of each single sensor's. With the tuned q ≪ r the steady-state
+#: variance is P ≈ √(q r), so the filter averages the accelerometer's noise down by (q/r)^¼ ≈ 0.1; a quarter
+#: leaves a factor 2.5 for the motion and the gyro bias (kfkit: 0.37° against 4.21° and 9.14°), while a filter
+#: that never adds q (a running mean of the accelerometer, 4.20°) or drops an update is far above it.
+BEATS_FRACTION = 0.25
+
+
 def _judge_beats(case, got):
     try:
         x = np.asarray(got[0], dtype=float)
@@ -86,10 +114,11 @@ def _judge_beats(case, got):
     if x.shape != case.expected["truth"].shape:
         return f"expected {case.expected['truth'].size} roll estimates, got shape {x.shape}"
     ours = rmse(angle_error(x, case.expected["truth"]), 0.0)
-    worse = {k: v for k, v in case.expected["single"].items() if ours >= v}
+    worse = {k: v for k, v in case.expected["single"].items() if not ours < BEATS_FRACTION * v}
     if worse:
-        return (f"KF RMSE {np.degrees(ours):.2f}° is not below " +
-                " and ".join(f"{k} ({np.degrees(v):.2f}°)" for k, v in worse.items()))
+        return (f"KF RMSE {np.degrees(ours):.2f}° is not below a quarter of " +
+                " and ".join(f"{k} ({np.degrees(v):.2f}°, a quarter {np.degrees(BEATS_FRACTION * v):.2f}°)"
+                             for k, v in worse.items()))
     return None
 
 
@@ -101,10 +130,10 @@ register(
                hint="the gyro rate moves the roll forward by ω·dt, and the uncertainty only grows (by q)."),
     Checkpoint("01.kf_update", "kf_update", _update_cases, matches(), points=2,
                hint="y = z − x, S = P + r, K = P/S; the new P is smaller than both P and r. Return (x, P, y, S)."),
-    Checkpoint("01.run_kf", "run_kf", _run_cases, matches(rtol=1e-6, atol=1e-9), points=2,
+    Checkpoint("01.run_kf", "run_kf", _run_cases, _judge_run, points=2,
                hint="start from x0, P0; at every sample predict with gyro_rate[k], then update with roll_acc[k]; "
                     "store x, P, y, S after each update and return four arrays."),
     Checkpoint("01.kf_beats_sensors", "run_kf", _beats_cases, _judge_beats, points=2, what="bundled recording",
-               hint="with a tuned q and r from the accel-roll noise at rest the fused estimate beats each sensor "
-                    "alone; if 01.run_kf passes, look at how x0 and P0 are used."),
+               hint="with a tuned q and r from the accel-roll noise at rest the fused estimate is several times better "
+                    "than each sensor alone; if 01.run_kf passes, look at how x0, P0 and q are used."),
 )

@@ -6,7 +6,7 @@ import numpy as np
 from .. import calibration, datasets
 from ..frames import G, euler_to_dcm, mount_matrix
 from ..sensors import board as get_board
-from . import Case, Checkpoint, compare, matches, register
+from . import Case, Checkpoint, compare, fmt, matches, register, structural
 
 N_SIGMA = 4.0  # estimates on the bundled recording must lie within 4 standard uncertainties of the truth
 
@@ -23,6 +23,20 @@ def _gyro_bias_cases(rng):
     return cases
 
 
+def _judge_bias(case, got):
+    """The per-axis mean at rest; names the spread (std) and the mean over every axis at once."""
+    problem = compare(case.expected, got, atol=1e-12)
+    if problem is None:
+        return problem
+    x = case.args["gyr"]
+    if np.ndim(got) == 0 and np.isclose(float(np.asarray(got, float)), x.mean(), rtol=1e-9):
+        return problem + " — that is the mean of all three axes together: average each axis (axis=0)"
+    spread = (x.std(axis=0, ddof=1), x.std(axis=0))
+    if not structural(problem) and any(np.allclose(np.asarray(got, float), sd, rtol=1e-6) for sd in spread):
+        return problem + " — that is the spread (std) of each axis; the bias is its average"
+    return problem
+
+
 def _noise_cases(rng):
     cases = []
     for _ in range(8):
@@ -33,7 +47,7 @@ def _noise_cases(rng):
 
 def _judge_noise(case, got):
     problem = compare(case.expected, got, rtol=1e-6)
-    if problem is None or "shape" in problem:
+    if problem is None or structural(problem):
         return problem
     x = case.args["x"]
     if np.allclose(np.asarray(got, float), x.std(axis=0, ddof=0), rtol=1e-9):
@@ -53,10 +67,12 @@ def _accel_bias_cases(rng):
 
 def _judge_accel_bias(case, got):
     problem = compare(case.expected, got, atol=1e-9)
-    if problem is None or "shape" in problem:
+    if problem is None or structural(problem):
         return problem
     if np.allclose(np.asarray(got, float), case.args["acc"].mean(axis=0), atol=1e-9):
         return problem + " — you returned the whole mean: gravity is still in it"
+    if np.allclose(np.asarray(got, float), -case.expected, atol=1e-9):
+        return problem + " — the sign is flipped: bias = reading − expected, not expected − reading"
     return problem
 
 
@@ -91,13 +107,27 @@ def _allan_cases(rng):
 
 
 def _judge_allan(case, got):
+    """Against the overlapping estimator; a wrong answer is described by its ratio to the right one, which
+    tells a missing 1/rate (θ in samples, not seconds) or a missing 2 apart from a wrong count of terms."""
     problem = compare(case.expected, got, rtol=1e-6, atol=0)
-    if problem is None or "shape" in problem:
+    if problem is None or structural(problem):
         return problem
-    ratio = np.asarray(got, float) / case.expected
-    if np.allclose(ratio, ratio[0], rtol=1e-3):
-        return problem + f" — off by a constant factor {ratio[0]:.3g}: check the 1/(2τ²(N − 2m)) normalisation"
-    return problem
+    ratio, rate = np.asarray(got, float) / case.expected, case.args["rate_hz"]
+    if np.allclose(ratio, 0.0, atol=1e-12):
+        return problem + " — every σ is 0: is θ integrated (cumsum), and the squared differences summed?"
+    if not np.allclose(ratio, ratio[0], rtol=1e-3):
+        return (problem + f" — the ratio to the right values changes with τ (from {fmt(ratio.min())} to {fmt(ratio.max())}): "
+                "a count of terms or a sum range that depends on m is off; N + 1 − 2m differences, k = 0 … N − 2m")
+    causes = {rate: "θ is not divided by rate_hz: θ = cumsum(x)/rate_hz is in (unit of x)·s",
+              1 / rate: "θ is divided by rate_hz once too often",
+              np.sqrt(2.0): "the 2 in 1/(2τ²…) is missing", 1 / np.sqrt(2.0): "the 2 in 1/(2τ²…) is there twice",
+              rate ** 2: "τ looks counted in samples (m), not seconds"}
+    for factor, cause in causes.items():
+        if np.isclose(ratio[0], factor, rtol=1e-3):
+            return problem + f" — off by a constant factor {fmt(ratio[0])}: {cause}"
+    if np.isclose(ratio[0], 1.0, rtol=1e-2):
+        return problem + f" — off by a constant factor {fmt(ratio[0], 7)}: nearly right, check the sum range and its count"
+    return problem + f" — off by a constant factor {fmt(ratio[0])}: check the 1/(2τ²(N + 1 − 2m)) normalisation"
 
 
 def _rate_cases(rng):
@@ -122,6 +152,23 @@ def _bias_recording_cases(rng):
     rec = datasets.load("02_stationary")
     truth, u = gyro_bias_truth(rec)
     return [Case({"gyr": rec.body("gyr")}, (truth, u), "the bundled recording 02_stationary")]
+
+
+def _judge_bias_recording(case, got):
+    """Within N_SIGMA uncertainties of the simulation's bias, and an estimate from the whole rest: the bias over
+    this rest is its average, and an estimate that uses all N samples lies within N_SIGMA·σ/√N (white noise) of
+    it. The bias's own wander (K√(T/3), which sets the first bar) is common to both, so this second bar is ~60×
+    tighter here and fails an estimate from part of the rest (the first 100 samples are 5–90 σ/√N away)."""
+    problem = _judge_within(case, got, " rad/s")
+    if problem:
+        return problem
+    gyr = case.args["gyr"]
+    u_white = gyr.std(axis=0, ddof=1) / np.sqrt(len(gyr))
+    z = np.abs(np.asarray(got, float) - gyr.mean(axis=0)) / u_white
+    if np.all(z <= N_SIGMA):
+        return None
+    return (f"your bias is {z.max():.0f} white-noise uncertainties σ/√N = {fmt(u_white.max())} rad/s from the average "
+            f"of all {len(gyr):,} samples (allowed {N_SIGMA:g}): use the whole rest")
 
 
 def _judge_within(case, got, unit=""):
@@ -202,7 +249,7 @@ def _judge_six_face_recording(case, got):
 
 
 register(
-    Checkpoint("02.gyro_bias", "gyro_bias", _gyro_bias_cases, matches(atol=1e-12), points=1,
+    Checkpoint("02.gyro_bias", "gyro_bias", _gyro_bias_cases, _judge_bias, points=1,
                hint="at rest the true rate is zero, so what is left on average, per axis, is the bias."),
     Checkpoint("02.noise_std", "noise_std", _noise_cases, _judge_noise, points=1,
                hint="the spread about the mean, per axis (axis=0), with the N − 1 of a sample standard deviation."),
@@ -212,11 +259,11 @@ register(
                points=2, hint="axis i reads s·g + b pointing up and −s·g + b pointing down: add and subtract the two means "
                               "of that axis's component. Return (bias, scale), each of shape (3,)."),
     Checkpoint("02.allan_deviation", "allan_deviation", _allan_cases, _judge_allan, points=2,
-               hint="integrate to θ = cumsum(x)/rate (start at 0), then for each τ = m/rate use every overlapping "
-                    "difference θ[k+2m] − 2θ[k+m] + θ[k]."),
+               hint="integrate to θ = cumsum(x)/rate with θ₀ = 0 in front (N + 1 values), then for each τ = m/rate use "
+                    "every overlapping difference θ[k+2m] − 2θ[k+m] + θ[k], k = 0 … N − 2m, and divide by their count."),
     Checkpoint("02.sigma_at_rate", "sigma_at_rate", _rate_cases, matches(), points=1,
                hint="the density N = σ/√rate is the sensor's; the per-sample σ at another rate follows from it."),
-    Checkpoint("02.gyro_bias_recording", "gyro_bias", _bias_recording_cases, _judge_within, points=1,
+    Checkpoint("02.gyro_bias_recording", "gyro_bias", _bias_recording_cases, _judge_bias_recording, points=1,
                what="bundled recording",
                hint="use the whole rest: the uncertainty of a mean shrinks as σ/√N, until the bias's own wander dominates."),
     Checkpoint("02.noise_recording", "noise_std", _noise_recording_cases, _judge_within, points=1,

@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 from .. import calibration, datasets
 from ..frames import MAG_FIELD_LONDON, accel_tilt, declination, mag_heading, tilt_compensated_heading, wrap_angle
 from ..sensors import iis2mdc_mag
-from . import Case, Checkpoint, compare, fmt, matches, register
+from . import Case, Checkpoint, compare, fmt, fmt_pair, matches, register, structural
 
 HEADING_LIMIT_DEG = 2.0  # RMS heading error allowed after calibration on the bundled recording
 PROPER_SIGNS = [np.diag(d) for d in ([1, 1, 1], [-1, 1, -1], [-1, -1, 1], [1, -1, -1])]  # det +1
@@ -21,7 +21,7 @@ def _counts_cases(rng):
 
 def _judge_counts(case, got):
     problem = compare(case.expected, got)
-    if problem is None or "shape" in problem:
+    if problem is None or structural(problem):
         return problem
     ratio = np.asarray(got, float).ravel() / np.where(case.expected == 0, np.nan, case.expected).ravel()
     r = np.nanmedian(ratio)
@@ -30,19 +30,25 @@ def _judge_counts(case, got):
     return problem
 
 
-def turn_angles(rng, sense, n=200):
-    """A turn out by α and back (gyro angle, rad) and what a magnetometer sees (distorted, sign ``sense``)."""
-    alpha = rng.uniform(np.radians(45), np.radians(120)) * rng.choice([-1, 1])
+def turn_angles(rng, sense, size, direction, n=200):
+    """A turn out by α (sign ``direction``) and back (gyro angle, rad) and what a magnetometer sees: sign
+    ``sense``, its swing ``size`` times the gyro's (hard iron distorts the size), with noise."""
+    alpha = rng.uniform(np.radians(45), np.radians(120)) * direction
     s = np.sin(np.linspace(0, np.pi, n)) ** 2
-    gyro = alpha * s
-    mag = sense * alpha * s * rng.uniform(0.5, 1.6) + rng.normal(0, 0.02, n)  # hard iron distorts the size
-    return gyro, mag
+    return alpha * s, sense * alpha * s * size + rng.normal(0, 0.02, n)
+
+
+#: Magnetometer swing ÷ gyro swing: every case has one axis under ½ and one over 1½, so a ratio of sizes rounded
+#: to ±1 (round(Σm/Σg)) fails on every seed, and turns both ways, so a sign of Σm alone (without the gyro) fails too.
+SMALL_SWING, LARGE_SWING = (0.2, 0.45), (1.6, 2.5)
 
 
 def _alignment_cases(rng):
     cases = []
     for D in PROPER_SIGNS + [PROPER_SIGNS[k] for k in rng.integers(0, 4, 4)]:
-        turns = {axis: turn_angles(rng, D[i, i]) for i, axis in enumerate("xyz")}
+        sizes = rng.permutation([rng.uniform(*SMALL_SWING), rng.uniform(*LARGE_SWING), rng.uniform(0.5, 1.5)])
+        directions = rng.permutation([1, -1, rng.choice([-1, 1])])
+        turns = {axis: turn_angles(rng, D[i, i], sizes[i], directions[i]) for i, axis in enumerate("xyz")}
         cases.append(Case({"turns": turns}, D, f"turns whose magnetometer senses are {np.diag(D).astype(int).tolist()}"))
     return cases
 
@@ -90,6 +96,9 @@ def _judge_ellipsoid(case, got):
     B = np.linalg.norm(MAG_FIELD_LONDON)
     norms = np.linalg.norm((case.args["mag"] - h) @ S.T, axis=1)
     if not np.isclose(np.mean(norms), B, rtol=1e-3):
+        if _like(S, np.linalg.inv(S_true)) and not _like(S, S_true):
+            return ("S is the inverse of the correction: it holds the ellipsoid's radii (A^−½); the correction that "
+                    "maps the ellipsoid onto a sphere is B·A^½ (√w, not 1/√w, from eigh)")
         return f"the hard iron is right but calibrated norms average {np.mean(norms):.2f} µT, not B = {B:.2f}: scale S by B"
     worst = np.abs(S - S_true).max()
     if worst > SOFT_IRON_TOL:
@@ -97,14 +106,36 @@ def _judge_ellipsoid(case, got):
     return None
 
 
+def _tilted_reading(yaw, pitch, roll):
+    """m_b = R_bn m_n of the London field (µT) for a board at (ψ, θ, φ) from scipy's rotation."""
+    return Rotation.from_euler("ZYX", np.stack([yaw, pitch, roll], axis=-1)).inv().apply(MAG_FIELD_LONDON)
+
+
+def _like(A, B, atol=2e-2):
+    """True when matrices A and B point the same way (equal after dividing each by its Frobenius norm)."""
+    return np.allclose(A / np.linalg.norm(A), B / np.linalg.norm(B), atol=atol)
+
+
 def _heading_cases(rng):
+    """Random tilts, with declination 0 (magnetic heading) or London's (true heading); two whose magnetic heading
+    plus the declination crosses +180° and −180° (an unwrapped sum leaves (−π, π]); and the (N, 3) readings with
+    (N,) angles the docstring promises (the next cell passes whole recordings)."""
+    D = declination()
     cases = []
     for _ in range(10):
         roll, pitch, yaw = rng.uniform(-1.2, 1.2), rng.uniform(-1.2, 1.2), rng.uniform(-np.pi, np.pi)
-        m_b = Rotation.from_euler("ZYX", [yaw, pitch, roll]).inv().apply(MAG_FIELD_LONDON)  # R_bn m_n
-        decl = float(rng.choice([0.0, declination()]))  # 0: magnetic heading; D: true heading
-        cases.append(Case({"m_b": m_b, "roll": roll, "pitch": pitch, "declination": decl},
-                          wrap_angle(yaw - declination() + decl)))
+        decl = float(rng.choice([0.0, D]))  # 0: magnetic heading; D: true heading
+        cases.append(Case({"m_b": _tilted_reading(yaw, pitch, roll), "roll": roll, "pitch": pitch, "declination": decl},
+                          wrap_angle(yaw - D + decl)))
+    for magnetic, decl in ((np.pi - D / 2, D), (-np.pi + 0.05, -0.1)):
+        roll, pitch = rng.uniform(-0.8, 0.8, 2)
+        cases.append(Case({"m_b": _tilted_reading(magnetic + D, pitch, roll), "roll": roll, "pitch": pitch, "declination": decl},
+                          wrap_angle(magnetic + decl), f"a magnetic heading of {np.degrees(magnetic):.2f}° with declination "
+                                                      f"{np.degrees(decl):+.2f}° (the sum crosses ±180°)"))
+    n = 25
+    roll, pitch, yaw = rng.uniform(-1.2, 1.2, n), rng.uniform(-1.2, 1.2, n), rng.uniform(-np.pi, np.pi, n)
+    cases.append(Case({"m_b": _tilted_reading(yaw, pitch, roll), "roll": roll, "pitch": pitch, "declination": D},
+                      wrap_angle(yaw), f"{n} readings at once (m_b of shape ({n}, 3), roll and pitch of shape ({n},))"))
     return cases
 
 
@@ -117,18 +148,30 @@ def _flat_cases(rng):
 
 
 def _judge_heading(case, got):
+    """Headings in (−π, π], as many as the case has readings; names the classic atan2 slips."""
+    e = np.asarray(case.expected, dtype=float)
     try:
-        g = float(np.asarray(got, dtype=float))
+        g = np.asarray(got, dtype=float)
     except (TypeError, ValueError):
-        return f"expected one angle in rad, got {type(got).__name__}"
-    err = wrap_angle(g - case.expected)
-    if abs(err) < 1e-6:
-        return None
-    text = f"expected {case.expected:.4f} rad, got {g:.4f}"
-    if abs(abs(err) - np.pi) < 1e-6:
+        return f"expected {'one angle' if e.ndim == 0 else f'{e.size} angles'} in rad, got {type(got).__name__}"
+    if g.shape != e.shape:
+        return f"shape mismatch: expected {'one angle' if e.ndim == 0 else f'shape {e.shape}'}, got shape {g.shape}"
+    err = wrap_angle(g - e)
+    bad = np.abs(err) >= 1e-6
+    outside = (g > np.pi + 1e-9) | (g < -np.pi - 1e-9)
+    k = np.unravel_index(int(np.argmax(bad | outside)), e.shape) if e.ndim else ()
+    want, have = fmt_pair(e[k], g[k])
+    text = f"expected {want} rad, got {have}" + (f" at index {k[0]}" if e.ndim else "")
+    if not bad.any():
+        return None if not outside.any() else text + " — the same direction, but not wrapped to (−π, π]: wrap after adding the declination"
+    if np.allclose(np.abs(err), np.pi, atol=1e-6):
         return text + " — exactly 180° off: both atan2 arguments have the wrong sign"
-    if abs(wrap_angle(g + case.expected)) < 1e-6:
+    if np.allclose(wrap_angle(g + e), 0.0, atol=1e-6):
         return text + " — the heading turns the wrong way: check the sign of m_y"
+    if np.allclose(wrap_angle(g + e - np.pi / 2), 0.0, atol=1e-6):
+        return text + " — the atan2 arguments are swapped: atan2(−m_y, m_x), the east-like component first"
+    if np.allclose(g, np.degrees(e), atol=1e-6):
+        return text + " — that is the heading in degrees: return radians"
     return text
 
 

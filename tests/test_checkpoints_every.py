@@ -1,0 +1,253 @@
+"""Every checkpoint of every lab, judged with the solutions' own exercise functions as the right answers:
+they pass on many seeds; NaN or inf in an answer never scores; each classic mistake (a small edit of the
+model answer) fails on every seed, with a message that names it."""
+import ast
+import dataclasses
+import functools
+from pathlib import Path
+
+import nbformat
+import numpy as np
+import pytest
+
+from kfkit.checkpoints import LABS, REGISTRY, get, run_checkpoint, wrap_message
+
+SOLUTIONS = Path(__file__).resolve().parents[1] / "solutions"
+
+
+def solution_namespace(nn, mutate=None):
+    """The imports, constant assignments and functions of solutions/NN_*.ipynb, executed in a fresh namespace
+    (nothing that loads data or draws); ``mutate`` = (function, old, new) replaces text in that def first."""
+    path = next(SOLUTIONS.glob(f"{nn}_*.ipynb"))
+    ns, mutated = {}, False
+    for cell in nbformat.read(path, as_version=4).cells:
+        if cell.cell_type != "code":
+            continue
+        src = "\n".join(line for line in cell.source.splitlines() if not line.lstrip().startswith(("%", "!")))
+        for node in ast.parse(src).body:
+            constant = isinstance(node, ast.Assign) and not any(isinstance(n, ast.Call) for n in ast.walk(node.value))
+            if not (constant or isinstance(node, (ast.Import, ast.ImportFrom, ast.FunctionDef))):
+                continue
+            text = ast.get_source_segment(src, node)
+            if mutate and isinstance(node, ast.FunctionDef) and node.name == mutate[0]:
+                assert mutate[1] in text, f"{mutate[1]!r} is not in {node.name} of {path.name}"
+                text, mutated = text.replace(mutate[1], mutate[2]), True
+            try:
+                exec(compile(text, str(path), "exec"), ns)
+            except (NameError, AttributeError):  # a helper whose default needs the notebook's data: not an exercise
+                pass
+    assert mutate is None or mutated, f"no function {mutate[0]} in {path.name}"
+    return ns
+
+
+@functools.lru_cache(maxsize=None)
+def reference(name):
+    """The solution notebook's function that checkpoint ``name`` judges."""
+    return solution_namespace(name[:2])[get(name).function]
+
+
+def all_checkpoints():
+    get("00.checksum")  # imports every lab's module
+    return sorted(REGISTRY)
+
+
+def is_heavy(name):
+    """Checkpoints that run a whole filter on bundled recordings (a few seconds each)."""
+    return "bundled" in get(name).what or "runs" in get(name).what
+
+
+def test_every_lab_registers_checkpoints_and_each_has_a_model_answer():
+    names = all_checkpoints()
+    assert {n[:2] for n in names} == {lab[3:] for lab in LABS}
+    for name in names:
+        assert callable(reference(name)), name
+
+
+@pytest.mark.parametrize("name", all_checkpoints())
+def test_the_model_answer_passes_on_many_seeds(name):
+    for seed in range(2 if is_heavy(name) else 20):
+        result = run_checkpoint(get(name), reference(name), seed)
+        assert result.ok, (seed, result.message)
+        assert result.points == result.max_points > 0
+
+
+# --- NaN and inf never score ----------------------------------------------------------------------------------
+
+def _poison(value, how, state):
+    """``value`` with its numbers made non-finite: 'nan' / 'inf' all of them, 'nan_after_first' all but the first."""
+    if isinstance(value, (tuple, list)):
+        return type(value)(_poison(v, how, state) for v in value)
+    if isinstance(value, dict):
+        return {k: _poison(v, how, state) for k, v in value.items()}
+    try:
+        a = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        return value
+    flat = a.reshape(-1)
+    keep = 1 if how == "nan_after_first" and not state["kept"] else 0
+    state["kept"] = state["kept"] or keep > 0 and flat.size > 0
+    flat[keep:] = np.inf if how == "inf" else np.nan
+    state["poisoned"] += flat.size - keep
+    return a if a.ndim else float(a)
+
+
+@functools.lru_cache(maxsize=None)
+def _reference_outputs(name):
+    cp = get(name)
+    cases = cp.cases(np.random.default_rng(0))
+    return cases, [reference(name)(**case.args) for case in cases]
+
+
+@pytest.mark.parametrize("how", ["nan", "inf", "nan_after_first"])
+@pytest.mark.parametrize("name", all_checkpoints())
+def test_non_finite_answers_never_score(name, how):
+    cases, outputs = _reference_outputs(name)
+    poisoned = []
+    for out in outputs:
+        state = {"kept": False, "poisoned": 0}
+        poisoned.append((_poison(out, how, state), state["poisoned"]))
+    if not any(n for _, n in poisoned):
+        pytest.skip("a single number: nothing after the first")  # 'nan' and 'inf' cover it
+    answers = iter(p for p, _ in poisoned)
+    result = run_checkpoint(dataclasses.replace(get(name), cases=lambda rng: cases), lambda **_: next(answers))
+    assert result.status == "failed" and result.points == 0, result.message
+    assert ("NaN" if how != "inf" else "inf") in result.message, result.message
+    assert "finite" in result.message, result.message
+
+
+def test_the_non_finite_message_counts_and_locates():
+    from kfkit.checkpoints import nonfinite_problem
+
+    x = np.zeros(24_000)
+    x[1000:] = np.nan
+    assert nonfinite_problem((x, 1.0), (np.zeros(24_000), 1.0)) == (
+        "output 1 of 2: 23,000 of 24,000 values are NaN (the first at index 1000): every value must be a finite number")
+    assert "inf" in nonfinite_problem(np.array([[1.0, np.inf]]))
+    assert nonfinite_problem(np.array([np.nan, 1.0]), np.array([np.nan, 2.0])) is None  # NaN where NaN is expected
+    assert nonfinite_problem("2D") is None and nonfinite_problem(None) is None
+
+
+# --- each classic mistake fails on every seed, and is named ---------------------------------------------------
+
+MISTAKES = [  # (checkpoint, (function, text of the model answer, mistaken text), words in the message, seeds)
+    ("00.board_time", ("board_time", "% 2**32", ""), "t_us went", 50),
+    ("00.board_time", ("board_time", "np.concatenate([[0.0], np.cumsum(steps) * 1e-6])", "np.cumsum(steps) * 1e-6"),
+     "shape mismatch", 20),
+    ("01.accel_roll", ("accel_roll", "np.arctan2(-ay, -az)", "np.arctan2(ay, az)"), "exactly 180° off", 50),
+    ("01.accel_roll", ("accel_roll", "np.arctan2(-ay, -az)", "np.arctan2(ay, -az)"), "the sign is flipped", 50),
+    ("01.accel_roll", ("accel_roll", "np.arctan2(-ay, -az)", "np.arctan2(-az, -ay)"), "arguments are swapped", 50),
+    ("01.accel_roll", ("accel_roll", "np.arctan2(-ay, -az)", "np.degrees(np.arctan2(-ay, -az))"), "in degrees", 50),
+    ("01.kf_predict", ("kf_predict", "P + q", "P"), "expected", 50),
+    ("01.run_kf", ("run_kf", "roll_acc[k], r)", "roll_acc[k - 1], r)"), "first differs at sample", 50),
+    ("01.run_kf", ("run_kf", "xs[k], Ps[k] = x, P", "xs[k], Ps[k] = x, P0"), "P first differs at sample", 50),
+    ("01.kf_beats_sensors", ("kf_predict", "P + q", "P"), "is not below a quarter", 1),
+    ("02.gyro_bias", ("gyro_bias", "np.mean(gyr, axis=0)", "np.std(gyr, axis=0)"), "spread (std)", 50),
+    ("02.gyro_bias", ("gyro_bias", "np.mean(gyr, axis=0)", "np.mean(gyr)"), "all three axes together", 50),
+    ("02.noise_std", ("noise_std", "ddof=1", "ddof=0"), "ddof=0", 50),
+    ("02.accel_bias", ("accel_bias", "np.mean(acc, axis=0) - np.asarray(expected)",
+                       "np.asarray(expected) - np.mean(acc, axis=0)"), "sign is flipped", 50),
+    ("02.accel_bias", ("accel_bias", " - np.asarray(expected)", ""), "gravity is still in it", 50),
+    ("02.allan_deviation", ("allan_deviation", "/ rate_hz\n", "\n"), "θ is not divided by rate_hz", 50),
+    ("02.allan_deviation", ("allan_deviation", "(2 * tau**2", "(tau**2"), "the 2 in 1/(2τ²…) is missing", 50),
+    ("02.allan_deviation", ("allan_deviation", "(len(theta) - 2 * m)", "(len(theta))"), "changes with τ", 50),
+    ("02.allan_deviation", ("allan_deviation", "np.sqrt(np.sum(d**2)", "0 * np.sqrt(np.sum(d**2)"), "every σ is 0", 50),
+    ("02.sigma_at_rate", ("sigma_at_rate", "np.sqrt(rate_to / rate_from)", "np.sqrt(rate_from / rate_to)"), "expected", 50),
+    ("02.gyro_bias_recording", ("gyro_bias", "np.mean(gyr, axis=0)", "np.mean(gyr[:100], axis=0)"), "use the whole rest", 1),
+    ("02.gyro_bias_recording", ("gyro_bias", "np.mean(gyr, axis=0)", "np.mean(gyr[-1000:], axis=0)"), "use the whole rest", 1),
+    ("03.counts_to_ut", ("counts_to_ut", "* 100.0", ""), "1 gauss = 100 µT", 50),
+    ("03.alignment", ("alignment_from_turns", "np.sign(np.sum(g * m))", "np.round(np.sum(m) / np.sum(g))"), "expected", 100),
+    ("03.alignment", ("alignment_from_turns", "np.sign(np.sum(g * m))", "np.sign(np.sum(m))"), "expected", 100),
+    ("03.mag_calibration", ("mag_calibration", "(V * np.sqrt(w))", "(V / np.sqrt(w))"), "inverse of the correction", 10),
+    ("03.mag_calibration", ("mag_calibration", "S = field_norm / scale *", "S = 1 / scale *"), "scale S by B", 10),
+    ("03.flat_heading", ("flat_heading", "np.arctan2(-m_b[1], m_b[0])", "np.arctan2(m_b[1], m_b[0])"), "wrong way", 50),
+    ("03.flat_heading", ("flat_heading", "np.arctan2(-m_b[1], m_b[0])", "np.arctan2(m_b[0], -m_b[1])"), "swapped", 50),
+    ("03.tilt_heading", ("tilt_heading", "np.arctan2(-my_h, mx_h)", "np.arctan2(my_h, -mx_h)"), "exactly 180° off", 50),
+    ("03.tilt_heading", ("tilt_heading", "frames.wrap_angle(np.arctan2(-my_h, mx_h) + declination)",
+                         "np.arctan2(-my_h, mx_h) + declination"), "not wrapped", 100),
+    ("03.tilt_heading", ("tilt_heading", "mx, my, mz = m_b[..., 0], m_b[..., 1], m_b[..., 2]", "mx, my, mz = m_b"),
+     "(25, 3)", 50),
+    ("04.euler_rates", ("euler_rates", "u / np.cos(theta)])", "u / np.cos(phi)])"), "divided by cos φ", 50),
+    ("04.euler_rates", ("euler_rates", "return np.array([p + u * np.tan(theta)", "return np.array(omega_b)\n    ([p"),
+     "body rates p, q, r unchanged", 50),
+    ("04.predict", ("ekf_predict", "x_new[2] = frames.wrap_angle(x_new[2])", ""), "not wrapped", 100),
+    ("04.predict", ("ekf_predict", "F @ P @ F.T + Q", "F.T @ P @ F + Q"), "expected", 50),
+    ("04.measurement", ("measurement", "frames.euler_to_dcm(*x).T", "frames.euler_to_dcm(*x)"), "expected", 50),
+    ("04.jacobian", ("jacobian", "return H", "return H.T"), "expected shape (6, 3), got shape (3, 6)", 50),
+    ("04.update", ("ekf_update", "x_new[2] = frames.wrap_angle(x_new[2])", ""), "not wrapped", 100),
+    ("04.update", ("ekf_update", "if np.isnan(z[3:]).any() else slice(0, 6)", "if False else slice(0, 6)"), "NaN", 50),
+    ("04.ekf_rmse", ("run_ekf", "if accel_gate is not None and", "if False and"), "accel_gate", 3),
+    ("05.to_body", ("to_body", "* flip\n    w_b", "\n    w_b"), "expected", 50),
+    ("05.to_body", ("to_body", "np.radians(np.asarray(gyr_counts) / 131.0)", "np.asarray(gyr_counts) / 131.0"),
+     "in degrees", 50),
+    ("05.gyro_bias", ("gyro_bias", "np.mean(gyr, axis=0)", "np.std(gyr, axis=0)"), "expected", 50),
+    ("05.accel_tilt", ("accel_tilt", "np.arctan2(-f[:, 1], -f[:, 2])", "np.arctan2(f[:, 1], f[:, 2])"), "180° off", 50),
+    ("05.accel_tilt", ("accel_tilt", "np.arctan2(f[:, 0],", "np.arctan2(-f[:, 0],"), "wrong sign", 50),
+    ("05.run_kf", ("run_kf", "100.0 * r", "r"), "where static_ok is False", 50),
+    ("05.final", ("estimate_tilt", "ok_t & (np.hypot(f_t[:, 1], f_t[:, 2]) >= 0.5 * G)", "ok_t"), "nose-up", 1),
+    ("06.bicycle_model", ("bicycle_model", "[(b * Cr - a * Cf) / Iz,", "[(b * Cr - a * Cf) / (Iz * vx),"), "A[1,0]", 50),
+    ("06.discretize", ("discretize", "E = expm(M * dt)", "E = np.eye(n + p) + M * dt"), "Euler", 50),
+    ("06.kf_step", ("kf_step", "- D[:, 0] * delta", ""), "misses the D-term", 50),
+    ("06.slalom_rmse", ("discretize", "E = expm(M * dt)", "E = np.eye(n + p) + M * dt"), "leans on its model", 1),
+    ("06.slalom_rmse", ("bicycle_model", "[(b * Cr - a * Cf) / Iz,", "[(b * Cr - a * Cf) / (Iz * vx),"),
+     "leans on its model", 1),
+    ("06.slalom_rmse", ("run_sideslip", "delta[k - 1] if k else delta[0]", "delta[k]"), "leans on its model", 1),
+]
+
+
+@pytest.mark.parametrize("name, mutate, words, seeds", MISTAKES, ids=[f"{m[0]}:{m[1][2][:30]}" for m in MISTAKES])
+def test_each_classic_mistake_fails_on_every_seed_and_is_named(name, mutate, words, seeds):
+    mistaken = solution_namespace(name[:2], mutate)[get(name).function]
+    for seed in range(seeds):
+        result = run_checkpoint(get(name), mistaken, seed)
+        assert not result.ok and result.points == 0, (seed, result.message)
+        assert words in result.message, (seed, result.message)
+
+
+# --- messages show the difference -----------------------------------------------------------------------------
+
+def test_messages_show_enough_digits_no_numpy_reprs_and_the_first_differing_element():
+    from kfkit.checkpoints import compare, fmt
+
+    assert fmt(np.int64(1)) == "1" and fmt(np.bool_(True)) == "True" and fmt(np.float64(-0.0)) == "0"
+    problem = compare(np.array([0.061188, 1.0, 2.0, 3.0, 4.0]), np.array([0.061188, 1.0, 2.0, 3.0, 4.0001]))
+    assert "first difference at index 4: expected 4, got 4.0001" in problem
+    assert compare(0.0611880, 0.0611881) == "expected 0.061188, got 0.0611881"
+    assert compare((1.0, np.zeros(3)), (1.0, np.zeros(4))) == "value 2 of 2: shape mismatch: expected shape (3,), got shape (4,)"
+    assert "np." not in compare(np.eye(3, dtype=int), np.zeros((3, 3), dtype=np.int64))
+
+
+def test_printed_lines_never_break_a_number_or_a_word():
+    message = "❌ 00.board_time: " + " ".join(f"t = {x:.9f} s," for x in np.linspace(0, 1, 40)) + " Hint: 4294967290"
+    lines = wrap_message(message).splitlines()
+    assert len(lines) > 3 and all(len(line) <= 100 for line in lines)
+    assert wrap_message(message).split() == message.split()  # only spaces became line breaks
+
+
+# --- lab 02's Allan formula, as printed, passes its checkpoint -------------------------------------------------
+
+def printed_allan_formula():
+    """The notebook's formula written out literally: N samples, θ_j = (1/f_s) Σ_{i<j} x_i for j = 0 … N, m = τ f_s,
+    σ²(τ) = 1/(2τ²(N − 2m + 1)) Σ_{k=0}^{N−2m} (θ_{k+2m} − 2θ_{k+m} + θ_k)²."""
+    def allan_deviation(x, rate_hz, taus):
+        N = len(x)
+        theta = [sum(x[:j]) / rate_hz for j in range(N + 1)]
+        out = []
+        for tau in taus:
+            m = int(round(tau * rate_hz))
+            total = sum((theta[k + 2 * m] - 2 * theta[k + m] + theta[k]) ** 2 for k in range(N - 2 * m + 1))
+            out.append((total / (2 * tau**2 * (N - 2 * m + 1))) ** 0.5)
+        return np.array(out)
+    return allan_deviation
+
+
+def test_the_printed_allan_formula_is_the_checkpoints_and_allantools():
+    allantools = pytest.importorskip("allantools")
+    nb = nbformat.read(next(SOLUTIONS.glob("02_*.ipynb")), as_version=4)
+    text = next(c.source for c in nb.cells if c.cell_type == "markdown" and "Allan deviation" in c.source and "sum_" in c.source)
+    assert r"\frac{1}{2\tau^2 (N - 2m + 1)} \sum_{k=0}^{N-2m}" in text and "N$ samples" in text
+    result = run_checkpoint(get("02.allan_deviation"), printed_allan_formula(), seed=0)
+    assert result.ok, result.message
+    x, rate = np.random.default_rng(1).normal(0, 1, 300), 12.5
+    taus = np.array([1, 2, 5, 20, 70]) / rate
+    theirs = allantools.oadev(x, rate=rate, data_type="freq", taus=taus)[1]
+    np.testing.assert_allclose(printed_allan_formula()(x - x.mean(), rate, taus), theirs, rtol=1e-9)
