@@ -5,7 +5,9 @@ Requirement lines are parsed with ``packaging`` and imports mapped to distributi
 ``importlib.metadata.packages_distributions``, independently of kfkit.doctor's own reader.
 """
 import ast
+import os
 import re
+import subprocess
 import sys
 from importlib import metadata
 
@@ -107,6 +109,20 @@ def test_each_lab_imports_only_what_the_student_install_pins(notebook):
     imported = distributions(modules, notebook.name)
     student = pins(ENVIRONMENT)
     assert not {m: d for m, d in imported.items() if d not in student}, f"{notebook.name} needs a package environment.txt lacks"
+
+
+def test_pytest_starts_with_only_the_student_plugins():
+    """pyproject.toml's addopts (-n 2, --nbval-lax…) parse with just environment.txt's pytest plugins,
+    so ``python -m pytest NOTEBOOK`` works in a student install."""
+    student = pins(ENVIRONMENT)
+    plugins = [ep.name for ep in metadata.entry_points(group="pytest11") if canonicalize_name(ep.dist.name) in student]
+    env = {**os.environ, "PYTEST_DISABLE_PLUGIN_AUTOLOAD": "1"}
+    args = [arg for name in plugins for arg in ("-p", name)]
+    done = subprocess.run(
+        [sys.executable, "-m", "pytest", *args, "--collect-only", "-q", "-n", "0", "tests/test_deployment.py"],
+        cwd=KIT_ROOT, env=env, capture_output=True, text=True, timeout=600,
+    )
+    assert done.returncode == 0, f"pytest with only {plugins}:\n{done.stdout[-2000:]}{done.stderr[-2000:]}"
 
 
 def fenced_commands(section):
