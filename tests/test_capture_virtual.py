@@ -329,17 +329,18 @@ def test_second_recorder_on_the_same_port_is_busy():
 def test_commands_h_and_s():
     import serial
 
-    with C.VirtualBoard(rate_hz=RATE, board="mpu6050") as vb, serial.Serial(vb.port, timeout=1) as port:
+    # readline's timeout is a safety net (it returns at the newline); "stopped" = quiet for 1 s, then 1 s more
+    with C.VirtualBoard(rate_hz=RATE, board="mpu6050") as vb, serial.Serial(vb.port, timeout=30) as port:
         port.write(b"h")
         assert C.parse_line(port.readline()).board == "mpu6050"  # first contact: header, then samples
         assert isinstance(C.parse_line(port.readline()), C.Sample)
         port.write(b"s")  # stop
-        port.timeout = 0.2
+        port.timeout = 1.0
         while port.read(4096):
             pass
         assert port.read(1) == b""
         port.write(b"h")
-        port.timeout = 1
+        port.timeout = 30
         assert isinstance(C.parse_line(port.readline()), C.Header)
 
 
@@ -411,7 +412,7 @@ def test_angle_random_walk_of_a_two_minute_rest_is_the_datasheets():
     assert np.all((lo <= arw) & (arw <= hi)), (arw / want, lo / want, hi / want)
 
 
-def read_items(port, until_quiet=0.3):
+def read_items(port, until_quiet=1.0):
     """Parse every line a stopped board still sends, until it has been quiet for ``until_quiet`` s."""
     port.timeout, items = until_quiet, []
     while line := port.readline():
@@ -434,7 +435,7 @@ def test_attitude_board_measures_the_bias_again_after_stop_and_start_as_the_sket
     sketch = (Path(__file__).parents[1] / "firmware/mpu6050_tilt_kf/mpu6050_tilt_kf.ino").read_text()
     assert f'Serial.println(F("{C.virtual.ATTITUDE_NOTE.decode().rstrip()}"))' in sketch  # the sketch's words
     with C.VirtualBoard(board="mpu6050", attitude=True, realtime=False, seed=5) as vb, \
-            serial.Serial(vb.port, timeout=1) as port:
+            serial.Serial(vb.port, timeout=30) as port:  # a safety net: readline returns at the newline
         port.write(b"h")
         assert C.parse_line(port.readline()).params["filter"] == "tilt_kf"
         assert port.readline() == C.virtual.ATTITUDE_NOTE
@@ -444,7 +445,7 @@ def test_attitude_board_measures_the_bias_again_after_stop_and_start_as_the_sket
         assert samples_before_first_att(before) == 200 and not any(isinstance(i, C.Note) for i in before)
         time.sleep(0.3)
         port.write(b"s")  # start again
-        port.timeout = 1
+        port.timeout = 30
         after = [C.parse_line(port.readline()) for _ in range(1 + 200 + 2 * 50)]  # note, bias, sample + $ATT pairs
     assert isinstance(after[0], C.Note) and "keep the board still for 2 s" in after[0].text
     assert sum(isinstance(i, C.Note) for i in after) == 1 and samples_before_first_att(after[1:]) == 200
