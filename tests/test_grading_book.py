@@ -74,6 +74,9 @@ def test_a_damaged_gradebook_to_update_is_named_before_grading(tmp_path, monkeyp
     out.write_text("submission,checkpoint,points,max_points,message\nalice,01.kf_update,two,2,ok\n")
     with pytest.raises(ValueError, match=r"g\.csv, line 2: points and max_points should be numbers, not 'two'"):
         core.read_gradebook(out)
+    out.write_bytes(b"submission,checkpoint,points,max_points,message\n\xff\xfe,01.kf_update,2,2,ok\n")
+    with pytest.raises(ValueError, match=r"g\.csv, line \d: not a CSV gradebook"):
+        core.read_gradebook(out)
 
 
 def test_feedback_files_are_named_like_the_submission_and_stay_unique():

@@ -145,4 +145,4 @@ def test_a_submission_over_its_cpu_time_is_stopped_and_told_which_limit(tmp_path
     assert {r.status for r in grade.rows} == {"over limit"}, grade.rows
     assert "s of CPU time (limit 3 s)" in grade.rows[0].message and "while True:" in grade.rows[0].message
     used = float(grade.rows[0].message.split("used ")[1].split(" s of CPU")[0])
-    assert 3.0 < used < 3.0 + 1.0
+    assert 3.0 <= used < 3.0 + 1.0  # shown to 0.1 s: a stop 0.02 s past the limit reads "3.0"

@@ -29,7 +29,7 @@ from pathlib import Path
 CELL_TIMEOUT = 30.0  # s per notebook cell and per checkpoint call
 TOTAL_TIMEOUT = 300.0  # s for one whole submission
 _PUBLIC = ("grade", "grade_submission", "grade_checkpoints", "lab_checkpoints", "find_submissions", "read_code_cells",
-           "summary", "Limits", "Row", "SubmissionGrade", "NotANotebook", "NoSandbox")
+           "read_notebook", "read_gradebook", "summary", "Limits", "Row", "SubmissionGrade", "NotANotebook", "NoSandbox")
 
 
 def __getattr__(name):

@@ -323,18 +323,21 @@ def read_gradebook(path: Path) -> list[SubmissionGrade]:
     grades: dict[str, SubmissionGrade] = {}
     with open(path, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
-        if reader.fieldnames != COLUMNS:
-            raise ValueError(f"{path}: line 1 should be the header {','.join(COLUMNS)}, not {reader.fieldnames}")
-        for r in reader:
-            try:
-                points, max_points = float(r["points"]), float(r["max_points"])
-            except (TypeError, ValueError):
-                raise ValueError(f"{path}, line {reader.line_num}: points and max_points should be numbers, not "
-                                 f"{r['points']!r} and {r['max_points']!r}") from None
-            name = _csv_unsafe(r["submission"])
-            status = "passed" if points == max_points > 0 else "failed"
-            grades.setdefault(name, SubmissionGrade(name, 0)).rows.append(
-                Row(r["checkpoint"], points, max_points, status, _csv_unsafe(r["message"] or "")))
+        try:
+            if reader.fieldnames != COLUMNS:
+                raise ValueError(f"{path}: line 1 should be the header {','.join(COLUMNS)}, not {reader.fieldnames}")
+            for r in reader:
+                try:
+                    points, max_points = float(r["points"]), float(r["max_points"])
+                except (TypeError, ValueError):
+                    raise ValueError(f"{path}, line {reader.line_num}: points and max_points should be numbers, "
+                                     f"not {r['points']!r} and {r['max_points']!r}") from None
+                name = _csv_unsafe(r["submission"])
+                status = "passed" if points == max_points > 0 else "failed"
+                grades.setdefault(name, SubmissionGrade(name, 0)).rows.append(
+                    Row(r["checkpoint"], points, max_points, status, _csv_unsafe(r["message"] or "")))
+        except (UnicodeDecodeError, csv.Error) as exc:
+            raise ValueError(f"{path}, line {reader.line_num + 1}: not a CSV gradebook ({exc})") from None
     return list(grades.values())
 
 
