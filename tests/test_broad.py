@@ -136,12 +136,17 @@ def test_real_broad_trial(path):
     assert np.degrees(np.sqrt(np.nanmean(incl ** 2))) < 1.0
 
 
-@pytest.mark.skipif(not REAL_TRIALS, reason=f"no BROAD trials in {BROAD_DIR}")
-@pytest.mark.parametrize("path", REAL_TRIALS, ids=[Path(p).stem for p in REAL_TRIALS])
+UNDISTURBED_TRIALS = [p for p in REAL_TRIALS if "_undisturbed_" in Path(p).name]
+
+
+@pytest.mark.skipif(not UNDISTURBED_TRIALS, reason=f"no undisturbed BROAD trials in {BROAD_DIR}")
+@pytest.mark.parametrize("path", UNDISTURBED_TRIALS, ids=[Path(p).stem for p in UNDISTURBED_TRIALS])
 def test_mekf_on_a_whole_real_trial(path):
     # The benchmark's figure, kept from regressing: the MEKF with its defaults over the whole trial,
     # BROAD's total error over the movement phases against the optical truth (ahrs's EKF: 1.6–16.8°,
-    # VQF: 1.4–4.0° on the four development trials; benchmarks/bench_attitude.py).
+    # VQF: 1.4–4.0° on the four development trials; benchmarks/bench_attitude.py). Undisturbed trials
+    # only: with a magnet near or on the IMU (trials 28, 34) the field itself is wrong for part of the
+    # trial, and what a filter should achieve there has its own bar (the magnetic-disturbance work).
     rec = load_broad(path)
     q = np.column_stack([rec[c] for c in ("true_qw", "true_qx", "true_qy", "true_qz")])
     res = estimate_attitude(rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz, method="mekf")
