@@ -16,6 +16,7 @@ import textwrap
 import threading
 import time
 from collections import deque
+from contextlib import ExitStack
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,7 +24,10 @@ from matplotlib.figure import Figure
 
 from . import sim
 from .capture.protocol import BadLine, Header, Message, Sample, parse_line
+from .capture.virtual import VirtualBoard
 from .frames import euler_rates_to_body_rates
+from .plots import COLORS
+from .widgets import interactive_canvas
 
 MAX_TILT_DEG = 30.0  # tilt for full steering / full throttle
 DEAD_ZONE_DEG = 2.0  # ignore small tilts (a hand is never perfectly level)
@@ -220,8 +224,6 @@ def open_stream(stack, port, baud=115200, fast=False) -> AttitudeStream:
     """An :class:`AttitudeStream` on ``port`` inside ``stack`` (an ExitStack); "virtual" starts a virtual board
     that plays :func:`driving_motion` and sends $ATT lines like the sketch (``fast``: faster than real time)."""
     if port == "virtual":
-        from .capture.virtual import VirtualBoard
-
         board = stack.enter_context(VirtualBoard(board="mpu6050", motion=driving_motion(), attitude=True,
                                                  realtime=not fast))
         port = board.port
@@ -233,8 +235,6 @@ def run_tilt_demo(port, seconds=None, headless=False, fps=30.0, baud=115200, fas
     window closes). ``headless`` runs without a window (tests, CI) and prints a summary; ``fast`` lets the
     virtual board run faster than real time. Raises :class:`DemoError` when no $ATT lines come, saying why.
     """
-    from contextlib import ExitStack
-
     if headless and seconds is None:
         raise ValueError("run_tilt_demo: a headless run needs seconds")
     game = RaceGame()
@@ -258,10 +258,6 @@ def run_tilt_demo(port, seconds=None, headless=False, fps=30.0, baud=115200, fas
 def tilt_figure(game, stream, fig=None):
     """The game's figure (road from above, the car, roll and pitch, status) and ``draw(frame=None)``, which
     advances the game by the attitudes received since the last frame (:func:`advance`) and moves the artists."""
-    from matplotlib.figure import Figure
-
-    from .plots import COLORS
-
     fig = fig or Figure(figsize=(5, 7), layout="constrained")
     ax = fig.subplots()
     ahead = np.linspace(-20, 80, 200)
@@ -320,17 +316,13 @@ class TiltDemoPanel:
     """
 
     def __init__(self, port="virtual", baud=115200, fps=30.0, fast=False):
-        from contextlib import ExitStack
-
         import ipywidgets as W
-
-        from .widgets import _interactive_canvas
 
         self._stack = ExitStack()
         self.stream = open_stream(self._stack, port, baud, fast)
         self.game = RaceGame()
         self.fig, self.draw = tilt_figure(self.game, self.stream, Figure(figsize=(4.5, 6), layout="constrained"))
-        self.canvas = _interactive_canvas(self.fig)
+        self.canvas = interactive_canvas(self.fig)
         self.timer = self.canvas.new_timer(interval=int(1000 / fps))
         self.timer.add_callback(self.refresh)
         self.closed = False
