@@ -62,23 +62,14 @@ from kfkit import datasets
 from kfkit.filters import estimate_attitude
 from kfkit.filters.attitude import (ACCEL_GATE, ACCEL_GATE_FACTOR, EULER_ACCEL_NOISE, EULER_GYRO_NOISE, EULER_MAG_NOISE,
                                     attitude_jacobian, attitude_measurement, euler_kinematics_jacobian, euler_process_noise,
-                                    euler_rates, euler_to_quat, learn_field, quat_to_dcm, tilt_heading)
-from kfkit.frames import G, declination, wrap_angle
-from kfkit.io import enu_to_ned_quat, load_broad
+                                    euler_rates, learn_field, tilt_heading)
+from kfkit.frames import G, declination, enu_to_ned_quat, euler_to_quat, quat_conjugate, quat_multiply, quat_to_dcm, wrap_angle
+from kfkit.io import load_broad
 from kfkit.metrics import attitude_rmse
 
 BROAD_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"
 SIMULATIONS = ("04_attitude_tour", "04_gimbal_lock", "04_mag_disturbance")
 Q_NED_NWU = np.array([0.0, 1.0, 0.0, 0.0])  # 180° about x: NWU → NED
-
-
-def quat_mul(a, b):
-    """Hamilton product of (N, 4) or (4,) quaternions, w-x-y-z."""
-    a, b = np.broadcast_arrays(np.asarray(a, float), np.asarray(b, float))
-    w1, x1, y1, z1 = np.moveaxis(a, -1, 0)
-    w2, x2, y2, z2 = np.moveaxis(b, -1, 0)
-    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
 
 
 # ---- peers -----------------------------------------------------------------------------------
@@ -92,7 +83,7 @@ def run_ahrs_ekf(gyr, acc, mag, rate):
 
 def run_ahrs_madgwick(gyr, acc, mag, rate):
     from ahrs.filters import Madgwick
-    return quat_mul(Q_NED_NWU, Madgwick(gyr=gyr, acc=acc, mag=_fill_mag(mag), frequency=rate).Q)
+    return quat_multiply(Q_NED_NWU, Madgwick(gyr=gyr, acc=acc, mag=_fill_mag(mag), frequency=rate).Q)
 
 
 def run_imufusion(gyr, acc, mag, rate):
@@ -201,7 +192,7 @@ def accuracy(cases):
 def signed_heading_error(q_est, q_true):
     """Heading part of q_e = q_est ⊗ q_true⁻¹ with its sign (°; + = the estimate turned clockwise
     seen from above, about NED's down axis); BROAD's heading error is its magnitude."""
-    qe = quat_mul(q_est, np.asarray(q_true) * [1.0, -1.0, -1.0, -1.0])
+    qe = quat_multiply(q_est, quat_conjugate(q_true))
     return np.degrees(2.0 * np.arctan(qe[:, 3] / qe[:, 0]))
 
 

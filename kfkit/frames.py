@@ -7,6 +7,12 @@ z down). Euler angles are ZYX ("3-2-1": yaw ψ, then pitch θ, then roll φ) and
 
 which equals ``scipy.spatial.transform.Rotation.from_euler('ZYX', [ψ, θ, φ]).as_matrix()``.
 All angles are radians. Functions accept scalars or arrays and broadcast like NumPy.
+
+Quaternions are w-x-y-z (scalar first; scipy's ``as_quat()`` is x-y-z-w), Hamilton product, and
+q maps body → navigation frame like R_nb. The names carry the convention and come in pairs:
+:func:`euler_to_dcm`/:func:`dcm_to_euler`, :func:`euler_to_quat`/:func:`quat_to_euler`,
+:func:`quat_to_dcm`/:func:`dcm_to_quat`, :func:`quat_multiply`, :func:`quat_conjugate`,
+:func:`enu_to_ned` (vectors) and :func:`enu_to_ned_quat`.
 """
 from __future__ import annotations
 
@@ -75,6 +81,105 @@ def dcm_to_euler(R):
     if R.ndim == 2:
         return float(roll), float(pitch), float(yaw)
     return roll, pitch, yaw
+
+
+def euler_to_quat(euler):
+    """Quaternion(s) w-x-y-z of R_nb = Rz(ψ) Ry(θ) Rx(φ) from [roll, pitch, yaw] (…, 3), rad.
+
+    q = q_z(ψ) ⊗ q_y(θ) ⊗ q_x(φ), sign chosen with w ≥ 0.
+    """
+    e = np.asarray(euler, dtype=float)
+    cr, sr = np.cos(e[..., 0] / 2), np.sin(e[..., 0] / 2)
+    cp, sp = np.cos(e[..., 1] / 2), np.sin(e[..., 1] / 2)
+    cy, sy = np.cos(e[..., 2] / 2), np.sin(e[..., 2] / 2)
+    q = np.stack([cy * cp * cr + sy * sp * sr,
+                  cy * cp * sr - sy * sp * cr,
+                  cy * sp * cr + sy * cp * sr,
+                  sy * cp * cr - cy * sp * sr], axis=-1)
+    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
+
+
+def quat_to_euler(q):
+    """[roll, pitch, yaw] (…, 3), rad, of quaternion(s) w-x-y-z (…, 4) body → NED."""
+    return np.stack(dcm_to_euler(quat_to_dcm(q)), axis=-1)
+
+
+def quat_to_dcm(q):
+    """R_nb (…, 3, 3) from unit quaternion(s) w-x-y-z (…, 4)."""
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    R = np.empty(q.shape[:-1] + (3, 3))
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - w * z)
+    R[..., 0, 2] = 2 * (x * z + w * y)
+    R[..., 1, 0] = 2 * (x * y + w * z)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - w * x)
+    R[..., 2, 0] = 2 * (x * z - w * y)
+    R[..., 2, 1] = 2 * (y * z + w * x)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+def dcm_to_quat(R):
+    """Unit quaternion(s) w-x-y-z (…, 4), w ≥ 0, of rotation matrices R (…, 3, 3), the inverse of
+    :func:`quat_to_dcm`.
+
+    Shepperd's method: of 4w² = 1 + tr R, 4x² = 1 + 2R₁₁ − tr R, 4y² = 1 + 2R₂₂ − tr R,
+    4z² = 1 + 2R₃₃ − tr R take the largest (never small: their sum is 4), and the other three
+    components from the off-diagonal sums and differences, e.g. 4wx = R₃₂ − R₂₃, 4xy = R₁₂ + R₂₁.
+    """
+    R = np.asarray(R, dtype=float)
+    if R.shape[-2:] != (3, 3):
+        raise ValueError(f"dcm_to_quat expects rotation matrices of shape (…, 3, 3), got {R.shape}")
+    tr = np.trace(R, axis1=-2, axis2=-1)
+    diag = np.diagonal(R, axis1=-2, axis2=-1)
+    sq = np.concatenate([(1 + tr)[..., None], 1 + 2 * diag - tr[..., None]], axis=-1)  # 4w², 4x², 4y², 4z²
+    big = np.argmax(sq, axis=-1)[..., None]
+    d = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1],  # 4wx, 4wy, 4wz
+                  R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1]], axis=-1)  # 4xy, 4xz, 4yz
+    # products 4·q_i·q_j laid out as rows i, columns j (w, x, y, z), diagonal 4q_i²
+    P = np.stack([np.stack([sq[..., 0], d[..., 0], d[..., 1], d[..., 2]], -1),
+                  np.stack([d[..., 0], sq[..., 1], d[..., 3], d[..., 4]], -1),
+                  np.stack([d[..., 1], d[..., 3], sq[..., 2], d[..., 5]], -1),
+                  np.stack([d[..., 2], d[..., 4], d[..., 5], sq[..., 3]], -1)], axis=-2)
+    row = np.take_along_axis(P, big[..., None], axis=-2)[..., 0, :]  # 4·q_big·q
+    q = row / np.linalg.norm(row, axis=-1, keepdims=True)
+    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
+
+
+def quat_multiply(p, q):
+    """Hamilton product p ⊗ q of quaternions w-x-y-z (…, 4), broadcast like NumPy:
+    R(p ⊗ q) = R(p)·R(q), so q_nb = q_na ⊗ q_ab chains rotations."""
+    p, q = np.broadcast_arrays(np.asarray(p, dtype=float), np.asarray(q, dtype=float))
+    w1, x1, y1, z1 = np.moveaxis(p, -1, 0)
+    w2, x2, y2, z2 = np.moveaxis(q, -1, 0)
+    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
+
+
+def quat_conjugate(q):
+    """q* = [w, −x, −y, −z] (…, 4): the inverse rotation of a unit quaternion."""
+    return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+#: ENU → NED as a matrix: swap x and y, negate z (a 180° turn about (1, 1, 0)/√2), v_NED = R v_ENU.
+R_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+#: The same rotation as a quaternion w-x-y-z: q_NED = Q_NED_ENU ⊗ q_ENU.
+Q_NED_ENU = (0.0, float(np.sqrt(0.5)), float(np.sqrt(0.5)), 0.0)
+
+
+def enu_to_ned(v_enu):
+    """Vectors (…, 3) in ENU (east, north, up) to NED: [n, e, d] = [v_N, v_E, −v_U]. Its own inverse."""
+    v = np.asarray(v_enu, dtype=float)
+    if v.ndim == 0 or v.shape[-1] != 3:
+        raise ValueError(f"enu_to_ned expects vectors with 3 components on the last axis, got shape {v.shape}")
+    return v @ R_NED_ENU.T
+
+
+def enu_to_ned_quat(q_enu):
+    """Quaternions (…, 4) w-x-y-z body → ENU to body → NED: q_NED = Q_NED_ENU ⊗ q_ENU."""
+    return quat_multiply(Q_NED_ENU, q_enu)
 
 
 def accel_tilt(f_b):

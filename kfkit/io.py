@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .frames import mount_matrix
+from .frames import enu_to_ned_quat, mount_matrix, quat_to_euler
 
 MAGIC = "# kfkit-recording v1 "
 VERSION_PREFIX = "# kfkit-recording "
@@ -355,19 +355,7 @@ def load_any(path, mount="flat", require=("acc", "gyr")) -> Recording:
 
 
 # --- public datasets ------------------------------------------------------------------------
-#: ENU → NED as a quaternion (w-x-y-z): R = [[0, 1, 0], [1, 0, 0], [0, 0, −1]] (swap x and y,
-#: negate z), a 180° turn about the axis (1, 1, 0)/√2. q_NED = Q_NED_ENU ⊗ q_ENU.
-Q_NED_ENU = (0.0, math.sqrt(0.5), math.sqrt(0.5), 0.0)
 BROAD_FIELDS = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "movement", "sampling_rate")
-
-
-def enu_to_ned_quat(q_enu):
-    """Quaternions (N, 4) w-x-y-z body → ENU to body → NED: q_NED = Q_NED_ENU ⊗ q_ENU."""
-    q = np.asarray(q_enu, dtype=float)
-    cw, cx, cy, cz = Q_NED_ENU
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack([cw * w - cx * x - cy * y - cz * z, cw * x + cx * w + cy * z - cz * y,
-                     cw * y - cx * z + cy * w + cz * x, cw * z + cx * y - cy * x + cz * w], axis=-1)
 
 
 def load_broad(path) -> Recording:
@@ -445,7 +433,6 @@ def load_broad(path) -> Recording:
 
     q_ned = enu_to_ned_quat(arrays["opt_quat"])
     q_ned /= np.linalg.norm(q_ned, axis=1, keepdims=True)
-    from .filters.attitude import quat_to_euler  # late import: filters import this module
 
     euler = quat_to_euler(q_ned)
     data = {"t": np.arange(n) / rate, "seq": np.arange(n, dtype=np.int64) % 65536}

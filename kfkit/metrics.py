@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from .frames import wrap_angle
+from .frames import quat_conjugate, quat_multiply, wrap_angle
 
 
 def rmse(estimate, truth, axis=0):
@@ -86,10 +86,7 @@ def attitude_errors(q_est, q_true):
     qe, qt = _quat_array(q_est, "q_est"), _quat_array(q_true, "q_true")
     if len(qe) != len(qt):
         raise ValueError(f"q_est has {len(qe)} rows but q_true has {len(qt)}")
-    w1, x1, y1, z1 = qe.T
-    w2, x2, y2, z2 = qt.T * np.array([[1.0], [-1.0], [-1.0], [-1.0]])  # q_true⁻¹ (unit quaternion)
-    w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
-    z = w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2
+    w, _, _, z = quat_multiply(qe, quat_conjugate(qt)).T  # q_true⁻¹ = q_true* (unit quaternion)
     total = 2.0 * np.arccos(np.clip(np.abs(w), 0.0, 1.0))
     with np.errstate(divide="ignore", invalid="ignore"):
         heading = 2.0 * np.arctan(np.abs(z / w))

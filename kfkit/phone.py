@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from .frames import G, MAG_FIELD_LONDON, dcm_to_euler, euler_to_dcm, mount_matrix
+from .frames import G, MAG_FIELD_LONDON, dcm_to_euler, dcm_to_quat, euler_to_dcm, mount_matrix
 from .sensors import DEG, MG, Board, SensorSpec
 
 BOARD_NAME = "phone-phyphox"
@@ -316,8 +316,7 @@ def simulate_phone(motion, seed=0, rates=None, jitter_s=TIMESTAMP_JITTER, unit=N
     _, M = phone_mount(mount)
     R_ns = R_true["gyr"] @ M  # x_n = R_nb x_b = R_nb M_bs x_s
     gravity = np.einsum("nji,j->ni", R_true["acc"] @ M, [0.0, 0.0, -G])  # R_sn (−g_n), what a "gravity" sensor reports
-    quat = Rotation.from_matrix(R_ns).as_quat()[:, [3, 0, 1, 2]]
-    quat *= np.where(quat[:, :1] < 0, -1.0, 1.0)
+    quat = dcm_to_quat(R_ns)
     sim = {"seed": seed, "rates_hz": rates, "timestamp_jitter_s": jitter_s, "drop": drop, "field_n": list(field_n),
            "mount": phone_mount(mount)[0], **{k: np.asarray(v, float).tolist() for k, v in unit.items()}}
     phases = [{"label": label, "start": float(a), "end": float(b)} for a, b, label in motion.phases]

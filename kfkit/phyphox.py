@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from . import phone
+from .frames import quat_to_dcm
 from .io import BOM, Recording, RecordingError, check_phases, parse_count, parse_number
 
 SEPARATORS = (",", "\t", ";")
@@ -325,7 +326,6 @@ def _truth_euler(where, text, verified, index, M):
     """True [roll, pitch, yaw] (N, 3) of the body frame at the kept gyro rows, from kfkit_truth.csv
     (quaternions phone → NED per gyro row): R_nb = R_ns M_bsᵀ. Also its metadata. The kit writes every
     line with its newline, so outside a zip a last line without one is an error (it may be cut short)."""
-    from .filters.attitude import quat_to_dcm  # late import: filters import io
     from .frames import dcm_to_euler
 
     lines = text.removeprefix(BOM).splitlines()

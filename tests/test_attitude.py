@@ -6,11 +6,10 @@ from filterpy.kalman import ExtendedKalmanFilter
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from kfkit.frames import G, MAG_FIELD_LONDON, euler_rates_to_body_rates, wrap_angle
+from kfkit.frames import G, MAG_FIELD_LONDON, euler_rates_to_body_rates, euler_to_quat, quat_to_euler, wrap_angle
 from kfkit.filters import (EulerAttitudeEKF, attitude_jacobian, attitude_measurement, estimate_attitude, euler_ekf_predict,
                            euler_ekf_update, euler_process_noise, euler_rates)
-from kfkit.filters.attitude import (MultiplicativeEKF, euler_kinematics_jacobian, euler_rate_matrix, euler_to_quat, learn_field,
-                                    quat_to_euler, tilt_heading)
+from kfkit.filters.attitude import MultiplicativeEKF, euler_kinematics_jacobian, euler_rate_matrix, learn_field, tilt_heading
 from kfkit.metrics import attitude_errors, chi2_bounds, nees
 
 FIELD = np.array(MAG_FIELD_LONDON)

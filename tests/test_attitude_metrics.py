@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from kfkit.io import enu_to_ned_quat
+from kfkit.frames import enu_to_ned_quat
 from kfkit.metrics import attitude_errors, attitude_rmse
 
 

@@ -9,9 +9,8 @@ import scipy.io
 from scipy.spatial.transform import Rotation
 
 from kfkit.filters import estimate_attitude
-from kfkit.filters.attitude import quat_to_dcm
-from kfkit.frames import G
-from kfkit.io import RecordingError, enu_to_ned_quat, load_broad
+from kfkit.frames import G, enu_to_ned_quat, quat_to_dcm
+from kfkit.io import RecordingError, load_broad
 from kfkit.metrics import attitude_errors
 
 BROAD_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"

@@ -10,7 +10,7 @@ import serial.tools.list_ports
 
 import unit_truth
 from kfkit import calibration, capture, filters, frames, metrics
-from kfkit.filters.attitude import euler_to_quat
+from kfkit.frames import euler_to_quat
 from kfkit.io import load_recording
 from kfkit.widgets import capture_panel
 

@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from kfkit.frames import (G, accel_tilt, dcm_to_euler, euler_rates_to_body_rates, euler_to_dcm,
-                          mount_matrix, wrap_angle)
+from kfkit.frames import (G, Q_NED_ENU, R_NED_ENU, accel_tilt, dcm_to_euler, dcm_to_quat, enu_to_ned, enu_to_ned_quat,
+                          euler_rates_to_body_rates, euler_to_dcm, euler_to_quat, mount_matrix, quat_conjugate, quat_multiply,
+                          quat_to_dcm, quat_to_euler, wrap_angle)
 
 HALF_PI = np.pi / 2
 
@@ -28,6 +29,94 @@ def near_lock_pitch(rng, n):
 
 def test_G_is_standard_gravity():
     assert G == 9.80665
+
+
+def scipy_quat(rot):
+    """Oracle: scipy's quaternion (x-y-z-w) as w-x-y-z with w ≥ 0."""
+    q = rot.as_quat()[..., [3, 0, 1, 2]]
+    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
+
+
+def random_rotations(n, seed):
+    """Random rotations plus the hard cases for a matrix → quaternion conversion: 180° turns about
+    each axis and about diagonals (w = 0), the identity, and tiny angles."""
+    rng = np.random.default_rng(seed)
+    axes = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [1, 0, -1], [0, -1, 1], [1, 1, 1]], float)
+    special = np.concatenate([np.pi * axes / np.linalg.norm(axes, axis=1, keepdims=True),
+                              1e-9 * axes, np.zeros((1, 3))])
+    return Rotation.concatenate([Rotation.random(n, random_state=rng), Rotation.from_rotvec(special)])
+
+
+# --- quaternions ----------------------------------------------------------------------------
+
+def test_euler_to_quat_matches_scipy():
+    rng = np.random.default_rng(11)
+    roll, pitch, yaw = random_euler(rng, 300)
+    q = euler_to_quat(np.column_stack([roll, pitch, yaw]))
+    np.testing.assert_allclose(q, scipy_quat(Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))), atol=1e-12)
+    assert euler_to_quat([0.1, 0.2, 0.3]).shape == (4,)
+
+
+def test_quat_to_dcm_matches_scipy():
+    rot = random_rotations(300, 12)
+    np.testing.assert_allclose(quat_to_dcm(scipy_quat(rot)), rot.as_matrix(), atol=1e-12)
+
+
+def test_dcm_to_quat_matches_scipy_including_half_turns():
+    rot = random_rotations(300, 13)
+    q = dcm_to_quat(rot.as_matrix())
+    want = scipy_quat(rot)
+    # at w = 0 (half turns) q and −q both have w ≥ 0: compare up to sign there
+    sign = np.where(np.sum(q * want, axis=1) < 0, -1.0, 1.0)[:, None]
+    np.testing.assert_allclose(q * sign, want, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-15)
+    assert np.all(q[:, 0] >= 0)
+    assert dcm_to_quat(np.eye(3)).tolist() == [1.0, 0.0, 0.0, 0.0]
+
+
+def test_dcm_to_quat_rejects_wrong_shape():
+    with pytest.raises(ValueError, match=r"\(…, 3, 3\), got \(3, 4\)"):
+        dcm_to_quat(np.zeros((3, 4)))
+
+
+def test_quat_to_euler_matches_scipy_away_from_gimbal_lock():
+    rng = np.random.default_rng(14)
+    rot = Rotation.from_euler("ZYX", np.column_stack(random_euler(rng, 300, max_pitch=1.5)[::-1]))
+    yaw, pitch, roll = rot.as_euler("ZYX").T
+    np.testing.assert_allclose(quat_to_euler(scipy_quat(rot)), np.column_stack([roll, pitch, yaw]), atol=1e-9)
+
+
+def test_quat_multiply_composes_like_scipy():
+    a, b = random_rotations(200, 15), random_rotations(200, 16)
+    product = quat_multiply(scipy_quat(a), scipy_quat(b))
+    want = scipy_quat(a * b)
+    sign = np.where(np.sum(product * want, axis=1) < 0, -1.0, 1.0)[:, None]
+    np.testing.assert_allclose(product * sign, want, atol=1e-12)
+    # broadcasting: one quaternion against many
+    np.testing.assert_allclose(quat_multiply(scipy_quat(a)[0], scipy_quat(b)), quat_multiply(scipy_quat(a)[[0] * len(b)], scipy_quat(b)))
+
+
+def test_quat_conjugate_is_scipys_inverse():
+    rot = random_rotations(100, 17)
+    np.testing.assert_allclose(quat_to_dcm(quat_conjugate(scipy_quat(rot))), rot.inv().as_matrix(), atol=1e-12)
+
+
+def test_enu_to_ned_maps_axes():
+    east, north, up = np.eye(3)
+    np.testing.assert_array_equal(enu_to_ned([east, north, up]), [[0, 1, 0], [1, 0, 0], [0, 0, -1]])
+    np.testing.assert_array_equal(enu_to_ned(enu_to_ned([1.0, 2.0, 3.0])), [1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="3 components"):
+        enu_to_ned([1.0, 2.0])
+
+
+def test_enu_to_ned_quat_rotates_like_the_vector_map():
+    """q_NED = Q_NED_ENU ⊗ q_ENU means R_nb = R_NED_ENU · R_eb (scipy composes the same way)."""
+    rot = random_rotations(100, 18)
+    q_ned = enu_to_ned_quat(scipy_quat(rot))
+    np.testing.assert_allclose(quat_to_dcm(q_ned), R_NED_ENU @ rot.as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(Rotation.from_quat(np.roll(Q_NED_ENU, -1)).as_matrix(), R_NED_ENU, atol=1e-15)
+    v_b = np.array([0.3, -1.2, 2.0])
+    np.testing.assert_allclose(np.einsum("nij,j->ni", quat_to_dcm(q_ned), v_b), enu_to_ned(rot.apply(v_b)), atol=1e-12)
 
 
 # --- euler_to_dcm -------------------------------------------------------------------------

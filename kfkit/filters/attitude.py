@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..frames import (G, MAG_FIELD_LONDON, accel_tilt, dcm_to_euler, declination, euler_to_dcm, tilt_compensated_heading,
-                      wrap_angle)
+from ..frames import (G, MAG_FIELD_LONDON, accel_tilt, declination, euler_to_dcm, euler_to_quat, quat_to_dcm,
+                      quat_to_euler, tilt_compensated_heading, wrap_angle)
 
 TWO_PI = 2.0 * math.pi
 
@@ -42,47 +42,6 @@ EULER_MAG_NOISE = 1.0
 #: are multiplied by ACCEL_GATE_FACTOR (its σ by √factor): the board is clearly accelerating.
 ACCEL_GATE = 1.0
 ACCEL_GATE_FACTOR = 100.0
-
-
-# --------------------------------------------------------------------------------------
-# Quaternion helpers (w-x-y-z, Hamilton product, q maps body → NED)
-# --------------------------------------------------------------------------------------
-def euler_to_quat(euler):
-    """Quaternion(s) w-x-y-z of R_nb = Rz(ψ) Ry(θ) Rx(φ) from [roll, pitch, yaw] (…, 3), rad.
-
-    q = q_z(ψ) ⊗ q_y(θ) ⊗ q_x(φ), sign chosen with w ≥ 0.
-    """
-    e = np.asarray(euler, dtype=float)
-    cr, sr = np.cos(e[..., 0] / 2), np.sin(e[..., 0] / 2)
-    cp, sp = np.cos(e[..., 1] / 2), np.sin(e[..., 1] / 2)
-    cy, sy = np.cos(e[..., 2] / 2), np.sin(e[..., 2] / 2)
-    q = np.stack([cy * cp * cr + sy * sp * sr,
-                  cy * cp * sr - sy * sp * cr,
-                  cy * sp * cr + sy * cp * sr,
-                  sy * cp * cr - cy * sp * sr], axis=-1)
-    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
-
-
-def quat_to_dcm(q):
-    """R_nb (…, 3, 3) from unit quaternion(s) w-x-y-z (…, 4)."""
-    q = np.asarray(q, dtype=float)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    R = np.empty(q.shape[:-1] + (3, 3))
-    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    R[..., 0, 1] = 2 * (x * y - w * z)
-    R[..., 0, 2] = 2 * (x * z + w * y)
-    R[..., 1, 0] = 2 * (x * y + w * z)
-    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    R[..., 1, 2] = 2 * (y * z - w * x)
-    R[..., 2, 0] = 2 * (x * z - w * y)
-    R[..., 2, 1] = 2 * (y * z + w * x)
-    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return R
-
-
-def quat_to_euler(q):
-    """[roll, pitch, yaw] (…, 3), rad, of quaternion(s) w-x-y-z (…, 4) body → NED."""
-    return np.stack(dcm_to_euler(quat_to_dcm(q)), axis=-1)
 
 
 # --------------------------------------------------------------------------------------
