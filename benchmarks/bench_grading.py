@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from kfkit.datasets import KIT_ROOT
+from kfkit.paths import KIT_ROOT
 from kfkit.grading import core, resources, sandbox
 
 

@@ -32,13 +32,13 @@ names the rests of a recording without labelled windows (a phyphox export), so l
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .frames import G, MAG_FIELD_LONDON
+from .paths import bundled_calibration_path, data_dir, user_calibration_path
 
 FACES = ("x_up", "x_down", "y_up", "y_down", "z_up", "z_down")
 
@@ -472,21 +472,6 @@ class Calibration:
         return gyr, acc, mag
 
 
-def calibration_dir() -> Path:
-    """Where students' calibrations are saved: ``$KFKIT_HOME`` or ``~/.kfkit``."""
-    return Path(os.environ.get("KFKIT_HOME") or Path.home() / ".kfkit")
-
-
-def user_calibration_path(board="nucleo-iks02a1") -> Path:
-    """The student's own calibration file for ``board`` (written by labs 02 and 03)."""
-    return calibration_dir() / f"calibration_{board}.json"
-
-
-def bundled_calibration_path(board="nucleo-iks02a1") -> Path:
-    from .datasets import data_dir  # late: datasets builds the defaults from this module
-    return data_dir() / f"calibration_{board}.json"
-
-
 def load_calibration(board="nucleo-iks02a1", path=None) -> Calibration:
     """The calibration labs 04/05 use: ``path`` if given, else the student's own (saved by labs 02/03,
     :func:`user_calibration_path`), else the bundled default for ``board`` in ``data/`` (a phone,
@@ -509,7 +494,6 @@ def calibration_for(rec) -> Calibration:
     that unit's bundled default, whatever the student has saved; any other recording (the student's own)
     gets :func:`load_calibration` for its board: their saved file, else the bundled default.
     """
-    from .datasets import data_dir
     board = rec.meta.get("board")
     if rec.path is not None and Path(rec.path).resolve().parent == data_dir().resolve():
         return Calibration.load(bundled_calibration_path(board))

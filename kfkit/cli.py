@@ -14,7 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .datasets import KIT_ROOT
+from .paths import KIT_ROOT
 
 
 def _make_labs(args) -> int:

@@ -6,7 +6,6 @@ The data folder is ``data/`` beside the ``kfkit`` package; ``KFKIT_DATA`` overri
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -16,14 +15,7 @@ import numpy as np
 from . import sim, vehicle
 from .frames import G
 from .io import Recording, load_recording, recording_text
-
-KIT_ROOT = Path(__file__).resolve().parents[1]
-
-
-def data_dir() -> Path:
-    """Folder holding the bundled recordings."""
-    return Path(os.environ.get("KFKIT_DATA") or KIT_ROOT / "data")
-
+from .paths import data_dir
 
 def _roll_sine() -> Recording:
     """Lab 01: a Nucleo + X-NUCLEO-IKS02A1 rolled by hand, ±30° at 0.1 Hz, 104 Hz, 60 s."""

@@ -13,10 +13,12 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
+from .paths import KIT_ROOT, data_dir
+
 OK, FAIL, WARN = "✅", "❌", "⚠️"
 INSTALL_HINT = "run: python -m pip install -r environment.txt"
 # the packages to check are the pins of the kit's environment.txt (the kit is installed editable, -e .)
-ENVIRONMENT = Path(__file__).resolve().parents[1] / "environment.txt"
+ENVIRONMENT = KIT_ROOT / "environment.txt"
 PIN = re.compile(r"([A-Za-z0-9][A-Za-z0-9._-]*)==([A-Za-z0-9][A-Za-z0-9.+!_-]*)")
 # JupyterLab front-end extension folder -> Python package that ships it
 LABEXTENSIONS = {
@@ -158,8 +160,6 @@ def needs_dialout() -> bool:
 
 
 def data_line() -> str:
-    from .datasets import data_dir  # imports numpy: only once the package lines are done
-
     folder = data_dir()
     if not folder.is_dir():
         return f"{FAIL} bundled data not found at {folder} (set KFKIT_DATA, or use a complete copy of the kit)"

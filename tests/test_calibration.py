@@ -13,6 +13,7 @@ from kfkit.checkpoints import get, run_checkpoint
 from kfkit.checkpoints.lab03 import random_ellipsoid
 from kfkit.frames import G, MAG_FIELD_LONDON, accel_tilt, declination, mount_matrix, tilt_compensated_heading, wrap_angle
 from kfkit.io import load_recording, save_recording
+from kfkit.paths import KIT_ROOT
 
 import unit_truth
 
@@ -686,7 +687,7 @@ def run_solution_on(name, data_source):
     the cell's defaults); the stored outputs, errors included."""
     import nbformat
     from nbclient import NotebookClient
-    path = datasets.KIT_ROOT / "solutions" / name
+    path = KIT_ROOT / "solutions" / name
     nb = nbformat.read(path, as_version=4)
     cells = [c for c in nb.cells if c.source.startswith("# ▶ DATA SOURCE")]
     assert len(cells) == 1, f"{name}: expected one data-source cell"

@@ -1,7 +1,7 @@
 """Classroom deployment files agree with the kit: Binder/repo2docker installs environment.txt."""
 import re
 
-from kfkit.datasets import KIT_ROOT
+from kfkit.paths import KIT_ROOT
 
 
 def requirement_files(path):

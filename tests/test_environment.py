@@ -16,7 +16,7 @@ import pytest
 from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
 
-from kfkit.datasets import KIT_ROOT
+from kfkit.paths import KIT_ROOT
 
 ENVIRONMENT = KIT_ROOT / "environment.txt"
 TEST_REQUIREMENTS = KIT_ROOT / "requirements-test.txt"

@@ -38,7 +38,7 @@ import zmq
 
 from kfkit.checkpoints import LABS
 from kfkit.cli import main
-from kfkit.datasets import KIT_ROOT
+from kfkit.paths import KIT_ROOT
 from kfkit.grading import _kernel_side, core, runner, sandbox, wire
 
 SOLUTION = KIT_ROOT / "solutions" / "01_roll_kf_1d.ipynb"

@@ -5,7 +5,7 @@ from pathlib import Path
 import nbformat
 import pytest
 
-from kfkit.datasets import KIT_ROOT
+from kfkit.paths import KIT_ROOT
 from kfkit.grading import core, sandbox
 
 CHECKPOINTS = core.lab_checkpoints("01")

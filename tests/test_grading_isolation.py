@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from kfkit.datasets import KIT_ROOT
+from kfkit.paths import KIT_ROOT
 from kfkit.grading import sandbox
 
 MODES = ["root", "userns"]

@@ -9,7 +9,8 @@ import pytest
 from nbclient import NotebookClient
 
 from kfkit.authoring import make_labs
-from kfkit.datasets import KIT_ROOT, regenerate
+from kfkit.datasets import regenerate
+from kfkit.paths import KIT_ROOT
 
 LABS = sorted((KIT_ROOT / "labs").glob("*.ipynb"))
 

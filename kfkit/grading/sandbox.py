@@ -34,7 +34,7 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..datasets import KIT_ROOT
+from ..paths import KIT_ROOT
 
 LAUNCHER = Path(__file__).with_name("_launch.py")
 MEMORY_LIMIT = 4 << 30  # bytes of address space per kernel process (RLIMIT_AS; the submission's total: Limits)

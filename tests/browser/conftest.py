@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from kfkit.datasets import KIT_ROOT
+from kfkit.paths import KIT_ROOT
 
 ARTIFACTS = KIT_ROOT / "artifacts" / "browser"
 CHROMIUM_FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from kfkit.datasets import KIT_ROOT
+from kfkit.paths import KIT_ROOT
 
 from .conftest import ARTIFACTS
 
