@@ -5,12 +5,14 @@ to the output file (flushed every ``flush_s``, ≤ 1 s), so a board unplugged mi
 every received sample on disk. Live views poll :meth:`Recorder.recording` from their own
 (main-thread) timer; nothing on the reader thread plots.
 
-Time: ``t`` (s) is the board's ``t_us`` relative to the first sample, unwrapping the 32-bit
-``micros()`` (Δ = (t_us − t_us_prev) mod 2³²). A board reset is ``t_us`` going backwards
-(Δ ≥ 2³¹), or a header followed by ``seq`` restarting at 0 (the sketches send their header
-from ``setup()``; this catches a reset after 35.8 min, when Δ mod 2³² looks like a step
-forwards). Time then continues one nominal period after the last sample. A ``seq`` gap
-g = (seq − seq_prev − 1) mod 2¹⁶ > 0 counts g dropped samples, with their position.
+Time, drops and resets: :class:`kfkit.capture.timeline.Timeline` places each sample in board time
+(``t_us`` unwrapped, relative to the first sample) and counts ``seq`` gaps and board resets; the
+reader thread only feeds it.
+
+A port is a device path, a pyserial URL, ``phyphox://…`` or a *board object* that serves a port:
+anything with ``start()`` (returns itself; ``port`` is then what to open), ``close()``, ``description``,
+``source`` (the recording's metadata "source") and ``phases`` (labelled windows of what it plays, or
+[]). :class:`kfkit.capture.virtual.VirtualBoard` is one; the name "virtual" makes a new one.
 
 Magnetometer: the Nucleo sketch sends ``mx,my,mz`` on every line (the last reading repeated) and
 a last field ``mag_new`` (1 = a new reading, 0 = a repeat); rows with ``mag_new = 0`` get NaN
@@ -22,7 +24,6 @@ import math
 import os
 import threading
 import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,8 @@ from .. import sensors
 from ..io import INT_COLUMNS, Recording, format_header, format_row, save_recording
 from .ports import (BoardDisconnectedError, CaptureError, NoDataError, ProtocolVersionError, WrongBaudError,
                     SKETCHES, open_port, resolve_auto)
-from .protocol import MICROS_MODULO, SEQ_MODULO, BadLine, Header, Message, Note, Sample, parse_line
+from .protocol import BadLine, Header, Message, Note, Sample, parse_line
+from .timeline import CaptureStats, Timeline
 from .virtual import VirtualBoard
 
 DEFAULT_BAUD = 115200
@@ -41,63 +43,6 @@ _SPEC_AT_RANGE = {  # chip → (accel spec at ±g, gyro spec at ±°/s), for hea
     "ISM330DHCX": (sensors.ism330dhcx_accel, sensors.ism330dhcx_gyro),
     "MPU6050": (sensors.mpu6050_accel, sensors.mpu6050_gyro),
 }
-
-
-@dataclass
-class CaptureStats:
-    """What arrived.
-
-    samples        sample lines recorded
-    bad_checksum   lines whose ``*HH`` did not match (skipped)
-    malformed      lines that are not protocol v1: cut, no ``*HH``, a non-integer, the wrong field count
-    dropped        samples missing by ``seq`` (a line rejected above is also a missing sample)
-    drops          [(index of the first sample after the gap, t of the first missing sample (s), how many)]
-    resets         board restarts; ``reset_positions`` = index of the first sample after each
-    rate_hz        effective rate (samples − 1) / duration_s, duration_s = t of the last sample
-    dt_mean_us     mean board interval between consecutive samples (no gap, no reset), µs
-    jitter_us      standard deviation of that interval, µs
-    notes          ``#`` lines from the board other than headers (``#ERROR,…``)
-    """
-
-    samples: int = 0
-    bad_checksum: int = 0
-    malformed: int = 0
-    dropped: int = 0
-    drops: list = field(default_factory=list)
-    resets: int = 0
-    reset_positions: list = field(default_factory=list)
-    before_header: int = 0
-    messages: int = 0
-    bytes: int = 0
-    duration_s: float = 0.0
-    rate_hz: float = float("nan")
-    dt_mean_us: float = float("nan")
-    jitter_us: float = float("nan")
-    notes: list = field(default_factory=list)
-
-    @property
-    def bad_lines(self) -> int:
-        return self.bad_checksum + self.malformed
-
-    def as_dict(self) -> dict:
-        d = asdict(self)
-        d["bad_lines"] = self.bad_lines
-        return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in d.items()}
-
-    def __str__(self):
-        drops = ", ".join(f"{n} before sample {i} (t = {t:.3f} s)" for i, t, n in self.drops[:4])
-        drops += " …" if len(self.drops) > 4 else ""
-        resets = ", ".join(map(str, self.reset_positions[:8])) + (" …" if len(self.reset_positions) > 8 else "")
-        first = f"samples        {self.samples}"
-        if self.samples > 1:
-            first += f" (t = 0 … {self.duration_s:.2f} s): effective rate {self.rate_hz:.2f} Hz"
-        if math.isfinite(self.dt_mean_us):
-            first += f", interval {self.dt_mean_us:.1f} µs, jitter {self.jitter_us:.1f} µs rms"
-        lines = [first,
-                 f"bad lines      {self.bad_lines} ({self.bad_checksum} bad checksum, {self.malformed} malformed)",
-                 f"dropped        {self.dropped}" + (f": {drops}" if self.drops else ""),
-                 f"board resets   {self.resets}" + (f", before sample {resets}" if self.resets else "")]
-        return "\n".join(lines)
 
 
 def header_metadata(header: Header) -> dict:
@@ -138,13 +83,13 @@ class Recorder:
     """Record from ``port`` on a reader thread; a context manager (``start``/``stop``).
 
     port      device path, pyserial URL (loop://, socket://host:port, hwgrep://0483:374B),
-              "auto" (the single detected board), "virtual" (a new :class:`VirtualBoard`
-              built from ``virtual=dict(...)``) or a VirtualBoard
+              phyphox://HOST:PORT, "auto" (the single detected board), "virtual" (a new
+              :class:`VirtualBoard` built from ``virtual=dict(...)``) or a board object (module docstring)
     out       recording file streamed as samples arrive, rewritten with the final metadata
               (statistics, phases) by ``stop()``
     seconds   stop by itself once this much board time (s) has arrived (None: until stop())
-    phases    labelled windows [{"label", "start", "end"}] for the metadata; a virtual board
-              playing a motion with phases gives them by default
+    phases    labelled windows [{"label", "start", "end"}] for the metadata; a board object's
+              ``phases`` (a virtual board playing a motion with phases) by default
     no_data_s NoDataError when nothing valid arrives this long (s): at the start (no sketch,
               no samples after the header) or mid-capture (the board stopped sending)
     garbage_s WrongBaudError when ≥ 90 % of what arrived in this long (s) is not protocol v1
@@ -162,7 +107,7 @@ class Recorder:
         self.virtual_options = dict(virtual or {})
         self.request_header, self.no_data_s, self.garbage_s = request_header, no_data_s, garbage_s
         self.flush_s, self.read_timeout = min(flush_s, 1.0), read_timeout
-        self.board: VirtualBoard | None = None
+        self.board = None  # the board object started or given, if any
         self._own_board = False
         self.stats = CaptureStats()
         self.header: Header | None = None
@@ -180,32 +125,24 @@ class Recorder:
         self._thread = None
         self._serial = None
         self._file = None
-        self._reset_state()
-
-    def _reset_state(self):
-        self._prev = None  # (t_us, seq, t)
-        self._reached = False  # ``seconds`` of board time have arrived
-        self._dt_sum = self._dt_sq = 0.0
-        self._dt_n = 0
-        self._span_us = self._span_periods = 0  # board time and sample periods between samples, resets left out
+        self.timeline: Timeline | None = None  # from the first header on
         self._mag_index = None
-        self._header_again = False
 
     # -- life cycle --------------------------------------------------------------------------------
     def start(self) -> "Recorder":
         if self._thread is not None:
             raise CaptureError("this Recorder has already been started; make a new one for a new capture")
         port = self.port
-        if isinstance(port, VirtualBoard) or port == "virtual":
-            if port == "virtual":
-                port, self._own_board = VirtualBoard(**self.virtual_options), True
+        if port == "virtual":
+            port, self._own_board = VirtualBoard(**self.virtual_options), True
+        if not isinstance(port, str):  # a board object: start it (unless running) and open the port it serves
             self.board = port
             if self.board.port is None:
                 self.board.start()
                 self._own_board = True
-            if self.phases is None and self.board.motion is not None and self.board.motion.phases:
-                self.phases = [{"label": lab, "start": float(a), "end": float(b)} for a, b, lab in self.board.motion.phases]
-            self.description = f"virtual board ({self.board.board.name}, {self.board.rate_hz:g} Hz) on {self.board.port}"
+            if self.phases is None:
+                self.phases = list(self.board.phases) or None
+            self.description = self.board.description
             port = self.board.port
         elif port == "auto":
             found, why = resolve_auto()
@@ -235,7 +172,8 @@ class Recorder:
             self._serial.close()
             self._serial = None
         self._close_board()
-        self._update_rates()
+        if self.timeline is not None:
+            self.timeline.summarise()
         self._finish_file()
         if raise_error and self.error is not None:
             raise self.error
@@ -275,7 +213,7 @@ class Recorder:
     @property
     def elapsed(self) -> float:
         """Board time received so far, s."""
-        return self._prev[2] if self._prev else 0.0
+        return self.timeline.elapsed if self.timeline is not None else 0.0
 
     # -- the reader thread ----------------------------------------------------------------------------
     def _read_loop(self):
@@ -338,7 +276,7 @@ class Recorder:
             self.error = kind(message)
 
     def _over(self) -> bool:
-        return self.error is not None or self._reached
+        return self.error is not None or (self.timeline is not None and self.timeline.reached)
 
     def _check_startup(self, waited):
         s = self.stats
@@ -389,6 +327,7 @@ class Recorder:
     def _header(self, header: Header):
         if self.header is None:
             self.header = header
+            self.timeline = Timeline(header.rate_hz, self.seconds, self.stats)
             describe = getattr(self._serial, "header_metadata", None)  # a phone port describes its own sensors
             self.meta = describe(header) if describe is not None else header_metadata(header)
             self.columns = _columns(header)
@@ -404,7 +343,7 @@ class Recorder:
             self._fail(CaptureError, f"{self.device}: the board header changed mid-capture, from "
                        f"{self.header.text!r} to {header.text!r}; start a new capture")
         else:  # the same header again: an answer to 'h', or a board that restarted (setup() sends it)
-            self._header_again = True
+            self.timeline.header_again()
 
     def _sample(self, values):
         s = self.stats
@@ -414,71 +353,32 @@ class Recorder:
         if len(values) != self._nfields:
             s.malformed += 1
             return
-        t_us, seq = values[0], values[1]
-        prev, header_again, self._header_again = self._prev, self._header_again, False
-        reset, gap, dt_us = False, 0, 0
-        if prev is None:
-            t = 0.0
-        else:
-            dt_us = (t_us - prev[0]) % MICROS_MODULO
-            gap = (seq - prev[1] - 1) % SEQ_MODULO
-            if dt_us == 0:  # the same instant twice: not a sample we can place in time
-                s.malformed += 1
-                return
-            reset = dt_us >= MICROS_MODULO // 2 or (header_again and seq == 0 and gap != 0)  # the board restarted
-            t = round(prev[2] + (1.0 / self.header.rate_hz if reset else dt_us * 1e-6), 6)  # whole µs: exact in the file
-        if self.seconds is not None and t >= self.seconds - 1e-9:
-            self._reached = True  # this sample is past the end: it counts for nothing
+        t = self.timeline.place(values[0], values[1])
+        if t is None:  # the same instant twice (counted malformed), or past ``seconds``
             return
-        if reset:
-            s.resets += 1
-            s.reset_positions.append(s.samples)
-        elif gap:  # the first missing sample was due one interval (of gap + 1) after the previous one
-            s.dropped += gap
-            s.drops.append((s.samples, round(prev[2] + dt_us * 1e-6 / (gap + 1), 6), gap))
-        if prev is not None and not reset:  # a gap of g missing samples spans g + 1 periods
-            self._span_us += dt_us
-            self._span_periods += gap + 1
-        if prev is not None and not reset and not gap:
-            self._dt_sum += dt_us
-            self._dt_sq += dt_us * dt_us
-            self._dt_n += 1
-        row = [t, seq, *(values[i] for i in self._keep)]
+        row = [t, values[1], *(values[i] for i in self._keep)]
         if self._mag_index is not None and not values[self._mag_index]:
             for j in self._mag_cols:  # no new magnetometer reading: empty cells (NaN)
                 row[j] = math.nan
         row = tuple(row)
         with self._lock:
             self._rows.append(row)
-            self._prev = (t_us, seq, t)
             s.samples += 1
             s.duration_s = t
         if self._file is not None:
             self._file.write(format_row(self.columns, row))
 
     # -- results ------------------------------------------------------------------------------------------
-    def _update_rates(self):
-        s = self.stats
-        if s.samples > 1 and s.duration_s > 0:
-            s.rate_hz = (s.samples - 1) / s.duration_s
-        if self._dt_n:
-            mean = self._dt_sum / self._dt_n
-            s.dt_mean_us = mean
-            s.jitter_us = math.sqrt(max(self._dt_sq / self._dt_n - mean * mean, 0.0))
-
     def clock_rate_hz(self) -> float:
         """The sample rate of the board's own clock over the whole capture so far, Hz (NaN before two samples):
-        periods / board time between the first and the last sample, a gap of g missing samples counting g + 1
-        periods and a reset none (r = 10⁶ · Σ(g + 1) / Σ Δt_us), to 6 significant digits (≤ 5 ppm, below a
-        crystal's tolerance). Timestamp jitter σ_t enters only at the ends: √2·σ_t / duration. A board's header
-        states a nominal rate; a phone's is a guess from its first rows."""
-        return float(f"{1e6 * self._span_periods / self._span_us:.6g}") if self._span_us else float("nan")
+        :meth:`Timeline.clock_rate_hz`. A board's header states a nominal rate; a phone's is a guess from its first rows."""
+        return self.timeline.clock_rate_hz() if self.timeline is not None else float("nan")
 
     def _file_meta(self, final=False) -> dict:
         meta = dict(self.meta or {"rate_hz": 0.0, "source": "capture"})
         meta["capture"] = {"port": str(self.device), "baud": self.baud}
-        if isinstance(self.port, VirtualBoard) or self.port == "virtual":
-            meta["source"] = "capture (virtual board)"
+        if self.board is not None:
+            meta["source"] = self.board.source
         if final:
             rate = self.clock_rate_hz()
             if rate > 0:  # the whole capture's clock, not the header's (nominal or estimated) rate

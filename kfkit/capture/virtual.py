@@ -238,6 +238,19 @@ class VirtualBoard:
     def __repr__(self):
         return f"VirtualBoard({self.board.name}, {self.rate_hz:g} Hz, port={self.port})"
 
+    # -- what a recorder asks of a board object that serves a port (kfkit.capture.recorder) ---------------
+    source = "capture (virtual board)"  # the recording's metadata "source"
+
+    @property
+    def description(self) -> str:
+        return f"virtual board ({self.board.name}, {self.rate_hz:g} Hz) on {self.port}"
+
+    @property
+    def phases(self) -> list:
+        """The labelled windows of the motion it plays, [{"label", "start", "end"}] (s); [] without."""
+        windows = self.motion.phases if self.motion is not None else None
+        return [{"label": label, "start": float(a), "end": float(b)} for a, b, label in windows or ()]
+
     # -- samples -----------------------------------------------------------------------------------
     def _chunks(self):
         """Yield (counts (n, k) int, truth euler (n, 3)) chunks of the sample rows, forever or once.
