@@ -117,3 +117,33 @@ def test_summary_of_fewer_than_two_samples_leaves_the_rates_unknown():
     tl.place(123, 9)
     tl.summarise()
     assert np.isnan(stats.rate_hz) and np.isnan(stats.dt_mean_us) and np.isnan(stats.jitter_us)
+
+
+def test_the_recorder_takes_any_board_object_that_describes_itself(tmp_path):
+    """Not only a VirtualBoard: whatever serves a port and says what it is (description, source, phases)."""
+    from kfkit.capture import Recorder, VirtualBoard
+
+    class Rig:  # a board object of someone else's: it serves a virtual board's pty under its own name
+        source, phases = "capture (test rig)", [{"label": "warm-up", "start": 0.0, "end": 0.1}]
+
+        def __init__(self):
+            self.inner, self.port, self.closed = VirtualBoard(board="mpu6050", realtime=False), None, False
+
+        @property
+        def description(self):
+            return f"test rig on {self.port}"
+
+        def start(self):
+            self.port = self.inner.start().port
+            return self
+
+        def close(self):
+            self.inner.close()
+            self.closed = True
+
+    rig = Rig()
+    recorder = Recorder(rig, out=tmp_path / "rig.csv", seconds=0.3)
+    rec = recorder.run()
+    assert recorder.description == f"test rig on {rig.port}" and rig.closed  # started by the recorder: closed by it
+    assert rec.meta["source"] == "capture (test rig)" and rec.meta["phases"] == Rig.phases
+    assert len(rec) == 30 and rec.meta["board"] == "mpu6050"
