@@ -9,7 +9,7 @@ import numpy as np
 from filterpy.kalman import KalmanFilter as FilterpyKF
 
 from kfkit import datasets
-from kfkit.filters import KalmanFilter, roll_kf, run_kf
+from kfkit.filters import KalmanFilter, roll_kf
 from kfkit.frames import accel_tilt
 from timing import best_of
 
@@ -26,7 +26,7 @@ def two_state_problem(n=6000, dt=0.01, seed=0):
 
 
 def kfkit_general(F, B, H, Q, R, us, zs):
-    return run_kf(KalmanFilter(F, H, Q, R, np.zeros(2), np.eye(2), B=B), zs, us)
+    return KalmanFilter(F, H, Q, R, np.zeros(2), np.eye(2), B=B).run(zs, us)
 
 
 def filterpy_general(F, B, H, Q, R, us, zs):

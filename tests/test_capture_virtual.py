@@ -452,7 +452,7 @@ def test_attitude_board_measures_the_bias_again_after_stop_and_start_as_the_sket
     # the $ATT lines after the restart are those of new filters fed only the samples after it
     samples = [i for i in after if isinstance(i, C.Sample)]
     fresh = TiltAttitude("mpu6050", 100.0)
-    expected = [fresh.update(s.values[2:5], s.values[5:8]) for s in samples]
+    expected = [fresh.step(s.values[2:5], s.values[5:8]) for s in samples]
     got = [i.values for i in after if isinstance(i, C.Message)]
     expected = np.degrees([e for e in expected if e is not None])[:len(got)]
     assert len(got) > 10 and np.max(np.abs(np.array(got) - expected)) <= 0.005 + 1e-9  # two decimals on the wire

@@ -4,7 +4,7 @@ import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 from scipy.linalg import solve_discrete_are
 
-from kfkit.filters import KalmanFilter, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update, run_kf
+from kfkit.filters import KalmanFilter, RollKF, RollSettings, Step, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
 
 
 def random_stable_system(rng, n, m, with_input):
@@ -46,11 +46,11 @@ def test_kalman_filter_matches_filterpy(seed, with_input):
         np.testing.assert_allclose(ours.S, ref.S, rtol=1e-9, atol=1e-12)
 
 
-def test_run_kf_records_history_like_stepping():
+def test_run_records_history_like_stepping():
     rng = np.random.default_rng(7)
     F, H, Q, R, B = random_stable_system(rng, 2, 1, True)
     zs, us = rng.normal(size=(30, 1)), rng.normal(size=(30, 1))
-    run = run_kf(KalmanFilter(F, H, Q, R, [0, 0], np.eye(2), B=B), zs, us)
+    run = KalmanFilter(F, H, Q, R, [0, 0], np.eye(2), B=B).run(zs, us)
     ref = FilterpyKF(dim_x=2, dim_z=1, dim_u=1)
     ref.F, ref.H, ref.Q, ref.R, ref.B, ref.x, ref.P = F, H, Q, R, B, np.zeros(2), np.eye(2)
     for k in range(30):
@@ -58,6 +58,36 @@ def test_run_kf_records_history_like_stepping():
         ref.update(zs[k])
     np.testing.assert_allclose(run.x[-1], ref.x, rtol=1e-9)
     assert run.x.shape == (30, 2) and run.P.shape == (30, 2, 2) and run.y.shape == (30, 1) and run.S.shape == (30, 1, 1)
+
+
+def test_step_returns_this_steps_values_and_run_is_a_loop_of_steps():
+    """Step(x, P, y, S) against filterpy each step; the Steps kept in a list are not overwritten by
+    later steps (no views into the filter); run from the same start gives the same rows."""
+    rng = np.random.default_rng(8)
+    F, H, Q, R, B = random_stable_system(rng, 3, 2, True)
+    zs, us = rng.normal(size=(25, 2)), rng.normal(size=(25, 1))
+    zs[4] = np.nan
+    ours = KalmanFilter(F, H, Q, R, np.zeros(3), np.eye(3), B=B)
+    ref = FilterpyKF(dim_x=3, dim_z=2, dim_u=1)
+    ref.F, ref.H, ref.Q, ref.R, ref.B, ref.x, ref.P = F, H, Q, R, B, np.zeros(3), np.eye(3)
+    steps, xs = [], []
+    for k in range(25):
+        step = ours.step(zs[k], us[k])
+        assert isinstance(step, Step)
+        ref.predict(u=us[k])
+        if k != 4:
+            ref.update(zs[k])
+            np.testing.assert_allclose(step.y, ref.y, rtol=1e-9, atol=1e-12)
+            np.testing.assert_allclose(step.S, ref.S, rtol=1e-9, atol=1e-12)
+        else:
+            assert np.isnan(step.y).all() and np.isnan(step.S).all()
+        np.testing.assert_allclose(step.x, ref.x, rtol=1e-9, atol=1e-12)
+        steps.append(step)
+        xs.append(ref.x.copy())
+    np.testing.assert_allclose([s.x for s in steps], xs, rtol=1e-9, atol=1e-12)
+    run = KalmanFilter(F, H, Q, R, np.zeros(3), np.eye(3), B=B).run(zs, us)
+    for name in "xPyS":
+        np.testing.assert_array_equal(getattr(run, name), np.array([getattr(s, name) for s in steps]))
 
 
 def test_nan_measurement_skips_the_update():
@@ -72,7 +102,7 @@ def test_joseph_form_keeps_covariance_symmetric_positive():
     rng = np.random.default_rng(3)
     F, H, Q, R, _ = random_stable_system(rng, 4, 2, False)
     R = R * 1e-8  # near-perfect measurements stress the covariance update
-    run = run_kf(KalmanFilter(F, H, Q, R, np.zeros(4), np.eye(4) * 1e4), rng.normal(size=(200, 2)))
+    run = KalmanFilter(F, H, Q, R, np.zeros(4), np.eye(4) * 1e4).run(rng.normal(size=(200, 2)))
     for P in run.P[::20]:
         np.testing.assert_allclose(P, P.T, atol=1e-12)
         assert np.linalg.eigvalsh(P).min() > -1e-12
@@ -124,3 +154,33 @@ def test_steady_state_gain_matches_the_riccati_equation(q, r):
     assert P_prior == pytest.approx(dare, rel=1e-9)
     run = roll_kf(np.zeros(5000), np.zeros(5000), 0.01, q, r, x0=0.0, P0=1.0)
     assert run.P[-1] == pytest.approx((1 - K) * P_prior, rel=1e-6)
+
+
+def test_roll_kf_class_is_the_function_form_step_by_step():
+    rng = np.random.default_rng(12)
+    omega, z = rng.normal(0, 0.5, 300), rng.normal(0, 0.3, 300)
+    z[::11] = np.nan
+    run = RollKF(0.01, RollSettings(q=1e-5, r=4e-4)).run(omega, z, x0=0.1, P0=0.5)
+    kf = RollKF(0.01, q=1e-5, r=4e-4, x0=0.1, P0=0.5)
+    x, P = 0.1, 0.5
+    for k in range(300):
+        step = kf.step(omega[k], z[k])
+        x, P = roll_kf_predict(x, P, omega[k], 0.01, 1e-5)
+        if not np.isnan(z[k]):
+            x, P, y, S = roll_kf_update(x, P, z[k], 4e-4)
+            assert (step.y, step.S) == (y, S) == (run.y[k], run.S[k])
+        else:
+            assert np.isnan(step.y) and np.isnan(step.S) and np.isnan(run.y[k])
+        assert (step.x, step.P) == (x, P) == (run.x[k], run.P[k])
+
+
+@pytest.mark.parametrize("make, error, match", [
+    (lambda: RollSettings(q=0.0), ValueError, "RollSettings: q must be a positive number, got 0.0"),
+    (lambda: RollSettings(r=float("nan")), ValueError, "r must be a positive number, got nan"),
+    (lambda: RollKF(-0.01), ValueError, "RollKF: dt must be a positive number, got -0.01"),
+    (lambda: RollKF(0.01, qq=1e-6), TypeError, "RollKF: unknown setting qq; RollSettings has q, r"),
+    (lambda: RollKF(0.01, {"q": 1e-6}), TypeError, "RollKF: settings must be a RollSettings, got dict"),
+])
+def test_bad_roll_settings_are_named(make, error, match):
+    with pytest.raises(error, match=match):
+        make()

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from kfkit.filters import KalmanFilter, roll_kf, run_kf
+from kfkit.filters import KalmanFilter, roll_kf
 from kfkit.metrics import angle_error, chi2_bounds, fraction_inside, nees, nis, rmse
 
 
@@ -58,7 +58,7 @@ def test_consistent_filter_has_nees_inside_chi2_bounds_over_monte_carlo_runs():
     runs, final_nees = 300, []
     for _ in range(runs):
         F, H, Q, R, xs, zs = simulate_linear_gaussian(rng, 60)
-        run = run_kf(KalmanFilter(F, H, Q, R, np.zeros(2), np.eye(2) * 1e-12), zs)
+        run = KalmanFilter(F, H, Q, R, np.zeros(2), np.eye(2) * 1e-12).run(zs)
         final_nees.append(nees(run.x[-1:] - xs[-1:], run.P[-1:])[0])
     lo, hi = chi2_bounds(2, runs)
     assert lo <= np.mean(final_nees) <= hi
@@ -67,7 +67,7 @@ def test_consistent_filter_has_nees_inside_chi2_bounds_over_monte_carlo_runs():
 def test_consistent_filter_has_white_innovations_inside_chi2_bounds():
     # Innovations of an optimal filter are white, so one long run gives N independent NIS values.
     F, H, Q, R, xs, zs = simulate_linear_gaussian(np.random.default_rng(41), 4000)
-    run = run_kf(KalmanFilter(F, H, Q, R, np.zeros(2), np.eye(2) * 1e-12), zs)
+    run = KalmanFilter(F, H, Q, R, np.zeros(2), np.eye(2) * 1e-12).run(zs)
     lo, hi = chi2_bounds(1, len(zs))
     assert lo <= nis(run.y, run.S).mean() <= hi
     assert fraction_inside(nis(run.y, run.S), 1) == pytest.approx(0.95, abs=0.02)
@@ -75,7 +75,7 @@ def test_consistent_filter_has_white_innovations_inside_chi2_bounds():
 
 def test_mistuned_filter_fails_the_nis_test():
     F, H, Q, R, xs, zs = simulate_linear_gaussian(np.random.default_rng(43), 4000)
-    run = run_kf(KalmanFilter(F, H, Q, R * 25.0, np.zeros(2), np.eye(2) * 1e-12), zs)  # R 25× too large
+    run = KalmanFilter(F, H, Q, R * 25.0, np.zeros(2), np.eye(2) * 1e-12).run(zs)  # R 25× too large
     lo, _ = chi2_bounds(1, len(zs))
     assert nis(run.y, run.S).mean() < lo
 

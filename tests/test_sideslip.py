@@ -8,7 +8,8 @@ from filterpy.kalman import KalmanFilter as FilterpyKF
 
 from kfkit import datasets
 from kfkit import vehicle as V
-from kfkit.filters import copied_kinematic_kf, estimate_sideslip, kinematic_sideslip, sideslip_step
+from kfkit.filters import (SideslipKF, SideslipRun, SideslipSettings, Step, copied_kinematic_kf, estimate_sideslip,
+                           kinematic_sideslip, sideslip_step)
 from kfkit.metrics import chi2_bounds, nees, rmse
 
 CAR = V.BicycleParams()
@@ -267,3 +268,39 @@ def test_lab06_checkpoints_pass_the_reference_and_name_the_classic_mistakes():
 
     flat = run_checkpoint(get("06.bicycle_model"), b_as_a_row, seed=1)
     assert not flat.ok and "B has shape (2,), expected (2, 1)" in flat.message
+
+
+@pytest.mark.parametrize("bias_ay", [False, True])
+def test_run_is_a_loop_of_steps_and_estimate_sideslip_is_run(bias_ay):
+    """A drive that starts from rest (low-speed steps), with jittered sample intervals: stepping the
+    filter by hand (dt from the timestamps, the first the nominal one) gives run()'s rows exactly."""
+    rec = datasets.load("06_slalom_20kmh").head(6.0)
+    t, delta, yaw, ay, vx = (rec[c] for c in SIGNALS)
+    t = t + np.random.default_rng(1).uniform(-2e-4, 2e-4, len(t))
+    dt0 = float(np.median(np.diff(t)))
+    run = estimate_sideslip(t, delta, yaw, ay, vx, CAR, bias_ay=bias_ay)
+    assert isinstance(run, SideslipRun) and run.low_speed.any() and not run.low_speed.all()
+    kf = SideslipKF(dt0, CAR, SideslipSettings(bias_ay=bias_ay))
+    steps = [kf.step(delta[k], yaw[k], ay[k], vx[k], t[k] - t[k - 1] if k else None) for k in range(len(t))]
+    assert all(isinstance(s, Step) for s in steps)
+    for name in "xPyS":
+        np.testing.assert_array_equal(np.array([getattr(s, name) for s in steps]), getattr(run, name))
+    assert np.isnan(run.y[run.low_speed, 1]).all() and np.isfinite(run.y[~run.low_speed]).all()
+
+
+def test_run_properties_read_the_state():
+    rec = datasets.load("06_slalom_80kmh").head(3.0)
+    run = estimate_sideslip(*(rec[c] for c in SIGNALS), CAR, bias_ay=True)
+    np.testing.assert_array_equal(run.beta, run.x[:, 0])
+    np.testing.assert_array_equal(run.yaw_rate, run.x[:, 1])
+    np.testing.assert_array_equal(run.bias_ay, run.x[:, 2])
+    np.testing.assert_allclose(run.vy, rec["vx"] * np.tan(run.x[:, 0]), rtol=1e-15)
+
+
+def test_unknown_or_misplaced_settings_are_named():
+    with pytest.raises(TypeError, match="SideslipKF: unknown setting q_yaw; SideslipSettings has q_beta, q_r"):
+        SideslipKF(0.01, CAR, q_yaw=1.0)
+    with pytest.raises(TypeError, match="unknown setting qbeta"):
+        estimate_sideslip(**good_inputs(), params=CAR, qbeta=1.0)
+    with pytest.raises(ValueError, match="SideslipKF: dt must be a positive number, got 0"):
+        SideslipKF(0, CAR)

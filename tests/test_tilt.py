@@ -7,7 +7,7 @@ from filterpy.kalman import KalmanFilter as FilterpyKF
 from scipy.linalg import solve_discrete_are
 
 from kfkit import datasets, metrics, sim
-from kfkit.filters import TiltBiasKF, TiltRun, accel_static_ok, tilt
+from kfkit.filters import Step, TiltBiasKF, TiltRun, TiltSettings, accel_static_ok, tilt
 from kfkit.frames import accel_tilt
 
 g = 9.80665
@@ -38,7 +38,7 @@ def test_ungated_filter_matches_filterpy(seed):
     w, z, _ = random_inputs(rng)
     q_angle, q_bias, r = 10 ** rng.uniform(-7, -3), 10 ** rng.uniform(-12, -6), 10 ** rng.uniform(-5, -1)
     x0, P0 = (0.1, -0.02), np.array([[0.03, 0.001], [0.001, 0.01]])
-    run = TiltBiasKF(DT, q_angle, q_bias, r, gate="none").run(w, z, rng.random(len(z)) > 0.5, x0=x0, P0=P0)
+    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, gate="none").run(w, z, rng.random(len(z)) > 0.5, x0=x0, P0=P0)
     oracle = filterpy_oracle(DT, q_angle, q_bias, r, x0, P0)
     for k in range(len(z)):
         oracle.predict(u=np.array([[w[k]]]))
@@ -54,7 +54,7 @@ def test_gates_match_filterpy_with_no_update_or_an_inflated_r(gate):
     w, z, ok = random_inputs(rng)
     q_angle, q_bias, r, inflation = 1e-5, 1e-9, 1e-3, 50.0
     x0, P0 = (0.0, 0.0), np.diag([r, 0.01])
-    run = TiltBiasKF(DT, q_angle, q_bias, r, gate=gate, inflation=inflation).run(w, z, ok, x0=x0, P0=P0)
+    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, gate=gate, inflation=inflation).run(w, z, ok, x0=x0, P0=P0)
     oracle = filterpy_oracle(DT, q_angle, q_bias, r, x0, P0)
     for k in range(len(z)):
         oracle.predict(u=np.array([[w[k]]]))
@@ -70,22 +70,46 @@ def test_gates_match_filterpy_with_no_update_or_an_inflated_r(gate):
 
 
 def test_a_gated_sample_coasts_on_the_gyro():
-    kf = TiltBiasKF(DT, 1e-5, 1e-9, 1e-3, gate="skip", x0=(0.2, 0.05))
-    angle, bias, y, S = kf.step(1.0, 5.0, static_ok=False)  # a wild accel angle, but gated
+    kf = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, gate="skip", x0=(0.2, 0.05))
+    (angle, bias), _, y, S = kf.step(1.0, 5.0, static_ok=False)  # a wild accel angle, but gated
     assert angle == pytest.approx(0.2 + (1.0 - 0.05) * DT) and bias == 0.05
     assert math.isnan(y) and math.isnan(S)
 
 
 def test_nan_accel_angle_skips_the_update_in_every_gate_mode():
     for gate in ("none", "skip", "inflate"):
-        kf = TiltBiasKF(DT, 1e-5, 1e-9, 1e-3, gate=gate)
-        angle, bias, y, _ = kf.step(0.5, float("nan"), True)
+        kf = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, gate=gate)
+        (angle, bias), _, y, _ = kf.step(0.5, float("nan"), True)
         assert angle == pytest.approx(0.005) and bias == 0.0 and math.isnan(y)
 
 
+def test_step_returns_state_covariance_innovation_and_run_stores_the_same_steps():
+    rng = np.random.default_rng(4)
+    w, z, ok = rng.normal(0, 0.3, 200), rng.normal(0, 0.2, 200), rng.random(200) > 0.3
+    settings = TiltSettings(q_angle=1e-5, q_bias=1e-9, r=1e-3, gate="inflate", inflation=30.0)
+    run = TiltBiasKF(DT, settings).run(w, z, ok, x0=(z[0], 0.0))
+    kf = TiltBiasKF(DT, settings, x0=(z[0], 0.0))
+    steps = [kf.step(*args) for args in zip(w, z, ok)]
+    assert all(isinstance(s, Step) and s.x.shape == (2,) and s.P.shape == (2, 2) for s in steps)
+    for name in "xPyS":
+        np.testing.assert_array_equal(np.array([getattr(s, name) for s in steps]), getattr(run, name))
+
+
+def test_keyword_changes_equal_a_settings_object():
+    a = TiltBiasKF(DT, TiltSettings(r=1e-4, gate="none"))
+    b = TiltBiasKF(DT, r=1e-4, gate="none")
+    c = TiltBiasKF(DT, TiltSettings(r=1.0), r=1e-4, gate="none")
+    assert a.settings == b.settings == c.settings
+    with pytest.raises(TypeError, match="TiltBiasKF: unknown setting qangle; TiltSettings has q_angle, q_bias, r, gate, "
+                                        "inflation"):
+        TiltBiasKF(DT, qangle=1e-6)
+    with pytest.raises(TypeError, match="settings must be a TiltSettings, got float"):
+        TiltBiasKF(DT, 1e-6, 1e-10, 1e-5)  # the old positional form names its mistake
+
+
 def test_inflated_update_moves_less_than_a_full_one():
-    full = TiltBiasKF(DT, 1e-5, 1e-9, 1e-3, gate="inflate").step(0.0, 0.1, True)[0]
-    weak = TiltBiasKF(DT, 1e-5, 1e-9, 1e-3, gate="inflate").step(0.0, 0.1, False)[0]
+    full = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, gate="inflate").step(0.0, 0.1, True).x[0]
+    weak = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, gate="inflate").step(0.0, 0.1, False).x[0]
     assert 0 < weak < full
 
 
@@ -102,7 +126,7 @@ def test_bias_converges_to_the_simulated_bias(bias_deg):
     rec = simulated_tilt(bias_deg * deg)
     _, pitch = accel_tilt(rec.body("acc"))
     sigma_w = 0.005 * deg * 10  # MPU6050 rate noise density × √100 Hz
-    run = TiltBiasKF(0.01, (sigma_w * 0.01) ** 2 * 100, 1e-12, np.var(pitch)).run(rec.body("gyr")[:, 1], pitch)
+    run = TiltBiasKF(0.01, q_angle=(sigma_w * 0.01) ** 2 * 100, q_bias=1e-12, r=np.var(pitch)).run(rec.body("gyr")[:, 1], pitch)
     settled = rec.t > 30.0
     # within 2 % of the bias and the angle within 0.1° of the truth once settled
     np.testing.assert_allclose(run.bias[settled], bias_deg * deg, rtol=0.02)
@@ -123,7 +147,7 @@ def test_skip_gate_rejects_a_linear_acceleration():
     assert accel_static_ok(f)[inside].mean() > 0.5
     ok = accel_static_ok(f, eps=0.02 * g)
     assert not ok[inside].any() and ok[~inside].mean() > 0.99
-    runs = {gate: TiltBiasKF(0.01, 1e-6, 1e-10, 1.6e-5, gate=gate).run(rec.body("gyr")[:, 0], roll, ok)
+    runs = {gate: TiltBiasKF(0.01, q_angle=1e-6, q_bias=1e-10, r=1.6e-5, gate=gate).run(rec.body("gyr")[:, 0], roll, ok)
             for gate in ("none", "skip", "inflate")}
     peak = {gate: np.max(np.abs(run.angle[inside])) for gate, run in runs.items()}
     assert peak["none"] > 5 * deg          # the ungated filter follows the shove's false tilt (17°)
@@ -142,7 +166,7 @@ def test_accel_static_ok():
 def test_run_returns_a_tilt_run_with_named_views():
     rng = np.random.default_rng(0)
     w, z, ok = random_inputs(rng, 50)
-    run = TiltBiasKF(DT, 1e-5, 1e-9, 1e-3).run(w, z, ok)
+    run = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3).run(w, z, ok)
     assert isinstance(run, TiltRun)
     assert run.x.shape == (50, 2) and run.P.shape == (50, 2, 2) and run.y.shape == run.S.shape == (50,)
     assert np.array_equal(run.angle, run.x[:, 0]) and np.array_equal(run.bias, run.x[:, 1])
@@ -166,7 +190,7 @@ def test_bad_settings_are_named(kwargs, match):
 
 
 def test_bad_run_inputs_are_named():
-    kf = TiltBiasKF(DT, 1e-5, 1e-9, 1e-3)
+    kf = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3)
     with pytest.raises(ValueError, match=r"equal length, got shapes \(3,\), \(2,\)"):
         kf.run([0.0, 0.0, 0.0], [0.0, 0.0])
     with pytest.raises(ValueError, match="no samples"):
@@ -233,25 +257,25 @@ def test_steady_state_covariance_solves_the_riccati_equation(q_angle, q_bias, r)
     A, prior, gain, slowest = riccati(q_angle, q_bias, r)
     Q = np.diag([q_angle, q_bias])
     n = int(np.log(1e-12) / np.log(slowest) / 2) + 1  # P's error decays as slowest²ⁿ
-    run = TiltBiasKF(DT, q_angle, q_bias, r, gate="none").run(np.zeros(n), np.zeros(n))
+    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, gate="none").run(np.zeros(n), np.zeros(n))
     np.testing.assert_allclose(A @ run.P[-1] @ A.T + Q, prior, rtol=1e-6)
     np.testing.assert_allclose(run.S[-1], prior[0, 0] + r, rtol=1e-6)
     # one more step: the correction per unit innovation is the steady-state gain K = P⁻Hᵀ / S
-    kf = TiltBiasKF(DT, q_angle, q_bias, r, gate="none")
+    kf = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, gate="none")
     kf.reset(run.x[-1], run.P[-1])
     predicted = run.x[-1, 0] - run.x[-1, 1] * DT
-    angle, bias, y, _ = kf.step(0.0, 1.0)
+    (angle, bias), _, y, _ = kf.step(0.0, 1.0)
     np.testing.assert_allclose([(angle - predicted) / y, (bias - run.x[-1, 1]) / y], gain[:, 0], rtol=1e-6)
 
 
 def test_the_labs_tuning_keeps_the_riccati_fixed_point():
     """At the lab's q's the bias mode settles over minutes (|eig| = 1 − 10⁻⁴ per step), too slow to wait for:
     started on the DARE's solution, one filter step must map it onto itself."""
-    q_angle, q_bias, r = tilt.DEFAULT_Q_ANGLE, tilt.DEFAULT_Q_BIAS, tilt.DEFAULT_R
+    q_angle, q_bias, r = tilt.TiltSettings().q_angle, tilt.TiltSettings().q_bias, tilt.TiltSettings().r
     A, prior, gain, slowest = riccati(q_angle, q_bias, r)
     assert slowest > 0.9998
     posterior = prior - gain @ gain.T * (prior[0, 0] + r)
-    kf = TiltBiasKF(DT, q_angle, q_bias, r, gate="none")
+    kf = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, gate="none")
     kf.reset((0.0, 0.0), posterior)
     kf.step(0.3, 0.1)
     np.testing.assert_allclose(kf.P, posterior, rtol=1e-9)
@@ -277,7 +301,7 @@ def monte_carlo(filter_r_factor=1.0, runs=60, n=400, seed=11):
     for i in range(runs):
         omega, z, truth = simulate_model(rng, n, q_angle, q_bias, r, x0, P0)
         ok = rng.random(n) > 0.3  # the skipped samples' z are as good, but a gated filter does not use them
-        kf = TiltBiasKF(DT, q_angle, q_bias, r * filter_r_factor, gate="skip")
+        kf = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r * filter_r_factor, gate="skip")
         run = kf.run(omega, z, ok, x0=x0, P0=P0)
         nees[i] = metrics.nees(truth - run.x, run.P)
         nis[i] = metrics.nis(run.y, run.S)
@@ -358,7 +382,7 @@ def reference_estimate(start_bias="zero", tuned=True):
             w, z, ok, ref = axes[name]
             q = lab05.tune_reference(w, z, ok, ref, dt, r, q0) if tuned else (q0, 1e-4 * q0)
             b0 = 0.0 if start_bias == "zero" else b_still[col]
-            out.append(TiltBiasKF(dt, *q, r).run(w, z, ok, x0=(z[0], b0)))
+            out.append(TiltBiasKF(dt, q_angle=q[0], q_bias=q[1], r=r).run(w, z, ok, x0=(z[0], b0)))
         return out[0].angle, out[1].angle, out[0].bias, out[1].bias
 
     return estimate_tilt
@@ -383,7 +407,7 @@ def test_python_twin_tracks_the_protocol_with_the_bundled_calibration():
     rec = datasets.load("05_tilt_protocol")
     cal = calibration.load_calibration("mpu6050", path=calibration.bundled_calibration_path("mpu6050"))
     twin = TiltAttitude("mpu6050", accel_bias=cal.accel_bias, accel_scale=cal.accel_scale)
-    out = [twin.update(a, w) for a, w in zip(rec.counts("acc"), rec.counts("gyr"))]
+    out = [twin.step(a, w) for a, w in zip(rec.counts("acc"), rec.counts("gyr"))]
     start = sum(o is None for o in out)
     assert start == 199  # 2 s of gyro bias first: no attitude until the 200th sample
     est = np.array(out[start:])

@@ -15,7 +15,7 @@ import pytest
 
 import arduino_host
 from kfkit import datasets
-from kfkit.datasets import KIT_ROOT
+from kfkit.paths import KIT_ROOT
 from kfkit.filters import TiltBiasKF, accel_static_ok, tilt
 from kfkit.frames import G, accel_tilt
 
@@ -85,7 +85,7 @@ def test_c_filter_matches_python_on_the_bundled_recording(lib, recording, axis, 
     settings = default_settings(lib)
     settings.gate = GATES[gate]
     gyro, angle = recording[axis]
-    python = TiltBiasKF(recording["dt"], settings.qAngle, settings.qBias, settings.r, gate=gate,
+    python = TiltBiasKF(recording["dt"], q_angle=settings.qAngle, q_bias=settings.qBias, r=settings.r, gate=gate,
                         inflation=settings.inflation).run(
         gyro, angle, recording["ok"], P0=np.diag([settings.r, settings.initialBiasVariance]))
     c = run_c(lib, settings, recording["dt"], gyro, angle, recording["ok"])
@@ -110,7 +110,7 @@ def test_c_accelerometer_tilt_and_gate_match_python(lib, recording):
 def test_c_defaults_are_the_python_defaults(lib):
     s = default_settings(lib)
     got = [s.qAngle, s.qBias, s.r, s.inflation, s.initialBiasVariance]
-    np.testing.assert_allclose(got, [tilt.DEFAULT_Q_ANGLE, tilt.DEFAULT_Q_BIAS, tilt.DEFAULT_R, 100.0, 0.1 ** 2], rtol=1e-6)
+    np.testing.assert_allclose(got, [tilt.TiltSettings().q_angle, tilt.TiltSettings().q_bias, tilt.TiltSettings().r, tilt.TiltSettings().inflation, 0.1 ** 2], rtol=1e-6)
     assert s.gate == GATES["skip"]
 
 
@@ -163,7 +163,7 @@ def test_sketch_attitude_matches_the_python_twin(sketch_output):
     rec, counts, lines = sketch_output
     att = np.array([i.values for i in map(parse_line, lines) if isinstance(i, Message) and i.tag == "ATT"])
     twin = TiltAttitude("mpu6050", 100.0)
-    python = [twin.update(row[:3], row[3:]) for row in counts]
+    python = [twin.step(row[:3], row[3:]) for row in counts]
     expected = np.degrees(np.array([p for p in python if p is not None]))
     assert att.shape == expected.shape
     # the sketch prints two decimals; float32 vs float64 adds < 1e-4°

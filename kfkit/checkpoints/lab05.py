@@ -129,7 +129,7 @@ def _random_state(rng):
 
 
 def kf_predict_reference(x, P, omega, dt, q_angle, q_bias):
-    kf = TiltBiasKF(dt, q_angle, q_bias, 1.0)
+    kf = TiltBiasKF(dt, q_angle=q_angle, q_bias=q_bias, r=1.0)
     kf.reset(x, P)
     kf.step(omega, np.nan)
     return kf.x, kf.P
@@ -168,7 +168,7 @@ def _run_cases(rng):
         args = {"gyro_rate": rng.normal(0.0, 0.5, n), "accel_angle": rng.normal(0.0, 0.3, n),
                 "static_ok": rng.random(n) > 0.3, "dt": 0.01, "q_angle": 10 ** rng.uniform(-7, -4),
                 "q_bias": 10 ** rng.uniform(-12, -8), "r": 10 ** rng.uniform(-5, -2), "gate": gate, "x0": x0, "P0": P0}
-        ref = TiltBiasKF(args["dt"], args["q_angle"], args["q_bias"], args["r"], gate=gate, inflation=INFLATION).run(
+        ref = TiltBiasKF(args["dt"], q_angle=args["q_angle"], q_bias=args["q_bias"], r=args["r"], gate=gate, inflation=INFLATION).run(
             args["gyro_rate"], args["accel_angle"], args["static_ok"], x0=x0, P0=P0)
         cases.append(Case(args, (ref.x, ref.P), f"gate={gate!r}, a random sequence of {n} samples"))
     return cases
@@ -225,7 +225,7 @@ def tune_reference(gyro_rate, accel_angle, static_ok, reference, dt, r, q0):
     half a decade of the best. Returns (q_angle, q_bias).
     """
     def mse(log_q):
-        run = TiltBiasKF(dt, 10 ** log_q, Q_BIAS_RATIO * 10 ** log_q, r).run(gyro_rate, accel_angle, static_ok)
+        run = TiltBiasKF(dt, q_angle=10 ** log_q, q_bias=Q_BIAS_RATIO * 10 ** log_q, r=r).run(gyro_rate, accel_angle, static_ok)
         return static_rmse(run.angle, reference) ** 2
 
     grid = np.log10(q0) + np.arange(0.0, 6.5, 0.5)
@@ -240,8 +240,8 @@ def _tuned_pitch():
     axes, dt, r, q0 = pipeline_inputs()
     gyro, angle, ok, ref = axes["pitch"]
     q_angle, q_bias = tune_reference(gyro, angle, ok, ref, dt, r, q0)
-    best = static_rmse(TiltBiasKF(dt, q_angle, q_bias, r).run(gyro, angle, ok).angle, ref)
-    start = static_rmse(TiltBiasKF(dt, q0, Q_BIAS_RATIO * q0, r).run(gyro, angle, ok).angle, ref)
+    best = static_rmse(TiltBiasKF(dt, q_angle=q_angle, q_bias=q_bias, r=r).run(gyro, angle, ok).angle, ref)
+    start = static_rmse(TiltBiasKF(dt, q_angle=q0, q_bias=Q_BIAS_RATIO * q0, r=r).run(gyro, angle, ok).angle, ref)
     return {"gyro_rate": gyro, "accel_angle": angle, "static_ok": ok, "reference": ref, "dt": dt, "r": r, "q0": q0}, best, start
 
 
@@ -258,7 +258,7 @@ def _judge_tune(case, got):
     if not (q_angle > 0 and q_bias >= 0):
         return f"q_angle must be > 0 and q_bias ≥ 0, got {q_angle:.3g}, {q_bias:.3g}"
     a = case.args
-    rmse = static_rmse(TiltBiasKF(a["dt"], q_angle, q_bias, a["r"]).run(a["gyro_rate"], a["accel_angle"], a["static_ok"]).angle,
+    rmse = static_rmse(TiltBiasKF(a["dt"], q_angle=q_angle, q_bias=q_bias, r=a["r"]).run(a["gyro_rate"], a["accel_angle"], a["static_ok"]).angle,
                        a["reference"])
     if rmse > 1.1 * case.expected["best"]:
         return (f"static-window RMSE {np.degrees(rmse):.3f}° with q_angle = {q_angle:.2e}, q_bias = {q_bias:.2e}; "

@@ -1,16 +1,31 @@
-"""Reference filters, one module per lab's model; everything is importable from ``kfkit.filters``.
+"""Reference filters, one module per lab's model, all after one contract.
 
-    linear    KalmanFilter (Joseph form), run_kf → FilterRun(x, P, y, S)
-    roll      lab 01: scalar roll filter
-    sideslip  lab 06: vehicle sideslip β with a bicycle-model KF (D-term, low-speed guard)
-    attitude  lab 04: Euler-angle EKF and multiplicative quaternion EKF, estimate_attitude → AttitudeResult
-    tilt      lab 05: TiltBiasKF, [angle, gyro bias] per axis with accelerometer gating → TiltRun;
+The contract (x-io Fusion's and VQF's shape: settings with units and defaults, then steps):
+
+* construct with the sample period ``dt`` (or ``rate_hz``) and a frozen settings dataclass whose
+  every field has a meaning, a unit and a default; keyword changes apply on top of it
+  (``TiltBiasKF(0.01, r=1e-4)`` = ``TiltBiasKF(0.01, TiltSettings(r=1e-4))``);
+* ``step(...)`` takes one sample and returns a :class:`Step` ``(x, P, y, S)``: state, covariance,
+  innovation and its covariance (NaN where no update was made);
+* ``run(...)`` filters a recording and returns a :class:`FilterRun` (x, P, y, S, one row per
+  sample) or a subclass whose named properties read it (``TiltRun.angle``, ``SideslipRun.beta``,
+  ``AttitudeRun.euler``).
+
+    linear    Step, FilterRun; KalmanFilter (Joseph form: predict, update, step, run)
+    roll      lab 01: RollKF + RollSettings; the textbook forms roll_kf_predict, roll_kf_update, roll_kf
+    tilt      lab 05: TiltBiasKF + TiltSettings ([angle, gyro bias] per axis, accelerometer gating) → TiltRun;
               TiltAttitude, roll and pitch from raw counts as the mpu6050_tilt_kf sketch computes them
+    sideslip  lab 06: SideslipKF + SideslipSettings (bicycle-model KF, D-term, low-speed guard) → SideslipRun;
+              estimate_sideslip, the lesson's other estimators
+    attitude  lab 04: Euler-angle EKF and multiplicative quaternion EKF, estimate_attitude
+
+Every public name below is importable from ``kfkit.filters``; the attitude modules' helpers
+(``learn_field``, ``tilt_heading``, the module constants) from their own modules.
 """
-from .linear import FilterRun, KalmanFilter, run_kf
-from .roll import integrate_rate, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
-from .tilt import TiltAttitude, TiltBiasKF, TiltRun, accel_static_ok, protocol_angles
+from .linear import FilterRun, KalmanFilter, Step
+from .roll import RollKF, RollSettings, integrate_rate, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
+from .tilt import TiltAttitude, TiltBiasKF, TiltRun, TiltSettings, accel_static_ok, protocol_angles
 from .attitude import (AttitudeResult, EulerAttitudeEKF, MultiplicativeEKF, attitude_jacobian, attitude_measurement,
                        estimate_attitude, euler_ekf_predict, euler_ekf_update, euler_process_noise, euler_rates)
-from .sideslip import (SideslipResult, compare_estimators, copied_kinematic_kf, estimate_sideslip, kinematic_sideslip,
-                       sideslip_step)
+from .sideslip import (SideslipKF, SideslipRun, SideslipSettings, compare_estimators, copied_kinematic_kf,
+                       estimate_sideslip, kinematic_sideslip, sideslip_step)

@@ -20,7 +20,10 @@ Low speed: the model's coefficients grow like 1/V_x and 1/V_x² as V_x → 0. Be
 β⁻ = b·δ/L, which is the model's own steady state as V_x → 0, with variance ``beta_low_std²``
 and no correlation to r, keeps r⁻ = r (P_rr grows by q_r·dt), and updates with the yaw rate
 only (a_y carries no information on β at a crawl). Nothing divides by V_x there, so a stop or a
-start from rest is safe; the result's ``low_speed`` mask says which samples were handled so.
+start from rest is safe; the run's ``low_speed`` mask says which samples were handled so.
+
+:class:`SideslipKF` is the filter (construct with dt and a :class:`SideslipSettings`; ``step`` one
+sample, ``run`` a drive → :class:`SideslipRun`); :func:`estimate_sideslip` runs it over a drive.
 
 Speed and sample-interval changes: (Ad, Bd, Qd) are recomputed whenever V_x moves to another
 ``vx_step`` bin (default 0.05 m/s; the model is evaluated at the bin centre, so V_x is off by at most
@@ -32,31 +35,88 @@ would be two matrix exponentials per sample). Each bin is computed once per run.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from ..vehicle import BicycleParams, discretize, linear_model, miscopied_linear_model
-from .linear import FilterRun, KalmanFilter, run_kf
+from .linear import FilterRun, KalmanFilter, Step, configure, require_positive
+
+
+@dataclass(frozen=True)
+class SideslipSettings:
+    """Tuning of the sideslip filter (see the module doc); the defaults are lab 06's.
+
+    q_beta        process noise on β̇, rad²/s (lateral force model errors)                      1e-4
+    q_r           process noise on ṙ, rad²/s³ (yaw-moment errors)                               1e-3
+    gyro_noise    yaw-rate σ per sample, rad/s                                                0.003
+    accel_noise   lateral-acceleration σ per sample, m/s²                                      0.05
+    v_min         below this speed the kinematic β = b·δ/L is used, m/s                         2.0
+    beta_low_std  σ of that kinematic β, rad                                                     1°
+    bias_ay       add an a_y bias state b_ay (m/s²)                                           False
+    q_bias        its random walk, (m/s²)²/s                                                   1e-5
+    bias_std      its initial σ, m/s²                                                           0.3
+    vx_step       width of the speed bins the model is cached at, m/s (≤ v_min)                0.05
+    """
+
+    q_beta: float = 1e-4
+    q_r: float = 1e-3
+    gyro_noise: float = 0.003
+    accel_noise: float = 0.05
+    v_min: float = 2.0
+    beta_low_std: float = math.radians(1.0)
+    bias_ay: bool = False
+    q_bias: float = 1e-5
+    bias_std: float = 0.3
+    vx_step: float = 0.05
+
+    def __post_init__(self):
+        for name in ("q_beta", "q_r", "gyro_noise", "accel_noise", "v_min", "beta_low_std", "q_bias", "bias_std", "vx_step"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float, np.integer, np.floating)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"SideslipSettings: {name} must be a finite positive number, got {value!r}")
+        if self.vx_step > self.v_min:
+            raise ValueError(f"SideslipSettings: vx_step = {self.vx_step} m/s is coarser than v_min = {self.v_min} m/s: "
+                             "the slowest speed bin the model is used at would be 0 m/s")
+
+    @property
+    def n(self) -> int:
+        """Number of states: 2 ([β, r]) or 3 (with b_ay)."""
+        return 3 if self.bias_ay else 2
 
 
 @dataclass
-class SideslipResult(FilterRun):
-    """Sideslip filter history: FilterRun (x, P, y, S with y = [r, a_y] innovations) plus
+class SideslipRun(FilterRun):
+    """:class:`FilterRun` of a :class:`SideslipKF` (x = [β, r(, b_ay)], y = [r, a_y] innovations) with
 
-    beta      β estimate, rad (N,)           yaw_rate  r estimate, rad/s (N,)
-    vy        lateral velocity V_x·tan β, m/s (N,)
-    bias_ay   a_y bias estimate, m/s² (N,), or None without the bias state
-    low_speed True where V_x < v_min (kinematic β, yaw-rate-only update)
+    vx         the speeds it was run at, m/s (N,)
+    low_speed  True where V_x < v_min (kinematic β, yaw-rate-only update: y[:, 1] and S[:, 1] NaN)
     """
 
-    beta: np.ndarray
-    yaw_rate: np.ndarray
-    vy: np.ndarray
-    bias_ay: np.ndarray | None
-    low_speed: np.ndarray
+    vx: np.ndarray = field(default=None)
+    low_speed: np.ndarray = field(default=None)
+
+    @property
+    def beta(self) -> np.ndarray:
+        """Sideslip β, rad (N,)."""
+        return self.x[:, 0]
+
+    @property
+    def yaw_rate(self) -> np.ndarray:
+        """Yaw rate r, rad/s (N,)."""
+        return self.x[:, 1]
+
+    @property
+    def vy(self) -> np.ndarray:
+        """Lateral velocity V_x·tan β, m/s (N,)."""
+        return self.vx * np.tan(self.beta)
+
+    @property
+    def bias_ay(self) -> np.ndarray | None:
+        """a_y bias estimate, m/s² (N,), or None without the bias state."""
+        return self.x[:, 2] if self.x.shape[1] > 2 else None
 
 
 def sideslip_step(x, P, delta_prev, z, delta, Ad, Bd, Qd, C, D, R):
@@ -91,27 +151,27 @@ def _as_inputs(t, delta, yaw_rate, ay, vx):
     for name, value in arrays.items():
         a = np.asarray(value, dtype=float)
         if a.ndim != 1:
-            raise ValueError(f"estimate_sideslip: {name} must be a 1-D array of samples, got shape {a.shape}")
+            raise ValueError(f"sideslip filter: {name} must be a 1-D array of samples, got shape {a.shape}")
         out[name] = a
     lengths = {name: len(a) for name, a in out.items()}
     if len(set(lengths.values())) != 1:
-        raise ValueError("estimate_sideslip: inputs have mismatched lengths: " +
+        raise ValueError("sideslip filter: inputs have mismatched lengths: " +
                          ", ".join(f"{k} {n}" for k, n in lengths.items()))
     if lengths["t"] < 2:
-        raise ValueError(f"estimate_sideslip: need at least 2 samples, got {lengths['t']}")
+        raise ValueError(f"sideslip filter: need at least 2 samples, got {lengths['t']}")
     for name, a in out.items():
         bad = ~np.isfinite(a)
         if bad.any():
             k = int(np.argmax(bad))
-            raise ValueError(f"estimate_sideslip: {name}[{k}] is {a[k]} (at t = {out['t'][k] if name != 't' else '?'} s); "
+            raise ValueError(f"sideslip filter: {name}[{k}] is {a[k]} (at t = {out['t'][k] if name != 't' else '?'} s); "
                              f"{int(bad.sum())} non-finite value(s) in {name}: drop or interpolate those samples first")
     steps = np.diff(out["t"])
     if np.any(steps <= 0):
         k = int(np.argmax(steps <= 0)) + 1
-        raise ValueError(f"estimate_sideslip: t must increase; t[{k}] = {out['t'][k]} s after t[{k - 1}] = {out['t'][k - 1]} s")
+        raise ValueError(f"sideslip filter: t must increase; t[{k}] = {out['t'][k]} s after t[{k - 1}] = {out['t'][k - 1]} s")
     if np.any(out["vx"] < 0):
         k = int(np.argmax(out["vx"] < 0))
-        raise ValueError(f"estimate_sideslip: vx[{k}] = {out['vx'][k]} m/s is negative (reversing): the bicycle model here "
+        raise ValueError(f"sideslip filter: vx[{k}] = {out['vx'][k]} m/s is negative (reversing): the bicycle model here "
                          "is for forward driving; cut the recording or pass speeds ≥ 0")
     return out
 
@@ -146,60 +206,83 @@ class _ModelCache:
         return entry
 
 
-def estimate_sideslip(t, delta, yaw_rate, ay, vx, params: BicycleParams = BicycleParams(), *,
-                      q_beta=1e-4, q_r=1e-3, gyro_noise=0.003, accel_noise=0.05, v_min=2.0,
-                      beta_low_std=math.radians(1.0), bias_ay=False, q_bias=1e-5, bias_std=0.3,
-                      vx_step=0.05, model=linear_model, x0=None, P0=None) -> SideslipResult:
-    """Estimate sideslip β over a drive with the bicycle-model Kalman filter (see module doc).
+class SideslipKF:
+    """The lab 06 filter: sideslip β from steering, yaw rate and lateral acceleration (module doc).
+
+    dt        nominal sample interval, s: the step's default and the centre of the interval bins
+    params    the car (:class:`BicycleParams`)
+    settings  :class:`SideslipSettings`; keyword changes apply on top: ``SideslipKF(0.01, car, bias_ay=True)``
+    model     ``model(params, vx)`` → (A, B, C, D); may be swapped for a teaching comparison
+    x0, P0    initial state (default 0) and covariance (default diag((2°)², (2°/s)², bias_std²)),
+              one step before the first sample
+    """
+
+    def __init__(self, dt, params: BicycleParams = BicycleParams(), settings: SideslipSettings | None = None, *,
+                 model=linear_model, x0=None, P0=None, **changes):
+        require_positive("SideslipKF", dt=dt)
+        self.dt, self.params, self.model = float(dt), params, model
+        self.settings = st = configure(SideslipSettings, settings, changes, "SideslipKF")
+        n = st.n
+        self.R = np.diag([st.gyro_noise ** 2, st.accel_noise ** 2])
+        self._models = _ModelCache(model, params, np.diag([st.q_beta, st.q_r, st.q_bias][:n]), st.bias_ay, st.vx_step, self.dt)
+        self._kinematic_gain = params.b / params.wheelbase
+        self.reset(x0, P0)
+
+    def reset(self, x0=None, P0=None):
+        """Set the state (default 0) and covariance (default diag((2°)², (2°/s)², bias_std²)); forget δ_{k−1}."""
+        n = self.settings.n
+        self.x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).reshape(n).copy()
+        self.P = np.diag([math.radians(2.0) ** 2, math.radians(2.0) ** 2, self.settings.bias_std ** 2][:n]) if P0 is None \
+            else np.asarray(P0, dtype=float).reshape(n, n).copy()
+        self._delta_prev = None
+
+    def step(self, delta, yaw_rate, ay, vx, dt=None) -> Step:
+        """One sample: road-wheel steering δ (rad), yaw rate (rad/s), a_y (m/s²), speed V_x (m/s), dt (s,
+        default the nominal one) → Step(x, P, y = [r, a_y] innovations, S); below v_min y[1] and S's
+        a_y row and column are NaN (no a_y update). The prediction uses the previous sample's δ."""
+        st = self.settings
+        dt = self.dt if dt is None else dt
+        delta_prev = delta if self._delta_prev is None else self._delta_prev
+        self._delta_prev = delta
+        if vx < st.v_min:
+            y, S = np.full(2, np.nan), np.full((2, 2), np.nan)
+            self.x, self.P, y[0], S[0, 0] = _low_speed_step(self.x, self.P, yaw_rate, delta * self._kinematic_gain,
+                                                            st.beta_low_std ** 2, st.q_r * dt, st.q_bias * dt,
+                                                            st.gyro_noise ** 2)
+        elif st.n == 2:
+            self.x, self.P, y, S = _step2(self.x, self.P, delta_prev, (yaw_rate, ay), delta, self._models(vx, dt)[1], self.R)
+        else:
+            self.x, self.P, y, S = sideslip_step(self.x, self.P, delta_prev, np.array([yaw_rate, ay]), delta,
+                                                 *self._models(vx, dt)[0], self.R)
+        return Step(self.x, self.P, y, S)
+
+    def run(self, t, delta, yaw_rate, ay, vx, x0=None, P0=None) -> SideslipRun:
+        """:meth:`step` over a drive from (x0, P0): t (s), delta (rad, road wheel), yaw_rate (rad/s), ay (m/s²),
+        vx (m/s ≥ 0), equal-length 1-D arrays, ISO 8855 signs; the first step's dt is the nominal one."""
+        d = _as_inputs(t, delta, yaw_rate, ay, vx)
+        self.reset(x0, P0)
+        ts, N, n = d["t"].tolist(), len(d["t"]), self.settings.n
+        xs, Ps, ys, Ss = np.empty((N, n)), np.empty((N, n, n)), np.empty((N, 2)), np.empty((N, 2, 2))
+        step = self.step
+        with _blas_controller().limit(limits=1, user_api="blas"):
+            for k, (dk, rk, ak, vk) in enumerate(zip(d["delta"].tolist(), d["yaw_rate"].tolist(), d["ay"].tolist(),
+                                                     d["vx"].tolist())):
+                xs[k], Ps[k], ys[k], Ss[k] = step(dk, rk, ak, vk, ts[k] - ts[k - 1] if k else None)
+        return SideslipRun(xs, Ps, ys, Ss, vx=d["vx"], low_speed=d["vx"] < self.settings.v_min)
+
+
+def estimate_sideslip(t, delta, yaw_rate, ay, vx, params: BicycleParams = BicycleParams(), *, model=linear_model,
+                      x0=None, P0=None, **settings) -> SideslipRun:
+    """Sideslip β over a drive: a :class:`SideslipKF` at the drive's median sample interval, run from (x0, P0).
 
     t (s), delta (rad, road wheel), yaw_rate (rad/s), ay (m/s²), vx (m/s ≥ 0): equal-length 1-D
-    arrays, ISO 8855 signs. ``params``: the car (:class:`BicycleParams`). Tuning: q_beta (rad²/s),
-    q_r (rad²/s³), gyro_noise (rad/s) and accel_noise (m/s²) σ per sample, v_min (m/s),
-    beta_low_std (rad), bias_ay (add an a_y bias state), q_bias ((m/s²)²/s), bias_std (m/s², its
-    initial σ), vx_step (m/s, the speed bins of the model cache, ≤ v_min; see the module doc).
-    ``model(params, vx)`` → (A, B, C, D) may be swapped for a teaching comparison. Starts at x0
-    (default 0) with P0 (default diag((2°)², (2°/s)², bias_std²)), one step before the first sample.
+    arrays, ISO 8855 signs. ``params``: the car; ``model``, x0, P0 as :class:`SideslipKF`'s;
+    ``settings``: any :class:`SideslipSettings` field (q_beta, q_r, gyro_noise, accel_noise, v_min,
+    beta_low_std, bias_ay, q_bias, bias_std, vx_step).
     """
     d = _as_inputs(t, delta, yaw_rate, ay, vx)
-    tuning = {"q_beta": q_beta, "q_r": q_r, "gyro_noise": gyro_noise, "accel_noise": accel_noise, "v_min": v_min,
-              "beta_low_std": beta_low_std, "q_bias": q_bias, "bias_std": bias_std, "vx_step": vx_step}
-    for name, value in tuning.items():
-        if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"estimate_sideslip: {name} must be a finite positive number, got {value!r}")
-    if vx_step > v_min:
-        raise ValueError(f"estimate_sideslip: vx_step = {vx_step} m/s is coarser than v_min = {v_min} m/s: the slowest "
-                         "speed bin the model is used at would be 0 m/s")
-    n = 3 if bias_ay else 2
-    Qc = np.diag([q_beta, q_r, q_bias][:n])
-    R = np.diag([gyro_noise ** 2, accel_noise ** 2])
-    x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).reshape(n).copy()
-    P = np.diag([math.radians(2.0) ** 2, math.radians(2.0) ** 2, bias_std ** 2][:n]) if P0 is None \
-        else np.asarray(P0, dtype=float).reshape(n, n).copy()
-    kinematic_gain = params.b / params.wheelbase
-    ts, deltas = d["t"], d["delta"]
-    zs = np.column_stack([d["yaw_rate"], d["ay"]])
-    speeds = d["vx"]
-    N = len(ts)
-    dt0 = float(np.median(np.diff(ts)))
-    models = _ModelCache(model, params, Qc, bias_ay, vx_step, dt0)
-    xs, Ps = np.empty((N, n)), np.empty((N, n, n))
-    ys, Ss = np.full((N, 2), np.nan), np.full((N, 2, 2), np.nan)
-    low = speeds < v_min
-    with _blas_controller().limit(limits=1, user_api="blas"):
-        for k in range(N):
-            dt = ts[k] - ts[k - 1] if k else dt0
-            delta_prev = deltas[k - 1] if k else deltas[0]
-            if low[k]:
-                x, P, ys[k, 0], Ss[k, 0, 0] = _low_speed_step(x, P, zs[k, 0], deltas[k] * kinematic_gain,
-                                                               beta_low_std ** 2, q_r * dt, q_bias * dt, gyro_noise ** 2)
-            elif n == 2:
-                x, P, ys[k], Ss[k] = _step2(x, P, delta_prev, zs[k], deltas[k], models(speeds[k], dt)[1], R)
-            else:
-                x, P, ys[k], Ss[k] = sideslip_step(x, P, delta_prev, zs[k], deltas[k], *models(speeds[k], dt)[0], R)
-            xs[k], Ps[k] = x, P
-    beta = xs[:, 0]
-    return SideslipResult(xs, Ps, ys, Ss, beta=beta, yaw_rate=xs[:, 1], vy=speeds * np.tan(beta),
-                          bias_ay=xs[:, 2] if bias_ay else None, low_speed=low)
+    kf = SideslipKF(float(np.median(np.diff(d["t"]))), params, model=model, **settings)
+    return kf.run(*d.values(), x0=x0, P0=P0)
 
 
 @lru_cache(maxsize=1)
@@ -226,7 +309,7 @@ def _step2(x, P, delta_prev, z, delta, m, R):
     m21, m22 = a21 * p11 + a22 * p12, a21 * p12 + a22 * p22
     p11, p12, p22 = m11 * a11 + m12 * a12 + q11, m11 * a21 + m12 * a22 + q12, m21 * a21 + m22 * a22 + q22
     # update: PCᵀ columns are P[:, 1] and P·[c21, c22]
-    y1, y2 = z[0] - x1, z[1] - c21 * x0 - c22 * x1 - d2 * delta
+    y1, y2 = z[0] - x1, z[1] - c21 * x0 - c22 * x1 - d2 * delta  # z = (r, a_y)
     u0, u1 = p11 * c21 + p12 * c22, p12 * c21 + p22 * c22
     s11, s12, s22 = p22 + R[0, 0], u1, c21 * u0 + c22 * u1 + R[1, 1]
     det = s11 * s22 - s12 * s12
@@ -284,7 +367,7 @@ def copied_kinematic_kf(t, yaw_rate, ay, vx, q=1e-4, gyro_noise=0.003, accel_noi
     dt = float(np.median(np.diff(t)))
     kf = KalmanFilter(F=[[1.0, dt], [0.0, 1.0]], H=np.eye(2), Q=q * np.eye(2),
                       R=np.diag([(accel_noise * dt) ** 2, gyro_noise ** 2]), x0=np.zeros(2), P0=np.eye(2))
-    run = run_kf(kf, np.column_stack([ay * dt, r]))
+    run = kf.run(np.column_stack([ay * dt, r]))
     vy = run.x[:, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
         beta = np.where(vx > 0, np.arctan2(vy, vx), np.nan)

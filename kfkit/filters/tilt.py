@@ -8,7 +8,7 @@
 The accelerometer angle is only a measurement of tilt while the board does not accelerate, which
 the host (or the board) judges from the specific force's norm: ``static_ok = |‖f‖ − g| < ε``.
 When it is false the gate either skips the update (``gate="skip"``) or inflates R by
-``inflation`` (``gate="inflate"``); ``gate="none"`` always updates. ``firmware/tilt_kf/tilt_kf.c``
+``inflation`` (``gate="inflate"``); ``gate="none"`` always updates. The tuning is a :class:`TiltSettings`. ``firmware/tilt_kf/tilt_kf.c``
 is the same filter in C (float32); ``tests/test_tilt_c.py`` holds them together.
 """
 from __future__ import annotations
@@ -19,15 +19,36 @@ import numpy as np
 
 from ..frames import G, accel_tilt, mount_matrix
 from ..sensors import board as get_board
-from .linear import FilterRun
+from .linear import FilterRun, Step, configure, require_positive
 
 GATES = ("none", "skip", "inflate")
+DEFAULT_EPS = 0.05 * G  # m/s², static gate |‖f‖ − g| < ε
 
-#: Lab 05's tuning for an MPU6050 at 100 Hz, also the C defaults (``tiltKfDefaultSettings``).
-DEFAULT_Q_ANGLE = 2e-6  # rad²
-DEFAULT_Q_BIAS = 2e-10  # (rad/s)²: 10⁻⁴ q_θ; the fit is flat in q_b once the bias has converged
-DEFAULT_R = 1.6e-5  # rad²: (4 mg accelerometer noise / 1 g)²
-DEFAULT_EPS = 0.05 * G  # m/s², static gate
+
+@dataclass(frozen=True)
+class TiltSettings:
+    """Tuning of one :class:`TiltBiasKF` axis. The defaults are lab 05's for an MPU6050 at 100 Hz and
+    the C filter's (``tiltKfDefaultSettings``).
+
+    q_angle    q_θ, angle random walk per step beyond the gyro, rad² (≈ (σ_ω·Δt)² to start)    2e-6
+    q_bias     q_b, bias random walk per step, (rad/s)² (10⁻⁴ q_θ: the fit is flat in q_b
+               once the bias has converged)                                                    2e-10
+    r          variance of the accelerometer angle, rad² ((4 mg noise / 1 g)²)                 1.6e-5
+    gate       what to do when ``static_ok`` is false: "skip", "inflate" or "none"            "skip"
+    inflation  R multiplier for ``gate="inflate"``                                             100
+    """
+
+    q_angle: float = 2e-6
+    q_bias: float = 2e-10
+    r: float = 1.6e-5
+    gate: str = "skip"
+    inflation: float = 100.0
+
+    def __post_init__(self):
+        require_positive("TiltSettings", zero_ok=("q_bias",), q_angle=self.q_angle, q_bias=self.q_bias, r=self.r,
+                         inflation=self.inflation)
+        if self.gate not in GATES:
+            raise ValueError(f"TiltSettings: gate must be one of {', '.join(GATES)}, got {self.gate!r}")
 
 
 def accel_static_ok(f_b, eps=DEFAULT_EPS):
@@ -70,25 +91,17 @@ class TiltBiasKF:
     """Two-state [angle, gyro bias] Kalman filter for one tilt axis.
 
     dt         sample period, s
-    q_angle    q_θ, angle random walk per step beyond the gyro, rad² (≈ (σ_ω·Δt)² to start)
-    q_bias     q_b, bias random walk per step, (rad/s)² (≪ q_θ)
-    r          variance of the accelerometer angle, rad²
-    gate       what to do when ``static_ok`` is false: "skip", "inflate" or "none"
-    inflation  R multiplier for ``gate="inflate"``
+    settings   :class:`TiltSettings`; keyword changes apply on top: ``TiltBiasKF(0.01, r=1e-4)``
     x0, P0     initial [θ (rad), b (rad/s)] and its 2×2 covariance; ``run`` defaults θ₀ to the first
                accelerometer angle and P0 to diag(r, (0.1 rad/s)²)
     """
 
-    def __init__(self, dt, q_angle, q_bias, r, gate="skip", inflation=100.0, x0=(0.0, 0.0), P0=None):
-        for name, value in (("dt", dt), ("q_angle", q_angle), ("r", r), ("inflation", inflation)):
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"TiltBiasKF: {name} must be a positive number, got {value}")
-        if not (np.isfinite(q_bias) and q_bias >= 0):
-            raise ValueError(f"TiltBiasKF: q_bias must be a number ≥ 0, got {q_bias}")
-        if gate not in GATES:
-            raise ValueError(f"TiltBiasKF: gate must be one of {', '.join(GATES)}, got {gate!r}")
-        self.dt, self.q_angle, self.q_bias, self.r = float(dt), float(q_angle), float(q_bias), float(r)
-        self.gate, self.inflation = gate, float(inflation)
+    def __init__(self, dt, settings: TiltSettings | None = None, x0=(0.0, 0.0), P0=None, **changes):
+        require_positive("TiltBiasKF", dt=dt)
+        self.dt = float(dt)
+        self.settings = configure(TiltSettings, settings, changes, "TiltBiasKF")
+        self.q_angle, self.q_bias, self.r = (float(v) for v in (self.settings.q_angle, self.settings.q_bias, self.settings.r))
+        self.gate, self.inflation = self.settings.gate, float(self.settings.inflation)
         self.reset(x0, P0)
 
     def reset(self, x0=(0.0, 0.0), P0=None):
@@ -108,11 +121,17 @@ class TiltBiasKF:
     def P(self) -> np.ndarray:
         return np.array([[self.P00, self.P01], [self.P01, self.P11]])
 
-    def step(self, gyro_rate, accel_angle, static_ok=True):
+    def step(self, gyro_rate, accel_angle, static_ok=True) -> Step:
         """One predict with the gyro rate (rad/s), one (gated) update with the accel angle (rad).
 
-        A NaN ``accel_angle`` skips the update. Returns (θ, b, y, S); y and S are NaN if skipped.
+        A NaN ``accel_angle`` skips the update. Returns Step(x = [θ, b], P (2×2), y, S); y and S
+        are NaN if skipped.
         """
+        _, _, y, S = self._advance(gyro_rate, accel_angle, static_ok)
+        return Step(self.x, self.P, y, S)
+
+    def _advance(self, gyro_rate, accel_angle, static_ok):
+        """:meth:`step` on floats, returning (θ, b, y, S): what :meth:`run` stores per sample."""
         dt, P00, P01, P11 = self.dt, self.P00, self.P01, self.P11
         # predict: θ⁻ = θ + (ω − b)Δt; P⁻ = A P Aᵀ + Q written out (P symmetric: P00, P01, P11)
         angle, bias = self.angle + (gyro_rate - self.bias) * dt, self.bias
@@ -135,7 +154,7 @@ class TiltBiasKF:
         return angle, bias, y, S
 
     def run(self, gyro_rate, accel_angle, static_ok=None, x0=None, P0=None) -> TiltRun:
-        """Run over a recording from (x0, P0): ``step`` for every sample. Returns a :class:`TiltRun`.
+        """Run over a recording from (x0, P0): a step for every sample. Returns a :class:`TiltRun`.
 
         gyro_rate, accel_angle (N,) rad/s and rad; static_ok (N,) bool (default all True).
         x0 defaults to [first accelerometer angle, 0].
@@ -155,9 +174,9 @@ class TiltBiasKF:
             first = z[~np.isnan(z)]
             x0 = (float(first[0]) if len(first) else 0.0, 0.0)
         self.reset(x0, P0)
-        step, rows = self.step, []
+        advance, rows = self._advance, []
         for wk, zk, okk in zip(w.tolist(), z.tolist(), ok.tolist()):  # plain floats: fast enough for tuning loops
-            rows.append((*step(wk, zk, okk), self.P00, self.P01, self.P11))
+            rows.append((*advance(wk, zk, okk), self.P00, self.P01, self.P11))
         h = np.array(rows)
         P = np.stack([h[:, 4], h[:, 5], h[:, 5], h[:, 6]], axis=1).reshape(-1, 2, 2)
         return TiltRun(h[:, :2].copy(), P, h[:, 2].copy(), h[:, 3].copy(), gated=~ok)
@@ -170,17 +189,17 @@ class TiltAttitude:
     filters start from; then for every sample: counts → body frame (SI) with the board's
     sensitivities and mounting, six-face correction f = (f_raw − accel_bias) / accel_scale (body frame),
     accelerometer roll and pitch, the static gate |‖f‖ − g| < eps, one :class:`TiltBiasKF` per axis
-    fed with the body rates p (roll) and q (pitch). Each axis is treated on its own, which holds for
+    (``settings``, a :class:`TiltSettings`) fed with the body rates p (roll) and q (pitch). Each axis is treated on its own, which holds for
     turns about one axis at a time (θ̇ = q only while φ = 0). Roll is not updated while
     √(f_y² + f_z²) < roll_min·g: near pitch ±90° the accelerometer roll is the angle of noise.
     """
 
-    def __init__(self, board="mpu6050", rate_hz=None, q_angle=DEFAULT_Q_ANGLE, q_bias=DEFAULT_Q_BIAS, r=DEFAULT_R,
-                 gate="skip", eps=DEFAULT_EPS, roll_min=0.5, bias_seconds=2.0, accel_bias=(0.0, 0.0, 0.0), accel_scale=(1.0, 1.0, 1.0)):
+    def __init__(self, board="mpu6050", rate_hz=None, settings: TiltSettings | None = None, eps=DEFAULT_EPS,
+                 roll_min=0.5, bias_seconds=2.0, accel_bias=(0.0, 0.0, 0.0), accel_scale=(1.0, 1.0, 1.0)):
         self.board = get_board(board) if isinstance(board, str) else board
         self.rate_hz = float(rate_hz or self.board.rate_hz)
         dt = 1.0 / self.rate_hz
-        self.kfs = [TiltBiasKF(dt, q_angle, q_bias, r, gate=gate) for _ in range(2)]
+        self.kfs = [TiltBiasKF(dt, settings) for _ in range(2)]
         self.eps, self.roll_min = eps, roll_min
         self.accel_bias, self.accel_scale = np.asarray(accel_bias, float), np.asarray(accel_scale, float)
         self._acc = mount_matrix(self.board.mount["acc"]) * self.board.accel.sensitivity
@@ -189,8 +208,9 @@ class TiltAttitude:
         self._rates = []
         self.gyro_bias = None  # body frame [p, q, r] bias from the still start, rad/s
 
-    def update(self, acc_counts, gyr_counts):
-        """One sample of counts (sensor frame). Returns (roll, pitch) in rad, or None while measuring the bias."""
+    def step(self, acc_counts, gyr_counts):
+        """One sample of counts (sensor frame). Returns (roll, pitch) in rad, or None while measuring the
+        bias; each axis's full :class:`Step` is its filter's (``kfs[0]`` roll, ``kfs[1]`` pitch)."""
         f = (self._acc @ np.asarray(acc_counts, float) - self.accel_bias) / self.accel_scale
         w = self._gyr @ np.asarray(gyr_counts, float)
         if self.gyro_bias is None:
@@ -205,7 +225,7 @@ class TiltAttitude:
         ok = accel_static_ok(f, self.eps)
         roll_ok = ok and np.hypot(f[1], f[2]) >= self.roll_min * G
         (roll, pitch), (p, q) = accel_tilt(f), w[:2].tolist()
-        return self.kfs[0].step(p, roll, roll_ok)[0], self.kfs[1].step(q, pitch, ok)[0]
+        return self.kfs[0]._advance(p, roll, roll_ok)[0], self.kfs[1]._advance(q, pitch, ok)[0]
 
 
 def protocol_angles(rec):
