@@ -337,7 +337,7 @@ class VirtualBoard:
                 elif self._is_fault("truncate", n):
                     line = line[: len(line) // 2] + b"\n"
                 out += line
-                angles = self._tilt.update(row[:3], row[3:6]) if self._tilt is not None else None
+                angles = self._tilt.step(row[:3], row[3:6]) if self._tilt is not None else None
                 if angles is not None:
                     out += encode_message("ATT", np.degrees(angles))
                 for extra in self.extra_lines:
