@@ -1,0 +1,403 @@
+"""A phone running phyphox as a capture port: its remote-interface REST API, read like a board.
+
+phyphox's "remote access" (⋮ menu → "Allow remote access") serves the open experiment over HTTP
+on the local network (phyphox-docs ``docs/remote-interface``; phyphox-android ``RemoteServer.java``):
+
+- ``/config``: the experiment's title, buffers, and ``inputs``, each sensor (``source``:
+  ``accelerometer``, ``gyroscope``, ``magnetic_field``, ``linear_acceleration``, …) with the buffers
+  its components x, y, z, t write to;
+- ``/get?buf=T&buf2=T|buf&…``: per buffer its values after the first one above T (8 significant
+  digits), or ``full``, or only the last value; plus ``status`` (session, measuring, timedRun,
+  countDown). Polling with the last time received gives only what is new;
+- ``/control?cmd=start|stop|clear``, ``/meta`` (device), ``/time``.
+
+The server is slow and handles one request at a time, so :class:`PhyphoxClient` sends one request
+after another, each on its own connection (``Connection: close``, no keep-alive), as the bundled web
+interface does. :class:`PhyphoxPort` polls it (every ``poll_s``), puts the sensors on the gyroscope's
+time base (:class:`kfkit.phone.OneClock`) and hands the rows to the :class:`~kfkit.capture.Recorder`
+as kfkit protocol v1 lines (fixed-point counts, :data:`kfkit.phone.LSB`), so a phone records with the
+same statistics, streamed file, progress bar and live plot as a board. A gap in the phone's gyro
+timestamps shows as dropped samples; its jitter is the recording's.
+
+    kfkit capture --port phyphox://192.168.0.42:8080 --seconds 60 --out phone.csv
+
+Options ride on the address: ``phyphox://HOST:PORT?mount=upright&poll=0.2`` (mount: a name in
+:data:`kfkit.phone.MOUNTS`). Without a port, 8080 (Android's default; iPhones use 80).
+"""
+from __future__ import annotations
+
+import errno
+import http.client
+import json
+import socket
+import time
+import urllib.error
+import urllib.request
+from urllib.parse import parse_qsl, urlencode, urlsplit
+
+import numpy as np
+
+from .. import phone
+from .ports import CaptureError
+from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_sample
+
+SCHEME = "phyphox://"
+DEFAULT_PORT = 8080
+#: phyphox sensor types (``/config`` inputs) → the kit's sensor names
+SOURCES = {"accelerometer": "acc", "gyroscope": "gyr", "magnetic_field": "mag", "linear_acceleration": "lin",
+           "gravity": "gra"}
+NAMES = {"acc": "accelerometer", "gyr": "gyroscope", "mag": "magnetometer", "lin": "linear acceleration",
+         "gra": "gravity"}
+SIMPLE_EXPERIMENT = ("in phyphox tap '+' → 'New simple experiment', tick Accelerometer, Gyroscope and Magnetometer, "
+                     "open it and allow remote access again (⋮ menu)")
+
+
+class PhoneError(CaptureError):
+    """A problem with the phone or phyphox; the message says what to do."""
+
+
+class PhoneUnreachableError(PhoneError):
+    pass
+
+
+class RemoteAccessOffError(PhoneError):
+    pass
+
+
+class PhoneExperimentError(PhoneError):
+    pass
+
+
+class PhoneStoppedError(PhoneError):
+    pass
+
+
+def parse_url(url: str) -> tuple[str, int, dict]:
+    """``phyphox://HOST[:PORT][?key=value…]`` → (host, port, options)."""
+    if not url.startswith(SCHEME):
+        raise ValueError(f"a phone address starts with {SCHEME}, got {url!r}")
+    parts = urlsplit("http://" + url[len(SCHEME):])
+    if not parts.hostname:
+        raise ValueError(f"no host in {url!r}: give the address phyphox shows, e.g. phyphox://192.168.0.42:8080")
+    return parts.hostname, parts.port or DEFAULT_PORT, dict(parse_qsl(parts.query))
+
+
+class PhyphoxClient:
+    """phyphox's REST API at ``host:port``: one request at a time, each on a new connection."""
+
+    def __init__(self, host: str, port: int = DEFAULT_PORT, timeout: float = 3.0):
+        self.host, self.port, self.timeout = host, int(port), float(timeout)
+        self.base = f"http://{host}:{self.port}"
+
+    def request(self, path: str, params=()):
+        """GET ``path`` with query ``params`` ((name, value) pairs) → the decoded JSON."""
+        url = self.base + path + (f"?{urlencode(list(params))}" if params else "")
+        req = urllib.request.Request(url, headers={"Connection": "close", "User-Agent": "kfkit"})
+        try:
+            with urllib.request.urlopen(req, timeout=self.timeout) as response:
+                body = response.read()
+        except urllib.error.HTTPError as e:
+            detail = e.read()[:200].decode("utf-8", "replace")
+            hint = (": phyphox older than 1.1.6 has no /config, or this is not phyphox" if e.code == 404 else "")
+            raise PhoneError(f"{self.base}{path} answered HTTP {e.code} ({detail.strip() or e.reason}){hint}") from None
+        except urllib.error.URLError as e:
+            raise self._connection_error(e.reason) from None
+        except (TimeoutError, socket.timeout) as e:
+            raise self._connection_error(e) from None
+        except (ConnectionError, http.client.HTTPException) as e:
+            raise PhoneError(f"{self.base} closed the connection ({e.__class__.__name__}: {e}): is the phone still on "
+                             f"the network with phyphox in front?") from None
+        try:
+            return json.loads(body)
+        except ValueError:
+            shown = body[:60].decode("utf-8", "replace")
+            raise PhoneError(f"{self.base}{path} answered, but not with phyphox's JSON (got {shown!r}): is "
+                             f"{self.host}:{self.port} the address phyphox shows under 'Allow remote access'?") from None
+
+    def _connection_error(self, reason) -> PhoneError:
+        where = f"{self.host}:{self.port}"
+        if isinstance(reason, ConnectionRefusedError):
+            return RemoteAccessOffError(
+                f"nothing listens on {where} (connection refused): the phone is there, but phyphox's remote access "
+                f"is off or on another port. In phyphox open the experiment, tap ⋮ → 'Allow remote access' and use "
+                f"the address it then shows (port 8080 on Android, 80 on an iPhone)")
+        if isinstance(reason, socket.gaierror):
+            return PhoneUnreachableError(f"cannot find the phone {self.host!r} ({reason.strerror}): type the "
+                                         f"address phyphox shows under 'Allow remote access', e.g. 192.168.0.42:8080")
+        if isinstance(reason, (TimeoutError, socket.timeout)) or getattr(reason, "errno", None) in (
+                errno.EHOSTUNREACH, errno.ENETUNREACH, errno.EHOSTDOWN, errno.ETIMEDOUT):
+            return PhoneUnreachableError(
+                f"no answer from {where} within {self.timeout:g} s: the phone is not reachable. Is this computer on "
+                f"the same Wi-Fi as the phone (guest and campus networks often keep devices apart)? Is the phone's "
+                f"screen on with phyphox in front (a phone in standby stops serving)? Is the address the one phyphox shows?")
+        return PhoneUnreachableError(f"cannot reach {where}: {reason}")
+
+    def config(self) -> dict:
+        return self.request("/config")
+
+    def meta(self) -> dict:
+        return self.request("/meta")
+
+    def get(self, params) -> dict:
+        return self.request("/get", params)
+
+    def control(self, cmd: str) -> bool:
+        return bool(self.request("/control", [("cmd", cmd)]).get("result"))
+
+    def start(self) -> bool:
+        """Start measuring (or the countdown of a timed run); False if phyphox refused."""
+        return self.control("start")
+
+    def stop(self) -> bool:
+        return self.control("stop")
+
+    def clear(self) -> bool:
+        """Delete the experiment's data on the phone (and stop measuring)."""
+        return self.control("clear")
+
+
+def experiment_sensors(config: dict) -> dict[str, dict[str, str]]:
+    """{sensor: {"x", "y", "z", "t": buffer name}} of the 3-axis sensor inputs in ``/config``."""
+    sensors = {}
+    for inp in config.get("inputs", []):
+        kind = SOURCES.get(inp.get("source"))
+        if kind is None or kind in sensors:
+            continue
+        outputs = {c: b for out in inp.get("outputs", []) for c, b in out.items()}
+        if all(c in outputs for c in ("x", "y", "z", "t")):
+            sensors[kind] = {c: outputs[c] for c in ("x", "y", "z", "t")}
+    return sensors
+
+
+def check_experiment(config: dict, require=("acc", "gyr")) -> dict[str, dict[str, str]]:
+    """The experiment's sensors, or :class:`PhoneExperimentError` naming what is missing and what to open."""
+    sensors = experiment_sensors(config)
+    title = config.get("localTitle") or config.get("title") or "?"
+    found = ", ".join(NAMES[k] for k in sensors) or "no 3-axis sensor"
+    for need in require:
+        if need in sensors:
+            continue
+        msg = f"the experiment open in phyphox ({title!r}) has no {NAMES[need]} (it has: {found})."
+        if need == "acc" and ("lin" in sensors or "gra" in sensors):
+            msg += (" It measures the linear acceleration (gravity removed); the filters need the accelerometer's "
+                    "specific force with gravity: tick 'Accelerometer' (not 'Linear Acceleration') in a simple "
+                    "experiment, as in phyphox's 'Acceleration with g'.")
+        raise PhoneExperimentError(f"{msg} To record acc + gyro + mag at once: {SIMPLE_EXPERIMENT}")
+    return sensors
+
+
+class PhyphoxPort:
+    """A phone running phyphox, opened like a serial port for the :class:`~kfkit.capture.Recorder`.
+
+    Opening reads ``/config`` (the sensors must be there), starts measuring if the phone is paused (and
+    stops it again on :meth:`close`), skips what the phone recorded before, and waits for the first
+    ``start_s`` of data to learn the gyro's rate. :meth:`read` polls ``/get`` every ``poll_s`` and
+    returns protocol v1 lines; :meth:`header_metadata` gives the recording its phone metadata. A phone
+    that pauses, switches experiment, clears its data or stops answering ends the capture with a
+    :class:`PhoneError` (what arrived is saved by the recorder).
+    """
+
+    def __init__(self, url: str, read_timeout=0.05, http_timeout=3.0, poll_s=0.1, mount=phone.DEFAULT_MOUNT,
+                 require=("acc", "gyr"), start_s=3.0, stall_s=2.0, min_rows=20):
+        host, port, options = parse_url(url)
+        self.url, self.read_timeout = url, float(read_timeout)
+        self.poll_s = float(options.get("poll", poll_s))
+        self.mount_name, self.M = phone.phone_mount(options.get("mount", mount))
+        self.stall_s = stall_s
+        self.client = PhyphoxClient(host, port, float(options.get("timeout", http_timeout)))
+        config = self.client.config()
+        self.sensors = check_experiment(config, require)
+        self.kinds = [k for k in ("gyr", "acc", "mag") if k in self.sensors]
+        self.title = config.get("localTitle") or config.get("title") or ""
+        try:
+            meta = self.client.meta()
+        except PhoneError:
+            meta = {}
+        self.device = {k: v for k, v in meta.items() if isinstance(v, str) or v is None}
+        self.chips = {k: (meta.get("sensors") or {}).get(name, {}).get("Name")
+                      for k, name in (("acc", "accelerometer"), ("gyr", "gyroscope"), ("mag", "magnetic_field"))}
+        first = self.client.get([(self.sensors[k]["t"], "") for k in self.kinds])
+        self.session = first["status"]["session"]
+        self._threshold = {k: self._last_value(first, k) for k in self.kinds}  # skip what was recorded before
+        self._started = False
+        countdown = 0.0
+        if not first["status"]["measuring"]:
+            if not self.client.start():
+                raise PhoneExperimentError(f"phyphox on {host}:{port} refused to start {self.title!r} (a Bluetooth "
+                                           f"device it needs not connected?): press play on the phone and try again")
+            self._started = True
+            status = self.client.get([])["status"]
+            if status.get("timedRun") and not status.get("measuring"):
+                countdown = float(status.get("countDown", 0.0)) / 1000.0  # ms: a timed run starts after its delay
+        self.clock = phone.OneClock(base="gyr", interpolated=("acc",), held=("mag",) if "mag" in self.kinds else ())
+        self.info = {"url": url, "experiment": self.title, "crc32": config.get("crc32"), "device": self.device,
+                     "buffers": self.sensors, "time_base": "gyroscope", "merge": self.clock.stats}
+        self._rows: list = []
+        self._out = bytearray()
+        self._closed = False
+        self.header, self._grid = None, None  # _grid: (phase s, index, first time s) of the sample counter
+        self._last_mag = np.zeros(3, dtype=np.int64)
+        self._last_new = self._polled = time.monotonic()
+        try:
+            deadline = time.monotonic() + countdown + start_s
+            while sum(len(r[0]) for r in self._rows) < min_rows:
+                if time.monotonic() > deadline:
+                    got = ", ".join(f"{NAMES[k]} until {v:.2f} s" for k, v in self._threshold.items() if v is not None)
+                    raise PhoneStoppedError(
+                        f"phyphox on {host}:{port} is measuring {self.title!r} but sent no gyroscope + accelerometer "
+                        f"rows in {start_s:g} s (phone data: {got or 'none'}): is the phone's screen on with phyphox in "
+                        f"front, and are its sensors available on this phone?")
+                time.sleep(self.poll_s)
+                self._poll()
+        except BaseException:
+            self.close()
+            raise
+        self._start_stream()
+
+    def _last_value(self, response, kind):
+        """The newest time the phone holds for ``kind`` (s), None if its buffer is empty."""
+        values = response.get("buffer", {}).get(self.sensors[kind]["t"], {}).get("buffer") or [None]
+        return None if values[-1] is None else float(values[-1])
+
+    # -- polling -----------------------------------------------------------------------------------------
+    def _request(self):
+        params = []
+        for k in self.kinds:
+            b, thr = self.sensors[k], self._threshold[k]
+            if thr is None:
+                params += [(b[c], "full") for c in ("t", "x", "y", "z")]
+            else:
+                params += [(b["t"], repr(thr))] + [(b[c], f"{thr!r}|{b['t']}") for c in ("x", "y", "z")]
+        return params
+
+    def _poll(self):
+        response = self.client.get(self._request())
+        status = response.get("status", {})
+        if status.get("session") != self.session:
+            raise PhoneStoppedError("another experiment was opened on the phone (phyphox's session changed): "
+                                    "start a new capture")
+        buffers = response.get("buffer", {})
+        new = False
+        for k in self.kinds:
+            b = self.sensors[k]
+            cols = [np.array([np.nan if v is None else v for v in buffers.get(b[c], {}).get("buffer", [])], dtype=float)
+                    for c in ("t", "x", "y", "z")]
+            n = min(len(c) for c in cols)
+            table = np.column_stack([c[:n] for c in cols]) if n else np.zeros((0, 4))
+            table = table[np.isfinite(table).all(axis=1)]
+            if self._threshold[k] is not None:
+                table = table[table[:, 0] > self._threshold[k]]
+            if len(table):
+                self._threshold[k] = float(table[-1, 0])
+                self.clock.push(k, table[:, 0], table[:, 1:])
+                new |= k == "gyr"
+        t, values, _ = self.clock.pop()
+        if len(t):
+            self._rows.append((t, values))
+        now = time.monotonic()
+        if new:
+            self._last_new = now
+        elif self.header is not None and now - self._last_new > self.stall_s:
+            if not status.get("measuring", False):
+                raise PhoneStoppedError("the phone stopped measuring (paused in phyphox, or its timed run ended): "
+                                        "what arrived is saved; start a new capture to go on")
+            raise PhoneStoppedError(f"the phone is measuring but sent no new gyroscope samples for {self.stall_s:g} s: "
+                                    f"its data was cleared, or phyphox went to the background; start a new capture")
+
+    def _start_stream(self):
+        t = np.concatenate([r[0] for r in self._rows])
+        self.nominal_dt = float(np.median(np.diff(t)))
+        self.rate_hz = round(1.0 / self.nominal_dt, 2)
+        self.fields = ("t_us", "seq", "ax", "ay", "az", "gx", "gy", "gz") + (
+            ("mx", "my", "mz", "mag_new") if "mag" in self.kinds else ())
+        self.header = encode_header(phone.BOARD_NAME, self.rate_hz, self.fields, source="phyphox")
+        self._out += self.header
+        self._encode()
+
+    def _encode(self):
+        for t, values in self._rows:
+            counts = {k: phone.to_counts(k, values[k]) for k in self.kinds}
+            seq = self._sequence(t)
+            for i, ti in enumerate(t.tolist()):
+                row = [round(ti * 1e6) % MICROS_MODULO, int(seq[i]) % SEQ_MODULO,
+                       *counts["acc"][i].tolist(), *counts["gyr"][i].tolist()]
+                if "mag" in self.kinds:
+                    m = counts["mag"][i]
+                    fresh = bool(np.isfinite(m).all())
+                    if fresh:
+                        self._last_mag = m.astype(np.int64)
+                    row += [*self._last_mag.tolist(), int(fresh)]
+                self._out += encode_sample(row)
+        self._rows = []
+
+    def _sequence(self, t) -> list:
+        """Sample counters for the gyro times t (s), continuing across polls: the index n of each time on the phone
+        clock's grid. A timestamp carries jitter σ_t (0.3 ms: 12 % of a 400 Hz period), so rounding each interval
+        (k = round(Δt/T)) would call a late stamp a lost sample once in ~700. Instead each time is placed against a
+        smoothed phase of the grid, φ ← φ + α(t − φ) after φ moves on by the periods counted (noise σ_t·√(α/2)),
+        with the period T = (φ − t_first)/n once 20 samples are in (before: the first rows' median):
+        n_k = n_{k−1} + max(1, round((t_k − φ)/T)); a real gap shows as a step of 2 or more."""
+        alpha = 0.1
+        out = []
+        for ti in np.asarray(t, dtype=float).tolist():
+            if self._grid is None:
+                self._grid = (ti, 0, ti)
+                out.append(0)
+                continue
+            phase, n, first = self._grid
+            period = (phase - first) / n if n >= 20 else self.nominal_dt
+            step = max(1, round((ti - phase) / period))
+            expected = phase + step * period
+            self._grid = (expected + alpha * (ti - expected), n + step, first)
+            out.append(n + step)
+        return out
+
+    # -- the serial-port interface the Recorder uses -----------------------------------------------------------
+    @property
+    def in_waiting(self) -> int:
+        return len(self._out)
+
+    def read(self, size=1) -> bytes:
+        if not self._out and not self._closed:
+            wait = self._next_poll() - time.monotonic()
+            if wait > 0:
+                time.sleep(min(wait, self.read_timeout))
+            if time.monotonic() >= self._next_poll():
+                self._polled = time.monotonic()
+                self._poll()
+                self._encode()
+        data = bytes(self._out[:size])
+        del self._out[:size]
+        return data
+
+    def _next_poll(self) -> float:
+        return self._polled + self.poll_s
+
+    def write(self, data: bytes) -> int:
+        """``h``: send the header again; ``s``: pause/resume measuring on the phone."""
+        for c in bytes(data):
+            if c == ord("h") and self.header is not None and not self._out.startswith(self.header):
+                self._out += self.header
+            elif c == ord("s"):
+                self.client.control("stop" if self.client.get([])["status"]["measuring"] else "start")
+        return len(data)
+
+    def close(self):
+        """Stop measuring if this port started it (what the phone recorded stays on the phone)."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._started:
+            try:
+                self.client.stop()
+            except PhoneError:
+                pass  # the phone is gone: nothing to stop
+
+    def header_metadata(self, header) -> dict:
+        """The recording's metadata: phone counts, the mounting, and what phyphox said about itself.
+        ``meta["phone"]["merge"]`` is the live merge statistics (updated until the capture ends)."""
+        return {"board": phone.BOARD_NAME, "rate_hz": header.rate_hz, "source": "capture (phone, phyphox remote access)",
+                "units": {"t": "s", "sensors": "counts (see sensors.*.sensitivity)"},
+                "protocol": {"version": header.version, "header": "#" + header.text},
+                "sensors": {k: phone.sensor_metadata(k, self.chips[k]) for k in self.kinds},
+                "mount": {k: self.M.tolist() for k in self.kinds}, "mount_name": self.mount_name, "phone": self.info}
