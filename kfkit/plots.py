@@ -3,13 +3,17 @@
 Angles come in radians (the kit's unit) and are shown in degrees. Colours are the
 Okabe–Ito palette; line styles differ too, so the figures survive greyscale printing.
 Each function draws on the given axes (or a new figure) and returns the figure.
+
+A recording of your own has no truth: every helper that takes ``truth`` accepts None and says so
+in the figure or the table (:data:`NO_TRUTH`) instead of failing, so a notebook cell needs no branch.
 """
 from __future__ import annotations
 
 import matplotlib.pyplot as plt
 import numpy as np
 
-from .metrics import chi2_bounds, nis
+from .frames import euler_to_quat
+from .metrics import angle_error, attitude_errors, chi2_bounds, fraction_inside, nis, rmse
 
 # Okabe & Ito (2008), "Color Universal Design".
 COLORS = {
@@ -22,6 +26,9 @@ COLORS = {
     "other": "#CC79A7",  # reddish purple
 }
 STYLES = {"truth": "-", "accel": "-", "gyro": "--", "kf": "-", "other": "-."}
+XYZ = (("kf", "-"), ("bound", "--"), ("band", "-."))  # (colour, style) of x, y, z or roll, pitch, yaw
+EULER = ("roll", "pitch", "yaw")
+NO_TRUTH = "no truth in this recording"
 
 
 def apply_style():
@@ -147,3 +154,189 @@ def consistency(t, err, variance, y, S, dof=1, title=None):
     if title:
         fig.suptitle(title)
     return fig
+
+
+# --- helpers that make a notebook cell one call (labs 01–06) -----------------------------------------------
+
+def no_truth(ax, what):
+    """Say in ``ax`` that ``what`` needs the truth this recording does not have."""
+    ax.text(0.5, 0.5, f"{NO_TRUTH}: {what}", transform=ax.transAxes, ha="center", va="center", color=COLORS["truth"])
+
+
+def windows_of(phases, label):
+    """The (start, end) windows (s) of the phases called ``label``; ``phases`` as ``Recording.phases``
+    ([{"label", "start", "end"}]) or [(start, end, label)]."""
+    return [(a, b) for a, b, name in _phase_tuples(phases) if name == label]
+
+
+def _phase_tuples(phases):
+    return [(p["start"], p["end"], p["label"]) if isinstance(p, dict) else tuple(p) for p in phases or ()]
+
+
+def label_phases(ax, phases, skip=("stationary",)):
+    """Name each phase (``Recording.phases`` or [(start, end, label)], s) above ``ax``, at its middle."""
+    for a, b, label in _phase_tuples(phases):
+        if label not in skip:
+            ax.text((a + b) / 2, 1.0, label.replace("_", " "), transform=ax.get_xaxis_transform(),
+                    ha="center", va="bottom", fontsize=8, color="0.3")
+
+
+def break_wraps(angle):
+    """A copy of ``angle`` (rad) with NaN where it wraps by more than π, so a line plot draws no jump."""
+    out = np.array(angle, dtype=float)
+    out[1:][np.abs(np.diff(out, axis=0)) > np.pi] = np.nan
+    return out
+
+
+def xyz(ax, t, values, name, unit, scale=1.0, axes="xyz"):
+    """The three columns of ``values`` (N, 3) times ``scale`` against t (s), one colour and style each;
+    rows with NaN (a magnetometer without a new sample) are left out, not drawn as gaps."""
+    values = np.asarray(values, dtype=float) * scale
+    rows = ~np.isnan(values).any(axis=1)
+    for i, (axis, (kind, style)) in enumerate(zip(axes, XYZ)):
+        ax.plot(np.asarray(t)[rows], values[rows, i], color=COLORS[kind], ls=style, lw=0.8, label=f"{name} {axis}")
+    ax.set_ylabel(f"{name} ({unit})")
+    return ax.figure
+
+
+def imu_signals(t, gyr, acc, mag=None, shade=(), shade_label="shaded", phases=(), title=None):
+    """Gyro (rad/s, shown in °/s), accelerometer (m/s²) and magnetometer (µT, if given) in stacked panels
+    sharing time (s); ``shade`` windows [(t0, t1)] marked, ``phases`` named above the first panel."""
+    signals = [(gyr, "gyro", "°/s", np.degrees(1.0)), (acc, "accel", "m/s²", 1.0)]
+    signals += [] if mag is None else [(mag, "mag", "µT", 1.0)]
+    fig, axes = plt.subplots(len(signals), 1, sharex=True, figsize=(9.0, 2.35 * len(signals)))
+    for ax, (values, name, unit, scale) in zip(axes, signals):
+        xyz(ax, t, values, name, unit, scale)
+        mark_windows(ax, shade, label=shade_label)
+        legend_on_top(ax, ncols=4, fontsize=8)
+    label_phases(axes[0], phases)
+    axes[-1].set_xlabel("time (s)")
+    if title:
+        fig.suptitle(title, y=1.02)
+    return fig
+
+
+def compare_euler(t, truth, estimates: dict, shade=(), title=None):
+    """Roll, pitch and yaw (rad, shown in °) in three panels: :func:`compare_angles` on each, wraps not drawn
+    as jumps, one legend on top. ``truth`` (N, 3) or None; ``estimates`` maps a label to ((N, 3), kind)."""
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9.0, 8.0))
+    for i, ax in enumerate(axes):
+        compare_angles(t, None if truth is None else break_wraps(np.asarray(truth)[:, i]),
+                       {label: (break_wraps(np.asarray(v)[:, i]), kind) for label, (v, kind) in estimates.items()},
+                       ax=ax, ylabel=EULER[i])
+        ax.set_xlabel("")
+        if i:
+            ax.get_legend().remove()
+        mark_windows(ax, shade, label=None)
+    axes[-1].set_xlabel("time (s)")
+    axes[0].legend(loc="upper right", ncols=4, fontsize=8)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def euler_errors(t, estimate, truth, P, label="EKF", title="errors and the filter's own ±2σ"):
+    """Roll, pitch and yaw errors (rad, shown in °) each with the filter's ±2√P_ii band (:func:`error_band`);
+    ``truth`` None: one panel saying there is no error to show."""
+    if truth is None:
+        fig, ax = plt.subplots(figsize=(9.0, 1.6))
+        ax.set_axis_off()
+        no_truth(ax, f"no {label} error to plot (the NIS needs none)")
+        return fig
+    err = angle_error(estimate, truth)
+    fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9.0, 7.0))
+    for i, ax in enumerate(axes):
+        error_band(t, err[:, i], np.asarray(P)[:, i, i], ax=ax, ylabel=f"{EULER[i]} error", label=f"{label} error")
+        ax.set_xlabel("")
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(f"{label} {title}")
+    return fig
+
+
+def nees_plot(t, values, dof=3, ax=None, alpha=0.05):
+    """NEES εᵀP⁻¹ε per step (–, log scale) with its one-step (1 − alpha) χ² bound and its mean ``dof``;
+    ``values`` None (no truth): the panel says so."""
+    fig, ax = _axes(ax)
+    if values is None:
+        no_truth(ax, "no NEES")
+    else:
+        ax.plot(t, values, ".", ms=1.5, color=COLORS["gyro"], alpha=0.5, label="NEES per step")
+    ax.set_yscale("log")
+    ax.axhline(chi2_bounds(dof, 1, alpha)[1], color=COLORS["bound"], ls=":", lw=1,
+               label=f"{100 * (1 - alpha):.0f} % bound, one step")
+    ax.axhline(dof, color=COLORS["truth"], lw=0.8, alpha=0.6)
+    ax.set_ylim(1e-4, 1e3)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("NEES (–)")
+    ax.legend(loc="lower right", ncols=2, fontsize=8)
+    return fig
+
+
+def consistency_panels(t, nees, nis_sets: dict, nees_dof=3, shade=(), phases=()):
+    """NEES (:func:`nees_plot`, None without truth) over one NIS panel per entry of ``nis_sets``
+    ({name: (values, dof)}, NaN where that kind of update did not happen), sharing time (s)."""
+    fig, axes = plt.subplots(1 + len(nis_sets), 1, sharex=True, figsize=(9.0, 2.7 * (1 + len(nis_sets))))
+    nees_plot(t, nees, nees_dof, ax=axes[0])
+    for ax, (name, (values, dof)) in zip(axes[1:], nis_sets.items()):
+        nis_plot(t, values, dof=dof, ax=ax)
+        ax.set_ylabel(f"NIS, {name} (–)")
+    for ax in axes:
+        mark_windows(ax, shade, label=None)
+        ax.set_xlabel("")
+    label_phases(axes[0], phases)
+    axes[-1].set_xlabel("time (s)")
+    return fig
+
+
+def sweep(values, rmses: dict, xlabel, ylabel="RMSE (°)", marks: dict | None = None, ax=None):
+    """RMSE (°) against a tuning value on log–log axes: ``rmses`` maps a label to one RMSE per value;
+    ``marks`` maps a label to a value drawn as a vertical line (the datasheet's, the best)."""
+    fig, ax = _axes(ax)
+    for (label, r), (kind, style), marker in zip(rmses.items(), XYZ * 2, "os^vD<"):
+        ax.loglog(values, r, marker=marker, ls=style, ms=3, color=COLORS[kind], label=label)
+    for (label, x), style in zip((marks or {}).items(), (":", "-.", "--")):
+        ax.axvline(x, color=COLORS["truth"], ls=style, lw=1.0, label=label)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.legend(loc="upper center", ncols=4, fontsize=8)
+    return fig
+
+
+def rmse_table(estimates: dict, truth, columns=EULER, rotation=False, width=26, hint="", out=print):
+    """Print the RMSE (°) of each estimate against ``truth`` (rad), one row each, one column per angle;
+    ``rotation``: also the RMSE of the total rotation error (°) between the Euler ZYX attitudes.
+    ``truth`` None: one line saying there is no RMSE (``hint`` says what to look at instead).
+    Returns {label: RMSE per column (°)}, or None without truth."""
+    if truth is None:
+        out(f"{NO_TRUTH}: no RMSE" + (f"; {hint}" if hint else ""))
+        return None
+    truth = np.asarray(truth, dtype=float)
+    header = f"{'RMSE (°)':{width}s} " + " ".join(f"{c:>6s}" for c in columns)
+    out(header + (f" {'rotation':>9s}" if rotation else ""))
+    table = {}
+    for label, estimate in estimates.items():
+        table[label] = np.atleast_1d(np.degrees(rmse(angle_error(estimate, truth), 0.0)))
+        row = f"{label:{width}s} " + " ".join(f"{v:6.2f}" for v in table[label])
+        if rotation:
+            total = attitude_errors(euler_to_quat(estimate), euler_to_quat(truth))[0]
+            row += f" {np.degrees(np.sqrt(np.mean(total ** 2))):9.2f}"
+        out(row)
+    return table
+
+
+def consistency_table(nees, nis_sets: dict, nees_dof=3, alpha=0.05, out=print):
+    """Print the mean NEES and each NIS set's mean against what a consistent filter gives (its dof), with the
+    (1 − alpha) χ² bounds of the mean and the fraction of steps inside the one-step bounds; NaN steps
+    (no such update) left out. ``nees`` None: one line saying it needs the truth."""
+    level = f"{100 * (1 - alpha):.0f} %"
+    if nees is None:
+        out(f"{'NEES':13s} needs the truth: none in this recording")
+    else:
+        out(f"{'NEES':13s} mean {np.mean(nees):6.2f} (expected {nees_dof}); "
+            f"{100 * fraction_inside(nees, nees_dof, alpha):3.0f} % of samples inside the one-step {level} bounds")
+    for name, (values, dof) in nis_sets.items():
+        v = np.asarray(values, dtype=float)
+        v = v[~np.isnan(v)]
+        lo, hi = chi2_bounds(dof, len(v), alpha)
+        out(f"{'NIS (' + name + ')':13s} mean {v.mean():6.2f} (expected {dof}, {level} bounds of the mean {lo:.2f} … "
+            f"{hi:.2f}); {100 * fraction_inside(v, dof, alpha):3.0f} % of samples inside the one-step {level} bounds")

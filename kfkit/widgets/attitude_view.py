@@ -8,16 +8,15 @@ from matplotlib.figure import Figure
 
 from ..calibration import load_calibration
 from ..filters import EulerAttitudeEKF, MultiplicativeEKF
-from ..frames import dcm_to_euler, quat_to_dcm
+from ..frames import dcm_to_euler, enu_to_ned, quat_to_dcm
 from ..plots import COLORS
 from .canvas import interactive_canvas
 
 
 def _enu(v_ned):
     """NED vectors (…, 3) → display coordinates (east, north, up): a right-handed frame that
-    matplotlib draws upright (drawing NED with an inverted z axis would mirror it)."""
-    v = np.asarray(v_ned, dtype=float)
-    return np.stack([v[..., 1], v[..., 0], -v[..., 2]], axis=-1)
+    matplotlib draws upright (drawing NED with an inverted z axis would mirror it). The swap is its own inverse."""
+    return enu_to_ned(v_ned)
 
 
 class LiveAttitude:

@@ -1,0 +1,154 @@
+"""The one-call figure and table helpers the notebooks use: units on every axis, Okabe–Ito colours,
+numbers against independent oracles (numpy, scipy), and a recording without truth said, not failed on."""
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.colors as mcolors  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
+from scipy.stats import chi2  # noqa: E402
+
+from kfkit import plots  # noqa: E402
+
+PALETTE = {mcolors.to_hex(c) for c in plots.COLORS.values()}
+
+
+@pytest.fixture
+def attitude():
+    """A yaw that crosses ±180°, roll and pitch swinging; two noisy estimates; a covariance; a magnetometer at half rate."""
+    rng = np.random.default_rng(5)
+    t = np.arange(400) / 50.0
+    truth = np.column_stack([0.3 * np.sin(t), 0.2 * np.cos(0.7 * t), np.angle(np.exp(1j * (2.8 + 0.2 * t)))])
+    good = truth + rng.normal(0, np.radians(0.5), truth.shape)
+    poor = truth + rng.normal(0, np.radians(3.0), truth.shape)
+    P = np.tile(np.diag(np.radians([0.5, 0.5, 0.5]) ** 2), (len(t), 1, 1))
+    mag = rng.normal(0, 1, (len(t), 3)) + [20.0, 0.0, 45.0]
+    mag[1::2] = np.nan
+    return t, truth, good, poor, P, mag
+
+
+def line_colours(fig):
+    return {mcolors.to_hex(line.get_color()) for ax in fig.axes for line in ax.get_lines()}
+
+
+def texts(fig):
+    return " ".join(t.get_text() for ax in fig.axes for t in ax.texts)
+
+
+def test_break_wraps_cuts_the_line_only_where_the_angle_wraps():
+    yaw = np.radians([170.0, 175.0, 179.0, -178.0, -170.0, -175.0])
+    out = plots.break_wraps(yaw)
+    assert np.isnan(out[3]) and np.isnan(out).sum() == 1
+    assert np.array_equal(out[[0, 1, 2, 4, 5]], yaw[[0, 1, 2, 4, 5]])
+    assert not np.isnan(yaw).any()  # a copy: the input is untouched
+
+
+def test_imu_signals_have_units_leave_out_empty_magnetometer_rows_and_name_the_phases(attitude):
+    t, _, _, _, _, mag = attitude
+    gyr = np.column_stack([np.full_like(t, np.radians(10.0)), np.zeros_like(t), np.zeros_like(t)])
+    acc = np.tile([0.0, 0.0, -9.80665], (len(t), 1))
+    phases = [{"label": "stationary", "start": 0.0, "end": 1.0}, {"label": "linear_acceleration", "start": 2.0, "end": 3.0}]
+    fig = plots.imu_signals(t, gyr, acc, mag, shade=[(2.0, 3.0)], shade_label="slide", phases=phases)
+    assert [ax.get_ylabel() for ax in fig.axes] == ["gyro (°/s)", "accel (m/s²)", "mag (µT)"]
+    assert fig.axes[-1].get_xlabel() == "time (s)"
+    assert fig.axes[0].get_lines()[0].get_ydata() == pytest.approx(10.0)  # rad/s shown in °/s
+    assert len(fig.axes[2].get_lines()[0].get_xdata()) == np.sum(~np.isnan(mag[:, 0]))
+    assert "linear acceleration" in texts(fig) and "stationary" not in texts(fig)
+    assert line_colours(fig) <= PALETTE
+    assert len(plots.imu_signals(t, gyr, acc).axes) == 2  # a board without magnetometer
+
+
+def test_compare_euler_shows_degrees_without_wrap_jumps_and_one_legend(attitude):
+    t, truth, good, poor, _, _ = attitude
+    fig = plots.compare_euler(t, truth, {"accel/mag": (poor, "accel"), "EKF": (good, "kf")}, shade=[(1.0, 2.0)])
+    assert [ax.get_ylabel() for ax in fig.axes] == ["roll (°)", "pitch (°)", "yaw (°)"]
+    assert [ax.get_legend() is not None for ax in fig.axes] == [True, False, False]
+    yaw_truth = fig.axes[2].get_lines()[0].get_ydata()
+    assert np.nanmax(np.abs(np.diff(yaw_truth))) < 180.0 and np.isnan(yaw_truth).any()  # the wrap is a gap
+    assert line_colours(fig) <= PALETTE
+    no_truth = plots.compare_euler(t, None, {"EKF": (good, "kf")})
+    assert all(len(ax.get_lines()) == 1 for ax in no_truth.axes)
+
+
+def test_euler_errors_band_from_P_and_a_recording_without_truth_is_said(attitude):
+    t, truth, good, _, P, _ = attitude
+    fig = plots.euler_errors(t, good, truth, P, label="EKF")
+    assert [ax.get_ylabel() for ax in fig.axes] == ["roll error (°)", "pitch error (°)", "yaw error (°)"]
+    # σ = 0.5° is the noise's own: about 95 % inside ±2σ (binomial, 400 samples: 90…99 %)
+    inside = [int(ax.get_legend().get_title().get_text().split()[0]) for ax in fig.axes]
+    assert all(90 <= v <= 99 for v in inside), inside
+    fig = plots.euler_errors(t, good, None, P, label="EKF")
+    assert plots.NO_TRUTH in texts(fig) and "EKF" in texts(fig)
+
+
+def test_consistency_panels_and_nees_without_truth(attitude):
+    t = attitude[0]
+    rng = np.random.default_rng(1)
+    nees, nis6 = rng.chisquare(3, t.size), rng.chisquare(6, t.size)
+    nis6[::2] = np.nan
+    fig = plots.consistency_panels(t, nees, {"6 rows": (nis6, 6)})
+    assert [ax.get_ylabel() for ax in fig.axes] == ["NEES (–)", "NIS, 6 rows (–)"]
+    bound = [line.get_ydata()[0] for line in fig.axes[0].get_lines() if line.get_linestyle() == ":"]
+    assert bound == [pytest.approx(chi2.ppf(0.975, 3))]
+    fig = plots.consistency_panels(t, None, {"6 rows": (nis6, 6)})
+    assert plots.NO_TRUTH in texts(fig)
+
+
+def test_rmse_table_against_numpy_and_scipy(attitude):
+    _, truth, good, poor, _, _ = attitude
+    lines = []
+    table = plots.rmse_table({"EKF": good, "accel/mag only": poor}, truth, rotation=True, out=lines.append)
+    wrapped = np.angle(np.exp(1j * (poor - truth)))  # yaw errors across ±180° wrapped, not 360°
+    assert table["accel/mag only"] == pytest.approx(np.degrees(np.sqrt(np.mean(wrapped**2, axis=0))), rel=1e-9)
+    rel = Rotation.from_euler("ZYX", good[:, ::-1]) * Rotation.from_euler("ZYX", truth[:, ::-1]).inv()
+    rotation = np.degrees(np.sqrt(np.mean(rel.magnitude() ** 2)))
+    assert lines[0].split() == ["RMSE", "(°)", "roll", "pitch", "yaw", "rotation"]
+    assert lines[1].startswith("EKF ") and float(lines[1].split()[-1]) == pytest.approx(rotation, abs=0.006)
+    assert [float(v) for v in lines[2].split()[-4:-1]] == pytest.approx(table["accel/mag only"], abs=0.006)
+    lines.clear()
+    assert plots.rmse_table({"EKF": good}, None, hint="compare by eye", out=lines.append) is None
+    assert lines == [f"{plots.NO_TRUTH}: no RMSE; compare by eye"]
+
+
+def test_rmse_table_of_one_angle():
+    truth = np.linspace(0, 1, 50)
+    lines = []
+    table = plots.rmse_table({"KF": truth + 0.01}, truth, columns=("roll",), out=lines.append)
+    assert table["KF"] == pytest.approx([np.degrees(0.01)]) and len(lines) == 2
+
+
+def test_consistency_table_against_scipy():
+    rng = np.random.default_rng(2)
+    nees, nis3 = rng.chisquare(3, 500), rng.chisquare(3, 500)
+    nis3[:100] = np.nan
+    lines = []
+    plots.consistency_table(nees, {"3 rows": (nis3, 3)}, out=lines.append)
+    assert f"mean {nees.mean():6.2f}" in lines[0]
+    n = 400
+    lo, hi = chi2.ppf(0.025, 3 * n) / n, chi2.ppf(0.975, 3 * n) / n  # bounds of a mean of n χ²(3) values
+    assert lines[1].startswith("NIS (3 rows)") and f"{lo:.2f} … {hi:.2f}" in lines[1]
+    inside = np.mean((nis3[100:] >= chi2.ppf(0.025, 3)) & (nis3[100:] <= chi2.ppf(0.975, 3)))
+    assert f"{100 * inside:3.0f} % of samples" in lines[1]
+    lines.clear()
+    plots.consistency_table(None, {}, out=lines.append)
+    assert lines == ["NEES          needs the truth: none in this recording"]
+
+
+def test_sweep_is_log_log_with_units_and_marks():
+    values = np.logspace(-2, 1, 7)
+    fig = plots.sweep(values, {"roll": values**0.5, "pitch": values}, xlabel="σ_a (m/s²)",
+                      marks={"datasheet": 0.006})
+    ax = fig.axes[0]
+    assert (ax.get_xscale(), ax.get_yscale()) == ("log", "log")
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("σ_a (m/s²)", "RMSE (°)")
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["roll", "pitch", "datasheet"]
+    assert line_colours(fig) <= PALETTE
+
+
+def test_windows_of_and_label_phases_take_both_phase_forms():
+    phases = [{"label": "hold", "start": 1.0, "end": 2.0}, (3.0, 4.0, "hold"), (5.0, 6.0, "turn")]
+    assert plots.windows_of(phases, "hold") == [(1.0, 2.0), (3.0, 4.0)]
+    fig = plots.imu_signals(np.arange(10.0), np.zeros((10, 3)), np.zeros((10, 3)), phases=phases)
+    assert texts(fig).split() == ["hold", "hold", "turn"]
