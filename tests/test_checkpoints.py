@@ -1,9 +1,35 @@
-"""Checkpoints pass the reference, fail wrong answers with a useful line, and never crash."""
+"""Every checkpoint of every lab judged with kfkit's own functions as the right answers (one parametrised
+test over all labs), and each lab's judges naming the classic mistakes in answers written another way.
+
+The solutions' own exercise functions as answers, NaN/inf answers and the catalogue of mutated model answers
+are in test_checkpoints_every.py; lab 05's answers are the notebook's (its pipeline: test_tilt.py)."""
 import numpy as np
 import pytest
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
-from kfkit import filters
+from kfkit import calibration as C
+from kfkit import filters, frames
+from kfkit import vehicle as V
 from kfkit.checkpoints import REGISTRY, check, compare, get, run_checkpoint
+from kfkit.filters import estimate_sideslip, sideslip_step
+from kfkit.filters.attitude import EulerAttitudeEKF
+
+g = 9.80665
+B_LONDON = np.linalg.norm(frames.MAG_FIELD_LONDON)
+
+
+# --- kfkit's answers, lab by lab ---------------------------------------------------------------------------------
+
+def loop_xor(body):
+    x = 0
+    for c in body:
+        x ^= c
+    return x
+
+
+def unwrap(t_us):
+    return np.concatenate([[0.0], np.cumsum(np.diff(np.asarray(t_us, dtype=np.int64)) % 2**32) / 1e6])
 
 
 def reference_run_kf(gyro_rate, roll_acc, dt, q, r, x0, P0):
@@ -11,28 +37,100 @@ def reference_run_kf(gyro_rate, roll_acc, dt, q, r, x0, P0):
     return run.x, run.P, run.y, run.S
 
 
+def h_scipy(x, field_n):
+    """h(x) from scipy's rotation: [R_bn·(0, 0, −g); R_bn·m_n], R_nb = from_euler('ZYX', [ψ, θ, φ])."""
+    R_bn = Rotation.from_euler("ZYX", [x[2], x[1], x[0]]).as_matrix().T
+    return np.concatenate([R_bn @ [0.0, 0.0, -g], R_bn @ np.asarray(field_n, float)])
+
+
+def central_differences(h, x, eps=1e-6):
+    x = np.asarray(x, float)
+    return np.column_stack([(np.asarray(h(x + e)) - np.asarray(h(x - e))) / (2 * eps) for e in np.eye(len(x)) * eps])
+
+
+def reference_run_ekf(gyr, acc, mag, rate_hz, gyro_noise, accel_noise, mag_noise, field_n, accel_gate=None):
+    run = EulerAttitudeEKF(rate_hz, gyro_noise=gyro_noise, accel_noise=accel_noise, mag_noise=mag_noise,
+                           field_n=field_n, accel_gate=accel_gate).run(gyr, acc, mag)
+    return run.euler, run.P, run.nis
+
+
+def kfkit_run_sideslip(params, r_std=(0.003, 0.05), model=V.linear_model, **s):  # run_sideslip's signature
+    return estimate_sideslip(**s, params=params, gyro_noise=r_std[0], accel_noise=r_std[1], model=model).beta
+
+
 RIGHT = {
+    "00.checksum": loop_xor,
+    "00.board_time": unwrap,
     "01.accel_roll": lambda ay, az: np.arctan2(-ay, -az),
     "01.kf_predict": filters.roll_kf_predict,
     "01.kf_update": filters.roll_kf_update,
     "01.run_kf": reference_run_kf,
     "01.kf_beats_sensors": reference_run_kf,
+    "02.gyro_bias": C.gyro_bias, "02.noise_std": C.noise_std, "02.accel_bias": C.accel_bias,
+    "02.six_face": C.accel_six_face, "02.six_face_recording": C.accel_six_face, "02.gyro_bias_recording": C.gyro_bias,
+    "02.noise_recording": C.noise_std,
+    "02.allan_deviation": lambda x, rate_hz, taus: C.allan_deviation(x, rate_hz, taus)[1],
+    "02.sigma_at_rate": C.noise_at_rate,
+    "03.counts_to_ut": lambda counts: counts * 0.15,
+    "03.alignment": lambda turns: np.diag([np.sign(np.sum(g * m)) for g, m in (turns[a] for a in "xyz")]),
+    "03.mag_calibration": C.fit_mag_calibration, "03.heading_error": C.fit_mag_calibration,
+    "03.flat_heading": frames.mag_heading,
+    "03.tilt_heading": frames.tilt_compensated_heading,
+    "04.euler_rates": filters.euler_rates,
+    "04.predict": filters.euler_ekf_predict,
+    "04.measurement": filters.attitude_measurement,
+    "04.jacobian": filters.attitude_jacobian,
+    "04.numerical_jacobian": lambda h, x: central_differences(h, x),
+    "04.update": filters.euler_ekf_update,
+    "04.ekf_rmse": reference_run_ekf,
+    "06.bicycle_model": V.linear_model,
+    "06.discretize": V.discretize,
+    "06.kf_step": sideslip_step,
+    "06.slalom_rmse": kfkit_run_sideslip,
 }
+SEEDS = {"00": (1,), "01": (0, 1, 2), "02": (0, 1), "03": (0, 1), "04": (0, 1), "06": (1,)}
+SEEDS_OF = {"04.ekf_rmse": (0,), "06.slalom_rmse": (None,)}  # a whole filter over bundled recordings: one run
+WITHOUT_KFKIT_ANSWER = "05"  # lab 05's exercises are a pipeline of the notebook's own (test_checkpoints_every.py)
 
 
-def test_every_registered_lab01_checkpoint_has_a_right_answer_here():
-    get("01.accel_roll")  # loads the registries
-    assert {n for n in REGISTRY if n.startswith("01.")} == set(RIGHT)
+def all_checkpoints():
+    get("00.checksum")  # imports every lab's module
+    return sorted(REGISTRY)
 
 
-@pytest.mark.parametrize("name", sorted(RIGHT))
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_reference_answers_pass(name, seed):
+def test_every_registered_checkpoint_has_a_kfkit_answer_here():
+    assert {n for n in all_checkpoints() if n[:2] != WITHOUT_KFKIT_ANSWER} == set(RIGHT)
+    assert {n[:2] for n in RIGHT} == set(SEEDS)
+
+
+@pytest.mark.parametrize("name, seed", [(n, s) for n in sorted(RIGHT) for s in SEEDS_OF.get(n, SEEDS[n[:2]])])
+def test_kfkits_answers_pass(name, seed):
     result = run_checkpoint(get(name), RIGHT[name], seed)
     assert result.ok, result.message
     assert result.message.startswith(f"✅ {name}: {result.total}/{result.total}")
     assert result.points == result.max_points > 0
 
+
+@pytest.mark.parametrize("name", all_checkpoints())
+def test_not_attempted_is_said_for_every_checkpoint(name):
+    def stub(*args, **kwargs):
+        raise NotImplementedError()
+
+    result = run_checkpoint(get(name), stub, seed=0)
+    assert result.status == "not attempted" and "not attempted yet" in result.message and result.points == 0
+
+
+# --- lab 00 ------------------------------------------------------------------------------------------------------
+
+def test_lab00_judges_name_a_sum_a_hex_text_and_an_unwrapped_clock():
+    assert not run_checkpoint(get("00.checksum"), lambda body: sum(body) % 256, seed=1).ok
+    hex_text = run_checkpoint(get("00.checksum"), lambda body: "%02X" % loop_xor(body), seed=1)
+    assert "not its hex text" in hex_text.message
+    naive = run_checkpoint(get("00.board_time"), lambda t_us: (np.asarray(t_us) - t_us[0]) / 1e6, seed=1)
+    assert not naive.ok and "t_us went" in naive.message
+
+
+# --- lab 01 ------------------------------------------------------------------------------------------------------
 
 def test_atan2_off_by_pi_is_named():
     result = run_checkpoint(get("01.accel_roll"), lambda ay, az: np.arctan2(ay, az), seed=0)
@@ -84,3 +182,197 @@ def test_compare_structure_and_tolerance():
     assert compare(np.zeros(3), np.zeros(4)) == "shape mismatch: expected shape (3,), got shape (4,)"
     assert compare(1.0, "one").startswith("expected a number")
     assert compare(1.0, 1.1) is not None
+
+# --- labs 02 and 03 ----------------------------------------------------------------------------------------------
+
+def test_heading_checkpoint_catches_the_half_turn_atan2():
+    def off_by_pi(m_b, roll, pitch, declination=0.0):  # atan2(m_y', −m_x'): both arguments negated
+        return frames.wrap_angle(frames.tilt_compensated_heading(m_b, roll, pitch, declination) + np.pi)
+
+    result = run_checkpoint(get("03.tilt_heading"), off_by_pi, seed=0)
+    assert not result.ok and "exactly 180° off" in result.message
+
+
+def test_lab02_judges_name_gravity_and_ddof():
+    assert "gravity is still in it" in run_checkpoint(get("02.accel_bias"), lambda acc, expected: acc.mean(0)).message
+    assert "ddof=0" in run_checkpoint(get("02.noise_std"), lambda x: x.std(axis=0)).message
+
+
+def test_alignment_checkpoint_against_scipy_rotation():
+    # 180° about y negates x and z: the sign matrix the checkpoint expects for the IIS2MDC
+    D = Rotation.from_euler("y", np.pi).as_matrix()
+    np.testing.assert_allclose(D, np.diag([-1.0, 1.0, -1.0]), atol=1e-12)
+    result = run_checkpoint(get("03.alignment"), lambda turns: np.diag(
+        [np.sign(np.sum(g * m)) for g, m in (turns[a] for a in "xyz")]), seed=1)
+    assert result.ok, result.message
+
+
+def test_uncalibrated_magnetometer_fails_the_heading_checkpoint():
+    result = run_checkpoint(get("03.heading_error"), lambda mag: (np.zeros(3), np.eye(3)))
+    assert not result.ok and "uncalibrated" in result.message
+
+
+def test_allan_checkpoint_names_a_normalisation_factor():
+    result = run_checkpoint(get("02.allan_deviation"), lambda x, rate_hz, taus: 2 * C.allan_deviation(x, rate_hz, taus)[1])
+    assert "constant factor 2" in result.message
+
+
+def _geometric_fit(mag):
+    """A different, sound answer: the reference fit refined by minimising ‖S(m − h)‖ − B (scipy least squares)."""
+    h0, S0 = C.fit_mag_calibration(mag)
+    iu = np.triu_indices(3)
+
+    def unpack(p):
+        S = np.zeros((3, 3))
+        S[iu] = p[3:]
+        return p[:3], S + np.triu(S, 1).T
+
+    fit = least_squares(lambda p: np.linalg.norm((mag - unpack(p)[0]) @ unpack(p)[1].T, axis=1) - B_LONDON,
+                        np.concatenate([h0, S0[iu]]))
+    return unpack(fit.x)
+
+
+def test_mag_calibration_checkpoint_judges_against_the_true_ellipsoid():
+    cp = get("03.mag_calibration")
+    assert run_checkpoint(cp, _geometric_fit, seed=3).ok
+    cholesky = lambda mag: (lambda h, S: (h, np.linalg.cholesky(S.T @ S).T))(*C.fit_mag_calibration(mag))
+    assert "not symmetric" in run_checkpoint(cp, cholesky, seed=3).message
+    unscaled = lambda mag: (lambda h, S: (h, S / B_LONDON))(*C.fit_mag_calibration(mag))
+    assert "scale S by B" in run_checkpoint(cp, unscaled, seed=3).message
+    centre_only = lambda mag: (mag.mean(axis=0), np.eye(3))
+    assert "off by" in run_checkpoint(cp, centre_only, seed=3).message
+
+# --- lab 04 ------------------------------------------------------------------------------------------------------
+
+def test_any_correct_jacobian_passes():
+    """H by central differences of an h built on scipy's rotations, not on kfkit's."""
+    result = run_checkpoint(get("04.jacobian"), lambda x, field_n: central_differences(lambda v: h_scipy(v, field_n), x))
+    assert result.ok, result.message
+
+
+def test_the_copied_cos_phi_mistake_is_named():
+    def copied(euler, omega_b):
+        phi, theta = euler[0], euler[1]
+        p, q, r = omega_b
+        u = q * np.sin(phi) + r * np.cos(phi)
+        return np.array([p + u * np.tan(theta), q * np.cos(phi) - r * np.sin(phi), u / np.cos(phi)])
+
+    result = run_checkpoint(get("04.euler_rates"), copied, seed=0)
+    assert result.status == "failed" and "divided by cos φ" in result.message and "Hint:" in result.message
+
+
+def test_predict_without_yaw_wrapping_is_named():
+    def unwrapped(x, P, omega_b, dt, Q):
+        F = np.eye(3) + dt * filters.attitude.euler_kinematics_jacobian(x, omega_b)
+        return np.asarray(x) + filters.euler_rates(x, omega_b) * dt, F @ P @ F.T + Q
+
+    result = run_checkpoint(get("04.predict"), unwrapped, seed=0)
+    assert result.status == "failed" and "not wrapped" in result.message
+
+
+def test_predict_that_forgets_F_fails_with_expected_and_got():
+    def no_F(x, P, omega_b, dt, Q):
+        x_new = np.asarray(x) + filters.euler_rates(x, omega_b) * dt
+        x_new[2] = filters.attitude.wrap_angle(x_new[2])
+        return x_new, P + Q
+
+    result = run_checkpoint(get("04.predict"), no_F, seed=1)
+    assert result.status == "failed" and "value 2 of 2: expected" in result.message and "first difference at index" in result.message
+
+
+def test_a_wrong_jacobian_column_is_named():
+    def wrong_yaw_column(x, field_n):
+        H = filters.attitude_jacobian(x, field_n)
+        H[3:, 2] *= -1.0
+        return H
+
+    result = run_checkpoint(get("04.jacobian"), wrong_yaw_column, seed=0)
+    assert result.status == "failed"
+    assert "∂h/∂ψ (magnetometer rows)" in result.message and "∂h/∂φ" not in result.message
+
+
+def test_jacobian_of_the_wrong_shape_is_explained():
+    result = run_checkpoint(get("04.jacobian"), lambda x, field_n: filters.attitude_jacobian(x, field_n).T, seed=0)
+    assert "expected shape (6, 3), got shape (3, 6)" in result.message
+
+
+def test_a_coarse_forward_difference_fails():
+    def forward(h, x, eps=1e-2):
+        x = np.asarray(x, float)
+        return np.column_stack([(np.asarray(h(x + e)) - np.asarray(h(x))) / eps for e in np.eye(len(x)) * eps])
+
+    result = run_checkpoint(get("04.numerical_jacobian"), forward, seed=0)
+    assert result.status == "failed"
+
+
+def test_update_that_ignores_missing_magnetometer_samples_fails():
+    def always_six(x, P, z, R, field_n):
+        H = filters.attitude_jacobian(x, field_n)
+        y = z - filters.attitude_measurement(x, field_n)
+        S = H @ P @ H.T + R
+        K = P @ H.T @ np.linalg.inv(S)
+        return x + K @ y, (np.eye(3) - K @ H) @ P, y, S
+
+    result = run_checkpoint(get("04.update"), always_six, seed=0)
+    assert result.status in ("failed", "error") and result.points == 0
+    assert "magnetometer-less" in result.message or "NaN" in result.message
+
+
+def test_gyro_only_filter_fails_the_rmse_limits():
+    # Dead reckoning with the calibrated gyro stays within 1°, 1°, 2° on the bundled recording itself
+    # (0.10°, 0.12°, 0.47°), and ignores the accelerations of the gated run: the run with an extra gyro bias is
+    # what catches a filter without updates.
+    def gyro_only(gyr, acc, mag, rate_hz, gyro_noise, accel_noise, mag_noise, field_n, accel_gate=None):
+        x = np.empty((len(gyr), 3))
+        x_k = filters.attitude.tilt_heading(acc[0], mag[0], field_n)
+        for k, w in enumerate(gyr):
+            x_k = x_k + filters.euler_rates(x_k, w) / rate_hz
+            x[k] = x_k
+        return x, None, None
+
+    result = run_checkpoint(get("04.ekf_rmse"), gyro_only)
+    assert result.status == "failed" and result.message.startswith("❌ 04.ekf_rmse: 2/3")
+    assert "extra gyro bias" in result.message and "roll RMSE" in result.message and "(limit 3°)" in result.message
+    assert "are the accelerometer and magnetometer updates applied?" in result.message
+
+
+def test_a_filter_that_drops_the_magnetometer_fails_on_yaw():
+    def no_mag(gyr, acc, mag, rate_hz, gyro_noise, accel_noise, mag_noise, field_n, accel_gate=None):
+        return reference_run_ekf(gyr, acc, np.full_like(mag, np.nan), rate_hz, gyro_noise, accel_noise, mag_noise,
+                                 field_n, accel_gate)
+
+    result = run_checkpoint(get("04.ekf_rmse"), no_mag)
+    assert result.status == "failed" and "yaw RMSE" in result.message
+
+
+def test_rmse_checkpoint_explains_a_wrong_shape():
+    result = run_checkpoint(get("04.ekf_rmse"), lambda **kw: (np.zeros((10, 3)), None, None))
+    assert "expected 6240 rows of [roll, pitch, yaw]" in result.message
+
+# --- lab 06 ------------------------------------------------------------------------------------------------------
+
+def test_lab06_judges_name_the_classic_mistakes():
+    copied = run_checkpoint(get("06.bicycle_model"), V.miscopied_linear_model, seed=1)
+    assert not copied.ok and "widely copied model" in copied.message
+    euler = run_checkpoint(get("06.discretize"), lambda A, B, dt, Qc: (np.eye(2) + A * dt, B * dt, Qc * dt), seed=1)
+    assert not euler.ok and "Euler" in euler.message
+
+    def no_d_term(x, P, delta_prev, z, delta, Ad, Bd, Qd, C, D, R):
+        return sideslip_step(x, P, delta_prev, z, 0.0, Ad, Bd, Qd, C, D, R)
+
+    no_d = run_checkpoint(get("06.kf_step"), no_d_term, seed=1)
+    assert not no_d.ok and "misses the D-term" in no_d.message
+    zero = run_checkpoint(get("06.slalom_rmse"), lambda t, **_: np.zeros_like(t))
+    assert not zero.ok and "0/3 bundled slaloms" in zero.message and "expected under 0.5°" in zero.message
+
+    # the copied model stays under 0.5° at 20 km/h (β there is mostly kinematic) but not at 80 km/h
+    copied_run = run_checkpoint(get("06.slalom_rmse"), lambda **s: kfkit_run_sideslip(**s, model=V.miscopied_linear_model))
+    assert not copied_run.ok and "1/3" in copied_run.message and "80 km/h" in copied_run.message
+    assert "expected under 0.1°" in copied_run.message
+
+    def b_as_a_row(params, vx):
+        A, B, C, D = V.linear_model(params, vx)
+        return A, B.ravel(), C, D
+
+    flat = run_checkpoint(get("06.bicycle_model"), b_as_a_row, seed=1)
+    assert not flat.ok and "B has shape (2,), expected (2, 1)" in flat.message

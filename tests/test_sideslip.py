@@ -229,47 +229,6 @@ def test_one_step_with_the_bias_state_matches_filterpy():
     np.testing.assert_allclose(got[3], kf.S, rtol=1e-10)
 
 
-# --- lab 06 checkpoints: kfkit's answers pass, the classic mistakes get their hint ----------
-
-def test_lab06_checkpoints_pass_the_reference_and_name_the_classic_mistakes():
-    from kfkit.checkpoints import REGISTRY, get, run_checkpoint
-
-    get("06.bicycle_model")  # imports every lab's checkpoints
-    assert {n for n in REGISTRY if n.startswith("06.")} == {"06.bicycle_model", "06.discretize", "06.kf_step", "06.slalom_rmse"}
-    assert run_checkpoint(get("06.bicycle_model"), V.linear_model, seed=1).ok
-    assert run_checkpoint(get("06.discretize"), V.discretize, seed=1).ok
-    assert run_checkpoint(get("06.kf_step"), sideslip_step, seed=1).ok
-    def kfkit_run(params, r_std=(0.003, 0.05), model=V.linear_model, **s):  # run_sideslip's signature
-        return estimate_sideslip(**s, params=params, gyro_noise=r_std[0], accel_noise=r_std[1], model=model).beta
-
-    assert run_checkpoint(get("06.slalom_rmse"), kfkit_run).ok
-
-    copied = run_checkpoint(get("06.bicycle_model"), V.miscopied_linear_model, seed=1)
-    assert not copied.ok and "widely copied model" in copied.message
-    euler = run_checkpoint(get("06.discretize"), lambda A, B, dt, Qc: (np.eye(2) + A * dt, B * dt, Qc * dt), seed=1)
-    assert not euler.ok and "Euler" in euler.message
-
-    def no_d_term(x, P, delta_prev, z, delta, Ad, Bd, Qd, C, D, R):
-        return sideslip_step(x, P, delta_prev, z, 0.0, Ad, Bd, Qd, C, D, R)
-
-    no_d = run_checkpoint(get("06.kf_step"), no_d_term, seed=1)
-    assert not no_d.ok and "misses the D-term" in no_d.message
-    zero = run_checkpoint(get("06.slalom_rmse"), lambda t, **_: np.zeros_like(t))
-    assert not zero.ok and "0/3 bundled slaloms" in zero.message and "expected under 0.5°" in zero.message
-
-    # the copied model stays under 0.5° at 20 km/h (β there is mostly kinematic) but not at 80 km/h
-    copied_run = run_checkpoint(get("06.slalom_rmse"), lambda **s: kfkit_run(**s, model=V.miscopied_linear_model))
-    assert not copied_run.ok and "1/3" in copied_run.message and "80 km/h" in copied_run.message
-    assert "expected under 0.1°" in copied_run.message
-
-    def b_as_a_row(params, vx):
-        A, B, C, D = V.linear_model(params, vx)
-        return A, B.ravel(), C, D
-
-    flat = run_checkpoint(get("06.bicycle_model"), b_as_a_row, seed=1)
-    assert not flat.ok and "B has shape (2,), expected (2, 1)" in flat.message
-
-
 @pytest.mark.parametrize("bias_ay", [False, True])
 def test_run_is_a_loop_of_steps_and_estimate_sideslip_is_run(bias_ay):
     """A drive that starts from rest (low-speed steps), with jittered sample intervals: stepping the
