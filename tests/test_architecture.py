@@ -1,0 +1,174 @@
+"""The package's shape (issue 16): imports only point down, modules stay small and uniquely named.
+
+An import graph of kfkit from its source (``ast``), counting imports inside functions too (a deferred
+import that dodges a cycle is still a cycle), checked against the rules in DESIGN.md / the README map:
+no import cycle, no module over 600 lines, no two modules with one name, the capture layer depends on
+nothing above it, and the leaves (``paths``, ``frames``) import nothing from kfkit. The walker is
+tested on a small package of its own first, so a rule that cannot fail would show.
+"""
+import ast
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+KFKIT = Path(__file__).resolve().parents[1] / "kfkit"
+MAX_LINES = 600
+LEAVES = ("paths", "frames")
+ABOVE_CAPTURE = ("datasets", "plots", "widgets", "demo", "checkpoints", "grading", "authoring", "doctor", "cli")
+
+
+def modules(root: Path) -> dict:
+    """{dotted name: path} of every .py file under ``root`` (a package's __init__ named for the package)."""
+    out = {}
+    for path in sorted(root.rglob("*.py")):
+        parts = path.relative_to(root.parent).with_suffix("").parts
+        out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return out
+
+
+def import_graph(mods: dict) -> dict:
+    """{module: set of package modules it imports}, every ``import``/``from … import`` anywhere in the file
+    (functions included), relative imports resolved; ``from pkg import name`` counts pkg.name when that is a module."""
+    graph = {}
+    for name, path in mods.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        targets = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if isinstance(node, ast.Import):
+                found = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                    module = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    module = node.module or ""
+                found = [module] + [f"{module}.{alias.name}" for alias in node.names]
+            else:
+                continue
+            for target in found:
+                while target and target not in mods:  # kfkit.frames.wrap_angle → kfkit.frames
+                    target = target.rpartition(".")[0]
+                if target and target != name and not name.startswith(target + "."):  # a package's own parents: not edges
+                    targets.add(target)
+        graph[name] = targets
+    return graph
+
+
+def cycles(graph: dict) -> list:
+    """Strongly connected components with more than one module (Tarjan), each sorted."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(found)
+
+
+def reachable(graph: dict, start: str) -> dict:
+    """{module reachable from ``start``: the chain of imports that reaches it}."""
+    chains, todo = {start: [start]}, [start]
+    while todo:
+        v = todo.pop()
+        for w in sorted(graph.get(v, ())):
+            if w not in chains:
+                chains[w] = chains[v] + [w]
+                todo.append(w)
+    return chains
+
+
+def oversized(mods: dict) -> list:
+    return sorted((name, n) for name, path in mods.items()
+                  if (n := len(path.read_text(encoding="utf-8").splitlines())) > MAX_LINES)
+
+
+def duplicate_names(mods: dict) -> list:
+    """Module file names (not packages' __init__) used by more than one module."""
+    counts = Counter(name.rpartition(".")[2] for name, path in mods.items() if path.name != "__init__.py")
+    return sorted(base for base, n in counts.items() if n > 1)
+
+
+# --- the walker on a package of its own -----------------------------------------------------------------------
+
+@pytest.fixture
+def toy(tmp_path):
+    pkg = tmp_path / "toy"
+    (pkg / "sub").mkdir(parents=True)
+    files = {
+        "__init__.py": "from .b import f\n",
+        "a.py": "import numpy\nfrom toy.b import f\n",
+        "b.py": "def f():\n    from . import c  # deferred: still an edge\n    return c\n",
+        "c.py": "def g():\n    from .sub.d import h\n",
+        "sub/__init__.py": "",
+        "sub/d.py": "from ..a import *\nfrom .. import leaf\n",
+        "sub/a.py": "x = 1\n" * (MAX_LINES + 1),
+        "leaf.py": "import math\n",
+    }
+    for name, text in files.items():
+        (pkg / name).write_text(text, encoding="utf-8")
+    return modules(pkg)
+
+
+def test_the_walker_sees_deferred_and_relative_imports_cycles_sizes_and_names(toy):
+    graph = import_graph(toy)
+    assert graph["toy.a"] == {"toy.b"} and graph["toy.b"] == {"toy.c"} and graph["toy.c"] == {"toy.sub.d"}
+    assert graph["toy.sub.d"] == {"toy.a", "toy.leaf"} and graph["toy"] == {"toy.b"} and graph["toy.leaf"] == set()
+    assert cycles(graph) == [["toy.a", "toy.b", "toy.c", "toy.sub.d"]]
+    assert reachable(graph, "toy.a")["toy.leaf"] == ["toy.a", "toy.b", "toy.c", "toy.sub.d", "toy.leaf"]
+    assert oversized(toy) == [("toy.sub.a", MAX_LINES + 1)]
+    assert duplicate_names(toy) == ["a"]
+
+
+# --- kfkit's rules --------------------------------------------------------------------------------------------
+
+MODS = modules(KFKIT)
+GRAPH = import_graph(MODS)
+
+
+def test_no_import_cycle_counting_imports_inside_functions():
+    found = cycles(GRAPH)
+    assert not found, "import cycles: " + " | ".join(" <-> ".join(c) for c in found)
+
+
+def test_no_module_over_600_lines():
+    big = oversized(MODS)
+    assert not big, f"modules over {MAX_LINES} lines: {big}"
+
+
+def test_no_two_modules_share_a_name():
+    twice = duplicate_names(MODS)
+    assert not twice, f"module names used twice: {twice}"
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODS if m == "kfkit.capture" or m.startswith("kfkit.capture.")))
+def test_the_capture_layer_depends_on_nothing_above_it(module):
+    above = {f"kfkit.{name}" for name in ABOVE_CAPTURE}
+    bad = {m: chain for m, chain in reachable(GRAPH, module).items() if m in above or m.rpartition(".")[0] in above}
+    assert not bad, "; ".join(" → ".join(chain) for chain in bad.values())
+
+
+@pytest.mark.parametrize("leaf", LEAVES)
+def test_the_leaves_import_nothing_from_kfkit(leaf):
+    assert f"kfkit.{leaf}" in MODS, f"kfkit.{leaf} is missing"
+    assert GRAPH[f"kfkit.{leaf}"] == set(), f"kfkit.{leaf} imports {sorted(GRAPH[f'kfkit.{leaf}'])}"
