@@ -59,10 +59,10 @@ from pathlib import Path
 import numpy as np
 
 from kfkit import datasets
-from kfkit.filters import estimate_attitude
-from kfkit.filters.attitude import (ACCEL_GATE, ACCEL_GATE_FACTOR, EULER_ACCEL_NOISE, EULER_GYRO_NOISE, EULER_MAG_NOISE,
-                                    attitude_jacobian, attitude_measurement, euler_kinematics_jacobian, euler_process_noise,
-                                    euler_rates, learn_field, tilt_heading)
+from kfkit.filters import EulerAttitudeEKF, estimate_attitude
+from kfkit.filters.attitude_run import learn_field, tilt_heading
+from kfkit.filters.euler_ekf import (EulerEkfSettings, attitude_jacobian, attitude_measurement, euler_kinematics_jacobian,
+                                     euler_process_noise, euler_rates)
 from kfkit.frames import G, declination, enu_to_ned_quat, euler_to_quat, quat_conjugate, quat_multiply, quat_to_dcm, wrap_angle
 from kfkit.io import load_broad
 from kfkit.metrics import attitude_rmse
@@ -252,12 +252,13 @@ def filterpy_euler_ekf(gyr, acc, mag, rate):
     hx6, hj6 = (lambda x: attitude_measurement(x, field)), (lambda x: attitude_jacobian(x, field))
     hx3, hj3 = (lambda x: attitude_measurement(x, field)[:3]), (lambda x: attitude_jacobian(x, field)[:3])
     out = np.empty((len(gyr), 3))
+    st = EulerEkfSettings()  # the defaults estimate_attitude uses
     for k in range(len(gyr)):
         ekf.F = np.eye(3) + dt * euler_kinematics_jacobian(ekf.x, gyr[k])
-        ekf.Q = euler_process_noise(ekf.x, EULER_GYRO_NOISE, dt)
+        ekf.Q = euler_process_noise(ekf.x, st.gyro_noise, dt)
         ekf.predict(u=gyr[k])
-        gated = abs(np.linalg.norm(acc[k]) - G) > ACCEL_GATE
-        R6 = np.diag([EULER_ACCEL_NOISE ** 2 * (ACCEL_GATE_FACTOR if gated else 1.0)] * 3 + [EULER_MAG_NOISE ** 2] * 3)
+        gated = abs(np.linalg.norm(acc[k]) - G) > st.accel_gate
+        R6 = np.diag([st.accel_noise ** 2 * (st.accel_gate_factor if gated else 1.0)] * 3 + [st.mag_noise ** 2] * 3)
         if np.isnan(mag[k, 0]):
             ekf.update(acc[k], hj3, hx3, R=R6[:3, :3])
         else:
@@ -274,6 +275,8 @@ def speed():
     rate, n = rec.rate_hz, len(rec)
     contenders = {
         "kfkit euler-ekf": lambda: estimate_attitude(gyr, acc, mag, rate),
+        "kfkit euler-ekf, reference (a loop over step)": lambda: EulerAttitudeEKF(rate, field_n=learn_field(acc, mag)).run(
+            gyr, acc, mag),
         "kfkit mekf": lambda: estimate_attitude(gyr, acc, mag, rate, method="mekf"),
         "filterpy EKF (same Euler model)": lambda: filterpy_euler_ekf(gyr, acc, mag, rate),
         "ahrs EKF": lambda: run_ahrs_ekf(gyr, acc, mag, rate),

@@ -1,4 +1,4 @@
-"""kfkit.filters.attitude against independent oracles: scipy Rotation, finite differences,
+"""kfkit's attitude filters (euler_ekf, euler_ekf_fast, mekf, attitude) against independent oracles: scipy Rotation, finite differences,
 filterpy's ExtendedKalmanFilter, chi-square bounds over Monte Carlo runs."""
 import numpy as np
 import pytest
@@ -6,10 +6,13 @@ from filterpy.kalman import ExtendedKalmanFilter
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from kfkit.frames import G, MAG_FIELD_LONDON, euler_rates_to_body_rates, euler_to_quat, quat_to_euler, wrap_angle
+from kfkit.frames import (G, MAG_FIELD_LONDON, euler_rates_to_body_rates, euler_to_quat, quat_to_dcm, quat_to_euler,
+                          wrap_angle)
 from kfkit.filters import (EulerAttitudeEKF, attitude_jacobian, attitude_measurement, estimate_attitude, euler_ekf_predict,
                            euler_ekf_update, euler_process_noise, euler_rates)
-from kfkit.filters.attitude import MultiplicativeEKF, euler_kinematics_jacobian, euler_rate_matrix, learn_field, tilt_heading
+from kfkit.filters import FastEulerAttitudeEKF, MekfSettings, MultiplicativeEKF, Step
+from kfkit.filters.attitude_run import learn_field, tilt_heading
+from kfkit.filters.euler_ekf import EulerEkfSettings, euler_kinematics_jacobian, euler_rate_matrix
 from kfkit.metrics import attitude_errors, chi2_bounds, nees
 
 FIELD = np.array(MAG_FIELD_LONDON)
@@ -212,26 +215,64 @@ def test_yaw_update_across_plus_minus_pi_moves_the_short_way():
 # ---------------------------------------------------------------------------------------
 # The whole filter
 # ---------------------------------------------------------------------------------------
-def test_fast_run_equals_the_numpy_step_functions():
+def test_reference_run_is_a_loop_of_steps_and_the_fast_run_equals_it():
     rng = np.random.default_rng(7)
     t, euler, omega = smooth_motion(rng, 5.0, 100.0)
     gyr, acc, mag = sensors(rng, euler, omega, 0.01, 0.05, 0.5)
     acc[100:130] *= 1.2  # ‖f‖ ≈ 1.2 g: gated rows
     mag[1::2] = np.nan  # magnetometer at half rate
-    res = EulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    ref = EulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
     ekf = EulerAttitudeEKF(100.0, field_n=FIELD)
     for k in range(len(t)):
-        x, P, y, S = ekf.step(gyr[k], acc[k], mag[k])
-        np.testing.assert_allclose(res.euler[k], x, atol=1e-9)
-        np.testing.assert_allclose(res.P[k], P, rtol=1e-7, atol=1e-15)
-        m = len(y)
-        np.testing.assert_allclose(res.y[k, :m], y, atol=1e-9)
-        np.testing.assert_allclose(res.S[k, :m, :m], S, rtol=1e-8)
-        assert np.isnan(res.y[k, m:]).all()
-        assert res.nis[k] == pytest.approx(y @ np.linalg.solve(S, y), rel=1e-7, abs=1e-12)
-    assert res.mag_used.sum() == np.sum(~np.isnan(mag[:, 0]))
-    assert res.accel_gated[100:130].all() and not res.accel_gated[:100].any()
-    np.testing.assert_allclose(quat_to_euler(res.quat), res.euler, atol=1e-9)
+        step = ekf.step(gyr[k], acc[k], mag[k])
+        assert isinstance(step, Step) and step.y.shape == (6,) and step.S.shape == (6, 6)
+        for name in "xPyS":
+            np.testing.assert_array_equal(getattr(ref, name)[k], getattr(step, name))
+        m = 3 if np.isnan(mag[k, 0]) else 6
+        assert np.isnan(step.y[m:]).all() and np.isnan(step.S[m:]).all() and np.isnan(step.S[:, m:]).all()
+        assert ref.nis[k] == pytest.approx(step.y[:m] @ np.linalg.solve(step.S[:m, :m], step.y[:m]), rel=1e-12)
+    fast = FastEulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    np.testing.assert_allclose(fast.x, ref.x, rtol=0, atol=1e-12)  # rad
+    np.testing.assert_allclose(fast.P, ref.P, rtol=1e-9, atol=1e-18)
+    np.testing.assert_allclose(fast.y, ref.y, rtol=0, atol=1e-10)  # m/s², µT
+    np.testing.assert_allclose(fast.S, ref.S, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(fast.nis, ref.nis, rtol=1e-9, atol=1e-12)
+    for name in ("accel_gated", "mag_used", "mag_gated"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name))
+    assert ref.mag_used.sum() == np.sum(~np.isnan(mag[:, 0]))
+    assert ref.accel_gated[100:130].all() and not ref.accel_gated[:100].any()
+    np.testing.assert_allclose(quat_to_euler(ref.quat), ref.euler, atol=1e-9)
+
+
+def test_settings_carry_units_defaults_and_name_bad_values():
+    assert EulerAttitudeEKF(100.0, accel_noise=0.2).settings == EulerEkfSettings(accel_noise=0.2)
+    assert MultiplicativeEKF(100.0, MekfSettings(mag_nis_gate=None), accel_tau=None).settings == \
+        MekfSettings(mag_nis_gate=None, accel_tau=None)
+    with pytest.raises(ValueError, match="MekfSettings: mag_recovery must be a positive number, got 0"):
+        MultiplicativeEKF(100.0, mag_recovery=0)
+    with pytest.raises(ValueError, match="EulerEkfSettings: accel_noise must be a positive number, got -0.3"):
+        EulerAttitudeEKF(100.0, accel_noise=-0.3)
+    with pytest.raises(TypeError, match="MultiplicativeEKF: unknown setting mag_gate; MekfSettings has gyro_noise"):
+        MultiplicativeEKF(100.0, mag_gate=1.0)
+    with pytest.raises(TypeError, match="settings must be a EulerEkfSettings, got float"):
+        EulerAttitudeEKF(100.0, 0.01)  # the old positional gyro_noise
+
+
+def test_mekf_run_is_its_steps():
+    """MultiplicativeEKF.run and the same named steps one sample at a time give the same state, innovations
+    and covariances; run's P is the attitude block of step's P rotated to NED."""
+    rng = np.random.default_rng(21)
+    t, euler, omega = smooth_motion(rng, 4.0, 100.0)
+    gyr, acc, mag = sensors(rng, euler, omega, 0.01, 0.05, 0.5)
+    mag[1::3] = np.nan
+    run = MultiplicativeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    f = MultiplicativeEKF(100.0, field_n=FIELD)  # both start from tilt_heading of the first samples
+    steps = [f.step(gyr[k], acc[k], mag[k]) for k in range(len(t))]
+    np.testing.assert_array_equal(np.array([s.x for s in steps]), run.x)
+    np.testing.assert_array_equal(np.array([s.y for s in steps]), run.y)
+    np.testing.assert_array_equal(np.array([s.S for s in steps]), run.S)
+    R = quat_to_dcm(run.quat)
+    np.testing.assert_allclose(R @ np.array([s.P[:3, :3] for s in steps]) @ np.swapaxes(R, 1, 2), run.P, rtol=1e-12)
 
 
 def test_quaternions_match_scipy():
@@ -301,8 +342,8 @@ def test_monte_carlo_nees_and_nis_inside_chi2_bounds():
         P0 = np.diag(np.radians([2.0, 2.0, 4.0]) ** 2)
         x0 = euler[0] + rng.multivariate_normal(np.zeros(3), P0)
         # gyr[k] is the rate at t_k; the filter predicts t_{k-1} → t_k, so its first sample is t_1.
-        res = EulerAttitudeEKF(100.0, gyro_noise=sg, accel_noise=sa, mag_noise=sm, field_n=FIELD, accel_gate=None,
-                               x0=x0, P0=P0).run(gyr[1:], acc[1:], mag[1:])
+        res = FastEulerAttitudeEKF(100.0, gyro_noise=sg, accel_noise=sa, mag_noise=sm, field_n=FIELD, accel_gate=None,
+                                   x0=x0, P0=P0).run(gyr[1:], acc[1:], mag[1:])
         final_nees.append(nees(wrap_angle(res.euler[-1:] - euler[-1:]), res.P[-1:])[0])
         nis_sum += res.nis.sum()
         dof_sum += res.dof.sum()

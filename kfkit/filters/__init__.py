@@ -17,15 +17,24 @@ The contract (x-io Fusion's and VQF's shape: settings with units and defaults, t
               TiltAttitude, roll and pitch from raw counts as the mpu6050_tilt_kf sketch computes them
     sideslip  lab 06: SideslipKF + SideslipSettings (bicycle-model KF, D-term, low-speed guard) → SideslipRun;
               estimate_sideslip, the lesson's other estimators
-    attitude  lab 04: Euler-angle EKF and multiplicative quaternion EKF, estimate_attitude
+    attitude        lab 04's front door estimate_attitude, over:
+    attitude_run    AttitudeRun (quat, euler, bias from x), check_inputs, tilt_heading, learn_field
+    euler_ekf       EulerAttitudeEKF + EulerEkfSettings and the textbook step functions (run = a loop over step)
+    euler_ekf_fast  FastEulerAttitudeEKF: the same filter unrolled on floats, held equal by a test
+    mekf            MultiplicativeEKF + MekfSettings, its MekfState and named steps
+    mag_gate        MagGate, the MEKF's magnetic-disturbance gate
 
-Every public name below is importable from ``kfkit.filters``; the attitude modules' helpers
-(``learn_field``, ``tilt_heading``, the module constants) from their own modules.
+The names imported below are importable from ``kfkit.filters``; the helpers (``tilt_heading``,
+``learn_field``, ``jacobian_rows``, ``MagGate``, …) from their own modules.
 """
 from .linear import FilterRun, KalmanFilter, Step
 from .roll import RollKF, RollSettings, integrate_rate, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
 from .tilt import TiltAttitude, TiltBiasKF, TiltRun, TiltSettings, accel_static_ok, protocol_angles
-from .attitude import (AttitudeResult, EulerAttitudeEKF, MultiplicativeEKF, attitude_jacobian, attitude_measurement,
-                       estimate_attitude, euler_ekf_predict, euler_ekf_update, euler_process_noise, euler_rates)
+from .attitude_run import AttitudeRun
+from .euler_ekf import (EulerAttitudeEKF, EulerEkfSettings, attitude_jacobian, attitude_measurement, euler_ekf_predict,
+                        euler_ekf_update, euler_process_noise, euler_rates)
+from .euler_ekf_fast import FastEulerAttitudeEKF
+from .mekf import MekfSettings, MultiplicativeEKF
+from .attitude import estimate_attitude
 from .sideslip import (SideslipKF, SideslipRun, SideslipSettings, compare_estimators, copied_kinematic_kf,
                        estimate_sideslip, kinematic_sideslip, sideslip_step)

@@ -7,7 +7,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..calibration import load_calibration
-from ..filters import EulerAttitudeEKF, MultiplicativeEKF
+from ..filters import FastEulerAttitudeEKF, MultiplicativeEKF
 from ..frames import dcm_to_euler, enu_to_ned, quat_to_dcm
 from ..plots import COLORS
 from .canvas import interactive_canvas
@@ -36,7 +36,7 @@ class LiveAttitude:
         self.filter, self.t_last, self.quat, self._cal = None, -np.inf, None, None
 
     def _new_filter(self, rate_hz):
-        kinds = {"euler-ekf": EulerAttitudeEKF, "mekf": MultiplicativeEKF}
+        kinds = {"euler-ekf": FastEulerAttitudeEKF, "mekf": MultiplicativeEKF}
         if self.method not in kinds:
             raise ValueError(f"LiveAttitude: method must be one of {', '.join(kinds)}, got {self.method!r}")
         return kinds[self.method](rate_hz, **self.tuning)

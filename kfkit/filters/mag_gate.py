@@ -1,0 +1,89 @@
+"""The MEKF's magnetometer gate: is this magnetometer sample to be used (norm and dip gates,
+innovation gate, bounded rejection that adopts a field that changed for good)?"""
+from __future__ import annotations
+
+import math
+
+TWO_PI = 2.0 * math.pi
+
+
+class MagGate:
+    """Whether to use each magnetometer sample: the MEKF's magnetic-disturbance logic in three layers
+    (see :class:`kfkit.filters.mekf.MultiplicativeEKF`), one sample at a time. Its reference field and
+    clocks carry from one sample (and one run) to the next.
+
+    field_n     reference field, NED (µT): the starting reference norm ‖m‖ and dip atan2(m_D, ‖m_h‖)
+    r_psi       heading variance of one sample, rad²
+    norm_gate   relative norm gate (fraction of the reference norm); None = off
+    dip_gate    dip-angle gate, rad; None = off
+    recovery    s the field must pass the gates after a rejection before it is used again; also the
+                averaging time and the duration of the innovation tests
+    nis_gate    χ² gate (1 dof) of the innovation tests; None = none (a disturbed field is rejected for
+                as long as it fails the gates)
+    ref_tau     time constant (s) with which the reference follows a trusted field; None = fixed
+    """
+
+    __slots__ = ("norm_ref", "dip_ref", "norm_gate", "dip_gate", "recovery", "nis_gate", "ref_rate", "r_psi",
+                 "good_since", "t_prev", "nis_since", "mean", "adopt_since")
+
+    def __init__(self, field_n, r_psi, norm_gate, dip_gate, recovery, nis_gate, ref_tau):
+        mN, mE, mD = (float(v) for v in field_n)
+        self.norm_ref, self.dip_ref = math.sqrt(mN * mN + mE * mE + mD * mD), math.atan2(mD, math.hypot(mN, mE))
+        self.norm_gate = norm_gate if norm_gate is not None else math.inf  # fraction of norm_ref
+        self.dip_gate = dip_gate if dip_gate is not None else math.inf
+        self.recovery = recovery
+        self.nis_gate = nis_gate if nis_gate is not None else math.inf
+        self.ref_rate = 1.0 / ref_tau if ref_tau else 0.0
+        self.r_psi = r_psi  # heading variance of one sample, rad²
+        self.good_since = -math.inf  # time since which the field has passed the gates (trusted from the start)
+        self.t_prev = None  # time of the previous magnetometer sample
+        self.nis_since = None  # first of the trusted samples in a row that failed the innovation gate
+        self.mean = None  # while disturbed: averaged [heading innovation, its noise variance, norm, dip]
+        self.adopt_since = None  # since when the disturbed field's averaged heading agrees with the filter's
+
+    def use(self, t, norm, dip, y, var_h):
+        """True if the sample at time t (s) is to be used: field norm (µT) and dip (rad) seen with the
+        current attitude, heading innovation y (rad) and the filter's heading variance var_h = H P Hᵀ (rad²)."""
+        dt_m = t - self.t_prev if self.t_prev is not None else 0.0
+        self.t_prev = t
+        if abs(norm - self.norm_ref) > self.norm_gate * self.norm_ref or abs(dip - self.dip_ref) > self.dip_gate:
+            self.good_since = math.inf
+        elif self.good_since > t:
+            self.good_since = t
+        if t - self.good_since >= self.recovery:  # trusted
+            self.mean = None
+            if self.ref_rate:  # the reference follows a trusted field slowly
+                a = min(1.0, dt_m * self.ref_rate)
+                self.norm_ref += a * (norm - self.norm_ref)
+                self.dip_ref += a * (dip - self.dip_ref)
+            if y * y <= self.nis_gate * (var_h + self.r_psi):
+                self.nis_since = None
+                return True
+            if self.nis_since is None:
+                self.nis_since = t
+            return t - self.nis_since >= self.recovery  # an outlier, unless it has lasted
+        self.nis_since = None
+        if self.nis_gate == math.inf:
+            return False
+        # disturbed: average its heading innovation, norm and dip; v = variance of the averaged noise
+        if self.mean is None:
+            self.mean, self.adopt_since = [y, self.r_psi, norm, dip], None
+        else:
+            a = 1.0 - math.exp(-dt_m / self.recovery)
+            m = self.mean
+            d = y - m[0]
+            m[0] += a * (math.pi - (math.pi - d) % TWO_PI)  # wrapped
+            m[1] = (1.0 - a) ** 2 * m[1] + a * a * self.r_psi
+            m[2] += a * (norm - m[2])
+            m[3] += a * (dip - m[3])
+        y_mean, v_mean, norm_mean, dip_mean = self.mean
+        if v_mean <= var_h and y_mean * y_mean <= self.nis_gate * (var_h + v_mean):
+            if self.adopt_since is None:
+                self.adopt_since = t
+            if t - self.adopt_since >= self.recovery:  # agrees in heading: the field changed for good
+                self.norm_ref, self.dip_ref = norm_mean, dip_mean
+                self.good_since, self.mean = t - self.recovery, None
+                return True
+        else:
+            self.adopt_since = None
+        return False
