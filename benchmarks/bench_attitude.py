@@ -19,7 +19,7 @@ their result is converted to a quaternion sensor → NED whose north is *magneti
 - VQF: earth frame ENU (x east, y north, z up): q_NED = Q_NED_ENU ⊗ q_ENU (kfkit.io).
 
 Truth: simulations' Euler angles turned into magnetic-north NED (yaw − declination); BROAD's
-opt_quat converted to NED by kfkit.io.load_broad. Errors are BROAD's own (broad_utils.calculateRMSE
+opt_quat converted to NED by kfkit.readers.load_broad. Errors are BROAD's own (broad_utils.calculateRMSE
 of the dataset's example code): q_e = q_est ⊗ q_true⁻¹ in the global frame, total / heading /
 inclination RMSE over the ``movement`` mask, no heading offset estimated — the dataset's opt_quat is
 already expressed for the IMU's own (z-up) frame and in a global frame whose north is the IMU's
@@ -64,7 +64,7 @@ from kfkit.filters.attitude_run import learn_field, tilt_heading
 from kfkit.filters.euler_ekf import (EulerEkfSettings, attitude_jacobian, attitude_measurement, euler_kinematics_jacobian,
                                      euler_process_noise, euler_rates)
 from kfkit.frames import G, declination, enu_to_ned_quat, euler_to_quat, quat_conjugate, quat_multiply, quat_to_dcm, wrap_angle
-from kfkit.io import load_broad
+from kfkit.readers import load_broad
 from kfkit.metrics import attitude_rmse
 
 BROAD_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"

@@ -12,6 +12,7 @@ from kfkit.capture import sphere_coverage
 from kfkit.checkpoints.lab02 import gyro_bias_truth, noise_truth, six_face_truth
 from kfkit.checkpoints.lab03 import heading_errors, random_ellipsoid
 from kfkit.frames import G, mount_matrix
+from kfkit.unit_errors import NUCLEO_UNIT
 from timing import best_of
 
 DEG = np.pi / 180
@@ -99,7 +100,7 @@ def rotation_length_table():
     """How long the magnetometer tumble must be: coverage, the fit's verdict and the heading it gives."""
     print("\n| tumbling (s) | sphere coverage | fit | hard-iron error (µT) | heading RMS on 03_headings |")
     print("| --- | --- | --- | --- | --- |")
-    unit = {k: np.asarray(v) for k, v in datasets.NUCLEO_UNIT.items()}
+    unit = {k: np.asarray(v) for k, v in NUCLEO_UNIT.items()}
     for seconds in (8.0, 15.0, 30.0, 60.0):
         rec = sim.simulate_imu(sim.mag_rotations(duration=seconds, rate_hz=104.0, seed=302), seed=303, **unit)
         mag = rec.body("mag")

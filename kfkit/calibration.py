@@ -14,7 +14,7 @@ of the bundled simulations). :func:`calibration_for` picks the one that belongs 
 bundled default for the bundled recordings, the student's own for theirs.
 
 **A phone** (board ``"phone-phyphox"``) comes calibrated by its OS, and the kit's default for it is the
-identity, with the noise σ of :mod:`kfkit.phone`'s sensor model (``data/calibration_phone-phyphox.json``):
+identity, with the noise σ of the phone's sensor model (:func:`kfkit.sensors.phone_board`) (``data/calibration_phone-phyphox.json``):
 
 - gyro bias 0: Android's ``TYPE_GYROSCOPE``, which phyphox reads, "MUST be calibrated and compensated while
   in use" (Android CDD §7.3.4; AOSP "Sensor types": base sensors carry bias and temperature compensation,
@@ -39,6 +39,7 @@ import numpy as np
 
 from .frames import G, MAG_FIELD_LONDON
 from .paths import bundled_calibration_path, data_dir, user_calibration_path
+from .sensors import board as get_board
 
 FACES = ("x_up", "x_down", "y_up", "y_down", "z_up", "z_down")
 
@@ -413,7 +414,6 @@ class Calibration:
         if missing:
             raise CalibrationError(f"{where}: missing fields {', '.join(missing)}: a calibration file needs every "
                                    f"measurement; save one again from labs 02/03 (Calibration.save)")
-        from .sensors import board as get_board
         try:
             cal = cls(**d)
             get_board(cal.board)
@@ -478,7 +478,6 @@ def load_calibration(board="nucleo-iks02a1", path=None) -> Calibration:
     ``"phone-phyphox"``: the identity its OS calibration leaves, see the module docstring)."""
     if path is not None:
         return Calibration.load(path)
-    from .sensors import board as get_board
     get_board(board)  # an unknown board name: ValueError naming the known ones
     for candidate in (user_calibration_path(board), bundled_calibration_path(board)):
         if candidate.exists():
@@ -516,7 +515,6 @@ def calibrate(stationary, six_faces=None, mag_rotations=None, rate_hz=None, fiel
     mag_rotations  a Recording with the 'mag_rotations' phase (optional)
     rate_hz        the rate the noise σ is given at (default: the board's streaming rate)
     """
-    from .sensors import board as get_board
     board = get_board(stationary.meta["board"])
     rate = float(rate_hz or board.rate_hz)
     still = _phase_or_all(stationary, "stationary")

@@ -14,8 +14,13 @@ import numpy as np
 
 from . import sim, vehicle
 from .frames import G
+from .calibration import Calibration, calibrate
 from .io import Recording, load_recording, recording_text
 from .paths import data_dir
+from .phone_sim import simulate_phone
+from .readers.phyphox_export import load_phyphox, simple_experiment_files
+from .sensors import phone_board
+from .unit_errors import MPU6050_ACCEL_BIAS, MPU6050_ACCEL_SCALE, MPU6050_GYRO_BIAS, NUCLEO_UNIT
 
 def _roll_sine() -> Recording:
     """Lab 01: a Nucleo + X-NUCLEO-IKS02A1 rolled by hand, ±30° at 0.1 Hz, 104 Hz, 60 s."""
@@ -24,7 +29,7 @@ def _roll_sine() -> Recording:
     return sim.simulate_imu(motion, board="nucleo-iks02a1", seed=102)
 
 
-# Lab 04 uses the same Nucleo as labs 02 and 03 (NUCLEO_UNIT below), so their calibration applies.
+# Lab 04 uses the same Nucleo as labs 02 and 03 (kfkit.unit_errors.NUCLEO_UNIT), so their calibration applies.
 def _attitude_tour() -> Recording:
     """Lab 04: the Nucleo turned about all axes, slid on the table, 104 Hz, 60 s."""
     return _nucleo(sim.attitude_tour(rate_hz=104.0, translate_accel=2.0, vibration_rms=0.1, seed=401), seed=402)
@@ -39,13 +44,6 @@ def _mag_disturbance() -> Recording:
     """Lab 04: heading sweeps with a steel object near the Nucleo for 12–20 s, 104 Hz, 30 s."""
     motion = sim.yaw_sweeps(rate_hz=104.0)
     return _nucleo(motion, seed=404, mag_disturbance=sim.mag_disturbance(motion))
-
-
-# Lab 05: one MPU6050 (GY-521) in one session, so its three recordings share the biases
-# (sensor frame, SI): gyro a few °/s, accelerometer 15–25 mg, inside the datasheet's tolerances.
-MPU6050_GYRO_BIAS = tuple(np.radians([-2.5, 1.8, 0.9]))  # rad/s
-MPU6050_ACCEL_BIAS = (0.20, -0.15, 0.25)  # m/s²
-MPU6050_ACCEL_SCALE = (1.015, 0.99, 1.01)  # sensitivity errors, within the datasheet's ±3 %
 
 
 MPU6050_BOOT_US = 1523456  # the logger's micros() at its first sample (its README's example line)
@@ -90,19 +88,6 @@ def _mpu6050_six_faces() -> Recording:
     return _mpu6050(sim.six_faces(rate_hz=100.0, seed=212), seed=213)
 
 
-# Labs 02 and 03: one Nucleo + X-NUCLEO-IKS02A1, so all its recordings share the same imperfections
-# (sensor frame, SI): biases inside the datasheet's typical offsets, accelerometer scale errors of a few
-# 0.1 %, and the hard/soft iron of the board's own parts (µT). The bias random walks are small, like a
-# sensor whose Allan minimum lies near a minute (gyro) and two minutes (accelerometer).
-NUCLEO_UNIT = {
-    "gyro_bias": tuple(np.radians([0.35, -0.60, 0.20])),  # rad/s
-    "accel_bias": (0.045, -0.060, 0.080),  # m/s²
-    "accel_scale": (1.004, 0.997, 1.006),
-    "gyro_bias_rw": 4.4e-6,  # rad/s/√s
-    "accel_bias_rw": 1.8e-5,  # m/s²/√s
-    "mag_hard_iron": (12.0, -8.0, 5.0),  # µT
-    "mag_soft_iron": ((1.08, 0.04, -0.02), (0.04, 0.95, 0.03), (-0.02, 0.03, 1.02)),
-}
 STATIONARY_RATE_HZ = 12.5  # lab 02's long rest: the ISM330DHCX's lowest ODR keeps 40 min small
 
 
@@ -142,13 +127,11 @@ def _headings() -> Recording:
 
 def _calibration_nucleo():
     """The Nucleo's default calibration: lab 02's and lab 03's analyses of their bundled recordings."""
-    from .calibration import calibrate
     return calibrate(_stationary_long(), _six_faces(), _mag_rotations(),
                      source="kfkit default: labs 02/03 analyses of 02_stationary, 02_six_faces, 03_mag_rotations")
 
 
 def _read_calibration(path):
-    from .calibration import Calibration
     return Calibration.load(path)
 
 
@@ -159,7 +142,6 @@ def _calibration_json(cal) -> str:
 def _calibration_mpu6050():
     """The MPU6050's default calibration: lab 02's analysis of a simulated 60 s rest and six faces
     of the lab 05 board (same biases as its bundled recordings)."""
-    from .calibration import calibrate
     still = _mpu6050(sim.stationary(60.0, 100.0), seed=211)
     return calibrate(still, _mpu6050_six_faces(), source="kfkit default: lab 02's analysis of a simulated MPU6050 "
                                           "(60 s at rest, six faces; lab 05's biases)")
@@ -168,10 +150,7 @@ def _calibration_mpu6050():
 def _calibration_phone():
     """A phone's default calibration: the identity (its OS removes the gyro bias and the magnetometer's hard
     iron; the accelerometer is assumed factory-calibrated: kfkit.calibration's docstring), with the noise σ of
-    kfkit.phone's sensor model at the rate a phyphox simple experiment asks for."""
-    from .calibration import Calibration
-    from .phone import phone_board
-
+    the phone's sensor model (kfkit.sensors.phone_board) at the rate a phyphox simple experiment asks for."""
     board = phone_board()
     return Calibration(board=board.name, rate_hz=board.rate_hz, gyro_noise=[board.gyro.noise_std(board.rate_hz)] * 3,
                        accel_noise=[board.accel.noise_std(board.rate_hz)] * 3, mag_noise=[board.mag.noise_std(board.rate_hz)] * 3,
@@ -194,15 +173,11 @@ def _phone_attitude_tour() -> dict:
     """Lab 04 with a phone: the attitude tour with a phone lying flat, screen up, top edge forward, in a
     phyphox simple experiment (accelerometer, gyroscope, magnetometer at 100 Hz), exported as CSV (comma,
     decimal point): {file in the export folder: text}, plus the truth (``kfkit_truth.csv``)."""
-    from . import phone, phyphox
-
     motion = sim.attitude_tour(rate_hz=400.0, translate_accel=2.0, vibration_rms=0.1, seed=401)
-    return phyphox.simple_experiment_files(phone.simulate_phone(motion, seed=405))
+    return simple_experiment_files(simulate_phone(motion, seed=405))
 
 
 def _read_phone_export(path) -> Recording:
-    from .phyphox import load_phyphox
-
     return load_phyphox(path, require=("acc", "gyr", "mag"))
 
 

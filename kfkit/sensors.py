@@ -9,7 +9,9 @@ at ``rate_hz``, giving a per-sample standard deviation
 the convention in which the Allan deviation reads N back at τ = 1 s. (Reading N as a one-sided
 density band-limited at Nyquist would give N·√(rate_hz/2), √2 smaller.)
 
-Boards bundle sensors with their mounting matrices M_bs (body ← sensor); see :data:`BOARDS`.
+Boards bundle sensors with their mounting matrices M_bs (body ← sensor); see :data:`BOARDS`, and
+:func:`phone_board` for a phone (its frame, mountings and fixed-point counts are described there).
+The sensor vocabulary is :data:`SENSORS` ("acc", "gyr", "mag") with their :data:`SI_UNITS`.
 """
 from __future__ import annotations
 
@@ -17,11 +19,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frames import G, MOUNT_Z_UP
+from .frames import G, MOUNT_Z_UP, mount_matrix
 
 DEG = np.pi / 180.0
 MG = 1e-3 * G  # one milli-g in m/s²
 GAUSS = 100.0  # µT per gauss
+
+#: The kit's sensor vocabulary: a recording's sensors, and the SI unit each is in once converted.
+SENSORS = ("acc", "gyr", "mag")
+SI_UNITS = {"acc": "m/s^2", "gyr": "rad/s", "mag": "uT"}
 INT16_MIN, INT16_MAX = -32768, 32767
 
 
@@ -199,14 +205,109 @@ MPU6050_GY521 = Board(
 BOARDS = {b.name: b for b in (NUCLEO_IKS02A1, MPU6050_GY521)}
 
 
+# --- the phone as a board ----------------------------------------------------------------------------
+# **Its frame.** Android and iOS report the accelerometer, gyroscope and magnetometer in one frame fixed
+# to the phone: x to the right of the screen, y up the screen (towards the top edge), z out of the
+# screen (Android ``SensorEvent``). The OS already aligned the chips to it, so all three sensors share
+# one mounting (unlike the Nucleo's IIS2MDC, lab 03). Units as phyphox exports them: m/s², rad/s, µT.
+# The accelerometer is the specific force (+9.81 m/s² on z lying face up) on both platforms: Android's
+# ``TYPE_ACCELEROMETER`` reports it so; CoreMotion reports acceleration in g with the opposite sign and
+# phyphox multiplies it by ``kG = -9.81`` (phyphox-ios ``ExperimentSensorInput.swift``; 9.81, not
+# 9.80665: 0.035 % of g). Gyroscope: right-handed rates, rad/s, most of the bias removed by the OS.
+# Magnetometer: the calibrated field (hard iron removed by the OS), µT.
+#
+# **Mounting.** ``x_b = M_bs x_s`` maps the phone frame to the body frame FRD. :data:`PHONE_MOUNTS` names
+# the usual ways to hold a phone; any other is a 3×3 rotation whose rows are the body axes written in
+# phone axes (checked by :func:`kfkit.frames.mount_matrix`).
+#
+# **Counts.** The kit's recordings hold integer counts and a sensitivity per sensor. A phone gives SI
+# floats, stored as fixed-point counts with the resolutions :data:`PHONE_LSB`: rounding changes a value by
+# at most LSB/2 (5e-5 m/s², 5e-6 rad/s, 5e-4 µT), far below the phone sensors' own resolution and noise,
+# and a phone recording then saves, loads and streams exactly like a board's.
+
+PHONE_BOARD = "phone-phyphox"
+
+#: Fixed-point resolution of a phone recording's counts, SI per count (see above).
+PHONE_LSB = {"acc": 1e-4, "gyr": 1e-5, "mag": 1e-3}  # m/s², rad/s, µT
+
+#: Mounting matrices M_bs (body FRD ← phone frame): rows are the body axes in phone axes.
+PHONE_MOUNTS = {
+    # lying flat, screen up, top edge pointing forward: x_b = y_s, y_b = x_s, z_b = −z_s
+    "flat": ((0.0, 1.0, 0.0), (1.0, 0.0, 0.0), (0.0, 0.0, -1.0)),
+    # lying flat, screen up, right edge pointing forward (landscape): x_b = x_s, y_b = −y_s, z_b = −z_s
+    "flat_landscape": ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, -1.0)),
+    # held upright in portrait, screen facing you, the back camera looking forward:
+    # x_b = −z_s, y_b = x_s, z_b = −y_s
+    "upright": ((0.0, 0.0, -1.0), (1.0, 0.0, 0.0), (0.0, -1.0, 0.0)),
+}
+DEFAULT_PHONE_MOUNT = "flat"
+
+
+def phone_mount(mount=DEFAULT_PHONE_MOUNT) -> tuple[str, np.ndarray]:
+    """(name, M_bs) for a name in :data:`PHONE_MOUNTS` or a 3×3 rotation (named "custom")."""
+    if isinstance(mount, str):
+        try:
+            return mount, np.array(PHONE_MOUNTS[mount])
+        except KeyError:
+            raise ValueError(f"unknown phone mounting {mount!r}; known: {', '.join(PHONE_MOUNTS)}, "
+                             f"or a 3×3 rotation matrix M_bs whose rows are the body axes in phone axes") from None
+    return "custom", mount_matrix(mount)
+
+
+@dataclass(frozen=True)
+class PhoneSensorSpec(SensorSpec):
+    """A phone sensor in the kit's fixed-point counts: saturates at full scale, not at int16."""
+
+    @property
+    def max_count(self) -> int:
+        return int(np.floor(self.full_scale / self.sensitivity))
+
+    @property
+    def min_count(self) -> int:
+        return -self.max_count
+
+
+# Phone-grade sensors for the simulator. A phone's chips vary by model; these are common ones.
+# Bosch BMI160 (BST-BMI160-DS000, Table 1), in many Android phones: accelerometer output noise
+# density 180 µg/√Hz, zero-g offset ±40 mg; gyroscope noise density 0.007 °/s/√Hz, zero-rate offset
+# ±3 °/s; ranges used by Android: ±8 g, ±2000 °/s. AKM AK09918 (016014242-E-00, 2016/11): 0.15 µT
+# per LSB, ±4912 µT, continuous modes 10–100 Hz; its noise is not in the datasheet's tables, so
+# σ = 0.3 µT (2 LSB) per sample is assumed here.
+PHONE_ACCEL = PhoneSensorSpec("BMI160-class phone accelerometer", "accel", 8 * G, PHONE_LSB["acc"], 180e-6 * G, None,
+                              40 * MG, (25.0, 50.0, 100.0, 200.0, 400.0))
+PHONE_GYRO = PhoneSensorSpec("BMI160-class phone gyroscope", "gyro", 2000 * DEG, PHONE_LSB["gyr"], 0.007 * DEG, None,
+                             3.0 * DEG, (25.0, 50.0, 100.0, 200.0, 400.0))
+PHONE_MAG = PhoneSensorSpec("AK09918-class phone magnetometer", "mag", 4912.0, PHONE_LSB["mag"], None, 0.3,
+                            1.0, (10.0, 20.0, 50.0, 100.0))
+
+
+def phone_board(mount=DEFAULT_PHONE_MOUNT) -> Board:
+    """The phone as a :class:`Board` (all three sensors share the phone frame)."""
+    _, M = phone_mount(mount)
+    return Board(PHONE_BOARD, PHONE_ACCEL, PHONE_GYRO, PHONE_MAG, {k: M.tolist() for k in SENSORS}, 100.0, 50.0)
+
+
+def phone_sensor_metadata(sensor: str, chip: str | None = None, full_scale: float | None = None) -> dict:
+    """A recording's ``meta["sensors"][sensor]`` for phone counts (sensitivity = :data:`PHONE_LSB`)."""
+    meta = {"chip": chip or f"phone {dict(acc='accelerometer', gyr='gyroscope', mag='magnetometer')[sensor]}",
+            "sensitivity": PHONE_LSB[sensor], "unit": SI_UNITS[sensor]}
+    if full_scale is not None:
+        meta["full_scale"] = float(full_scale)
+    return meta
+
+
+def phone_counts(sensor: str, values) -> np.ndarray:
+    """SI values (N, 3) → fixed-point counts: int64, or float with NaN rows kept (magnetometer)."""
+    counts = np.rint(np.asarray(values, dtype=float) / PHONE_LSB[sensor])
+    return counts if np.isnan(counts).any() else counts.astype(np.int64)
+
+
 def board(name: str) -> Board:
     """The :class:`Board` called ``name``: one of :data:`BOARDS`, or ``"phone-phyphox"``, a phone
-    (:func:`kfkit.phone.phone_board`: its sensor model; its mounting is each recording's own)."""
-    if name == "phone-phyphox":
-        from .phone import phone_board  # late import: kfkit.phone builds on this module
-
+    (:func:`phone_board`: its sensor model; its mounting is each recording's own)."""
+    if name == PHONE_BOARD:
         return phone_board()
     try:
         return BOARDS[name]
     except KeyError:
-        raise ValueError(f"unknown board {name!r}; known boards: {', '.join(sorted(BOARDS))}, phone-phyphox") from None
+        raise ValueError(f"unknown board {name!r}; known boards: {', '.join(sorted(BOARDS))}, {PHONE_BOARD}") from None

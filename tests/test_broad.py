@@ -1,4 +1,4 @@
-"""kfkit.io.load_broad: a small file in BROAD's format written here, and the real trials when present."""
+"""kfkit.readers.load_broad: a small file in BROAD's format written here, and the real trials when present."""
 import glob
 import re
 from pathlib import Path
@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from kfkit.filters import estimate_attitude
 from kfkit.frames import G, enu_to_ned_quat, quat_to_dcm
-from kfkit.io import RecordingError, load_broad
+from kfkit.io import RecordingError
+from kfkit.readers import load_broad
 from kfkit.metrics import attitude_errors
 
 BROAD_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"

@@ -17,13 +17,17 @@ import numpy as np
 import pytest
 import serial.tools.list_ports
 
-from kfkit import frames, phone
+from kfkit import frames
 from kfkit.capture import Recorder, capture
-from kfkit.capture.phyphox import (PhoneError, PhoneExperimentError, PhoneStoppedError, PhoneUnreachableError,
-                                   PhyphoxClient, RemoteAccessOffError, parse_url)
+from kfkit.capture.errors import (PhoneError, PhoneExperimentError, PhoneStoppedError, PhoneUnreachableError,
+                                 RemoteAccessOffError)
+from kfkit.capture.phyphox_http import PhyphoxClient, parse_url
 from kfkit.capture.virtual_phone import VirtualPhone, format_number
 from kfkit.cli import main
 from kfkit.io import load_recording
+from kfkit.phone_sim import PHONE_RATES, TIMESTAMP_JITTER
+from kfkit.sensors import PHONE_ACCEL, PHONE_GYRO, PHONE_LSB
+from kfkit.unit_errors import PHONE_UNIT
 
 G = 9.80665
 STILL_YAW = 30.0  # the virtual phone's default: flat and still, top edge 30° east of north
@@ -45,24 +49,24 @@ def test_live_capture_records_with_the_recorders_statistics(tmp_path):
     s = rec.meta["capture"]["stats"]
     assert s["bad_lines"] == 0 and s["resets"] == 0
     made = s["samples"] + s["dropped"]  # gyro samples the phone made in the recorded span
-    assert made == pytest.approx(20.0 * phone.PHONE_RATES["gyr"], abs=2)
+    assert made == pytest.approx(20.0 * PHONE_RATES["gyr"], abs=2)
     # lost samples: binomial(made, p), within 4σ
     assert abs(s["dropped"] - p_drop * made) < 4 * np.sqrt(made * p_drop * (1 - p_drop))
     # interval jitter of i.i.d. timestamp jitter σ_t: σ_t·√2 (consecutive samples only)
-    assert s["jitter_us"] == pytest.approx(phone.TIMESTAMP_JITTER * 1e6 * np.sqrt(2), rel=0.12)
-    assert s["dt_mean_us"] == pytest.approx(1e6 / phone.PHONE_RATES["gyr"], rel=2e-3)
+    assert s["jitter_us"] == pytest.approx(TIMESTAMP_JITTER * 1e6 * np.sqrt(2), rel=0.12)
+    assert s["dt_mean_us"] == pytest.approx(1e6 / PHONE_RATES["gyr"], rel=2e-3)
     # physics: at rest, level, the specific force is g up; the heading is the one the phone lies at
     acc, mag = rec.body("acc"), rec.body("mag")
     np.testing.assert_allclose(acc.mean(axis=0), [0.0, 0.0, -G], atol=0.08)  # a few mg of offset
     roll, pitch = frames.accel_tilt(acc)
     fresh = np.isfinite(mag[:, 0])
-    assert fresh.mean() == pytest.approx(phone.PHONE_RATES["mag"] / phone.PHONE_RATES["gyr"], abs=0.05)
+    assert fresh.mean() == pytest.approx(PHONE_RATES["mag"] / PHONE_RATES["gyr"], abs=0.05)
     psi = frames.tilt_compensated_heading(mag[fresh], roll[fresh], pitch[fresh], frames.declination())
     assert np.degrees(np.mean(psi)) == pytest.approx(STILL_YAW, abs=4.0)  # ~1 µT of residual hard iron
     # the file on disk is the same recording, with the phone's metadata
     saved = load_recording(tmp_path / "phone.csv")
     assert len(saved) == len(rec) and saved.meta["board"] == "phone-phyphox"
-    assert saved.meta["sensors"]["gyr"]["sensitivity"] == phone.LSB["gyr"] and saved.meta["mount_name"] == "flat"
+    assert saved.meta["sensors"]["gyr"]["sensitivity"] == PHONE_LSB["gyr"] and saved.meta["mount_name"] == "flat"
     assert saved.meta["phone"]["experiment"] == "Phone IMU" and "kfkit" in saved.meta["phone"]["device"]["deviceBrand"]
     np.testing.assert_array_equal(saved.body("gyr"), rec.body("gyr"))
 
@@ -80,7 +84,7 @@ def test_the_file_carries_the_whole_captures_clock_rate_and_a_90_degree_turn_int
         capture(vp.url + "?timeout=60", seconds=seconds, out=tmp_path / "turn.csv")
     rec = load_recording(tmp_path / "turn.csv")
     header_rate = rec.meta["capture"]["header_rate_hz"]
-    tolerance = 4 * np.sqrt(2) * phone.TIMESTAMP_JITTER / seconds + 5e-6
+    tolerance = 4 * np.sqrt(2) * TIMESTAMP_JITTER / seconds + 5e-6
     assert abs(rec.rate_hz / served - 1) < tolerance, (rec.rate_hz, header_rate)
     assert rec.meta["capture"]["stats"]["dt_mean_us"] == pytest.approx(1e6 / rec.rate_hz, rel=5e-6)
     # the roll about body x, from the rest before it (bias removed as lab 02 does) to the rest after it
@@ -96,7 +100,7 @@ def test_capture_of_a_phone_already_measuring_skips_old_data_and_leaves_it_runni
         before = vp.experiment_time()
         rec = capture(vp.url, seconds=2.0)
         assert vp.measuring  # not ours to stop
-    assert len(rec) == pytest.approx(2.0 * phone.PHONE_RATES["gyr"], abs=2)
+    assert len(rec) == pytest.approx(2.0 * PHONE_RATES["gyr"], abs=2)
     assert rec.meta["protocol"]["header"].startswith("#KFKIT,1,board=phone-phyphox")
     assert before > 2.0
 
@@ -255,7 +259,7 @@ def test_values_have_phyphox_8_significant_digits():
 
 def test_virtual_phone_clocks_and_bias_walks_run_on_across_its_loops():
     """20 min from the virtual phone (its 30 s motion looped 40 times): no sample lost at a seam, and the Allan
-    curves follow the phone's white noise and its unit's walk (phone.PHONE_UNIT), each point within its 99.9 %
+    curves follow the phone's white noise and its unit's walk (PHONE_UNIT), each point within its 99.9 %
     chi-square interval (tests/allan_oracle.py): the gyro as captured (the time base), the accelerometer as the
     phone serves it (the capture interpolates it at the gyro's times, which changes its short-τ curve)."""
     from allan_oracle import allan_curves, model_adev, outside_chi2_interval
@@ -265,11 +269,11 @@ def test_virtual_phone_clocks_and_bias_walks_run_on_across_its_loops():
         t_acc, acc = vp._series("acc", 1200.0)
     s = rec.meta["capture"]["stats"]
     assert (s["dropped"], s["bad_lines"]) == (0, 0) and len(rec) > 1200 * 100
-    assert np.all(np.diff(t_acc) > 0) and np.diff(t_acc).max() < 1.5 / phone.PHONE_RATES["acc"]  # no seams
+    assert np.all(np.diff(t_acc) > 0) and np.diff(t_acc).max() < 1.5 / PHONE_RATES["acc"]  # no seams
     series = {"gyr": (rec.sensor_si("gyr"), s["rate_hz"]), "acc": (acc, (len(t_acc) - 1) / (t_acc[-1] - t_acc[0]))}
-    for sensor, chip, K in (("gyr", phone.PHONE_GYRO, phone.PHONE_UNIT["gyro_bias_rw"]),
-                            ("acc", phone.PHONE_ACCEL, phone.PHONE_UNIT["accel_bias_rw"])):
+    for sensor, chip, K in (("gyr", PHONE_GYRO, PHONE_UNIT["gyro_bias_rw"]),
+                            ("acc", PHONE_ACCEL, PHONE_UNIT["accel_bias_rw"])):
         x, rate = series[sensor]
         taus, adev = allan_curves(x, rate)
-        model = model_adev(taus, chip.noise_density, K, phone.LSB[sensor], rate)
+        model = model_adev(taus, chip.noise_density, K, PHONE_LSB[sensor], rate)
         assert outside_chi2_interval(taus, adev, model, len(x), rate) == [], sensor

@@ -20,6 +20,7 @@ from kfkit import sim
 from kfkit.cli import main
 from kfkit.frames import G, MAG_FIELD_LONDON
 from kfkit.io import load_recording, recording_text
+from kfkit.unit_errors import BIAS_RANDOM_WALK
 
 RATE = 1000.0
 N = 200  # samples the board makes in SECONDS of board time
@@ -383,7 +384,7 @@ def test_allan_deviation_of_a_long_rest_at_the_boards_densities(board):
     from kfkit.sensors import board as get_board
 
     rec = rest(board, 2400.0, 12.5)
-    spec, (K_gyro, K_accel) = get_board(board), C.virtual.BIAS_RANDOM_WALK[board]
+    spec, (K_gyro, K_accel) = get_board(board), BIAS_RANDOM_WALK[board]
     for sensor, chip, K in (("gyr", spec.gyro, K_gyro), ("acc", spec.accel, K_accel)):
         taus, adev, model = curves_and_model(rec, sensor, chip, K)
         assert outside_chi2_interval(taus, adev, model, len(rec), rec.rate_hz) == [], sensor
@@ -403,7 +404,7 @@ def test_angle_random_walk_of_a_two_minute_rest_is_the_datasheets():
     x = rec.sensor_si("gyr")
     taus, adev = allan_deviation(x, rec.rate_hz)
     arw = angle_random_walk(taus, adev)
-    want = model_adev(1.0, gyro.noise_density, C.virtual.BIAS_RANDOM_WALK["nucleo-iks02a1"][0],
+    want = model_adev(1.0, gyro.noise_density, BIAS_RANDOM_WALK["nucleo-iks02a1"][0],
                       rec.meta["sensors"]["gyr"]["sensitivity"], rec.rate_hz)
     assert want == pytest.approx(gyro.noise_density, rel=0.01)  # at 1 s the white noise is all there is
     m = int(round(rec.rate_hz))

@@ -329,7 +329,7 @@ def test_a_column_without_a_name_is_an_error(tmp_path):
 
 
 def test_a_byte_order_mark_is_accepted_by_load_recording_and_load_any(tmp_path):
-    from kfkit.io import load_any
+    from kfkit.readers import load_any
 
     path = write(tmp_path, b"\xef\xbb\xbf" + GOOD.encode())  # Excel's "CSV UTF-8"
     ref = load_recording(write(tmp_path, GOOD, "plain.csv"))
@@ -383,7 +383,7 @@ def same_rows(ref):
 
 
 def test_fuzzed_recordings_load_the_same_numbers_or_name_the_file(tmp_path):
-    from kfkit.io import load_any
+    from kfkit.readers import load_any
 
     rec = simulate_imu(sine_roll(duration=2.0, rate_hz=50.0), seed=4)
     good = recording_text(rec).encode()

@@ -4,7 +4,9 @@ import re
 
 import numpy as np
 
-from kfkit import phone, phyphox, sim
+from kfkit import sim
+from kfkit.phone_sim import simulate_phone
+from kfkit.readers import phyphox_export
 from test_calibration import run_solution_on
 
 LAB = "04_ekf_attitude.ipynb"
@@ -30,9 +32,9 @@ def test_lab04_runs_on_the_bundled_phone_recording_within_its_budget():
 def test_lab04_runs_on_a_phone_export_without_truth(tmp_path):
     """A student's own phyphox export of the tour (accelerometer, gyroscope, magnetometer): no truth, no labels."""
     motion = sim.attitude_tour(rate_hz=400.0, translate_accel=2.0, vibration_rms=0.1, seed=61)
-    files = phyphox.simple_experiment_files(phone.simulate_phone(motion, seed=62))
-    files.pop(phyphox.TRUTH_FILE)
-    export = phyphox.write_export(files, tmp_path / "phyphox tour")
+    files = phyphox_export.simple_experiment_files(simulate_phone(motion, seed=62))
+    files.pop(phyphox_export.TRUTH_FILE)
+    export = phyphox_export.write_export(files, tmp_path / "phyphox tour")
     errors, text = run_solution_on(LAB, {"RECORDING": str(export)})
     assert errors == [] and "Warning" not in text
     assert "board phone-phyphox" in text and "no truth in this recording" in text

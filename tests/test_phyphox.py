@@ -3,7 +3,7 @@
 The exports here are written by this file's own writer, from phyphox's source as read (Android
 ``DataExport.java``: quoted labels, ``0.000000000E0`` numbers, ``NaN`` padding, a newline after every
 line; iOS ``ExperimentExportSet.swift``: ``""`` for a missing value, no newline after the last line;
-the five separator/decimal variants), not by ``kfkit.phyphox``'s writer. Physics oracle: the phone's
+the five separator/decimal variants), not by ``kfkit.readers.phyphox_export``'s writer. Physics oracle: the phone's
 readings come from scipy's Rotation applied to the phone's axes as Android documents them (x right,
 y up the screen, z out of it; the accelerometer reads +g on z face up).
 """
@@ -16,9 +16,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from kfkit import datasets, frames, io, metrics, phone, phyphox
+from kfkit import datasets, frames, io, metrics, readers
+from kfkit.clocks import OneClock, SampleCounter
 from kfkit.filters import estimate_attitude
 from kfkit.io import RecordingError
+from kfkit.phone_sim import simulate_phone
+from kfkit.readers import phyphox_export
+from kfkit.sensors import PHONE_LSB, PHONE_MOUNTS, SENSORS
 
 G = 9.80665
 FIELD_N = np.array(frames.MAG_FIELD_LONDON)
@@ -124,7 +128,7 @@ def expected_euler(R_ns):
 @pytest.mark.parametrize("axis, angle, which", [("x", 30.0, "pitch"), ("y", 25.0, "roll"), ("x", -20.0, "pitch")])
 def test_flat_then_tilted_gives_the_known_tilt_and_heading(tmp_path, axis, angle, which):
     samples, R_ns = tilt_samples(axis, angle)
-    rec = io.load_phyphox(write_simple_experiment(tmp_path / "export", samples), require=("acc", "gyr", "mag"))
+    rec = readers.load_phyphox(write_simple_experiment(tmp_path / "export", samples), require=("acc", "gyr", "mag"))
     acc, gyr, mag = rec.body("acc"), rec.body("gyr"), rec.body("mag")
     roll, pitch = frames.accel_tilt(acc)
     for window, t_probe in (((0.2, 1.8), 1.0), ((3.2, 4.8), 4.0)):
@@ -148,15 +152,15 @@ def test_other_mountings_follow_their_matrices(tmp_path):
     """An upright phone (portrait, screen to you) reads +g on y; its mounting makes that level."""
     samples, _ = tilt_samples("x", 0.0)
     upright = {k: (t, v @ Rotation.from_euler("x", 90, degrees=True).as_matrix()) for k, (t, v) in samples.items()}
-    rec = io.load_phyphox(write_simple_experiment(tmp_path / "up", upright), mount="upright")
+    rec = readers.load_phyphox(write_simple_experiment(tmp_path / "up", upright), mount="upright")
     np.testing.assert_allclose(rec.sensor_si("acc").mean(axis=0), [0.0, G, 0.0], atol=1e-3)
     np.testing.assert_allclose(rec.body("acc").mean(axis=0), [0.0, 0.0, -G], atol=1e-3)
-    custom = io.load_phyphox(tmp_path / "up", mount=phone.MOUNTS["upright"])
+    custom = readers.load_phyphox(tmp_path / "up", mount=PHONE_MOUNTS["upright"])
     assert custom.meta["mount_name"] == "custom" and custom.meta["mount"] == rec.meta["mount"]
     with pytest.raises(ValueError, match="rotation"):
-        io.load_phyphox(tmp_path / "up", mount=np.diag([1.0, 1.0, -1.0]))
+        readers.load_phyphox(tmp_path / "up", mount=np.diag([1.0, 1.0, -1.0]))
     with pytest.raises(ValueError, match="unknown phone mounting 'sideways'.*flat"):
-        io.load_phyphox(tmp_path / "up", mount="sideways")
+        readers.load_phyphox(tmp_path / "up", mount="sideways")
 
 
 # --- formats -------------------------------------------------------------------------------------------
@@ -165,25 +169,25 @@ def test_other_mountings_follow_their_matrices(tmp_path):
 def tour_samples():
     from kfkit import sim
 
-    s = phone.simulate_phone(sim.attitude_tour(rate_hz=400.0, seed=3), seed=9)
-    return {k: (s.t[k][:1500], s.values[k][:1500]) for k in phone.SENSORS}
+    s = simulate_phone(sim.attitude_tour(rate_hz=400.0, seed=3), seed=9)
+    return {k: (s.t[k][:1500], s.values[k][:1500]) for k in SENSORS}
 
 
 @pytest.mark.parametrize("sep, decimal, ios", [(",", ".", False), ("\t", ".", False), (";", ".", False),
                                                ("\t", ",", False), (";", ",", False), (",", ".", True),
                                                (";", ",", True)])
 def test_every_csv_variant_loads_the_same(tmp_path, tour_samples, sep, decimal, ios):
-    ref = io.load_phyphox(write_simple_experiment(tmp_path / "ref", tour_samples))
+    ref = readers.load_phyphox(write_simple_experiment(tmp_path / "ref", tour_samples))
     folder = write_simple_experiment(tmp_path / "v", tour_samples, sep, decimal, ios)
     # iOS omits the last newline: whole as the phone shares it (a zip, CRC-checked), so every row is kept
-    rec = io.load_phyphox(zip_folder(folder, tmp_path / "v.zip") if ios else folder)
+    rec = readers.load_phyphox(zip_folder(folder, tmp_path / "v.zip") if ios else folder)
     for c in ref.columns:
         np.testing.assert_array_equal(rec[c], ref[c], err_msg=c)
     # the counts are the SI values to the fixed-point LSB
     t, v = tour_samples["gyr"]
     kept = np.searchsorted(t, rec.t - 1e-6)  # the file's times carry ten significant digits
     np.testing.assert_allclose(rec.t, t[kept], atol=5e-7)  # µs: the kit's time resolution
-    np.testing.assert_allclose(rec.sensor_si("gyr"), v[kept], atol=phone.LSB["gyr"] / 2 + 1e-12)
+    np.testing.assert_allclose(rec.sensor_si("gyr"), v[kept], atol=PHONE_LSB["gyr"] / 2 + 1e-12)
 
 
 def zip_folder(folder, archive, prefix=""):
@@ -197,7 +201,7 @@ def zip_folder(folder, archive, prefix=""):
 def test_an_unterminated_last_line_outside_a_zip_is_dropped_and_counted(tmp_path, tour_samples):
     """The class of `1.000000000E-3` cut to `1.000000`: a last line without newline may be cut mid-number,
     so outside a zip (nothing proves it whole) it is dropped, counted and noted, never read."""
-    ref = io.load_phyphox(write_simple_experiment(tmp_path / "ref", tour_samples))
+    ref = readers.load_phyphox(write_simple_experiment(tmp_path / "ref", tour_samples))
     folder = write_simple_experiment(tmp_path / "cut", tour_samples)
     gyro = folder / "Gyroscope.csv"
     text = gyro.read_text(encoding="utf-8")
@@ -206,7 +210,7 @@ def test_an_unterminated_last_line_outside_a_zip_is_dropped_and_counted(tmp_path
     cut[3] = cut[3][:8]  # '-1.234567890E-3' → '-1.23456': a valid number, 1000× too big
     gyro.write_text(text.rstrip("\n").rsplit("\n", 1)[0] + "\n" + ",".join(cut), encoding="utf-8")
     float(cut[3])  # the cut value parses: only the missing newline gives it away
-    rec = io.load_phyphox(folder)
+    rec = readers.load_phyphox(folder)
     n = len(text.rstrip("\n").split("\n")) - 1
     assert rec.meta["phone"]["skipped"]["gyr"]["unterminated_last_row"] == 1
     assert any("Gyroscope.csv, line" in w and str(n + 1) in w and "dropped" in w for w in rec.meta["phone"]["warnings"])
@@ -228,7 +232,7 @@ def test_zip_folder_and_meta_files_agree(tmp_path, tour_samples):
     with zipfile.ZipFile(archive, "w") as z:
         for p in sorted(folder.rglob("*.csv")):
             z.write(p, p.relative_to(folder).as_posix())
-    a, b = io.load_phyphox(folder), io.load_phyphox(archive)
+    a, b = readers.load_phyphox(folder), readers.load_phyphox(archive)
     for c in a.columns:
         np.testing.assert_array_equal(a[c], b[c])
     assert a.meta["sensors"]["acc"]["chip"] == "LSM6DSO Accelerometer" and a.meta["sensors"]["acc"]["full_scale"] == 78.4532
@@ -241,10 +245,10 @@ def test_raw_data_of_a_single_sensor_experiment(tmp_path, tour_samples):
     raw = tmp_path / "Raw Data.csv"
     write_set(raw, ["Time (s)"] + ANDROID_LABELS["acc"] + ["Absolute acceleration (m/s^2)"],
               [t, v[:, 0], v[:, 1], v[:, 2], np.linalg.norm(v, axis=1)])
-    rec = io.load_phyphox(raw, require=("acc",))
+    rec = readers.load_phyphox(raw, require=("acc",))
     assert rec.meta["phone"]["time_base"] == "accelerometer" and "gx" not in rec.columns
     np.testing.assert_allclose(rec.t, t, atol=1e-6)  # µs: the kit's time resolution
-    np.testing.assert_allclose(rec.sensor_si("acc"), v, atol=phone.LSB["acc"] / 2 + 1e-12)
+    np.testing.assert_allclose(rec.sensor_si("acc"), v, atol=PHONE_LSB["acc"] / 2 + 1e-12)
 
 
 def test_one_time_base_interpolates_the_accelerometer_and_places_each_magnetometer_sample(tmp_path):
@@ -255,7 +259,7 @@ def test_one_time_base_interpolates_the_accelerometer_and_places_each_magnetomet
     acc = np.column_stack([1.0 + 0.5 * t_a, -2.0 * t_a, np.full_like(t_a, G)])
     mag = np.column_stack([20.0 + t_m, np.zeros_like(t_m), 45.0 - t_m])
     samples = {"gyr": (t_g, np.zeros((500, 3))), "acc": (t_a, acc), "mag": (t_m, mag)}
-    rec = io.load_phyphox(write_simple_experiment(tmp_path / "e", samples))
+    rec = readers.load_phyphox(write_simple_experiment(tmp_path / "e", samples))
     assert rec.t[0] >= t_a[0] and rec.t[-1] <= t_a[-1]  # gyro rows outside the accelerometer's span are left out
     np.testing.assert_allclose(rec.sensor_si("acc")[:, 0], 1.0 + 0.5 * rec.t, atol=1e-4)
     np.testing.assert_allclose(rec.sensor_si("acc")[:, 1], -2.0 * rec.t, atol=1e-4)
@@ -268,11 +272,11 @@ def test_one_time_base_interpolates_the_accelerometer_and_places_each_magnetomet
 
 
 def test_streaming_the_merge_in_pieces_gives_the_file_result(tour_samples):
-    whole = phone.OneClock()
+    whole = OneClock()
     for k, (t, v) in tour_samples.items():
         whole.push(k, t, v)
     t_ref, ref, _ = whole.pop(final=True)
-    live = phone.OneClock()
+    live = OneClock()
     rng = np.random.default_rng(0)
     cut = np.sort(rng.uniform(tour_samples["gyr"][0][0], tour_samples["gyr"][0][-1], 40))
     pieces, start = [], {k: 0 for k in tour_samples}
@@ -291,7 +295,7 @@ def test_streaming_the_merge_in_pieces_gives_the_file_result(tour_samples):
 
 def test_a_late_magnetometer_sample_goes_into_the_next_row():
     """Live, rows wait ``hold_s`` past the magnetometer's last sample; one that comes later still is late."""
-    clock = phone.OneClock(hold_s=0.01)
+    clock = OneClock(hold_s=0.01)
     clock.push("gyr", [0.0, 0.01, 0.02, 0.03], np.zeros((4, 3)))
     clock.push("acc", [0.0, 0.05], np.zeros((2, 3)))
     clock.push("mag", [0.004], [[1.0, 2.0, 3.0]])
@@ -307,7 +311,7 @@ def test_a_late_magnetometer_sample_goes_into_the_next_row():
 
 
 def test_saves_and_loads_in_the_kit_format(tmp_path, tour_samples):
-    rec = io.load_phyphox(write_simple_experiment(tmp_path / "e", tour_samples), require=("acc", "gyr", "mag"))
+    rec = readers.load_phyphox(write_simple_experiment(tmp_path / "e", tour_samples), require=("acc", "gyr", "mag"))
     again = io.load_recording(io.save_recording(rec, tmp_path / "phone.csv"))
     assert again.meta == rec.meta
     for c in rec.columns:
@@ -320,9 +324,40 @@ def test_repeated_timestamps_and_gaps_are_counted_not_fatal(tmp_path, tour_sampl
     t = t.copy()
     t[100] = t[99]  # the phone stamped two events alike
     t, v = np.delete(t, range(200, 205)), np.delete(v, range(200, 205), axis=0)  # five samples lost
-    rec = io.load_phyphox(write_simple_experiment(tmp_path / "e", {**tour_samples, "gyr": (t, v)}))
+    rec = readers.load_phyphox(write_simple_experiment(tmp_path / "e", {**tour_samples, "gyr": (t, v)}))
     assert rec.meta["phone"]["skipped"]["gyr"]["repeated_times"] == 1
     assert np.diff(rec["seq"]).max() == 6  # the gap shows as dropped samples in seq
+
+
+def test_a_400_hz_export_with_timestamp_jitter_shows_no_false_gaps_and_every_real_one(tmp_path):
+    """At 400 Hz a phone's 0.3 ms jitter is 12 % of a period: rounding each interval to periods would call
+    ~0.3 % of them gaps (checked on this very export), the smoothed grid none; five lost samples are five."""
+    from kfkit import sim
+
+    s = simulate_phone(sim.stationary(20.0, 1000.0), seed=4, rates={"gyr": 400.0, "acc": 400.0, "mag": 100.0})
+    samples = {k: (s.t[k], s.values[k]) for k in SENSORS}
+    rec = readers.load_phyphox(write_simple_experiment(tmp_path / "e", samples))
+    assert len(rec) > 7500 and np.array_equal(np.diff(rec["seq"]), np.ones(len(rec) - 1))
+    rounded = np.rint(np.diff(rec.t) / np.median(np.diff(rec.t)))
+    assert np.sum(rounded != 1) >= 5  # what each interval rounded on its own would have shown
+    t, v = samples["gyr"]
+    lost = [1000, 3000, 3001, 6000, 6002]
+    cut = readers.load_phyphox(write_simple_experiment(tmp_path / "cut", {**samples, "gyr": (np.delete(t, lost),
+                                                                                             np.delete(v, lost, axis=0))}))
+    steps = np.diff(cut["seq"])
+    assert int(np.sum(steps - 1)) == len(lost) and sorted(steps[steps > 1].tolist()) == [2, 2, 2, 3]
+
+
+def test_the_sample_counter_counts_the_same_in_pieces_and_rejects_a_bad_period():
+    rng = np.random.default_rng(5)
+    t = np.delete(np.arange(3000) / 400.0, [500, 1500, 1501]) + rng.normal(0.0, 3e-4, 2997)
+    whole = SampleCounter(1 / 400.0).count(t)
+    counter = SampleCounter(1 / 400.0)
+    pieces = np.concatenate([counter.count(part) for part in np.split(t, [7, 100, 1234, 2900])])
+    np.testing.assert_array_equal(pieces, whole)
+    assert whole[-1] == 2999 and np.diff(whole).max() == 3
+    with pytest.raises(ValueError, match="positive period"):
+        SampleCounter(0.0)
 
 
 # --- errors -------------------------------------------------------------------------------------------
@@ -330,10 +365,10 @@ def test_repeated_timestamps_and_gaps_are_counted_not_fatal(tmp_path, tour_sampl
 def test_a_missing_sensor_names_the_experiment_to_use(tmp_path, tour_samples):
     folder = write_simple_experiment(tmp_path / "e", tour_samples, sensors=("acc", "mag"))
     with pytest.raises(RecordingError, match="no gyroscope.*found: accelerometer \\(Accelerometer.csv\\).*simple experiment") as e:
-        io.load_phyphox(folder)
+        readers.load_phyphox(folder)
     assert str(folder) in str(e.value)
     with pytest.raises(RecordingError, match="no magnetometer"):
-        io.load_phyphox(write_simple_experiment(tmp_path / "f", tour_samples, sensors=("acc", "gyr")),
+        readers.load_phyphox(write_simple_experiment(tmp_path / "f", tour_samples, sensors=("acc", "gyr")),
                         require=("acc", "gyr", "mag"))
 
 
@@ -347,7 +382,7 @@ def test_linear_acceleration_instead_of_the_accelerometer_says_acceleration_with
     t, v = tour_samples["acc"]
     write_set(folder / name, ["Time (s)"] + labels, [t, v[:, 0], v[:, 1], v[:, 2] - G])
     with pytest.raises(RecordingError, match="linear acceleration \\(gravity removed\\).*'Acceleration with g'"):
-        io.load_phyphox(folder)
+        readers.load_phyphox(folder)
 
 
 def test_an_export_without_time_column_names_file_and_columns(tmp_path, tour_samples):
@@ -355,7 +390,7 @@ def test_an_export_without_time_column_names_file_and_columns(tmp_path, tour_sam
     raw = tmp_path / "Raw Data.csv"
     write_set(raw, ANDROID_LABELS["acc"], [v[:, 0], v[:, 1], v[:, 2]])
     with pytest.raises(RecordingError, match="Raw Data.csv, line 1: no time column.*'Acceleration x \\(m/s\\^2\\)'"):
-        io.load_phyphox(raw, require=("acc",))
+        readers.load_phyphox(raw, require=("acc",))
 
 
 @pytest.mark.parametrize("bad, message", [("9.8.1E0", "'9.8.1E0' is not a number"), ("nine", "'nine' is not a number")])
@@ -368,7 +403,7 @@ def test_a_malformed_number_names_file_line_and_column(tmp_path, tour_samples, b
     lines[41] = ",".join(cells)
     path.write_text("\n".join(lines), encoding="utf-8")
     with pytest.raises(RecordingError, match=f"Gyroscope.csv, line 42: column 'Gyroscope y \\(rad/s\\)': {message}"):
-        io.load_phyphox(folder)
+        readers.load_phyphox(folder)
 
 
 def test_a_short_row_time_going_back_and_an_empty_file(tmp_path, tour_samples):
@@ -379,17 +414,17 @@ def test_a_short_row_time_going_back_and_an_empty_file(tmp_path, tour_samples):
     lines[10] = lines[10].rsplit(",", 1)[0]
     path.write_text("\n".join(lines), encoding="utf-8")
     with pytest.raises(RecordingError, match="Accelerometer.csv, line 11: expected 4 fields separated by ',', got 3"):
-        io.load_phyphox(folder)
+        readers.load_phyphox(folder)
     lines = list(good)
     lines[20], lines[21] = lines[21], lines[20]
     path.write_text("\n".join(lines), encoding="utf-8")
     with pytest.raises(RecordingError, match="Accelerometer.csv, line 22: time goes back"):
-        io.load_phyphox(folder)
+        readers.load_phyphox(folder)
     path.write_text("", encoding="utf-8")
     with pytest.raises(RecordingError, match="Accelerometer.csv, line 1: the file is empty"):
-        io.load_phyphox(folder)
+        readers.load_phyphox(folder)
     with pytest.raises(FileNotFoundError, match="no phyphox export at"):
-        io.load_phyphox(tmp_path / "nowhere")
+        readers.load_phyphox(tmp_path / "nowhere")
 
 
 # --- the bundled phone recording -------------------------------------------------------------------------
@@ -404,7 +439,7 @@ def test_bundled_phone_export_is_phyphox_shaped(bundled_phone):
     header = (folder / "Gyroscope.csv").read_text(encoding="utf-8").split("\n", 2)
     assert header[0] == '"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)"'
     t, *xyz = header[1].split(",")
-    assert all(phyphox.format_number(float(c)) == c == java_sci(float(c)) for c in [t, *xyz])
+    assert all(phyphox_export.format_number(float(c)) == c == java_sci(float(c)) for c in [t, *xyz])
     assert (folder / "meta" / "device.csv").exists() and (folder / "meta" / "time.csv").exists()
     rec = bundled_phone
     assert rec.meta["board"] == "phone-phyphox" and rec.meta["source"] == "simulated phone (phyphox export)"
@@ -414,10 +449,10 @@ def test_bundled_phone_export_is_phyphox_shaped(bundled_phone):
 
 def test_bundled_truth_follows_the_mounting(bundled_phone):
     """The truth is stored for the phone's own frame, so another mounting gives that frame's body attitude."""
-    other = phyphox.load_phyphox(datasets.data_dir() / "04_phone_attitude_tour", mount="flat_landscape")
+    other = phyphox_export.load_phyphox(datasets.data_dir() / "04_phone_attitude_tour", mount="flat_landscape")
     R_flat = Rotation.from_euler("ZYX", bundled_phone.truth()[:, ::-1])
     R_land = Rotation.from_euler("ZYX", other.truth()[:, ::-1])
-    M_flat, M_land = (np.array(phone.MOUNTS[m]) for m in ("flat", "flat_landscape"))
+    M_flat, M_land = (np.array(PHONE_MOUNTS[m]) for m in ("flat", "flat_landscape"))
     # R_ns = R_nb M_bs for both: the phone's attitude is one and the same
     np.testing.assert_allclose((R_flat * Rotation.from_matrix(M_flat)).as_matrix(),
                                (R_land * Rotation.from_matrix(M_land)).as_matrix(), atol=1e-7)
@@ -443,7 +478,7 @@ def test_lab04_ekf_meets_its_budget_on_the_bundled_phone_recording(bundled_phone
 
 def test_load_any_reads_the_kits_format_and_every_phyphox_export_shape(tmp_path, tour_samples):
     folder = write_simple_experiment(tmp_path / "export", tour_samples)
-    from_folder = io.load_any(folder)
+    from_folder = readers.load_any(folder)
     assert from_folder.meta["source"] == "phone (phyphox export)"
     archive = tmp_path / "export.zip"
     with zipfile.ZipFile(archive, "w") as z:
@@ -453,19 +488,19 @@ def test_load_any_reads_the_kits_format_and_every_phyphox_export_shape(tmp_path,
     write_set(tmp_path / "Raw Data.csv", ["Time (s)"] + ANDROID_LABELS["acc"], [t, v[:, 0], v[:, 1], v[:, 2]])
     kit_file = io.save_recording(from_folder, tmp_path / "capture.csv")  # what a live phone capture writes
     for path in (archive, kit_file):
-        rec = io.load_any(path)
+        rec = readers.load_any(path)
         for c in from_folder.columns:
             np.testing.assert_array_equal(rec[c], from_folder[c], err_msg=f"{path.name}: {c}")
-    assert io.load_any(tmp_path / "Raw Data.csv", require=("acc",)).meta["phone"]["time_base"] == "accelerometer"
-    upright = io.load_any(folder, mount="upright")
-    assert upright.meta["mount_name"] == "upright" and upright.meta["mount"]["acc"] == [list(r) for r in phone.MOUNTS["upright"]]
+    assert readers.load_any(tmp_path / "Raw Data.csv", require=("acc",)).meta["phone"]["time_base"] == "accelerometer"
+    upright = readers.load_any(folder, mount="upright")
+    assert upright.meta["mount_name"] == "upright" and upright.meta["mount"]["acc"] == [list(r) for r in PHONE_MOUNTS["upright"]]
     with pytest.raises(FileNotFoundError, match="no recording or phyphox export at .*nowhere"):
-        io.load_any(tmp_path / "nowhere")
+        readers.load_any(tmp_path / "nowhere")
     (tmp_path / "notes.csv").write_text("a,b\n1,2\n", encoding="utf-8")
     with pytest.raises(RecordingError, match="notes.csv, line 1: no time column"):
-        io.load_any(tmp_path / "notes.csv")
+        readers.load_any(tmp_path / "notes.csv")
     with pytest.raises(RecordingError, match="no magnetometer"):
-        io.load_any(write_simple_experiment(tmp_path / "no_mag", tour_samples, sensors=("acc", "gyr")),
+        readers.load_any(write_simple_experiment(tmp_path / "no_mag", tour_samples, sensors=("acc", "gyr")),
                     require=("acc", "gyr", "mag"))
 
 
@@ -491,9 +526,9 @@ def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
 
     motion = sim.sine_roll(duration=40.0, rate_hz=400.0, amplitude=np.radians(30.0), freq_hz=0.1, still=5.0,
                            vibration_rms=0.3, seed=21)
-    files = phyphox.simple_experiment_files(phone.simulate_phone(motion, seed=22))
-    files.pop(phyphox.TRUTH_FILE)
-    export = phyphox.write_export(files, tmp_path / "phyphox roll")
+    files = phyphox_export.simple_experiment_files(simulate_phone(motion, seed=22))
+    files.pop(phyphox_export.TRUTH_FILE)
+    export = phyphox_export.write_export(files, tmp_path / "phyphox roll")
     errors, text = run_solution_on("01_roll_kf_1d.ipynb", {"RECORDING": str(export)})
     assert errors == [] and "Warning" not in text
     assert "board phone-phyphox" in text and "no truth in this recording" in text and "RMSE accel only :" not in text
@@ -507,9 +542,9 @@ def small_export(tmp_path_factory):
     """A short simulated simple-experiment export with its truth file, as a folder and as a zip."""
     from kfkit import sim
 
-    samples = phone.simulate_phone(sim.stationary(duration=1.0, rate_hz=100.0), seed=5)
-    folder = phyphox.write_export(phyphox.simple_experiment_files(samples), tmp_path_factory.mktemp("small") / "export")
-    return folder, zip_folder(folder, folder.parent / "export.zip"), io.load_phyphox(folder)
+    samples = simulate_phone(sim.stationary(duration=1.0, rate_hz=100.0), seed=5)
+    folder = phyphox_export.write_export(phyphox_export.simple_experiment_files(samples), tmp_path_factory.mktemp("small") / "export")
+    return folder, zip_folder(folder, folder.parent / "export.zip"), readers.load_phyphox(folder)
 
 
 def test_a_cut_or_damaged_zip_is_called_a_damaged_zip(tmp_path, small_export):
@@ -519,9 +554,9 @@ def test_a_cut_or_damaged_zip_is_called_a_damaged_zip(tmp_path, small_export):
         path = tmp_path / name
         path.write_bytes(content)  # was reported as "a CSV without a time column"
         with pytest.raises(RecordingError, match=re.escape(str(path)) + ": a damaged .zip file.*again"):
-            io.load_phyphox(path)
+            readers.load_phyphox(path)
         with pytest.raises(RecordingError, match="damaged .zip"):
-            io.load_any(path)
+            readers.load_any(path)
     crc = tmp_path / "crc.zip"  # a flipped byte inside a stored member: the CRC-32 tells
     with zipfile.ZipFile(crc, "w", zipfile.ZIP_STORED) as z:
         z.write(small_export[0] / "Gyroscope.csv", "Gyroscope.csv")
@@ -530,18 +565,18 @@ def test_a_cut_or_damaged_zip_is_called_a_damaged_zip(tmp_path, small_export):
     raw[k] = ord("+")
     crc.write_bytes(bytes(raw))
     with pytest.raises(RecordingError, match=re.escape(str(crc)) + ": a damaged .zip file .*CRC"):
-        io.load_phyphox(crc, require=("gyr",))
+        readers.load_phyphox(crc, require=("gyr",))
 
 
 def test_a_zip_with_two_exports_is_an_error_and_macos_copies_are_skipped(tmp_path, small_export):
     folder, _, ref = small_export
     two = zip_folder(folder, zip_folder(folder, tmp_path / "two.zip", "first/"), "second/")
     with pytest.raises(RecordingError, match=r"two exports in one zip \(first/.*second/.*load each"):
-        io.load_phyphox(two)
+        readers.load_phyphox(two)
     mac = zip_folder(folder, tmp_path / "mac.zip", "export/")  # Finder's "Compress" adds __MACOSX/._* copies
     with zipfile.ZipFile(mac, "a") as z:
         z.writestr("__MACOSX/export/._Gyroscope.csv", b"\x00\x05\x16\x07 binary resource fork")
-    rec = io.load_phyphox(mac)
+    rec = readers.load_phyphox(mac)
     for c in ref.columns:
         np.testing.assert_array_equal(rec[c], ref[c], err_msg=c)
 
@@ -553,7 +588,7 @@ def test_duplicate_columns_are_named(tmp_path, tour_samples):
         raw = tmp_path / "Raw Data.csv"
         write_set(raw, labels, [t] * (len(labels) - 3) + [v[:, 0], v[:, 1], v[:, 2]])
         with pytest.raises(RecordingError, match=re.escape(str(raw)) + ", line 1: " + message):
-            io.load_phyphox(raw, require=("acc",))
+            readers.load_phyphox(raw, require=("acc",))
 
 
 @pytest.mark.parametrize("edit, message", [
@@ -568,12 +603,12 @@ def test_duplicate_columns_are_named(tmp_path, tour_samples):
 def test_a_garbled_truth_file_is_named_with_its_line(small_export, tmp_path, edit, message):
     folder = tmp_path / "export"
     shutil.copytree(small_export[0], folder)
-    truth = folder / phyphox.TRUTH_FILE
+    truth = folder / phyphox_export.TRUTH_FILE
     lines = truth.read_text(encoding="utf-8").rstrip("\n").split("\n")
     changed = edit(lines)
     truth.write_text("\n".join(changed) + ("" if message.endswith("cut short") else "\n"), encoding="utf-8")
     with pytest.raises(RecordingError, match=re.escape(str(truth)) + ", " + message):
-        io.load_phyphox(folder)
+        readers.load_phyphox(folder)
 
 
 def test_fuzzed_exports_load_the_same_numbers_or_name_the_file(tmp_path, small_export):
@@ -592,7 +627,7 @@ def test_fuzzed_exports_load_the_same_numbers_or_name_the_file(tmp_path, small_e
     shutil.copytree(folder, copy)
     gyro = copy / "Gyroscope.csv"
     good = gyro.read_bytes()
-    outcome = check_fuzzed(gyro, lambda _: io.load_phyphox(copy), good, RecordingError, prefix, names=copy)
+    outcome = check_fuzzed(gyro, lambda _: readers.load_phyphox(copy), good, RecordingError, prefix, names=copy)
     assert outcome["loaded"] > 100 and outcome["rejected"] > 10
-    outcome = check_fuzzed(tmp_path / "fuzzed.zip", io.load_phyphox, archive.read_bytes(), RecordingError, prefix)
+    outcome = check_fuzzed(tmp_path / "fuzzed.zip", readers.load_phyphox, archive.read_bytes(), RecordingError, prefix)
     assert outcome["rejected"] > 100

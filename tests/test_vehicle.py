@@ -13,6 +13,7 @@ from kfkit import vehicle as V
 from kfkit.filters import estimate_sideslip
 from kfkit.frames import G
 from kfkit.io import RecordingError
+from kfkit.readers.vehicle_csv import load_vehicle_csv, sign_check
 
 CAR = V.BicycleParams()
 
@@ -304,7 +305,7 @@ def student_csv(tmp_path, text=STUDENT):
 
 
 def test_student_csv_is_mapped_and_converted_to_si(tmp_path):
-    rec = V.load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";")
+    rec = load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";")
     np.testing.assert_allclose(rec.t, [0.0, 0.01, 0.02])
     np.testing.assert_allclose(rec["delta"], np.radians([1.0, 1.5, 2.0]))
     np.testing.assert_allclose(rec["yaw_rate"], np.radians([2.0, 2.5, 3.0]))
@@ -325,54 +326,54 @@ def test_student_csv_is_mapped_and_converted_to_si(tmp_path):
 ])
 def test_student_csv_errors_name_file_line_and_column(tmp_path, edit, message):
     with pytest.raises(RecordingError, match=message):
-        V.load_vehicle_csv(student_csv(tmp_path, edit(STUDENT)), MAPPING, UNITS, delimiter=";")
+        load_vehicle_csv(student_csv(tmp_path, edit(STUDENT)), MAPPING, UNITS, delimiter=";")
 
 
 def test_student_csv_mapping_and_unit_mistakes(tmp_path):
     path = student_csv(tmp_path)
     with pytest.raises(ValueError, match="missing vx"):
-        V.load_vehicle_csv(path, {k: v for k, v in MAPPING.items() if k != "vx"}, UNITS, delimiter=";")
+        load_vehicle_csv(path, {k: v for k, v in MAPPING.items() if k != "vx"}, UNITS, delimiter=";")
     with pytest.raises(ValueError, match="unknown steering"):
-        V.load_vehicle_csv(path, dict(MAPPING, steering="Steer [deg]"), UNITS, delimiter=";")
+        load_vehicle_csv(path, dict(MAPPING, steering="Steer [deg]"), UNITS, delimiter=";")
     with pytest.raises(ValueError, match="unit 'mph' for vx; choose one of m/s, km/h"):
-        V.load_vehicle_csv(path, MAPPING, dict(UNITS, vx="mph"), delimiter=";")
+        load_vehicle_csv(path, MAPPING, dict(UNITS, vx="mph"), delimiter=";")
     with pytest.raises(FileNotFoundError, match="no file at"):
-        V.load_vehicle_csv(tmp_path / "absent.csv", MAPPING, UNITS)
+        load_vehicle_csv(tmp_path / "absent.csv", MAPPING, UNITS)
 
 
 def test_student_csv_speed_zero_is_a_stop_negative_is_an_error(tmp_path):
-    stopped = V.load_vehicle_csv(student_csv(tmp_path, STUDENT.replace("20;2.0;3.0;0.3;37.0", "20;2.0;3.0;0.3;0.0")),
+    stopped = load_vehicle_csv(student_csv(tmp_path, STUDENT.replace("20;2.0;3.0;0.3;37.0", "20;2.0;3.0;0.3;0.0")),
                                  MAPPING, UNITS, delimiter=";")
     assert stopped["vx"][-1] == 0.0  # standing still is data; the filter's low-speed guard handles it
     res = estimate_sideslip(*(stopped[c] for c in V.VEHICLE_COLUMNS), CAR)
     assert res.low_speed[-1] and np.all(np.isfinite(res.beta))
     reversing = student_csv(tmp_path, STUDENT.replace("20;2.0;3.0;0.3;37.0", "20;2.0;3.0;0.3;-2.5"))
     with pytest.raises(RecordingError, match=r"mycar\.csv, line 5: column 'Speed \[km/h\]' \(vx\): -2\.5 km/h is negative"):
-        V.load_vehicle_csv(reversing, MAPPING, UNITS, delimiter=";")
+        load_vehicle_csv(reversing, MAPPING, UNITS, delimiter=";")
 
 
 def test_student_csv_row_shape_and_header_mistakes(tmp_path):
     trailing = STUDENT.replace("0.5\n", "0.5;\n").replace("0.6\n", "0.6;\n")  # spreadsheet exports end rows with ';'
-    assert len(V.load_vehicle_csv(student_csv(tmp_path, trailing), MAPPING, UNITS, delimiter=";")) == 3
+    assert len(load_vehicle_csv(student_csv(tmp_path, trailing), MAPPING, UNITS, delimiter=";")) == 3
     trailing_header = STUDENT.replace("Beta [deg]\n", "Beta [deg];\n")
-    assert len(V.load_vehicle_csv(student_csv(tmp_path, trailing_header), MAPPING, UNITS, delimiter=";")) == 3
+    assert len(load_vehicle_csv(student_csv(tmp_path, trailing_header), MAPPING, UNITS, delimiter=";")) == 3
     extra = STUDENT.replace("36.0;0.6", "36.0;0.6;12")
     with pytest.raises(RecordingError, match=r"mycar\.csv, line 4: expected 6 fields .* got 7"):
-        V.load_vehicle_csv(student_csv(tmp_path, extra), MAPPING, UNITS, delimiter=";")
+        load_vehicle_csv(student_csv(tmp_path, extra), MAPPING, UNITS, delimiter=";")
     twice = STUDENT.replace("Beta [deg]", "Speed [km/h]")
     with pytest.raises(RecordingError, match=r"mycar\.csv, line 2: column 'Speed \[km/h\]' \(for vx\) appears 2 times"):
-        V.load_vehicle_csv(student_csv(tmp_path, twice), {k: v for k, v in MAPPING.items() if k != "true_beta"},
+        load_vehicle_csv(student_csv(tmp_path, twice), {k: v for k, v in MAPPING.items() if k != "true_beta"},
                            UNITS, delimiter=";")
 
 
 def test_student_csv_time_starts_at_zero_and_steering_wheel_angle_is_divided(tmp_path):
     text = STUDENT.replace("\n0;", "\n1700000000000;").replace("\n10;", "\n1700000000010;").replace("\n20;", "\n1700000000020;")
-    rec = V.load_vehicle_csv(student_csv(tmp_path, text), MAPPING, UNITS, delimiter=";", steer_ratio=16.0)
+    rec = load_vehicle_csv(student_csv(tmp_path, text), MAPPING, UNITS, delimiter=";", steer_ratio=16.0)
     np.testing.assert_allclose(rec.t, [0.0, 0.01, 0.02], atol=1e-9)
     assert rec.meta["t0"] == pytest.approx(1.7e9)
     np.testing.assert_allclose(rec["delta"], np.radians([1.0, 1.5, 2.0]) / 16.0)
     with pytest.raises(ValueError, match="steer_ratio must be a positive number"):
-        V.load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";", steer_ratio=0.0)
+        load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";", steer_ratio=0.0)
 
 
 def logger_export(rec, path, flip=(), kmh=True):
@@ -395,10 +396,10 @@ def test_a_logger_export_of_a_drive_loads_back_to_the_same_si_signals(tmp_path, 
     path = logger_export(short_drive, tmp_path / "export.csv")
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # signs are right: no warning
-        rec = V.load_vehicle_csv(path, LOGGER, LOGGER_UNITS, delimiter=";")
+        rec = load_vehicle_csv(path, LOGGER, LOGGER_UNITS, delimiter=";")
     for c in ("t", "delta", "yaw_rate", "ay", "vx", "true_beta"):
         np.testing.assert_allclose(rec[c], short_drive[c], rtol=1e-8, atol=1e-10)
-    assert V.sign_check(*(short_drive[c] for c in ("delta", "yaw_rate", "ay", "vx"))) == []
+    assert sign_check(*(short_drive[c] for c in ("delta", "yaw_rate", "ay", "vx"))) == []
 
 
 @pytest.mark.parametrize("flip, advice", [
@@ -409,10 +410,10 @@ def test_a_logger_export_of_a_drive_loads_back_to_the_same_si_signals(tmp_path, 
 def test_flipped_signs_are_named_and_negate_fixes_them(tmp_path, short_drive, flip, advice):
     path = logger_export(short_drive, tmp_path / "frd.csv", flip=flip)
     with pytest.warns(UserWarning, match=r"frd\.csv: in the turns \(\d+ samples\) the signs of δ, r and a_y disagree.*" + advice):
-        V.load_vehicle_csv(path, LOGGER, LOGGER_UNITS, delimiter=";")
+        load_vehicle_csv(path, LOGGER, LOGGER_UNITS, delimiter=";")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        fixed = V.load_vehicle_csv(path, LOGGER, LOGGER_UNITS, delimiter=";", negate=flip)
+        fixed = load_vehicle_csv(path, LOGGER, LOGGER_UNITS, delimiter=";", negate=flip)
     np.testing.assert_allclose(fixed["ay"], short_drive["ay"], rtol=1e-8, atol=1e-10)
     np.testing.assert_allclose(fixed["yaw_rate"], short_drive["yaw_rate"], rtol=1e-8, atol=1e-10)
     assert fixed.meta["negated"] == list(flip)
@@ -451,11 +452,11 @@ def test_load_vehicle_rejects_a_cut_last_line_bad_metadata_and_duplicate_columns
 def test_student_csv_drops_a_last_line_without_newline_with_a_warning(tmp_path):
     cut = STUDENT.rstrip("\n")[:-2]  # the last row's Beta '0.7' cut to '0': a wrong number that parses
     with pytest.warns(UserWarning, match=r"mycar\.csv, line 5: the last line has no newline.*dropped"):
-        rec = V.load_vehicle_csv(student_csv(tmp_path, cut), MAPPING, UNITS, delimiter=";")
+        rec = load_vehicle_csv(student_csv(tmp_path, cut), MAPPING, UNITS, delimiter=";")
     assert len(rec) == 2 and rec.meta["warnings"] and "line 5" in rec.meta["warnings"][0]
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert V.load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";").meta["warnings"] == []
+        assert load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";").meta["warnings"] == []
 
 
 @pytest.mark.parametrize("edit, message", [
@@ -466,7 +467,7 @@ def test_student_csv_drops_a_last_line_without_newline_with_a_warning(tmp_path):
 ], ids=["underscore", "overflow", "unicode-digit", "one-row"])
 def test_student_csv_numbers_are_plain_decimal_and_a_drive_has_two_rows(tmp_path, edit, message):
     with pytest.raises(RecordingError, match=r"mycar\.csv, " + message):
-        V.load_vehicle_csv(student_csv(tmp_path, edit(STUDENT)), MAPPING, UNITS, delimiter=";")
+        load_vehicle_csv(student_csv(tmp_path, edit(STUDENT)), MAPPING, UNITS, delimiter=";")
 
 
 def test_fuzzed_vehicle_files_load_the_same_numbers_or_name_the_file(tmp_path, short_drive):
@@ -476,9 +477,9 @@ def test_fuzzed_vehicle_files_load_the_same_numbers_or_name_the_file(tmp_path, s
     ref = V.load_vehicle(student_csv(tmp_path, own))
     outcome = check_fuzzed(tmp_path / "fuzzed.csv", V.load_vehicle, own.encode(), RecordingError, same_rows(ref))
     assert outcome["rejected"] > 100
-    ref = V.load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";")
+    ref = load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the dropped-line warnings are the point elsewhere
-        outcome = check_fuzzed(tmp_path / "fuzzed.csv", lambda p: V.load_vehicle_csv(p, MAPPING, UNITS, delimiter=";"),
+        outcome = check_fuzzed(tmp_path / "fuzzed.csv", lambda p: load_vehicle_csv(p, MAPPING, UNITS, delimiter=";"),
                                STUDENT.encode(), RecordingError, same_rows(ref))
     assert outcome["rejected"] > 100 and outcome["loaded"] > 0

@@ -1,7 +1,7 @@
 """Oracles for recordings of the virtual board (used by tests/test_capture_*.py and tests/test_calibration.py).
 
 The virtual board is, by default, the simulated unit the bundled recordings come from. Its truth is taken
-here from kfkit.datasets (not from kfkit.capture.virtual, the code under test), turned into the body frame
+here from kfkit.unit_errors (not from kfkit.capture.virtual, the code under test), turned into the body frame
 the labs work in, with the standard uncertainties of the labs' estimates of it:
 
 - a linear estimate Σ cᵢ xᵢ of samples xᵢ = truth + wᵢ + W(tᵢ), with white noise wᵢ of σ per sample and a bias
@@ -13,20 +13,12 @@ the labs work in, with the standard uncertainties of the labs' estimates of it:
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from kfkit import datasets
-from kfkit.capture.virtual import BIAS_RANDOM_WALK
 from kfkit.frames import G, mount_matrix
 from kfkit.sensors import board as get_board
+from kfkit.unit_errors import BOARD_UNITS
 
-#: the bundled units (kfkit.datasets), sensor frame; kfkit.datasets gives the MPU6050 no walk densities, so its
-#: walks are the ones the virtual board is configured with (kfkit.capture.virtual.BIAS_RANDOM_WALK)
-UNITS = {
-    "nucleo-iks02a1": datasets.NUCLEO_UNIT,
-    "mpu6050": {"gyro_bias": datasets.MPU6050_GYRO_BIAS, "accel_bias": datasets.MPU6050_ACCEL_BIAS,
-                "accel_scale": datasets.MPU6050_ACCEL_SCALE, "gyro_bias_rw": BIAS_RANDOM_WALK["mpu6050"][0],
-                "accel_bias_rw": BIAS_RANDOM_WALK["mpu6050"][1]},
-}
-
+#: the simulated units (kfkit.unit_errors: what the bundled recordings and the virtual boards are made with)
+UNITS = BOARD_UNITS
 
 def body_truth(rec) -> dict:
     """The unit of ``rec``'s board in the body frame of ``rec``'s mounting (a signed permutation per sensor):

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import sim
+from ..sensors import board as get_board
+from .recorder import capture
 
 
 def _stationary(rate_hz, seed, duration):
@@ -140,7 +142,6 @@ def _protocol(name) -> GuidedProtocol:
 def dataset_name(name: str, board: str | None = None) -> str:
     """The bundled recording that protocol ``name`` recorded on ``board`` replaces ('05_six_faces' on
     an MPU6050, '02_six_faces' on the Nucleo): the file name (+ '.csv') labs 02–05 look for."""
-    from ..sensors import board as get_board
 
     p = _protocol(name)
     board = board or p.board
@@ -214,7 +215,6 @@ def protocol_capture_options(name: str, port, board=None, quick=False, fast=Fals
     With ``port="virtual"`` the virtual board plays the protocol's motion (``fast``: faster than
     real time); with a real board the phases come from the prompt timeline.
     """
-    from ..sensors import board as get_board
 
     board = board or _protocol(name).board
     dataset_name(name, board)  # raises if this board cannot record it
@@ -233,7 +233,6 @@ def record_protocol(name: str, port="virtual", out=None, board=None, quick=False
 
     Returns the Recording (phases labelled in its metadata). See :func:`protocol_capture_options`.
     """
-    from .recorder import capture
 
     seconds, steps, options = protocol_capture_options(name, port, board, quick, fast, seed)
     if prompt is None or port == "virtual":

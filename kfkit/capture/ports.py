@@ -1,4 +1,4 @@
-"""Finding boards (USB VID:PID) and opening a port, with errors that say what to do."""
+"""Finding boards (USB VID:PID) and opening a port, with errors that say what to do (:mod:`.errors`)."""
 from __future__ import annotations
 
 import errno
@@ -6,39 +6,10 @@ import os
 import sys
 from dataclasses import dataclass
 
+from .errors import CaptureError, PortBusyError, PortNotFoundError, PortPermissionError
+from .phyphox_http import SCHEME, PhyphoxPort
+
 SKETCHES = "firmware/nucleo_iks02a1_logger or firmware/mpu6050_logger"
-
-
-class CaptureError(RuntimeError):
-    """A capture problem the user can fix; the message says what happened and what to do."""
-
-
-class PortNotFoundError(CaptureError):
-    pass
-
-
-class PortBusyError(CaptureError):
-    pass
-
-
-class PortPermissionError(CaptureError):
-    pass
-
-
-class WrongBaudError(CaptureError):
-    pass
-
-
-class NoDataError(CaptureError):
-    pass
-
-
-class ProtocolVersionError(CaptureError):
-    pass
-
-
-class BoardDisconnectedError(CaptureError):
-    pass
 
 
 #: USB VID:PID → (what it is, the kfkit board it most likely carries). ST-LINK product IDs as in
@@ -124,11 +95,9 @@ def open_port(port: str, baud: int = 115200, timeout: float = 0.05):
     Device paths are opened exclusively (a second capture of the same port fails as busy).
     Raises :class:`PortNotFoundError` (listing the ports that exist), :class:`PortBusyError`,
     :class:`PortPermissionError` (naming the group to join) or :class:`CaptureError`.
-    ``phyphox://HOST:PORT`` opens a phone running phyphox (:class:`kfkit.capture.phyphox.PhyphoxPort`).
+    ``phyphox://HOST:PORT`` opens a phone running phyphox (:class:`kfkit.capture.phyphox_http.PhyphoxPort`).
     """
-    if port.startswith("phyphox://"):
-        from .phyphox import PhyphoxPort
-
+    if port.startswith(SCHEME):
         return PhyphoxPort(port, read_timeout=timeout)
     import serial
 

@@ -30,8 +30,8 @@ import numpy as np
 
 from .. import sensors
 from ..io import INT_COLUMNS, Recording, format_header, format_row, save_recording
-from .ports import (BoardDisconnectedError, CaptureError, NoDataError, ProtocolVersionError, WrongBaudError,
-                    SKETCHES, open_port, resolve_auto)
+from .errors import BoardDisconnectedError, CaptureError, NoDataError, ProtocolVersionError, WrongBaudError
+from .ports import SKETCHES, open_port, resolve_auto
 from .protocol import BadLine, Header, Message, Note, Sample, parse_line
 from .timeline import CaptureStats, Timeline
 from .virtual import VirtualBoard
@@ -225,7 +225,7 @@ class Recorder:
             while not self._stop.is_set():
                 try:
                     data = ser.read(max(1, ser.in_waiting))
-                except CaptureError as e:  # a port that knows what went wrong (a phone: kfkit.capture.phyphox)
+                except CaptureError as e:  # a port that knows what went wrong (a phone: kfkit.capture.phyphox_http)
                     self._fail(type(e), str(e))
                     break
                 except Exception as e:  # SerialException/OSError: the device went away

@@ -6,8 +6,8 @@ writes lines to the master end at the board's real rate. Like an Arduino that re
 its port opens, it starts (header, then ``seq`` 0) when the host sends its first byte;
 afterwards ``h`` re-sends the header and ``s`` stops/starts streaming.
 
-By default each board is the very unit the bundled recordings come from (:data:`UNITS`, read from
-:mod:`kfkit.datasets`): the Nucleo of labs 02–04 with its biases, accelerometer scale errors and hard and
+By default each board is the very unit the bundled recordings come from (:data:`VIRTUAL_UNITS`, from
+:mod:`kfkit.unit_errors`): the Nucleo of labs 02–04 with its biases, accelerometer scale errors and hard and
 soft iron, the MPU6050 of lab 05 with its biases and scale errors. So the bundled calibration
 (``data/calibration_<board>.json``, what :func:`kfkit.calibration.load_calibration` gives before a student
 saves one) is the virtual board's too, and labs 02/03 on its recordings find the unit's parameters.
@@ -16,7 +16,7 @@ saves one) is the virtual board's too, and labs 02/03 on its recordings find the
 The sensors' biases wander as one continuous random walk b(t) = b₀ + ∫ w dt (density K, one path
 carried from chunk to chunk of the simulation), so a long recording's Allan deviation turns up as
 K·√(τ/3) beyond its minimum, as a real sensor's does. Datasheets give no K for these chips; the
-values (:data:`BIAS_RANDOM_WALK`) put the Allan minimum where MEMS sensors of their class have it.
+values (:data:`kfkit.unit_errors.BIAS_RANDOM_WALK`) put the Allan minimum where MEMS sensors of their class have it.
 
 Faults (``faults=`` dict; positions count every sample the board makes, from 0, across resets;
 a list of positions or a probability per sample, drawn from ``seed``):
@@ -47,9 +47,10 @@ import tty
 import numpy as np
 
 from .. import sim
-from ..datasets import MPU6050_ACCEL_BIAS, MPU6050_ACCEL_SCALE, MPU6050_GYRO_BIAS, NUCLEO_UNIT
 from ..frames import G
+from ..sensors import BOARDS
 from ..sensors import board as get_board
+from ..unit_errors import BOARD_UNITS, resolve_unit
 from ..filters.tilt import TiltAttitude
 from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_message, encode_sample
 
@@ -58,52 +59,9 @@ BOOT_US = 1500  # micros() when a sketch sends its first sample after a reset
 # what firmware/mpu6050_tilt_kf prints (Serial.println: CR LF) when it starts measuring the gyro bias
 ATTITUDE_NOTE = b"#NOTE,measuring gyro bias: keep the board still for 2 s\r\n"
 
-#: Bias random-walk densities K of each board's (gyro rad/s/√s, accelerometer m/s²/√s). With white noise of
-#: density N the Allan deviation σ²(τ) = N²/τ + K²τ/3 is lowest at τ = √3·N/K, at σ = (2NK/√3)^½.
-BIAS_RANDOM_WALK = {
-    # the bundled unit's (kfkit.datasets.NUCLEO_UNIT, labs 02–04): gyro minimum ≈ 4 °/h at τ ≈ 35 s,
-    # accelerometer ≈ 11 µg at τ ≈ 55 s
-    "nucleo-iks02a1": (NUCLEO_UNIT["gyro_bias_rw"], NUCLEO_UNIT["accel_bias_rw"]),
-    # a consumer part: gyro minimum ≈ 9 °/h at τ ≈ 8 s, accelerometer ≈ 70 µg at τ ≈ 70 s
-    "mpu6050": (2.0e-5, 1.0e-4),
-}
-
-#: Each board's default unit (``VirtualBoard(unit="bundled")``): the sensor errors of the unit its bundled
-#: recordings are simulated with, as keyword arguments of ``sim.simulate_imu`` (sensor frame, SI, µT).
-UNITS = {
-    "nucleo-iks02a1": NUCLEO_UNIT,  # labs 02–04: biases, accelerometer scale, hard and soft iron, bias walks
-    # lab 05's board. Its walks are BIAS_RANDOM_WALK's: the bundled 05_* recordings (10–48 s) were made with
-    # sim.simulate_imu's default walks, 1e-4 on both, a gyro walk 5× what a long rest of such a part shows
-    "mpu6050": {"gyro_bias": MPU6050_GYRO_BIAS, "accel_bias": MPU6050_ACCEL_BIAS,
-                "accel_scale": MPU6050_ACCEL_SCALE, "gyro_bias_rw": BIAS_RANDOM_WALK["mpu6050"][0],
-                "accel_bias_rw": BIAS_RANDOM_WALK["mpu6050"][1]},
-}
-
-#: the errors a unit can have, with their shapes (``sim.simulate_imu`` keywords)
-UNIT_ERRORS = {"gyro_bias": (3,), "accel_bias": (3,), "accel_scale": (3,), "gyro_scale": (3,), "mag_hard_iron": (3,),
-               "mag_soft_iron": (3, 3), "gyro_bias_rw": (), "accel_bias_rw": ()}
-
-
-def unit_errors(board_name: str, unit="bundled") -> dict:
-    """The sensor errors (``sim.simulate_imu`` keywords, arrays) of a virtual ``board_name`` with ``unit``:
-    "bundled" → its entry in :data:`UNITS`, None → {} (an ideal sensor), a dict → itself (errors it leaves
-    out are zero). Unknown keys and wrong shapes raise ValueError."""
-    if isinstance(unit, str):
-        if unit != "bundled":
-            raise ValueError(f"unit must be 'bundled', None or a dict of sensor errors, got {unit!r}")
-        if board_name not in UNITS:
-            raise ValueError(f"no bundled unit for board {board_name!r} (known: {', '.join(UNITS)}); "
-                             "pass unit=None for an ideal sensor or a dict of its errors")
-        unit = UNITS[board_name]
-    unit = dict(unit or {})
-    unknown = sorted(set(unit) - set(UNIT_ERRORS))
-    if unknown:
-        raise ValueError(f"unknown sensor error(s) {', '.join(unknown)} in unit; known: {', '.join(UNIT_ERRORS)}")
-    errors = {k: np.array(v, float) for k, v in unit.items()}
-    for k, v in errors.items():
-        if v.shape != UNIT_ERRORS[k] or not np.all(np.isfinite(v)) or (k.endswith("_rw") and v < 0):
-            raise ValueError(f"unit {k}: expected finite values of shape {UNIT_ERRORS[k]} (a walk ≥ 0), got {unit[k]!r}")
-    return errors
+#: The units the virtual board plays (``unit="bundled"``): the serial boards' simulated units
+#: (:data:`kfkit.unit_errors.BOARD_UNITS`; a phone is the virtual phone's, :mod:`.virtual_phone`).
+VIRTUAL_UNITS = {name: BOARD_UNITS[name] for name in BOARDS}
 
 
 def board_fields(b) -> tuple:
@@ -137,7 +95,7 @@ class VirtualBoard:
     rate_hz      sample rate, Hz (default: the motion's, else the board's: 104 Nucleo, 100 MPU6050)
     board        "nucleo-iks02a1" or "mpu6050" (kfkit.sensors.BOARDS)
     motion       a sim.Motion to play (looped when ``loop``), or None: at rest, level, forever
-    unit         the sensor errors: "bundled" (default) the board's unit in :data:`UNITS`, the one its bundled
+    unit         the sensor errors: "bundled" (default) the board's unit in :data:`VIRTUAL_UNITS`, the one its bundled
                  recordings and calibration come from; None an ideal sensor (no bias, walk, scale error or
                  iron: white noise and quantisation only); or a dict of ``sim.simulate_imu`` keywords
                  (``gyro_bias``, ``accel_bias`` (3,), ``accel_scale``, ``gyro_scale``, ``mag_hard_iron``,
@@ -169,7 +127,7 @@ class VirtualBoard:
         self.rate_hz = float(rate_hz or (motion.rate_hz if motion is not None else self.board.rate_hz))
         self.motion, self.loop, self.realtime = motion, loop, realtime
         self.seed, self.start_us, self.start_seq, self.chunk_s = seed, int(start_us), int(start_seq), chunk_s
-        self.unit = unit_errors(self.board.name, unit)  # the sensor errors it simulates
+        self.unit = resolve_unit(self.board.name, unit, VIRTUAL_UNITS)  # the sensor errors it simulates
         self.sim_options = {**self.unit, **(sim_options or {})}  # less the biases and walks: to sim.simulate_imu
         reserved = {"motion", "board", "seed", "mag_rate_hz"}  # the board sets these itself
         unknown = sorted(set(self.sim_options) - (set(inspect.signature(sim.simulate_imu).parameters) - reserved))

@@ -13,8 +13,8 @@ phyphox-android's ``RemoteServer`` does (docs: phyphox-docs ``docs/remote-interf
 
 One connection per request (HTTP/1.0, no keep-alive), as phyphox's server. The phone plays a
 :class:`kfkit.sim.Motion` (looped, fresh noise each time; default: lying flat and still) through
-:func:`kfkit.phone.simulate_phone`, so its noise, rates and timestamp jitter are a phone's. The gyro's
-and accelerometer's bias random walks (``phone.PHONE_UNIT``) run on across the loops, one path per
+:func:`kfkit.phone_sim.simulate_phone`, so its noise, rates and timestamp jitter are a phone's. The gyro's
+and accelerometer's bias random walks (:data:`kfkit.unit_errors.PHONE_UNIT`) run on across the loops, one path per
 sensor, as a real phone's biases do.
 While measuring, its experiment clock runs at ``speed`` × real time, or (``step_s``) moves on by
 ``step_s`` seconds at each ``/get``, so that the phone runs exactly as fast as it is polled whatever
@@ -40,12 +40,15 @@ from urllib.parse import parse_qsl, urlsplit
 
 import numpy as np
 
-from .. import phone, sim
+from .. import sim
+from ..phone_sim import simulate_phone
+from ..sensors import DEFAULT_PHONE_MOUNT, PHONE_ACCEL, PHONE_GYRO, PHONE_LSB, PHONE_MAG, SENSORS
+from ..unit_errors import PHONE_UNIT
 
 _COMPONENTS = ("x", "y", "z", "t")
 #: the phone unit's bias random-walk densities (rad/s/√s, m/s²/√s), walked here across loops instead
-_BIAS_WALKS = {"gyr": phone.PHONE_UNIT["gyro_bias_rw"], "acc": phone.PHONE_UNIT["accel_bias_rw"]}
-_UNIT_WITHOUT_WALKS = {**phone.PHONE_UNIT, "gyro_bias_rw": 0.0, "accel_bias_rw": 0.0}
+_BIAS_WALKS = {"gyr": PHONE_UNIT["gyro_bias_rw"], "acc": PHONE_UNIT["accel_bias_rw"]}
+_UNIT_WITHOUT_WALKS = {**PHONE_UNIT, "gyro_bias_rw": 0.0, "accel_bias_rw": 0.0}
 
 
 @dataclass(frozen=True)
@@ -108,12 +111,12 @@ class VirtualPhone:
     speed        experiment seconds per wall-clock second while measuring (tests run faster)
     step_s       instead of ``speed``: experiment seconds added by each ``/get`` while measuring (None: use speed)
     autostart    measure from the start, as if the student had pressed play
-    rates, drop  passed to :func:`kfkit.phone.simulate_phone` (sensor rates, probability of a lost sample)
+    rates, drop  passed to :func:`kfkit.phone_sim.simulate_phone` (sensor rates, probability of a lost sample)
     faults       {"refuse_start": True, "pause_at": s, "hang_after": n}; see the module docstring
     """
 
     def __init__(self, motion=None, experiment="simple", seed=0, speed=1.0, autostart=False, rates=None,
-                 drop=0.0, faults=None, mount=phone.DEFAULT_MOUNT, step_s=None):
+                 drop=0.0, faults=None, mount=DEFAULT_PHONE_MOUNT, step_s=None):
         if experiment not in EXPERIMENTS:
             raise ValueError(f"unknown experiment {experiment!r}; known: {', '.join(EXPERIMENTS)}")
         self.title, self.inputs = EXPERIMENTS[experiment]
@@ -175,16 +178,16 @@ class VirtualPhone:
     def _loop(self, k):
         while len(self._loops) <= k:
             i = len(self._loops)
-            s = phone.simulate_phone(self.motion, seed=self.seed + 1000 * self._generation + i, rates=self.rates,
+            s = simulate_phone(self.motion, seed=self.seed + 1000 * self._generation + i, rates=self.rates,
                                      drop=self.drop, mount=self.mount, unit=_UNIT_WITHOUT_WALKS)
             shift = i * self._duration - float(self.motion.t[0])
             data = {}
-            for sensor in phone.SENSORS:
+            for sensor in SENSORS:
                 t, v = s.t[sensor] + shift, s.values[sensor]
                 if i and len(t):  # each sensor's clock runs on across the seam: one period after the last sample
                     t = t + (self._loops[-1][sensor][0][-1] + 1.0 / s.sim["rates_hz"][sensor] - t[0])
                 if sensor in _BIAS_WALKS:  # + the walk, back on the phone's fixed-point grid
-                    v = np.round((v + self._walk_path(sensor, t)) / phone.LSB[sensor]) * phone.LSB[sensor]
+                    v = np.round((v + self._walk_path(sensor, t)) / PHONE_LSB[sensor]) * PHONE_LSB[sensor]
                 data[sensor] = (t, v)
             data["lin"] = (data["acc"][0], data["acc"][1] - s.gravity)
             self._loops.append(data)
@@ -224,7 +227,7 @@ class VirtualPhone:
                 "inputs": inputs, "export": export}
 
     def meta(self) -> dict:
-        specs = {"accelerometer": phone.PHONE_ACCEL, "gyroscope": phone.PHONE_GYRO, "magnetic_field": phone.PHONE_MAG}
+        specs = {"accelerometer": PHONE_ACCEL, "gyroscope": PHONE_GYRO, "magnetic_field": PHONE_MAG}
         sensors = {name: {"Name": f"{spec.chip} (simulated)", "Vendor": "kfkit", "Range": f"{spec.full_scale:.6g}",
                           "Resolution": f"{spec.sensitivity:g}"} for name, spec in specs.items()}
         return {"version": "1.2.0", "build": "1020000", "fileFormat": "1.19", "deviceModel": "kfkit virtual phone",

@@ -1,5 +1,10 @@
 """phyphox's CSV export: read it into a kit :class:`~kfkit.io.Recording`, and write it (simulations).
 
+Also the one phyphox sensor vocabulary the kit uses: :data:`KINDS` (the kit's short names of the
+sensors phyphox records, and what to call them), :data:`SET_NAMES` (export file names),
+:data:`SOURCES` (the remote interface's ``/config`` input sources, :mod:`kfkit.capture.phyphox_http`)
+and :data:`UNIT_OF`.
+
 What phyphox writes (phyphox-android ``DataExport.java``, phyphox-ios ``ExperimentExportSet.swift``):
 
 - The CSV formats are a **zip with one file per export set**, ``<set name>.csv``, plus
@@ -25,10 +30,11 @@ dropped and counted (``meta["phone"]["skipped"][sensor]["unterminated_last_row"]
 ``meta["phone"]["warnings"]``): one sample lost against a wrong value kept. A damaged zip, a zip holding
 two exports, and a garbled truth file are errors naming the file.
 
-Sensor axes and signs are the phone frame's (:mod:`kfkit.phone`); the accelerometer is the specific
-force on both platforms. :func:`load_phyphox` puts the sensors on the gyroscope's time base
-(:class:`kfkit.phone.OneClock`), stores fixed-point counts (:data:`kfkit.phone.LSB`) and the phone's
-mounting, and keeps the phone's experiment time (seconds since its start button) as ``t``.
+Sensor axes and signs are the phone frame's (:func:`kfkit.sensors.phone_board`); the accelerometer is the
+specific force on both platforms. :func:`load_phyphox` puts the sensors on the gyroscope's time base
+(:class:`kfkit.clocks.OneClock`), numbers the rows with :class:`kfkit.clocks.SampleCounter` (jitter is
+not a gap), stores fixed-point counts (:data:`kfkit.sensors.PHONE_LSB`) and the phone's mounting, and
+keeps the phone's experiment time (seconds since its start button) as ``t``.
 Simulated exports made by the kit add ``kfkit_truth.csv`` (the true attitude at each gyro row).
 """
 from __future__ import annotations
@@ -43,9 +49,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import phone
-from .frames import quat_to_dcm
-from .io import BOM, Recording, RecordingError, check_phases, parse_count, parse_number
+from ..clocks import OneClock, SampleCounter
+from ..frames import dcm_to_euler, quat_to_dcm
+from ..io import BOM, Recording, RecordingError, check_phases, parse_count, parse_number
+from ..sensors import (DEFAULT_PHONE_MOUNT, PHONE_BOARD, PHONE_MAG, SI_UNITS, phone_board, phone_counts, phone_mount,
+                       phone_sensor_metadata)
 
 SEPARATORS = (",", "\t", ";")
 #: sensor kinds phyphox exports, as named in its file format (``<sensor type="…">``)
@@ -54,7 +62,10 @@ KINDS = {"acc": "accelerometer", "gyr": "gyroscope", "mag": "magnetometer", "lin
 #: export set (file) names → kind; iOS names its linear set "Linear Accelerometer"
 SET_NAMES = {"accelerometer": "acc", "gyroscope": "gyr", "magnetometer": "mag", "linear acceleration": "lin",
              "linear accelerometer": "lin", "gravity": "gra"}
-UNIT_OF = {"acc": "m/s^2", "lin": "m/s^2", "gra": "m/s^2", "gyr": "rad/s", "mag": "uT"}
+#: the remote interface's input sources (``/config`` ``inputs[].source``) → kind
+SOURCES = {"accelerometer": "acc", "gyroscope": "gyr", "magnetic_field": "mag", "linear_acceleration": "lin",
+           "gravity": "gra"}
+UNIT_OF = {**SI_UNITS, "lin": "m/s^2", "gra": "m/s^2"}
 _UNIT_ALIASES = {"m/s^2": "m/s^2", "m/s²": "m/s^2", "m s^-2": "m/s^2", "rad/s": "rad/s", "µt": "uT", "μt": "uT",
                  "ut": "uT"}
 _AXIS = re.compile(r"^(?P<name>.*?)\s*\b(?P<axis>[xyz])\s*\((?P<unit>[^)]*)\)$", re.IGNORECASE)
@@ -319,15 +330,13 @@ def _sensor_meta(kind, device):
         full_scale = float(device[f"{android} Range"])
     except (KeyError, ValueError):
         pass
-    return phone.sensor_metadata(kind, chip, full_scale)
+    return phone_sensor_metadata(kind, chip, full_scale)
 
 
 def _truth_euler(where, text, verified, index, M):
     """True [roll, pitch, yaw] (N, 3) of the body frame at the kept gyro rows, from kfkit_truth.csv
     (quaternions phone → NED per gyro row): R_nb = R_ns M_bsᵀ. Also its metadata. The kit writes every
     line with its newline, so outside a zip a last line without one is an error (it may be cut short)."""
-    from .frames import dcm_to_euler
-
     lines = text.removeprefix(BOM).splitlines()
     if not lines or not lines[0].startswith(TRUTH_MAGIC):
         raise RecordingError(where, 1, f"expected the header '{TRUTH_MAGIC.strip()} {{…json…}}'")
@@ -359,10 +368,10 @@ def _truth_euler(where, text, verified, index, M):
     return np.column_stack(dcm_to_euler(R_nb)), meta
 
 
-def load_phyphox(path, mount=phone.DEFAULT_MOUNT, require=("acc", "gyr")) -> Recording:
+def load_phyphox(path, mount=DEFAULT_PHONE_MOUNT, require=("acc", "gyr")) -> Recording:
     """A phyphox CSV export (folder, .zip or one ``Raw Data.csv``) as a kit :class:`Recording`.
 
-    mount    how the phone was held: a name in :data:`kfkit.phone.MOUNTS` ("flat": lying flat,
+    mount    how the phone was held: a name in :data:`kfkit.sensors.PHONE_MOUNTS` ("flat": lying flat,
              screen up, top edge forward; "flat_landscape"; "upright") or a 3×3 rotation M_bs
     require  the sensors the lab needs ('acc', 'gyr', 'mag'); a missing one is an error saying
              which phyphox experiment records it. Sensors present beyond these are loaded too.
@@ -381,7 +390,7 @@ def load_phyphox(path, mount=phone.DEFAULT_MOUNT, require=("acc", "gyr")) -> Rec
     if not present or ("gyr" not in present and "acc" not in present):
         raise RecordingError(name, None, _missing_message(tables, "acc"))
     base = "gyr" if "gyr" in present else "acc"
-    clock = phone.OneClock(base=base, interpolated=tuple(k for k in ("acc",) if k in present and k != base),
+    clock = OneClock(base=base, interpolated=tuple(k for k in ("acc",) if k in present and k != base),
                            held=tuple(k for k in ("mag",) if k in present))
     for k in present:
         clock.push(k, tables[k].t, tables[k].values)
@@ -389,15 +398,14 @@ def load_phyphox(path, mount=phone.DEFAULT_MOUNT, require=("acc", "gyr")) -> Rec
     if len(t) < 2:
         raise RecordingError(name, None, f"the {KINDS[base]} and the accelerometer do not overlap in time "
                              f"({KINDS[base]} {tables[base].t[0]:.3f}–{tables[base].t[-1]:.3f} s)")
-    mount_name, M = phone.phone_mount(mount)
-    nominal = float(np.median(np.diff(t)))
-    data = {"t": t, "seq": phone.sequence(t, nominal) % 65536}
+    mount_name, M = phone_mount(mount)
+    data = {"t": t, "seq": SampleCounter(float(np.median(np.diff(t)))).count(t) % 65536}
     for k, prefix in (("acc", "a"), ("gyr", "g"), ("mag", "m")):
         if k in present:
-            counts = phone.to_counts(k, values[k])
+            counts = phone_counts(k, values[k])
             for i, axis in enumerate("xyz"):
                 data[prefix + axis] = counts[:, i]
-    meta = {"board": phone.BOARD_NAME, "rate_hz": float((len(t) - 1) / (t[-1] - t[0])),
+    meta = {"board": PHONE_BOARD, "rate_hz": float((len(t) - 1) / (t[-1] - t[0])),
             "source": "phone (phyphox export)",
             "units": {"t": "s (the phone's experiment time)", "sensors": "counts (see sensors.*.sensitivity)"},
             "sensors": {k: _sensor_meta(k, device) for k in present},
@@ -458,7 +466,7 @@ def write_export(files: dict, folder) -> Path:
 
 def simple_experiment_files(samples, separator=",", decimal=".", device=None) -> dict[str, str]:
     """The files of an Android simple experiment's CSV export of ``samples``
-    (:class:`kfkit.phone.PhoneSamples`), plus :data:`TRUTH_FILE`: {relative path: text}."""
+    (:class:`kfkit.phone_sim.PhoneSamples`), plus :data:`TRUTH_FILE`: {relative path: text}."""
     files = {}
     for k, (set_name, labels) in SIMPLE_EXPERIMENT_SETS.items():
         v = samples.values[k]
@@ -467,7 +475,7 @@ def simple_experiment_files(samples, separator=",", decimal=".", device=None) ->
     props = {"version": "1.2.0", "deviceModel": "kfkit simulated phone", "deviceBrand": "kfkit",
              "deviceManufacturer": "kfkit", "deviceRelease": "simulation", **(device or {})}
     for k, android in (("acc", "accelerometer"), ("gyr", "gyroscope"), ("mag", "magnetic_field")):
-        spec = phone.phone_board().accel if k == "acc" else phone.phone_board().gyro if k == "gyr" else phone.PHONE_MAG
+        spec = phone_board().accel if k == "acc" else phone_board().gyro if k == "gyr" else PHONE_MAG
         props[f"{android} Name"] = spec.chip
         props[f"{android} Range"] = f"{spec.full_scale:.6g}"
     files["meta/device.csv"] = (f'"property"{separator}"value"\n'

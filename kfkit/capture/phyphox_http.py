@@ -14,15 +14,15 @@ on the local network (phyphox-docs ``docs/remote-interface``; phyphox-android ``
 The server is slow and handles one request at a time, so :class:`PhyphoxClient` sends one request
 after another, each on its own connection (``Connection: close``, no keep-alive), as the bundled web
 interface does. :class:`PhyphoxPort` polls it (every ``poll_s``), puts the sensors on the gyroscope's
-time base (:class:`kfkit.phone.OneClock`) and hands the rows to the :class:`~kfkit.capture.Recorder`
-as kfkit protocol v1 lines (fixed-point counts, :data:`kfkit.phone.LSB`), so a phone records with the
+time base (:class:`kfkit.clocks.OneClock`) and hands the rows to the :class:`~kfkit.capture.Recorder`
+as kfkit protocol v1 lines (fixed-point counts, :data:`kfkit.sensors.PHONE_LSB`), so a phone records with the
 same statistics, streamed file, progress bar and live plot as a board. A gap in the phone's gyro
 timestamps shows as dropped samples; its jitter is the recording's.
 
     kfkit capture --port phyphox://192.168.0.42:8080 --seconds 60 --out phone.csv
 
 Options ride on the address: ``phyphox://HOST:PORT?mount=upright&poll=0.2`` (mount: a name in
-:data:`kfkit.phone.MOUNTS`). Without a port, 8080 (Android's default; iPhones use 80).
+:data:`kfkit.sensors.PHONE_MOUNTS`). Without a port, 8080 (Android's default; iPhones use 80).
 """
 from __future__ import annotations
 
@@ -37,39 +37,16 @@ from urllib.parse import parse_qsl, urlencode, urlsplit
 
 import numpy as np
 
-from .. import phone
-from .ports import CaptureError
+from ..clocks import OneClock, SampleCounter
+from ..readers.phyphox_export import KINDS, SOURCES
+from ..sensors import DEFAULT_PHONE_MOUNT, PHONE_BOARD, phone_counts, phone_mount, phone_sensor_metadata
+from .errors import PhoneError, PhoneExperimentError, PhoneStoppedError, PhoneUnreachableError, RemoteAccessOffError
 from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_sample
 
 SCHEME = "phyphox://"
 DEFAULT_PORT = 8080
-#: phyphox sensor types (``/config`` inputs) → the kit's sensor names
-SOURCES = {"accelerometer": "acc", "gyroscope": "gyr", "magnetic_field": "mag", "linear_acceleration": "lin",
-           "gravity": "gra"}
-NAMES = {"acc": "accelerometer", "gyr": "gyroscope", "mag": "magnetometer", "lin": "linear acceleration",
-         "gra": "gravity"}
 SIMPLE_EXPERIMENT = ("in phyphox tap '+' → 'New simple experiment', tick Accelerometer, Gyroscope and Magnetometer, "
                      "open it and allow remote access again (⋮ menu)")
-
-
-class PhoneError(CaptureError):
-    """A problem with the phone or phyphox; the message says what to do."""
-
-
-class PhoneUnreachableError(PhoneError):
-    pass
-
-
-class RemoteAccessOffError(PhoneError):
-    pass
-
-
-class PhoneExperimentError(PhoneError):
-    pass
-
-
-class PhoneStoppedError(PhoneError):
-    pass
 
 
 def parse_url(url: str) -> tuple[str, int, dict]:
@@ -173,11 +150,11 @@ def check_experiment(config: dict, require=("acc", "gyr")) -> dict[str, dict[str
     """The experiment's sensors, or :class:`PhoneExperimentError` naming what is missing and what to open."""
     sensors = experiment_sensors(config)
     title = config.get("localTitle") or config.get("title") or "?"
-    found = ", ".join(NAMES[k] for k in sensors) or "no 3-axis sensor"
+    found = ", ".join(KINDS[k] for k in sensors) or "no 3-axis sensor"
     for need in require:
         if need in sensors:
             continue
-        msg = f"the experiment open in phyphox ({title!r}) has no {NAMES[need]} (it has: {found})."
+        msg = f"the experiment open in phyphox ({title!r}) has no {KINDS[need]} (it has: {found})."
         if need == "acc" and ("lin" in sensors or "gra" in sensors):
             msg += (" It measures the linear acceleration (gravity removed); the filters need the accelerometer's "
                     "specific force with gravity: tick 'Accelerometer' (not 'Linear Acceleration') in a simple "
@@ -197,12 +174,12 @@ class PhyphoxPort:
     :class:`PhoneError` (what arrived is saved by the recorder).
     """
 
-    def __init__(self, url: str, read_timeout=0.05, http_timeout=3.0, poll_s=0.1, mount=phone.DEFAULT_MOUNT,
+    def __init__(self, url: str, read_timeout=0.05, http_timeout=3.0, poll_s=0.1, mount=DEFAULT_PHONE_MOUNT,
                  require=("acc", "gyr"), start_s=3.0, stall_s=2.0, min_rows=20):
         host, port, options = parse_url(url)
         self.url, self.read_timeout = url, float(read_timeout)
         self.poll_s = float(options.get("poll", poll_s))
-        self.mount_name, self.M = phone.phone_mount(options.get("mount", mount))
+        self.mount_name, self.M = phone_mount(options.get("mount", mount))
         self.stall_s = stall_s
         self.client = PhyphoxClient(host, port, float(options.get("timeout", http_timeout)))
         config = self.client.config()
@@ -229,20 +206,20 @@ class PhyphoxPort:
             status = self.client.get([])["status"]
             if status.get("timedRun") and not status.get("measuring"):
                 countdown = float(status.get("countDown", 0.0)) / 1000.0  # ms: a timed run starts after its delay
-        self.clock = phone.OneClock(base="gyr", interpolated=("acc",), held=("mag",) if "mag" in self.kinds else ())
+        self.clock = OneClock(base="gyr", interpolated=("acc",), held=("mag",) if "mag" in self.kinds else ())
         self.info = {"url": url, "experiment": self.title, "crc32": config.get("crc32"), "device": self.device,
                      "buffers": self.sensors, "time_base": "gyroscope", "merge": self.clock.stats}
         self._rows: list = []
         self._out = bytearray()
         self._closed = False
-        self.header, self._grid = None, None  # _grid: (phase s, index, first time s) of the sample counter
+        self.header = None
         self._last_mag = np.zeros(3, dtype=np.int64)
         self._last_new = self._polled = time.monotonic()
         try:
             deadline = time.monotonic() + countdown + start_s
             while sum(len(r[0]) for r in self._rows) < min_rows:
                 if time.monotonic() > deadline:
-                    got = ", ".join(f"{NAMES[k]} until {v:.2f} s" for k, v in self._threshold.items() if v is not None)
+                    got = ", ".join(f"{KINDS[k]} until {v:.2f} s" for k, v in self._threshold.items() if v is not None)
                     raise PhoneStoppedError(
                         f"phyphox on {host}:{port} is measuring {self.title!r} but sent no gyroscope + accelerometer "
                         f"rows in {start_s:g} s (phone data: {got or 'none'}): is the phone's screen on with phyphox in "
@@ -308,16 +285,17 @@ class PhyphoxPort:
         t = np.concatenate([r[0] for r in self._rows])
         self.nominal_dt = float(np.median(np.diff(t)))
         self.rate_hz = round(1.0 / self.nominal_dt, 2)
+        self._counter = SampleCounter(self.nominal_dt)  # a gap in the gyro's timestamps is dropped samples, jitter is not
         self.fields = ("t_us", "seq", "ax", "ay", "az", "gx", "gy", "gz") + (
             ("mx", "my", "mz", "mag_new") if "mag" in self.kinds else ())
-        self.header = encode_header(phone.BOARD_NAME, self.rate_hz, self.fields, source="phyphox")
+        self.header = encode_header(PHONE_BOARD, self.rate_hz, self.fields, source="phyphox")
         self._out += self.header
         self._encode()
 
     def _encode(self):
         for t, values in self._rows:
-            counts = {k: phone.to_counts(k, values[k]) for k in self.kinds}
-            seq = self._sequence(t)
+            counts = {k: phone_counts(k, values[k]) for k in self.kinds}
+            seq = self._counter.count(t)
             for i, ti in enumerate(t.tolist()):
                 row = [round(ti * 1e6) % MICROS_MODULO, int(seq[i]) % SEQ_MODULO,
                        *counts["acc"][i].tolist(), *counts["gyr"][i].tolist()]
@@ -329,28 +307,6 @@ class PhyphoxPort:
                     row += [*self._last_mag.tolist(), int(fresh)]
                 self._out += encode_sample(row)
         self._rows = []
-
-    def _sequence(self, t) -> list:
-        """Sample counters for the gyro times t (s), continuing across polls: the index n of each time on the phone
-        clock's grid. A timestamp carries jitter σ_t (0.3 ms: 12 % of a 400 Hz period), so rounding each interval
-        (k = round(Δt/T)) would call a late stamp a lost sample once in ~700. Instead each time is placed against a
-        smoothed phase of the grid, φ ← φ + α(t − φ) after φ moves on by the periods counted (noise σ_t·√(α/2)),
-        with the period T = (φ − t_first)/n once 20 samples are in (before: the first rows' median):
-        n_k = n_{k−1} + max(1, round((t_k − φ)/T)); a real gap shows as a step of 2 or more."""
-        alpha = 0.1
-        out = []
-        for ti in np.asarray(t, dtype=float).tolist():
-            if self._grid is None:
-                self._grid = (ti, 0, ti)
-                out.append(0)
-                continue
-            phase, n, first = self._grid
-            period = (phase - first) / n if n >= 20 else self.nominal_dt
-            step = max(1, round((ti - phase) / period))
-            expected = phase + step * period
-            self._grid = (expected + alpha * (ti - expected), n + step, first)
-            out.append(n + step)
-        return out
 
     # -- the serial-port interface the Recorder uses -----------------------------------------------------------
     @property
@@ -396,8 +352,8 @@ class PhyphoxPort:
     def header_metadata(self, header) -> dict:
         """The recording's metadata: phone counts, the mounting, and what phyphox said about itself.
         ``meta["phone"]["merge"]`` is the live merge statistics (updated until the capture ends)."""
-        return {"board": phone.BOARD_NAME, "rate_hz": header.rate_hz, "source": "capture (phone, phyphox remote access)",
+        return {"board": PHONE_BOARD, "rate_hz": header.rate_hz, "source": "capture (phone, phyphox remote access)",
                 "units": {"t": "s", "sensors": "counts (see sensors.*.sensitivity)"},
                 "protocol": {"version": header.version, "header": "#" + header.text},
-                "sensors": {k: phone.sensor_metadata(k, self.chips[k]) for k in self.kinds},
+                "sensors": {k: phone_sensor_metadata(k, self.chips[k]) for k in self.kinds},
                 "mount": {k: self.M.tolist() for k in self.kinds}, "mount_name": self.mount_name, "phone": self.info}
