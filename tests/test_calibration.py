@@ -1,5 +1,6 @@
-"""kfkit.calibration against known simulated parameters, random ellipsoids, an independent Allan
-deviation (allantools, and a non-overlapping estimator written here), and the saved JSON."""
+"""kfkit.calibration's estimators against known simulated parameters, random ellipsoids, an independent Allan
+deviation (allantools, and a non-overlapping estimator written here), and the saved JSON.
+(Labs 02 and 03 end to end: test_calibration_labs.py; their checkpoints: test_checkpoints.py.)"""
 import json
 import re
 
@@ -9,13 +10,9 @@ from scipy.spatial.transform import Rotation
 
 from kfkit import calibration as C
 from kfkit import datasets, sim
-from kfkit.checkpoints import get, run_checkpoint
 from kfkit.checkpoints.lab03 import random_ellipsoid
-from kfkit.frames import G, MAG_FIELD_LONDON, accel_tilt, declination, mount_matrix, tilt_compensated_heading, wrap_angle
+from kfkit.frames import G, MAG_FIELD_LONDON, mount_matrix
 from kfkit.io import load_recording, save_recording
-from kfkit.paths import KIT_ROOT
-
-import unit_truth
 
 B_LONDON = np.linalg.norm(MAG_FIELD_LONDON)
 
@@ -447,69 +444,6 @@ def test_user_recording_round_trips_through_the_kit_format(tmp_path):
         {f: rec.body("acc")[rec.phase(f)] for f in C.FACES})[1])
 
 
-# --- checkpoint judges catch the classic mistakes -----------------------------------------------------------
-
-def test_heading_checkpoint_catches_the_half_turn_atan2():
-    from kfkit.frames import tilt_compensated_heading, wrap_angle
-
-    def off_by_pi(m_b, roll, pitch, declination=0.0):  # atan2(m_y', −m_x'): both arguments negated
-        return wrap_angle(tilt_compensated_heading(m_b, roll, pitch, declination) + np.pi)
-
-    result = run_checkpoint(get("03.tilt_heading"), off_by_pi, seed=0)
-    assert not result.ok and "exactly 180° off" in result.message
-
-
-def test_lab02_judges_name_gravity_and_ddof():
-    assert "gravity is still in it" in run_checkpoint(get("02.accel_bias"), lambda acc, expected: acc.mean(0)).message
-    assert "ddof=0" in run_checkpoint(get("02.noise_std"), lambda x: x.std(axis=0)).message
-
-
-def test_alignment_checkpoint_against_scipy_rotation():
-    # 180° about y negates x and z: the sign matrix the checkpoint expects for the IIS2MDC
-    D = Rotation.from_euler("y", np.pi).as_matrix()
-    np.testing.assert_allclose(D, np.diag([-1.0, 1.0, -1.0]), atol=1e-12)
-    result = run_checkpoint(get("03.alignment"), lambda turns: np.diag(
-        [np.sign(np.sum(g * m)) for g, m in (turns[a] for a in "xyz")]), seed=1)
-    assert result.ok, result.message
-
-
-RIGHT = {
-    "02.gyro_bias": C.gyro_bias, "02.noise_std": C.noise_std, "02.accel_bias": C.accel_bias,
-    "02.six_face": C.accel_six_face, "02.six_face_recording": C.accel_six_face, "02.gyro_bias_recording": C.gyro_bias,
-    "02.noise_recording": C.noise_std,
-    "02.allan_deviation": lambda x, rate_hz, taus: C.allan_deviation(x, rate_hz, taus)[1],
-    "02.sigma_at_rate": C.noise_at_rate,
-    "03.counts_to_ut": lambda counts: counts * 0.15,
-    "03.alignment": lambda turns: np.diag([np.sign(np.sum(g * m)) for g, m in (turns[a] for a in "xyz")]),
-    "03.mag_calibration": C.fit_mag_calibration, "03.heading_error": C.fit_mag_calibration,
-    "03.flat_heading": __import__("kfkit.frames", fromlist=["mag_heading"]).mag_heading,
-    "03.tilt_heading": __import__("kfkit.frames", fromlist=["x"]).tilt_compensated_heading,
-}
-
-
-def test_every_lab02_and_lab03_checkpoint_has_a_right_answer_here():
-    get("02.gyro_bias")
-    from kfkit.checkpoints import REGISTRY
-    assert {n for n in REGISTRY if n[:3] in ("02.", "03.")} == set(RIGHT)
-
-
-@pytest.mark.parametrize("name", sorted(RIGHT))
-@pytest.mark.parametrize("seed", [0, 1])
-def test_reference_answers_pass_lab02_lab03(name, seed):
-    result = run_checkpoint(get(name), RIGHT[name], seed)
-    assert result.ok, result.message
-
-
-def test_uncalibrated_magnetometer_fails_the_heading_checkpoint():
-    result = run_checkpoint(get("03.heading_error"), lambda mag: (np.zeros(3), np.eye(3)))
-    assert not result.ok and "uncalibrated" in result.message
-
-
-def test_allan_checkpoint_names_a_normalisation_factor():
-    result = run_checkpoint(get("02.allan_deviation"), lambda x, rate_hz, taus: 2 * C.allan_deviation(x, rate_hz, taus)[1])
-    assert "constant factor 2" in result.message
-
-
 def test_saving_again_keeps_the_previous_calibration(tmp_path):
     path = tmp_path / "calibration_nucleo-iks02a1.json"
     first = C.Calibration(gyro_bias=[0.01, 0.0, 0.0], source="first")
@@ -530,233 +464,6 @@ def test_bundled_recordings_get_the_bundled_unit_and_own_recordings_the_students
     assert C.calibration_for(own).source == "mine"
 
 
-# --- checkpoint judges: a sound alternative passes, the classic mistakes fail ----------------------------------
-
-def _geometric_fit(mag):
-    """A different, sound answer: the reference fit refined by minimising ‖S(m − h)‖ − B (scipy least squares)."""
-    from scipy.optimize import least_squares
-    h0, S0 = C.fit_mag_calibration(mag)
-    iu = np.triu_indices(3)
-
-    def unpack(p):
-        S = np.zeros((3, 3))
-        S[iu] = p[3:]
-        return p[:3], S + np.triu(S, 1).T
-
-    fit = least_squares(lambda p: np.linalg.norm((mag - unpack(p)[0]) @ unpack(p)[1].T, axis=1) - B_LONDON,
-                        np.concatenate([h0, S0[iu]]))
-    return unpack(fit.x)
-
-
-def test_mag_calibration_checkpoint_judges_against_the_true_ellipsoid():
-    cp = get("03.mag_calibration")
-    assert run_checkpoint(cp, _geometric_fit, seed=3).ok
-    cholesky = lambda mag: (lambda h, S: (h, np.linalg.cholesky(S.T @ S).T))(*C.fit_mag_calibration(mag))
-    assert "not symmetric" in run_checkpoint(cp, cholesky, seed=3).message
-    unscaled = lambda mag: (lambda h, S: (h, S / B_LONDON))(*C.fit_mag_calibration(mag))
-    assert "scale S by B" in run_checkpoint(cp, unscaled, seed=3).message
-    centre_only = lambda mag: (mag.mean(axis=0), np.eye(3))
-    assert "off by" in run_checkpoint(cp, centre_only, seed=3).message
-
-
-def test_bundled_recording_checks_reject_estimates_a_few_uncertainties_off():
-    from kfkit.checkpoints.lab02 import gyro_bias_truth, noise_truth, six_face_truth
-    rec = datasets.load("02_six_faces")
-    _, _, u_b, u_s = six_face_truth(rec)
-    assert run_checkpoint(get("02.six_face_recording"), C.accel_six_face).ok
-    off = lambda faces: (lambda b, s: (b + 6 * u_b, s))(*C.accel_six_face(faces))
-    assert "standard uncertainties away" in run_checkpoint(get("02.six_face_recording"), off).message
-    off_scale = lambda faces: (lambda b, s: (b, s + 6 * u_s))(*C.accel_six_face(faces))
-    assert not run_checkpoint(get("02.six_face_recording"), off_scale).ok
-    still = datasets.load("02_stationary")
-    _, u_g = gyro_bias_truth(still)
-    assert not run_checkpoint(get("02.gyro_bias_recording"), lambda gyr: C.gyro_bias(gyr) + 6 * u_g).ok
-    sigma, u, n = noise_truth(still, "gyr")
-    assert np.all(u / sigma < 0.02) and n == 1500  # 2 min at 12.5 Hz: σ known to 2 %
-    assert not run_checkpoint(get("02.noise_recording"), lambda x: 1.1 * C.noise_std(x)).ok
-    assert not run_checkpoint(get("02.noise_recording"), lambda x: C.noise_std(x) ** 0.5).ok
-
-
-# --- done when: labs 02/03 on lab 00 recordings from the virtual board --------------------------------------------
-
-NUCLEO = "nucleo-iks02a1"
-
-
-@pytest.fixture(scope="module")
-def lab00_recordings(tmp_path_factory):
-    """What lab 00 records with the virtual board, the unit of the bundled recordings (tests/unit_truth.py): its
-    guided protocols in quick mode (one board seed), plus the full-length rotations lab 03 needs."""
-    from kfkit import capture
-    from kfkit.capture.guided import protocol_motion
-    folder = tmp_path_factory.mktemp("my_recordings")
-    record = lambda name, out, quick: capture.record_protocol(name, "virtual", folder / out, quick=quick, fast=True,
-                                                              seed=4, prompt=None)
-    recs = {name: record(name, f"{name}.csv", True)
-            for name in ("stationary", "six-faces", "mag-rotations", "axis-turns", "headings")}
-    recs["mag-rotations full"] = record("mag-rotations", "mag-rotations-full.csv", False)
-    return {name: load_recording(rec.path) for name, rec in recs.items()}, protocol_motion("mag-rotations", 104.0, seed=4)
-
-
-def test_lab02_analysis_on_virtual_board_recordings(lab00_recordings):
-    """Lab 02's estimates from lab 00's quick rest (5 s) and faces (1 s each) find the unit the virtual board is, each
-    within 4 standard deviations of white noise and bias walk (tests/unit_truth.py)."""
-    from kfkit import capture
-    recs, _ = lab00_recordings
-    still, faces_rec = recs["stationary"], recs["six-faces"]
-    assert still.meta["source"] == "capture (virtual board)" and "sim" not in still.meta  # no truth in the file
-    truth = unit_truth.body_truth(still)
-    rest = still.phase("stationary")
-    gyr, acc = still.body("gyr")[rest], still.body("acc")[rest]
-    n = len(gyr)
-    assert n >= 500
-    # gyro bias: the mean of the rest, and the mean over the faces' rests of the same unit
-    sd = unit_truth.mean_sd(still, rest, "gyr", truth["gyro_bias_rw"])
-    assert np.all(np.abs(C.gyro_bias(gyr) - truth["gyro_bias"]) < 4 * sd)
-    on_faces = np.any([faces_rec.phase(f) for f in C.FACES], axis=0)
-    sd = unit_truth.mean_sd(faces_rec, on_faces, "gyr", truth["gyro_bias_rw"])
-    assert np.all(np.abs(C.gyro_bias(faces_rec.body("gyr")[on_faces]) - truth["gyro_bias"]) < 4 * sd)
-    # noise σ: the datasheet's with rounding, within 4 standard deviations of a sample σ, 1/√(2(n − 1)), plus the
-    # walk's share over the record, K²T/6 of variance
-    for x, sensor, walk in ((gyr, "gyr", truth["gyro_bias_rw"]), (acc, "acc", truth["accel_bias_rw"])):
-        sigma = unit_truth.sample_sigma(still, sensor)
-        drift = walk**2 * (n / still.rate_hz) / 6 / (2 * sigma**2)
-        assert np.all(np.abs(C.noise_std(x) / sigma - 1) < 4 / np.sqrt(2 * (n - 1)) + drift), sensor
-    # six faces: the unit's accelerometer bias and scale, as the slightly tilted faces show them
-    faces = {f: faces_rec.body("acc")[faces_rec.phase(f)] for f in C.FACES}
-    b, s = C.accel_six_face(faces)
-    bias, scale, sd_b, sd_s = unit_truth.six_face_target(faces_rec, capture.protocol_motion("six-faces", 104.0, quick=True,
-                                                                                             seed=4))
-    assert np.all(np.abs(b - bias) < 4 * sd_b) and np.all(np.abs(s - scale) < 4 * sd_s), ((b - bias) / sd_b, (s - scale) / sd_s)
-    # a bias from the level rest alone holds the scale error too: b + (s − 1) ⊙ f with f = [0, 0, −g]
-    level = np.array([0.0, 0.0, -G])
-    sd = unit_truth.mean_sd(still, rest, "acc", truth["accel_bias_rw"])
-    assert np.all(np.abs(C.accel_bias(acc, level) - (truth["accel_bias"] + (truth["accel_scale"] - 1) * level)) < 4 * sd)
-    taus, adev = C.allan_deviation(gyr, still.rate_hz)
-    assert taus.max() >= 1.0  # a 5 s rest still reaches τ = 1 s, so the ARW read-out works
-    assert np.all(C.angle_random_walk(taus, adev) > 0)
-
-
-def test_lab03_calibration_and_heading_on_virtual_board_recordings(lab00_recordings, tmp_path, monkeypatch):
-    """Lab 03's fit of the full rotations finds the unit's hard and soft iron within the fit's linearised uncertainty
-    (4σ); headings come out right with the board's own calibration and with the kit's default, not without."""
-    recs, motion = lab00_recordings
-    quick = recs["mag-rotations"]
-    with pytest.raises(C.CalibrationError, match="cover too little of the sphere.*every orientation"):
-        C.fit_mag_calibration(quick.body("mag"))  # lab 00's 8 s quick version: the fit says what to record
-    rec = recs["mag-rotations full"]
-    np.testing.assert_allclose(rec.t, motion.t[:len(rec)], atol=1e-5)  # row k is sample k of the motion played
-    mag = rec.body("mag")
-    fresh = np.isfinite(mag[:, 0])
-    h, S = C.fit_mag_calibration(mag)
-    truth = unit_truth.body_truth(rec)
-    sd_h, sd_S = unit_truth.mag_fit_sd(mag[fresh], truth["mag_hard_iron"], truth["mag_S"], unit_truth.sample_sigma(rec, "mag"))
-    assert np.all(np.abs(h - truth["mag_hard_iron"]) < 4 * sd_h), (h - truth["mag_hard_iron"]) / sd_h
-    assert np.all(np.abs(S - truth["mag_S"]) < 4 * sd_S), (S - truth["mag_S"]) / sd_S
-    # heading against the motion the board played: tilt from the six-face-corrected accelerometer
-    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))  # nothing saved: calibration_for gives the kit's default
-    truth_euler = motion.euler[:len(rec)]
-
-    def rms_deg(cal):
-        _, acc, mag_in = cal.apply(rec) if cal is not None else (None, rec.body("acc"), rec.body("mag"))
-        roll, pitch = accel_tilt(acc)
-        keep = np.isfinite(mag_in[:, 0]) & (np.abs(truth_euler[:, 1]) < np.radians(70))  # roll from gravity is defined
-        psi = tilt_compensated_heading(mag_in[keep], roll[keep], pitch[keep], declination())
-        return np.degrees(np.sqrt(np.mean(wrap_angle(psi - truth_euler[keep, 2]) ** 2)))
-
-    own = C.calibrate(recs["stationary"], recs["six-faces"], rec, source="virtual board")
-    assert C.calibration_for(rec) == datasets.load("calibration_nucleo-iks02a1")
-    assert rms_deg(own) < 2.0 and rms_deg(C.calibration_for(rec)) < 2.0 < 10.0 < rms_deg(None)
-
-
-def test_saved_calibration_from_virtual_board_is_what_lab04_loads(lab00_recordings, tmp_path, monkeypatch):
-    recs, _ = lab00_recordings
-    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
-    cal = C.calibrate(recs["stationary"], recs["six-faces"], recs["mag-rotations full"], source="lab 02/03: virtual board")
-    assert cal.save() == C.user_calibration_path(NUCLEO)
-    loaded = C.load_calibration(NUCLEO)  # lab 04's call
-    assert loaded == cal and loaded != C.Calibration.load(C.bundled_calibration_path(NUCLEO))
-    assert C.calibration_for(recs["stationary"]) == cal  # a student's own recording gets the student's calibration
-    gyr, acc, mag = loaded.apply(recs["stationary"])  # lab 04's apply: the rest now reads zero rate and −g
-    n = len(gyr)
-    assert np.all(np.abs(gyr.mean(axis=0)) < 4 * gyr.std(axis=0) / np.sqrt(n))
-    np.testing.assert_allclose(acc.mean(axis=0), [0.0, 0.0, -G], atol=6 * acc.std(axis=0).max() / np.sqrt(n) + 5e-3)
-
-
-def run_solution_on(name, data_source):
-    """Execute solutions/<name> with the values ``data_source`` names set in its data-source cell (the others keep
-    the cell's defaults); the stored outputs, errors included."""
-    import nbformat
-    from nbclient import NotebookClient
-    path = KIT_ROOT / "solutions" / name
-    nb = nbformat.read(path, as_version=4)
-    cells = [c for c in nb.cells if c.source.startswith("# ▶ DATA SOURCE")]
-    assert len(cells) == 1, f"{name}: expected one data-source cell"
-    cells[0].source += "\n" + "\n".join(f"{k} = {v!r}" for k, v in data_source.items())
-    NotebookClient(nb, timeout=120, allow_errors=True, kernel_name="python3",
-                   resources={"metadata": {"path": str(path.parent)}}).execute()
-    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
-    errors = [f"{o.ename}: {o.evalue}" for o in outputs if o.output_type == "error"]
-    text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
-    return errors, text
-
-
-def test_labs_02_and_03_run_top_to_bottom_on_virtual_board_recordings(lab00_recordings, tmp_path, monkeypatch):
-    """Lab 00's recordings through labs 02 and 03 (all of lab 03's own: turns, full rotations, headings): the saved
-    calibration holds both labs' results, and lab 03 judges the headings by what the protocol asked for."""
-    from kfkit.capture.guided import HEADINGS_DEG
-    recs, _ = lab00_recordings
-    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))  # inherited by the notebooks' kernels
-    mine = {k: str(recs[k].path) for k in recs}
-    errors, text = run_solution_on("02_bias_and_noise.ipynb",
-                                   {"STATIONARY": mine["stationary"], "SIX_FACES": mine["six-faces"]})
-    assert errors == [] and "Warning" not in text
-    assert f"saved to {C.user_calibration_path(NUCLEO)}" in text and "true bias" not in text
-    assert "no minimum inside this record" in text  # a 5 s rest: the notebook says to record longer
-    errors, text = run_solution_on("03_mag_alignment_heading.ipynb", {
-        "AXIS_TURNS": mine["axis-turns"], "MAG_ROTATIONS": mine["mag-rotations full"], "HEADINGS": mine["headings"]})
-    assert errors == [] and "Warning" not in text
-    assert "D from the turns: [-1  1 -1]" in text  # the IIS2MDC's 180° about y, found in the student's turns
-    assert "calibrated with its own rotations" not in text and f"saved to {C.user_calibration_path(NUCLEO)}" in text
-    saved = C.load_calibration(NUCLEO)  # what lab 04 loads: lab 02's rest and faces, lab 03's iron, all from the board
-    assert mine["stationary"] in saved.source and mine["mag-rotations full"] in saved.source
-    rot = recs["mag-rotations full"]
-    truth = unit_truth.body_truth(rot)
-    mag = rot.body("mag")[np.isfinite(rot["mx"])]
-    sd_h, _ = unit_truth.mag_fit_sd(mag, truth["mag_hard_iron"], truth["mag_S"], unit_truth.sample_sigma(rot, "mag"))
-    assert np.all(np.abs(np.array(saved.mag_hard_iron) - truth["mag_hard_iron"]) < 4 * sd_h)
-    np.testing.assert_allclose(saved.gyro_bias, C.gyro_bias(recs["stationary"].body("gyr")), rtol=1e-6)
-    # the headings: RMS over every sample against the prompted headings, within the issue's 2° once calibrated
-    level = re.search(r"level, heading RMS error against the prompted headings: uncalibrated +([0-9.]+)°, "
-                      r"calibrated ([0-9.]+)°", text)
-    assert level and float(level[2]) < 2.0 < 10.0 < float(level[1]), text
-    # each rest's mean against the heading asked (flat in HEADINGS_DEG's order, tilted in reverse): within 4σ of the
-    # heading noise averaged over the rest, σ_ψ = σ_m / B_h (σ_m per sample, B_h the horizontal field), and of the
-    # fit's hard iron, sd_h / B_h; + 0.05° of the printed rounding
-    heads = recs["headings"]
-    rests = [p for p in heads.phases if p["label"] == "heading_flat"]
-    n = min(int((np.isfinite(heads["mx"]) & (heads.t >= p["start"]) & (heads.t < p["end"])).sum()) for p in rests)
-    B_h = np.hypot(*MAG_FIELD_LONDON[:2])
-    bound = np.degrees(4 * unit_truth.sample_sigma(heads, "mag") / B_h / np.sqrt(n) + 4 * sd_h.max() / B_h) + 0.05
-    for label, asked in (("flat", HEADINGS_DEG), ("tilted", HEADINGS_DEG[::-1])):
-        line = re.search(rf"^  {label} +(.*)$", text, re.M)
-        got = re.findall(r"(\d+)°: ([+-][0-9.]+)°", line[1]) if line else []
-        assert [int(want) for want, _ in got] == list(asked), text
-        assert all(abs(float(err)) < bound for _, err in got), (label, got, bound)
-
-
-def test_lab03_with_own_rotations_and_the_bundled_headings(lab00_recordings, tmp_path, monkeypatch):
-    """Own rotations, bundled turns and headings: the bundled headings keep the bundled board's iron (its own fit) and
-    their truth; lab 00's quick rotations are too short, and lab 03 stops at the fit with what to record instead."""
-    recs, _ = lab00_recordings
-    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
-    errors, text = run_solution_on("03_mag_alignment_heading.ipynb", {
-        "AXIS_TURNS": None, "MAG_ROTATIONS": str(recs["mag-rotations full"].path), "HEADINGS": None})
-    assert errors == [] and "calibrated with its own rotations" in text and "against the truth" in text
-    errors, _ = run_solution_on("03_mag_alignment_heading.ipynb",
-                                {"AXIS_TURNS": None, "MAG_ROTATIONS": str(recs["mag-rotations"].path), "HEADINGS": None})
-    assert errors and errors[0].startswith("CalibrationError") and "every orientation" in errors[0]
-
-
 # --- a phone: its default calibration, its saved one, its unlabelled exports ----------------------------------------
 
 PHONE = "phone-phyphox"
@@ -765,11 +472,12 @@ PHONE = "phone-phyphox"
 def phone_export(folder, motion, seed, truth=False, unit=None):
     """A simulated phone through ``motion`` as a phyphox export folder (kfkit's writer; the format itself is
     tested in test_phyphox.py). Without ``truth``, like a real export: no kfkit_truth.csv, so no labels."""
-    from kfkit import phone, phyphox
-    files = phyphox.simple_experiment_files(phone.simulate_phone(motion, seed=seed, unit=unit))
+    from kfkit.phone_sim import simulate_phone
+    from kfkit.readers import phyphox_export
+    files = phyphox_export.simple_experiment_files(simulate_phone(motion, seed=seed, unit=unit))
     if not truth:
-        files.pop(phyphox.TRUTH_FILE)
-    return phyphox.write_export(files, folder)
+        files.pop(phyphox_export.TRUTH_FILE)
+    return phyphox_export.write_export(files, folder)
 
 
 def test_phone_default_is_the_identity_with_the_phone_models_noise(tmp_path, monkeypatch):
@@ -793,7 +501,8 @@ def test_phone_default_is_the_identity_with_the_phone_models_noise(tmp_path, mon
 
 
 def test_a_saved_phone_calibration_round_trips_and_belongs_to_the_students_phone(tmp_path, monkeypatch):
-    from kfkit.io import load_any, save_recording
+    from kfkit.io import save_recording
+    from kfkit.readers import load_any
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
     mine = C.Calibration(board=PHONE, rate_hz=100.2, gyro_bias=np.radians([0.03, -0.01, 0.02]), gyro_noise=[0.0012] * 3,
                          accel_bias=[0.03, -0.04, 0.05], accel_scale=[1.002, 0.998, 1.001], accel_noise=[0.018] * 3,
@@ -823,8 +532,8 @@ def test_label_rests_finds_and_names_the_six_faces(tmp_path, source):
     if source == "board":
         rec = strip_phases(sim.simulate_imu(motion, seed=6, accel_bias=bias_s, accel_scale=scale, accel_bias_rw=0.0))
     else:
-        from kfkit import phone
-        unit = {**phone.PHONE_UNIT, "accel_bias": bias_s, "accel_scale": scale, "accel_bias_rw": 0.0}
+        from kfkit.unit_errors import PHONE_UNIT
+        unit = {**PHONE_UNIT, "accel_bias": bias_s, "accel_scale": scale, "accel_bias_rw": 0.0}
         rec = load_recording_or_export(phone_export(tmp_path / "faces", motion, seed=6, unit=unit))
         assert rec.phases == []  # a real export carries no labels
     labelled = C.label_rests(rec)
@@ -843,7 +552,7 @@ def test_label_rests_finds_and_names_the_six_faces(tmp_path, source):
 
 
 def load_recording_or_export(path):
-    from kfkit.io import load_any
+    from kfkit.readers import load_any
     return load_any(path)
 
 
@@ -854,33 +563,6 @@ def test_label_rests_names_only_rests_near_a_face_and_refuses_a_recording_withou
     held = sim.simulate_imu(sim.sine_roll(duration=20.0, rate_hz=104.0, still=0.0, vibration_rms=0.3, seed=8), seed=9)
     with pytest.raises(C.CalibrationError, match="no rest of at least 2 s.*keep it still"):
         C.label_rests(held)
-
-
-def test_labs_02_and_03_run_top_to_bottom_on_phone_exports(tmp_path, monkeypatch):
-    """A student with only a phone: three phyphox exports (no labels, no truth) through labs 02 and 03, and the
-    calibration the two labs save is the phone's, holding both labs' results."""
-    from kfkit import phone
-    from kfkit.io import load_any
-    monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
-    exports = {"rest": phone_export(tmp_path / "rest", sim.stationary(120.0, 100.0), seed=11),
-               "faces": phone_export(tmp_path / "faces", sim.six_faces(rate_hz=200.0, seed=12), seed=13),
-               "tumbling": phone_export(tmp_path / "tumbling", sim.mag_rotations(rate_hz=200.0, seed=14), seed=15)}
-    mine = {k: str(v) for k, v in exports.items()}
-    errors, text = run_solution_on("02_bias_and_noise.ipynb",
-                                   {"STATIONARY": mine["rest"], "SIX_FACES": mine["faces"]})
-    assert errors == [] and "Warning" not in text
-    assert "rests found: z_down" in text and f"saved to {C.user_calibration_path(PHONE)}" in text
-    errors, text = run_solution_on("03_mag_alignment_heading.ipynb", {"AXIS_TURNS": None, "MAG_ROTATIONS": mine["tumbling"],
-                                                                       "HEADINGS": None})
-    assert errors == [] and "Warning" not in text and f"saved to {C.user_calibration_path(PHONE)}" in text
-    saved = C.load_calibration(PHONE)
-    assert saved.board == PHONE and mine["rest"] in saved.source and mine["tumbling"] in saved.source
-    rest = load_any(exports["rest"])
-    still = C.label_rests(rest).phase("stationary")
-    np.testing.assert_allclose(saved.gyro_bias, C.gyro_bias(rest.body("gyr")[still]), rtol=1e-6)  # lab 02's, kept
-    M = mount_matrix(rest.meta["mount"]["mag"])
-    np.testing.assert_allclose(saved.mag_hard_iron, M @ phone.PHONE_UNIT["mag_hard_iron"], atol=0.05)  # lab 03's fit
-    np.testing.assert_allclose(saved.accel_bias, M @ phone.PHONE_UNIT["accel_bias"], atol=3e-3)  # six faces
 
 
 def test_fuzzed_calibration_files_load_the_same_numbers_or_name_the_file(tmp_path):

@@ -9,7 +9,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from kfkit import calibration as C
-from kfkit import filters, frames
+from kfkit import datasets, filters, frames
 from kfkit import vehicle as V
 from kfkit.checkpoints import REGISTRY, check, compare, get, run_checkpoint
 from kfkit.filters import estimate_sideslip, sideslip_step
@@ -241,6 +241,25 @@ def test_mag_calibration_checkpoint_judges_against_the_true_ellipsoid():
     assert "scale S by B" in run_checkpoint(cp, unscaled, seed=3).message
     centre_only = lambda mag: (mag.mean(axis=0), np.eye(3))
     assert "off by" in run_checkpoint(cp, centre_only, seed=3).message
+
+
+def test_bundled_recording_checks_reject_estimates_a_few_uncertainties_off():
+    from kfkit.checkpoints.lab02 import gyro_bias_truth, noise_truth, six_face_truth
+    rec = datasets.load("02_six_faces")
+    _, _, u_b, u_s = six_face_truth(rec)
+    assert run_checkpoint(get("02.six_face_recording"), C.accel_six_face).ok
+    off = lambda faces: (lambda b, s: (b + 6 * u_b, s))(*C.accel_six_face(faces))
+    assert "standard uncertainties away" in run_checkpoint(get("02.six_face_recording"), off).message
+    off_scale = lambda faces: (lambda b, s: (b, s + 6 * u_s))(*C.accel_six_face(faces))
+    assert not run_checkpoint(get("02.six_face_recording"), off_scale).ok
+    still = datasets.load("02_stationary")
+    _, u_g = gyro_bias_truth(still)
+    assert not run_checkpoint(get("02.gyro_bias_recording"), lambda gyr: C.gyro_bias(gyr) + 6 * u_g).ok
+    sigma, u, n = noise_truth(still, "gyr")
+    assert np.all(u / sigma < 0.02) and n == 1500  # 2 min at 12.5 Hz: σ known to 2 %
+    assert not run_checkpoint(get("02.noise_recording"), lambda x: 1.1 * C.noise_std(x)).ok
+    assert not run_checkpoint(get("02.noise_recording"), lambda x: C.noise_std(x) ** 0.5).ok
+
 
 # --- lab 04 ------------------------------------------------------------------------------------------------------
 
