@@ -98,7 +98,8 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
         if abs(sqrt(fx * fx + fy * fy + fz * fz) - g) > gate:
             ra = ra_gated
             gated_out[k] = True
-        H = jacobian_rows(sf, cf, st, ct, sin(psi), cos(psi), mN, mE, mD)
+        sp, cp = sin(psi), cos(psi)
+        H = jacobian_rows(sf, cf, st, ct, sp, cp, mN, mE, mD)
         rows = [  # (innovation z − h(x⁻), H row, variance)
             (fx - g * st, *H[0], ra),
             (fy + g * sf * ct, *H[1], ra),
@@ -107,7 +108,7 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
         if M is not None:
             mx, my, mz = M[k]
             if mx == mx and my == my and mz == mz:  # not NaN
-                ah = cos(psi) * mN + sin(psi) * mE  # the horizontal field along the heading
+                ah = cp * mN + sp * mE  # the horizontal field along the heading
                 rows.append((mx - ct * ah + st * mD, *H[3], rm))
                 rows.append((my + H[5][0], *H[4], rm))  # h_y = −H[5][0]
                 rows.append((mz - H[4][0], *H[5], rm))  # h_z = H[4][0]

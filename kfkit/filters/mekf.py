@@ -206,8 +206,9 @@ class MultiplicativeEKF:
                        st.mag_ref_tau)
         self.state = MekfState(q=q, bias=self._bias0, P=self._P0.copy(), k=0, strapdown=(1.0, 0.0, 0.0, 0.0),
                                f_I=tuple(float(v) for v in acc[0]), mag_gate=gate)
-        self._F = np.eye(6)
+        self._F = np.eye(6)  # work arrays of the steps, filled in place
         self._F[0:3, 3:6] = -dt * np.eye(3)
+        self._Ha, self._Hm, self._I6 = np.zeros((3, 6)), np.zeros(6), np.eye(6)
 
     # ---- one sample, as named steps ------------------------------------------------------------
     def step(self, gyr, acc, mag=None) -> Step:
@@ -300,7 +301,7 @@ class MultiplicativeEKF:
         vx, vy, vz = -G * r20, -G * r21, -G * r22
         gated = abs(math.sqrt(fx * fx + fy * fy + fz * fz) - G) > c.gate
         ra = c.ra_gated if gated else c.ra
-        Ha = np.zeros((3, 6))
+        Ha = self._Ha
         Ha[0, 1], Ha[0, 2], Ha[1, 0], Ha[1, 2], Ha[2, 0], Ha[2, 1] = -vz, vy, vz, -vx, -vy, vx
         y = np.array([fx - vx, fy - vy, fz - vz])
         P = s.P
@@ -310,7 +311,7 @@ class MultiplicativeEKF:
         S[1, 1] += ra
         S[2, 2] += ra
         K = np.linalg.solve(S, PHt.T).T
-        IKH = np.eye(6) - K @ Ha
+        IKH = self._I6 - K @ Ha
         s.P = IKH @ P @ IKH.T + ra * (K @ K.T)
         self._reset(K @ y)
         return y, S, gated
@@ -330,7 +331,8 @@ class MultiplicativeEKF:
         y = c.psi_ref - math.atan2(n_e, n_n)
         if y > math.pi or y <= -math.pi:
             y = math.pi - (math.pi - y) % TWO_PI
-        Hm = np.array([r20, r21, r22, 0.0, 0.0, 0.0])
+        Hm = self._Hm
+        Hm[0], Hm[1], Hm[2] = r20, r21, r22
         PH = s.P @ Hm
         var_h = float(Hm @ PH)
         if not s.mag_gate.use(s.k * self.dt, math.sqrt(hm * hm + n_d * n_d), math.atan2(n_d, hm), y, var_h):
