@@ -302,17 +302,19 @@ def sweep(values, rmses: dict, xlabel, ylabel="RMSE (°)", marks: dict | None = 
     return fig
 
 
-def rmse_table(estimates: dict, truth, columns=EULER, rotation=False, width=26, hint="", out=print):
+def rmse_table(estimates: dict, truth, columns=EULER, rotation=False, width=26, hint="", title="RMSE (°)", note="",
+               out=print):
     """Print the RMSE (°) of each estimate against ``truth`` (rad), one row each, one column per angle;
     ``rotation``: also the RMSE of the total rotation error (°) between the Euler ZYX attitudes.
+    ``title`` heads the label column, ``note`` ends the header line.
     ``truth`` None: one line saying there is no RMSE (``hint`` says what to look at instead).
     Returns {label: RMSE per column (°)}, or None without truth."""
     if truth is None:
         out(f"{NO_TRUTH}: no RMSE" + (f"; {hint}" if hint else ""))
         return None
     truth = np.asarray(truth, dtype=float)
-    header = f"{'RMSE (°)':{width}s} " + " ".join(f"{c:>6s}" for c in columns)
-    out(header + (f" {'rotation':>9s}" if rotation else ""))
+    header = f"{title:{width}s} " + " ".join(f"{c:>6s}" for c in columns)
+    out(header + (f" {'rotation':>9s}" if rotation else "") + note)
     table = {}
     for label, estimate in estimates.items():
         table[label] = np.atleast_1d(np.degrees(rmse(angle_error(estimate, truth), 0.0)))

@@ -108,6 +108,9 @@ def test_rmse_table_against_numpy_and_scipy(attitude):
     assert lines[1].startswith("EKF ") and float(lines[1].split()[-1]) == pytest.approx(rotation, abs=0.006)
     assert [float(v) for v in lines[2].split()[-4:-1]] == pytest.approx(table["accel/mag only"], abs=0.006)
     lines.clear()
+    plots.rmse_table({"EKF": good}, truth, rotation=True, title="04_attitude_tour", note="   RMSE (°)", out=lines.append)
+    assert lines[0] == f"{'04_attitude_tour':26s} {'roll':>6s} {'pitch':>6s} {'yaw':>6s} {'rotation':>9s}   RMSE (°)"
+    lines.clear()
     assert plots.rmse_table({"EKF": good}, None, hint="compare by eye", out=lines.append) is None
     assert lines == [f"{plots.NO_TRUTH}: no RMSE; compare by eye"]
 
