@@ -13,6 +13,7 @@ from kfkit.filters import (EulerAttitudeEKF, attitude_jacobian, attitude_measure
 from kfkit.filters import FastEulerAttitudeEKF, MekfSettings, MultiplicativeEKF, Step
 from kfkit.filters.attitude_run import learn_field, tilt_heading
 from kfkit.filters.euler_ekf import EulerEkfSettings, euler_kinematics_jacobian, euler_rate_matrix
+from kfkit.filters.mag_gate import MagGate
 from kfkit.metrics import attitude_errors, chi2_bounds, nees
 
 FIELD = np.array(MAG_FIELD_LONDON)
@@ -641,3 +642,21 @@ def test_mekf_result_layout_and_heading_innovations():
     with pytest.raises(ValueError, match="acc row 3 is not finite"):
         acc[3] = np.nan
         estimate_attitude(gyr, acc, mag, 100.0, method="mekf")
+
+
+def test_mag_gate_rejects_a_disturbed_field_until_it_has_passed_the_gates_for_the_recovery_time():
+    """MagGate on its own, by its specification: the norm gate, the recovery time, the innovation gate."""
+    field = np.array([20.0, 0.0, 40.0])
+    norm, dip = np.linalg.norm(field), np.arctan2(40.0, 20.0)
+    ts = np.arange(50) / 10.0  # s
+    disturbed = (ts >= 1.0) & (ts < 2.0)
+    gate = MagGate(field, r_psi=1e-3, norm_gate=0.1, dip_gate=np.radians(10.0), recovery=1.0, nis_gate=9.0, ref_tau=None)
+    # var_h far below the averaged noise variance: the disturbed field is never adopted (layer 3 stays out)
+    used = np.array([gate.use(t, norm * (1.3 if d else 1.0), dip, 0.0, 1e-6) for t, d in zip(ts, disturbed)])
+    np.testing.assert_array_equal(used, (ts < 1.0) | (ts >= 3.0))  # trusted again 1 s after the last disturbed sample
+    assert not MagGate(field, 1e-3, 0.1, np.radians(10.0), 1.0, 9.0, None).use(0.0, norm, dip + np.radians(11.0), 0.0, 1e-6)
+    # an outlier heading (y² > 9 (var_h + r_psi)) in a trusted field is skipped, for at most `recovery` seconds
+    gate = MagGate(field, 1e-3, 0.1, np.radians(10.0), 1.0, 9.0, None)
+    assert [gate.use(t, norm, dip, y, 1e-3) for t, y in ((0.0, 0.0), (0.1, 1.0), (0.2, 0.0))] == [True, False, True]
+    stuck = [gate.use(t, norm, dip, 1.0, 1e-3) for t in 1.0 + np.arange(13) / 10.0]
+    assert stuck == [False] * 10 + [True] * 3  # a heading that keeps disagreeing for 1 s is the filter's error
