@@ -7,7 +7,7 @@ import numpy as np
 from kfkit import sim
 from kfkit.phone_sim import simulate_phone
 from kfkit.readers import phyphox_export
-from test_calibration import run_solution_on
+from test_calibration_labs import run_solution_on
 
 LAB = "04_ekf_attitude.ipynb"
 

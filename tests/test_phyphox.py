@@ -522,7 +522,7 @@ def test_consistency_figure_and_tuning_panel_work_without_truth():
 def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
     """A student's own phyphox export of lab 01's experiment (rest, then rolls by hand): no truth, no labels."""
     from kfkit import sim
-    from test_calibration import run_solution_on
+    from test_calibration_labs import run_solution_on
 
     motion = sim.sine_roll(duration=40.0, rate_hz=400.0, amplitude=np.radians(30.0), freq_hz=0.1, still=5.0,
                            vibration_rms=0.3, seed=21)
