@@ -100,8 +100,9 @@ class TiltBiasKF:
         require_positive("TiltBiasKF", dt=dt)
         self.dt = float(dt)
         self.settings = configure(TiltSettings, settings, changes, "TiltBiasKF")
-        self.q_angle, self.q_bias, self.r = (float(v) for v in (self.settings.q_angle, self.settings.q_bias, self.settings.r))
-        self.gate, self.inflation = self.settings.gate, float(self.settings.inflation)
+        st = self.settings  # as plain floats for the per-sample arithmetic
+        self.q_angle, self.q_bias, self.r = float(st.q_angle), float(st.q_bias), float(st.r)
+        self.gate, self.inflation = st.gate, float(st.inflation)
         self.reset(x0, P0)
 
     def reset(self, x0=(0.0, 0.0), P0=None):
