@@ -342,3 +342,52 @@ def consistency_table(nees, nis_sets: dict, nees_dof=3, alpha=0.05, out=print):
         lo, hi = chi2_bounds(dof, len(v), alpha)
         out(f"{'NIS (' + name + ')':13s} mean {v.mean():6.2f} (expected {dof}, {level} bounds of the mean {lo:.2f} … "
             f"{hi:.2f}); {100 * fraction_inside(v, dof, alpha):3.0f} % of samples inside the one-step {level} bounds")
+
+
+# --- a recording's own signals, its labelled phases shaded (labs 00, 02) -------------------------------------
+
+SENSOR_PLOT = {"acc": ("specific force", "m/s²", 1.0), "gyr": ("angular rate", "°/s", np.degrees(1.0)),
+               "mag": ("magnetic field", "µT", 1.0)}  # body() is SI: m/s², rad/s (shown in °/s), µT
+
+
+def recording_signal(ax, rec, sensor, title=None):
+    """One sensor of a ``Recording`` in the body frame against time (s) (:func:`xyz`, units of
+    :data:`SENSOR_PLOT`), its phases shaded; a run of windows with one label (six headings) is named once,
+    above the axes, names on two rows so that neighbours do not overlap. One phase only: shaded, not named."""
+    name, unit, scale = SENSOR_PLOT[sensor]
+    xyz(ax, rec.t, rec.body(sensor), name, unit, scale)
+    runs = []
+    for p in rec.phases:
+        ax.axvspan(p["start"], p["end"], color=COLORS["other"], alpha=0.12, lw=0)
+        if runs and runs[-1][2] == p["label"]:
+            runs[-1][1] = p["end"]
+        else:
+            runs.append([p["start"], p["end"], p["label"]])
+    for j, (a, b, label) in enumerate(runs if len(runs) > 1 else []):
+        ax.text((a + b) / 2, 1.02 + 0.12 * (j % 2), label.replace("_", " "), ha="center", va="bottom", fontsize=7,
+                transform=ax.get_xaxis_transform())
+    ax.set_title(title, pad=34 if len(runs) > 1 else 6, fontsize=10)
+    ax.set_xlabel("time (s)")
+    return ax.figure
+
+
+def recording_grid(panels: dict, ncols=2, title=None):
+    """Several recordings side by side, ``panels`` mapping a panel title to (recording, sensor), each drawn by
+    :func:`recording_signal`; one legend for the x, y, z body axes every panel shares."""
+    rows = -(-len(panels) // ncols)
+    fig, axes = plt.subplots(rows, ncols, figsize=(5.2 * ncols, 2.9 * rows), squeeze=False)
+    for ax, (name, (rec, sensor)) in zip(axes.flat, panels.items()):
+        recording_signal(ax, rec, sensor, title=name)
+    for ax in axes.flat[len(panels):]:
+        ax.set_visible(False)
+    fig.legend(axes[0, 0].get_lines(), [f"{axis} (body)" for axis in "xyz"], loc="outside lower center", ncols=3)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def recording_signals(rec, title=None):
+    """Every sensor a ``Recording`` has, body frame, in :func:`imu_signals`' stacked panels (an MPU6050 has no
+    magnetometer: two panels), its phases named."""
+    mag = rec.body("mag") if "mag" in rec.meta["sensors"] else None
+    return imu_signals(rec.t, rec.body("gyr"), rec.body("acc"), mag, phases=rec.phases, title=title)

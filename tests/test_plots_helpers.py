@@ -155,3 +155,56 @@ def test_windows_of_and_label_phases_take_both_phase_forms():
     assert plots.windows_of(phases, "hold") == [(1.0, 2.0), (3.0, 4.0)]
     fig = plots.imu_signals(np.arange(10.0), np.zeros((10, 3)), np.zeros((10, 3)), phases=phases)
     assert texts(fig).split() == ["hold", "hold", "turn"]
+
+
+def board_recording(sensors=("acc", "gyr", "mag"), phases=()):
+    """A 10 s, 10 Hz recording in counts; the phone's 'flat' mount (body x = sensor y, y = x, z = −z)."""
+    from kfkit.io import SENSOR_COLUMNS, Recording
+    t = np.arange(100) / 10.0
+    data = {"t": t}
+    for k, sensor in enumerate(sensors):
+        for i, col in enumerate(SENSOR_COLUMNS[sensor]):
+            data[col] = np.full(len(t), 100.0 * (k + 1) + i)
+    meta = {"rate_hz": 10.0, "phases": list(phases),
+            "sensors": {s: {"sensitivity": 0.01} for s in sensors},
+            "mount": {s: [[0, 1, 0], [1, 0, 0], [0, 0, -1]] for s in sensors}}
+    return Recording(meta, data)
+
+
+def test_recording_signal_is_the_body_frame_in_units_with_runs_of_one_label_named_once():
+    runs = [("a", 0.0, 1.0), ("b", 2.0, 3.0), ("b", 4.0, 5.0), ("c", 6.0, 7.0)]
+    rec = board_recording(phases=[{"label": l, "start": s, "end": e} for l, s, e in runs])
+    fig, ax = plt_subplots()
+    plots.recording_signal(ax, rec, "gyr", title="board: turns")
+    counts = np.array([200.0, 201.0, 202.0])                 # gyro, sensor frame; body = M_bs · counts · 0.01 rad/s
+    expected = np.degrees(np.array([counts[1], counts[0], -counts[2]]) * 0.01)
+    assert [line.get_ydata()[0] for line in ax.get_lines()] == pytest.approx(expected)
+    assert (ax.get_ylabel(), ax.get_xlabel(), ax.get_title()) == ("angular rate (°/s)", "time (s)", "board: turns")
+    assert [t.get_text() for t in ax.texts] == ["a", "b", "c"]  # the two "b" windows: one name
+    assert [t.get_position()[0] for t in ax.texts] == pytest.approx([0.5, 3.5, 6.5])
+    assert len(ax.patches) == 4 and line_colours(fig) <= PALETTE
+    fig, ax = plt_subplots()
+    plots.recording_signal(ax, board_recording(phases=[{"label": "stationary", "start": 0.0, "end": 9.0}]), "acc")
+    assert len(ax.texts) == 0 and len(ax.patches) == 1 and ax.get_ylabel() == "specific force (m/s²)"
+
+
+def test_recording_grid_hides_unused_panels_and_shares_one_axis_legend():
+    panels = {f"r{i}": (board_recording(), sensor) for i, sensor in enumerate(["acc", "gyr", "mag"])}
+    fig = plots.recording_grid(panels, title="guided")
+    visible = [ax for ax in fig.axes if ax.get_visible()]
+    assert [ax.get_title() for ax in visible] == ["r0", "r1", "r2"] and len(fig.axes) == 4
+    assert [ax.get_ylabel() for ax in visible] == ["specific force (m/s²)", "angular rate (°/s)", "magnetic field (µT)"]
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["x (body)", "y (body)", "z (body)"]
+    assert fig.get_suptitle() == "guided"
+
+
+def test_recording_signals_show_only_the_sensors_a_recording_has():
+    assert len(plots.recording_signals(board_recording()).axes) == 3
+    fig = plots.recording_signals(board_recording(("acc", "gyr"), [{"label": "tilt", "start": 1.0, "end": 2.0}]))
+    assert [ax.get_ylabel() for ax in fig.axes] == ["gyro (°/s)", "accel (m/s²)"]  # an MPU6050: no magnetometer
+    assert texts(fig) == "tilt"
+
+
+def plt_subplots():
+    import matplotlib.pyplot as plt
+    return plt.subplots()
