@@ -302,6 +302,32 @@ def sweep(values, rmses: dict, xlabel, ylabel="RMSE (°)", marks: dict | None = 
     return fig
 
 
+def allan(ax, taus, adev, unit, scale=1.0, white=None, walk=None, arw=None, minimum=None, title=None):
+    """Allan deviation σ(τ) of x, y, z ((M, 3), SI, times ``scale`` to show ``unit``) against cluster time τ (s),
+    log–log, with the noise models in black: ``white`` (name, N) the white noise N/√τ (slope −½), ``walk``
+    (name, K) the bias random walk K√(τ/3) (slope +½), left out when K is None (no simulation, no K);
+    ``arw`` the N read at τ = 1 s and ``minimum`` (τ_min, σ_min) per axis, as points. No legend: one for
+    several panels is the caller's (``fig.legend``)."""
+    taus, adev = np.asarray(taus, dtype=float), np.asarray(adev, dtype=float) * scale
+    for i, (axis, (kind, style)) in enumerate(zip("xyz", XYZ)):
+        ax.loglog(taus, adev[:, i], color=COLORS[kind], ls=style, label=axis)
+    if white is not None:
+        ax.loglog(taus, white[1] * scale / np.sqrt(taus), color=COLORS["truth"], ls=(0, (6, 2, 1, 2, 1, 2)), lw=1,
+                  label=f"{white[0]} N/√τ (slope −½)")
+    if walk is not None and walk[1] is not None:
+        ax.loglog(taus, walk[1] * scale * np.sqrt(taus / 3), ":", color=COLORS["truth"], lw=1.4,
+                  label=f"{walk[0]} K√(τ/3) (+½)")
+    if arw is not None:
+        ax.plot([1.0], [arw * scale], "o", color=COLORS["truth"], label="ARW read at τ = 1 s")
+    if minimum is not None:
+        ax.plot(minimum[0], np.asarray(minimum[1]) * scale, "s", color=COLORS["truth"], mfc="white",
+                label="minimum = 0.664·B")
+    ax.set(xlabel="cluster time τ (s)", ylabel=f"Allan deviation ({unit})", ylim=(0.5 * adev.min(), 2 * adev.max()))
+    if title:
+        ax.set_title(title)
+    return ax.figure
+
+
 def rmse_table(estimates: dict, truth, columns=EULER, rotation=False, width=26, hint="", title="RMSE (°)", note="",
                out=print):
     """Print the RMSE (°) of each estimate against ``truth`` (rad), one row each, one column per angle;

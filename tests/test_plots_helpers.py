@@ -208,3 +208,31 @@ def test_recording_signals_show_only_the_sensors_a_recording_has():
 def plt_subplots():
     import matplotlib.pyplot as plt
     return plt.subplots()
+
+
+def test_allan_draws_the_curves_scaled_and_the_white_noise_line_meets_allantools():
+    """White noise of density N (σ = N√f_s per sample): the helper's N/√τ line against allantools' overlapping
+    Allan deviation of the same samples, within its sampling error; the K√(τ/3) line is left out without K."""
+    allantools = pytest.importorskip("allantools")
+    import matplotlib.pyplot as plt
+    rate, N = 50.0, 0.002
+    x = np.random.default_rng(3).normal(0.0, N * np.sqrt(rate), (20000, 3))
+    taus = np.array([0.02, 0.1, 1.0, 5.0, 20.0])
+    adev = np.column_stack([allantools.oadev(x[:, i], rate=rate, data_type="freq", taus=taus)[1] for i in range(3)])
+    fig, ax = plt.subplots()
+    plots.allan(ax, taus, adev, "°/s", scale=np.degrees(1.0), white=("datasheet", N), walk=("bias walk", None),
+                arw=N, minimum=(taus[[-1, -1, -1]], adev[-1]), title="gyro")
+    curves, _, _, white, arw, _ = ax.get_lines()  # x, y, z, N/√τ, ARW, minimum: no walk line, K is None
+    assert (ax.get_xscale(), ax.get_yscale(), ax.get_ylabel()) == ("log", "log", "Allan deviation (°/s)")
+    assert curves.get_ydata() == pytest.approx(np.degrees(adev[:, 0]))
+    assert white.get_label() == "datasheet N/√τ (slope −½)"
+    # a 1-sample-τ estimate from 20 000 samples is good to ~1 %; the longest τ (400 clusters) to ~10 %
+    assert np.degrees(adev[:3]) == pytest.approx(np.tile(white.get_ydata()[:3, None], 3), rel=0.05)
+    assert np.degrees(adev[3:]) == pytest.approx(np.tile(white.get_ydata()[3:, None], 3), rel=0.3)
+    assert arw.get_ydata()[0] == pytest.approx(np.degrees(N)) and arw.get_xdata()[0] == 1.0
+    lo, hi = ax.get_ylim()
+    assert lo < np.degrees(adev).min() and hi > np.degrees(adev).max()
+    assert line_colours(fig) <= PALETTE
+    plots.allan(ax, taus, adev, "°/s", walk=("bias walk", 1e-4))
+    walk = ax.get_lines()[-1]
+    assert walk.get_ydata()[taus == 1.0][0] == pytest.approx(1e-4 * np.sqrt(1 / 3))  # K√(τ/3)
