@@ -201,10 +201,11 @@ def allan_deviation(x, rate_hz, taus=None):
     """Overlapping Allan deviation of a rate signal (IEEE Std 952-1997, Annex C).
 
     x (N,) or (N, k) samples at ``rate_hz``; taus cluster times (s), by default ~10 per decade from
-    one sample to a fifth of the record (longer τ have too few clusters to trust). With the angle
-    θ_j = Σ_{i<j} x_i / rate_hz and m samples per cluster (τ = m / rate_hz):
+    one sample to a fifth of the record (longer τ have too few clusters to trust). With N samples,
+    the angle θ_j = Σ_{i<j} x_i / rate_hz for j = 0 … N (θ_0 = 0: N + 1 angles) and m samples per
+    cluster (τ = m / rate_hz), summing every one of the N − 2m + 1 overlapping clusters:
 
-        σ²(τ) = Σ_k (θ_{k+2m} − 2θ_{k+m} + θ_k)² / (2 τ² (N − 2m))
+        σ²(τ) = Σ_{k=0}^{N−2m} (θ_{k+2m} − 2θ_{k+m} + θ_k)² / (2 τ² (N − 2m + 1))
 
     Returns (taus (M,), adev (M,) or (M, k)) in the unit of x; τ are rounded to whole samples.
     """
