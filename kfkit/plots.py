@@ -61,30 +61,25 @@ def mark_windows(ax, windows, label="sideways shake"):
         ax.axvspan(t0, t1, color=COLORS["other"], alpha=0.15, lw=0, label=label if i == 0 else None)
 
 
-def compare_values(t, truth, estimates: dict, ax=None, ylabel="v_y", unit="m/s", convert=np.asarray, title=None):
-    """Truth and several estimates of one quantity against time (s), shown as ``convert(values)`` in ``unit``.
+def compare_angles(t, truth, estimates: dict, ax=None, ylabel="roll", title=None):
+    """Truth and several estimates of one angle (rad) against time (s), shown in degrees.
 
     ``estimates`` maps a label to (values, kind) or just values; kind picks the colour
-    ('accel', 'gyro', 'kf', 'other'). ``truth`` None (a recording without truth): estimates only.
+    ('accel', 'gyro', 'kf', 'other').
     """
     fig, ax = _axes(ax)
     if truth is not None:
-        ax.plot(t, convert(truth), color=COLORS["truth"], lw=2.2, alpha=0.55, label="truth", zorder=1)
+        ax.plot(t, np.degrees(truth), color=COLORS["truth"], lw=2.2, alpha=0.55, label="truth", zorder=1)
     for i, (label, value) in enumerate(estimates.items()):
         values, kind = value if isinstance(value, tuple) else (value, "other")
-        ax.plot(t, convert(values), color=COLORS[kind], ls=STYLES.get(kind, "-"), label=label,
+        ax.plot(t, np.degrees(values), color=COLORS[kind], ls=STYLES.get(kind, "-"), label=label,
                 alpha=0.85 if kind == "accel" else 1.0, lw=0.9 if kind == "accel" else 1.4, zorder=2 + i)
     ax.set_xlabel("time (s)")
-    ax.set_ylabel(f"{ylabel} ({unit})")
+    ax.set_ylabel(f"{ylabel} (°)")
     legend_on_top(ax, ncols=min(5, len(estimates) + 2))
     if title:
         ax.set_title(title)
     return fig
-
-
-def compare_angles(t, truth, estimates: dict, ax=None, ylabel="roll", title=None):
-    """Truth and several estimates of one angle (rad) against time (s), shown in degrees (:func:`compare_values`)."""
-    return compare_values(t, truth, estimates, ax, ylabel, "°", np.degrees, title)
 
 
 def error_band(t, err, variance, ax=None, ylabel="roll error", label="KF error"):
@@ -174,12 +169,6 @@ def windows_of(phases, label):
     return [(a, b) for a, b, name in _phase_tuples(phases) if name == label]
 
 
-def windows_where(t, mask):
-    """The (start, end) windows (s) of each run of samples where ``mask`` is True (e.g. a filter's low-speed guard)."""
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], np.asarray(mask, dtype=np.int8), [0]))))
-    return [(t[a], t[b - 1]) for a, b in zip(edges[::2], edges[1::2])]
-
-
 def _phase_tuples(phases):
     return [(p["start"], p["end"], p["label"]) if isinstance(p, dict) else tuple(p) for p in phases or ()]
 
@@ -241,6 +230,26 @@ def compare_euler(t, truth, estimates: dict, shade=(), title=None):
         mark_windows(ax, shade, label=None)
     axes[-1].set_xlabel("time (s)")
     axes[0].legend(loc="upper right", ncols=4, fontsize=8)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def tilt_panels(t, truth, estimates: dict, known=None, shade=(), title=None):
+    """Roll and pitch (rad, shown in °) in two panels sharing time (s), :func:`compare_angles` on each:
+    ``truth`` (N, ≥2: roll, pitch) or None, ``estimates`` mapping a label to ((roll, pitch), kind), ``known``
+    (roll, pitch) a protocol's angles (NaN outside its holds) as markers, ``shade`` windows on the roll panel."""
+    fig, axes = plt.subplots(2, 1, sharex=True, figsize=(9.0, 5.4))
+    for i, ax in enumerate(axes):
+        compare_angles(t, None if truth is None else np.asarray(truth)[:, i],
+                       {label: (v[i], kind) for label, (v, kind) in estimates.items()}, ax=ax, ylabel=EULER[i])
+        if known is not None:
+            ax.plot(t, np.degrees(known[i]), ls="none", marker="s", ms=1.5, color=COLORS["bound"],
+                    label="protocol (holds)")
+        ax.legend(loc="upper right", ncols=4, fontsize=8)
+        ax.set_xlabel("")
+    mark_windows(axes[0], shade, label=None)
+    axes[-1].set_xlabel("time (s)")
     if title:
         fig.suptitle(title)
     return fig
@@ -428,25 +437,3 @@ def recording_signals(rec, title=None):
     magnetometer: two panels), its phases named."""
     mag = rec.body("mag") if "mag" in rec.meta["sensors"] else None
     return imu_signals(rec.t, rec.body("gyr"), rec.body("acc"), mag, phases=rec.phases, title=title)
-
-
-# --- a vehicle drive: what a production car measures (lab 06) ------------------------------------------------
-
-VEHICLE_PLOT = (("delta", "δ (°)", np.degrees(1.0), "steering δ (road wheel)", "kf"),
-                ("yaw_rate", "r (°/s)", np.degrees(1.0), "yaw-rate gyro", "gyro"),
-                ("ay", "a_y (m/s²)", 1.0, "lateral accelerometer", "accel"),
-                ("vx", "V_x (km/h)", 3.6, "speed from wheel speeds", "other"))  # column, axis label, scale from SI
-
-
-def vehicle_signals(rec, title=None):
-    """A vehicle ``Recording``'s steering, yaw rate, lateral acceleration and speed (ISO 8855, SI columns)
-    in stacked panels sharing time, in the units of :data:`VEHICLE_PLOT`."""
-    fig, axes = plt.subplots(len(VEHICLE_PLOT), 1, sharex=True, figsize=(9, 7.5))
-    for ax, (column, ylabel, scale, label, kind) in zip(axes, VEHICLE_PLOT):
-        ax.plot(rec.t, rec[column] * scale, color=COLORS[kind], lw=1.0, label=label)
-        ax.set_ylabel(ylabel)
-        ax.legend(loc="lower center" if column == "vx" else "upper right", fontsize=8)
-    axes[-1].set_xlabel("time (s)")
-    if title:
-        fig.suptitle(title)
-    return fig
