@@ -308,9 +308,11 @@ def consistency_panels(t, nees, nis_sets: dict, nees_dof=3, shade=(), phases=())
     return fig
 
 
-def sweep(values, rmses: dict, xlabel, ylabel="RMSE (°)", marks: dict | None = None, ax=None):
+def sweep(values, rmses: dict, xlabel, ylabel="RMSE (°)", marks: dict | None = None, ax=None,
+          references: dict | None = None):
     """RMSE (°) against a tuning value on log–log axes: ``rmses`` maps a label to one RMSE per value;
-    ``marks`` maps a label to a value drawn as a vertical line (the datasheet's, the best)."""
+    ``marks`` maps a label to a value drawn as a vertical line (the datasheet's, the best);
+    ``references`` maps a label to (RMSE (°), kind), a horizontal line in that kind's colour (a sensor alone)."""
     fig, ax = _axes(ax)
     for (label, r), (kind, style), marker in zip(rmses.items(), XYZ * 2, "os^vD<"):
         ax.loglog(values, r, marker=marker, ls=style, ms=3, color=COLORS[kind], label=label)
@@ -327,6 +329,8 @@ def allan(ax, taus, adev, unit, scale=1.0, white=None, walk=None, arw=None, mini
     log–log, with the noise models in black: ``white`` (name, N) the white noise N/√τ (slope −½), ``walk``
     (name, K) the bias random walk K√(τ/3) (slope +½), left out when K is None (no simulation, no K);
     ``arw`` the N read at τ = 1 s and ``minimum`` (τ_min, σ_min) per axis, as points. No legend: one for
+    for label, (y, kind) in (references or {}).items():
+        ax.axhline(y, color=COLORS[kind], ls=STYLES[kind], lw=1.0, label=label)
     several panels is the caller's (``fig.legend``)."""
     taus, adev = np.asarray(taus, dtype=float), np.asarray(adev, dtype=float) * scale
     for i, (axis, (kind, style)) in enumerate(zip("xyz", XYZ)):

@@ -167,6 +167,19 @@ def test_sweep_is_log_log_with_units_and_marks():
     assert line_colours(fig) <= PALETTE
 
 
+def test_sweep_draws_each_reference_as_a_level_line_in_its_sensors_colour():
+    values = np.logspace(-12, -2, 11)
+    fig = plots.sweep(values, {"KF": 1.0 + np.abs(np.log10(values) + 7)}, "q (rad²)", marks={"best q": 1e-7},
+                      references={"accel only": (4.2, "accel"), "gyro only": (9.1, "gyro")})
+    ax = fig.axes[0]
+    levels = {line.get_label(): line for line in ax.get_lines()}
+    for label, y, kind in (("accel only", 4.2, "accel"), ("gyro only", 9.1, "gyro")):
+        assert np.all(np.asarray(levels[label].get_ydata()) == y) and list(levels[label].get_xdata()) == [0, 1]  # axhline
+        assert mcolors.to_hex(levels[label].get_color()) == plots.COLORS[kind].lower()
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["KF", "best q", "accel only", "gyro only"]
+    assert plots.sweep(values, {"KF": values}, "q (rad²)").axes[0].get_lines()[-1].get_label() == "KF"  # none asked
+
+
 def test_windows_of_and_label_phases_take_both_phase_forms():
     phases = [{"label": "hold", "start": 1.0, "end": 2.0}, (3.0, 4.0, "hold"), (5.0, 6.0, "turn")]
     assert plots.windows_of(phases, "hold") == [(1.0, 2.0), (3.0, 4.0)]
