@@ -61,25 +61,30 @@ def mark_windows(ax, windows, label="sideways shake"):
         ax.axvspan(t0, t1, color=COLORS["other"], alpha=0.15, lw=0, label=label if i == 0 else None)
 
 
-def compare_angles(t, truth, estimates: dict, ax=None, ylabel="roll", title=None):
-    """Truth and several estimates of one angle (rad) against time (s), shown in degrees.
+def compare_values(t, truth, estimates: dict, ax=None, ylabel="v_y", unit="m/s", convert=np.asarray, title=None):
+    """Truth and several estimates of one quantity against time (s), shown as ``convert(values)`` in ``unit``.
 
     ``estimates`` maps a label to (values, kind) or just values; kind picks the colour
-    ('accel', 'gyro', 'kf', 'other').
+    ('accel', 'gyro', 'kf', 'other'). ``truth`` None (a recording without truth): estimates only.
     """
     fig, ax = _axes(ax)
     if truth is not None:
-        ax.plot(t, np.degrees(truth), color=COLORS["truth"], lw=2.2, alpha=0.55, label="truth", zorder=1)
+        ax.plot(t, convert(truth), color=COLORS["truth"], lw=2.2, alpha=0.55, label="truth", zorder=1)
     for i, (label, value) in enumerate(estimates.items()):
         values, kind = value if isinstance(value, tuple) else (value, "other")
-        ax.plot(t, np.degrees(values), color=COLORS[kind], ls=STYLES.get(kind, "-"), label=label,
+        ax.plot(t, convert(values), color=COLORS[kind], ls=STYLES.get(kind, "-"), label=label,
                 alpha=0.85 if kind == "accel" else 1.0, lw=0.9 if kind == "accel" else 1.4, zorder=2 + i)
     ax.set_xlabel("time (s)")
-    ax.set_ylabel(f"{ylabel} (°)")
+    ax.set_ylabel(f"{ylabel} ({unit})")
     legend_on_top(ax, ncols=min(5, len(estimates) + 2))
     if title:
         ax.set_title(title)
     return fig
+
+
+def compare_angles(t, truth, estimates: dict, ax=None, ylabel="roll", title=None):
+    """Truth and several estimates of one angle (rad) against time (s), shown in degrees (:func:`compare_values`)."""
+    return compare_values(t, truth, estimates, ax, ylabel, "°", np.degrees, title)
 
 
 def error_band(t, err, variance, ax=None, ylabel="roll error", label="KF error"):
@@ -167,6 +172,12 @@ def windows_of(phases, label):
     """The (start, end) windows (s) of the phases called ``label``; ``phases`` as ``Recording.phases``
     ([{"label", "start", "end"}]) or [(start, end, label)]."""
     return [(a, b) for a, b, name in _phase_tuples(phases) if name == label]
+
+
+def windows_where(t, mask):
+    """The (start, end) windows (s) of each run of samples where ``mask`` is True (e.g. a filter's low-speed guard)."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], np.asarray(mask, dtype=np.int8), [0]))))
+    return [(t[a], t[b - 1]) for a, b in zip(edges[::2], edges[1::2])]
 
 
 def _phase_tuples(phases):
@@ -318,6 +329,8 @@ def sweep(values, rmses: dict, xlabel, ylabel="RMSE (°)", marks: dict | None = 
         ax.loglog(values, r, marker=marker, ls=style, ms=3, color=COLORS[kind], label=label)
     for (label, x), style in zip((marks or {}).items(), (":", "-.", "--")):
         ax.axvline(x, color=COLORS["truth"], ls=style, lw=1.0, label=label)
+    for label, (y, kind) in (references or {}).items():
+        ax.axhline(y, color=COLORS[kind], ls=STYLES[kind], lw=1.0, label=label)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.legend(loc="upper center", ncols=4, fontsize=8)
@@ -329,8 +342,6 @@ def allan(ax, taus, adev, unit, scale=1.0, white=None, walk=None, arw=None, mini
     log–log, with the noise models in black: ``white`` (name, N) the white noise N/√τ (slope −½), ``walk``
     (name, K) the bias random walk K√(τ/3) (slope +½), left out when K is None (no simulation, no K);
     ``arw`` the N read at τ = 1 s and ``minimum`` (τ_min, σ_min) per axis, as points. No legend: one for
-    for label, (y, kind) in (references or {}).items():
-        ax.axhline(y, color=COLORS[kind], ls=STYLES[kind], lw=1.0, label=label)
     several panels is the caller's (``fig.legend``)."""
     taus, adev = np.asarray(taus, dtype=float), np.asarray(adev, dtype=float) * scale
     for i, (axis, (kind, style)) in enumerate(zip("xyz", XYZ)):
@@ -441,3 +452,25 @@ def recording_signals(rec, title=None):
     magnetometer: two panels), its phases named."""
     mag = rec.body("mag") if "mag" in rec.meta["sensors"] else None
     return imu_signals(rec.t, rec.body("gyr"), rec.body("acc"), mag, phases=rec.phases, title=title)
+
+
+# --- a vehicle drive: what a production car measures (lab 06) ------------------------------------------------
+
+VEHICLE_PLOT = (("delta", "δ (°)", np.degrees(1.0), "steering δ (road wheel)", "kf"),
+                ("yaw_rate", "r (°/s)", np.degrees(1.0), "yaw-rate gyro", "gyro"),
+                ("ay", "a_y (m/s²)", 1.0, "lateral accelerometer", "accel"),
+                ("vx", "V_x (km/h)", 3.6, "speed from wheel speeds", "other"))  # column, axis label, scale from SI
+
+
+def vehicle_signals(rec, title=None):
+    """A vehicle ``Recording``'s steering, yaw rate, lateral acceleration and speed (ISO 8855, SI columns)
+    in stacked panels sharing time, in the units of :data:`VEHICLE_PLOT`."""
+    fig, axes = plt.subplots(len(VEHICLE_PLOT), 1, sharex=True, figsize=(9, 7.5))
+    for ax, (column, ylabel, scale, label, kind) in zip(axes, VEHICLE_PLOT):
+        ax.plot(rec.t, rec[column] * scale, color=COLORS[kind], lw=1.0, label=label)
+        ax.set_ylabel(ylabel)
+        ax.legend(loc="lower center" if column == "vx" else "upper right", fontsize=8)
+    axes[-1].set_xlabel("time (s)")
+    if title:
+        fig.suptitle(title)
+    return fig

@@ -266,3 +266,38 @@ def test_allan_draws_the_curves_scaled_and_the_white_noise_line_meets_allantools
     plots.allan(ax, taus, adev, "°/s", walk=("bias walk", 1e-4))
     walk = ax.get_lines()[-1]
     assert walk.get_ydata()[taus == 1.0][0] == pytest.approx(1e-4 * np.sqrt(1 / 3))  # K√(τ/3)
+
+
+def test_compare_values_shows_its_own_unit_and_compare_angles_stays_in_degrees(attitude):
+    t, truth, good, _, _, _ = attitude
+    fig = plots.compare_values(t, truth[:, 0], {"KF": (good[:, 0], "kf"), "raw": good[:, 1]}, ylabel="v_y", unit="m/s")
+    ax = fig.axes[0]
+    assert [line.get_ydata() for line in ax.get_lines()] == [pytest.approx(v) for v in (truth[:, 0], good[:, 0], good[:, 1])]
+    assert (ax.get_ylabel(), ax.get_xlabel()) == ("v_y (m/s)", "time (s)") and line_colours(fig) <= PALETTE
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["truth", "KF", "raw"]
+    ax = plots.compare_angles(t, truth[:, 0], {"KF": (good[:, 0], "kf")}, ylabel="sideslip β").axes[0]
+    assert ax.get_lines()[0].get_ydata() == pytest.approx(truth[:, 0] * 180.0 / np.pi) and ax.get_ylabel() == "sideslip β (°)"
+    assert len(plots.compare_values(t, None, {"KF": good[:, 0]}).axes[0].get_lines()) == 1  # no truth: estimates only
+
+
+@pytest.mark.parametrize("mask", ["0011100110", "1100000011", "1111111111", "0000000000", "0100000000", "0000000001"])
+def test_windows_where_are_the_runs_of_true_samples(mask):
+    from scipy import ndimage
+
+    t = 0.5 + np.arange(len(mask)) / 4.0
+    flags = np.array([c == "1" for c in mask])
+    labels, n = ndimage.label(flags)  # independent oracle: connected runs
+    expected = [(t[labels == k].min(), t[labels == k].max()) for k in range(1, n + 1)]
+    assert plots.windows_where(t, flags) == expected
+
+
+def test_vehicle_signals_are_four_panels_in_degrees_and_km_per_hour():
+    from kfkit.io import Recording
+
+    t = np.arange(50) / 10.0
+    columns = {"delta": np.full(50, np.pi / 36), "yaw_rate": np.full(50, np.pi / 18), "ay": np.full(50, 2.5), "vx": np.full(50, 10.0)}
+    fig = plots.vehicle_signals(Recording({"rate_hz": 10.0}, {"t": t, **columns}), title="drive")
+    assert [ax.get_ylabel() for ax in fig.axes] == ["δ (°)", "r (°/s)", "a_y (m/s²)", "V_x (km/h)"]
+    assert [ax.get_lines()[0].get_ydata()[0] for ax in fig.axes] == pytest.approx([5.0, 10.0, 2.5, 36.0])
+    assert fig.axes[-1].get_xlabel() == "time (s)" and fig.get_suptitle() == "drive"
+    assert all(ax.get_legend() is not None for ax in fig.axes) and line_colours(fig) <= PALETTE
