@@ -61,11 +61,13 @@ def mark_windows(ax, windows, label="sideways shake"):
         ax.axvspan(t0, t1, color=COLORS["other"], alpha=0.15, lw=0, label=label if i == 0 else None)
 
 
-def compare_values(t, truth, estimates: dict, ax=None, ylabel="v_y", unit="m/s", convert=np.asarray, title=None):
+def compare_values(t, truth, estimates: dict, ax=None, ylabel="v_y", unit="m/s", convert=np.asarray, title=None,
+                   shade=(), shade_label="shaded"):
     """Truth and several estimates of one quantity against time (s), shown as ``convert(values)`` in ``unit``.
 
     ``estimates`` maps a label to (values, kind) or just values; kind picks the colour
     ('accel', 'gyro', 'kf', 'other'). ``truth`` None (a recording without truth): estimates only.
+    ``shade`` windows [(t0, t1)] (s) are marked and named ``shade_label`` in the legend.
     """
     fig, ax = _axes(ax)
     if truth is not None:
@@ -76,15 +78,16 @@ def compare_values(t, truth, estimates: dict, ax=None, ylabel="v_y", unit="m/s",
                 alpha=0.85 if kind == "accel" else 1.0, lw=0.9 if kind == "accel" else 1.4, zorder=2 + i)
     ax.set_xlabel("time (s)")
     ax.set_ylabel(f"{ylabel} ({unit})")
+    mark_windows(ax, shade, label=shade_label)
     legend_on_top(ax, ncols=min(5, len(estimates) + 2))
     if title:
         ax.set_title(title)
     return fig
 
 
-def compare_angles(t, truth, estimates: dict, ax=None, ylabel="roll", title=None):
+def compare_angles(t, truth, estimates: dict, ax=None, ylabel="roll", title=None, shade=(), shade_label="shaded"):
     """Truth and several estimates of one angle (rad) against time (s), shown in degrees (:func:`compare_values`)."""
-    return compare_values(t, truth, estimates, ax, ylabel, "°", np.degrees, title)
+    return compare_values(t, truth, estimates, ax, ylabel, "°", np.degrees, title, shade, shade_label)
 
 
 def error_band(t, err, variance, ax=None, ylabel="roll error", label="KF error"):

@@ -280,6 +280,16 @@ def test_compare_values_shows_its_own_unit_and_compare_angles_stays_in_degrees(a
     assert len(plots.compare_values(t, None, {"KF": good[:, 0]}).axes[0].get_lines()) == 1  # no truth: estimates only
 
 
+def test_compare_angles_shades_its_windows_and_names_them_once_in_the_legend(attitude):
+    t, truth, good, _, _, _ = attitude
+    ax = plots.compare_angles(t, truth[:, 0], {"KF": (good[:, 0], "kf")}, shade=[(1.0, 2.0), (5.0, 6.0)],
+                              shade_label="sideways shake").axes[0]
+    spans = [p.get_x() for p in ax.patches], [p.get_x() + p.get_width() for p in ax.patches]
+    assert spans == ([1.0, 5.0], [2.0, 6.0])
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["truth", "KF", "sideways shake"]
+    assert not plots.compare_angles(t, truth[:, 0], {"KF": good[:, 0]}).axes[0].patches  # none asked, none drawn
+
+
 @pytest.mark.parametrize("mask", ["0011100110", "1100000011", "1111111111", "0000000000", "0100000000", "0000000001"])
 def test_windows_where_are_the_runs_of_true_samples(mask):
     from scipy import ndimage
