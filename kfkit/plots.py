@@ -252,20 +252,22 @@ def compare_euler(t, truth, estimates: dict, shade=(), title=None):
 def tilt_panels(t, truth, estimates: dict, known=None, shade=(), title=None):
     """Roll and pitch (rad, shown in °) in two panels sharing time (s), :func:`compare_angles` on each:
     ``truth`` (N, ≥2: roll, pitch) or None, ``estimates`` mapping a label to ((roll, pitch), kind), ``known``
-    (roll, pitch) a protocol's angles (NaN outside its holds) as markers, ``shade`` windows on the roll panel."""
+    (roll, pitch) a protocol's angles (NaN outside its holds) as markers, ``shade`` windows on the roll panel;
+    one legend for both panels, below them."""
     fig, axes = plt.subplots(2, 1, sharex=True, figsize=(9.0, 5.4))
     for i, ax in enumerate(axes):
         compare_angles(t, None if truth is None else np.asarray(truth)[:, i],
                        {label: (v[i], kind) for label, (v, kind) in estimates.items()}, ax=ax, ylabel=EULER[i])
         if known is not None:
             ax.plot(t, np.degrees(known[i]), ls="none", marker="s", ms=1.5, color=COLORS["bound"],
-                    label="protocol (holds)")
-        ax.legend(loc="upper right", ncols=4, fontsize=8)
+                    label="protocol (holds)", zorder=1.5)   # under the estimates, over the truth
+        ax.get_legend().remove()
         ax.set_xlabel("")
     mark_windows(axes[0], shade, label=None)
     axes[-1].set_xlabel("time (s)")
     if title:
         fig.suptitle(title)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=4, fontsize=8)
     return fig
 
 

@@ -82,8 +82,9 @@ def test_tilt_panels_show_roll_and_pitch_in_degrees_with_the_protocol_holds(atti
         np.testing.assert_allclose(truth_line.get_ydata(), truth[:, i] * 180 / np.pi)
         np.testing.assert_allclose(kf_line.get_ydata(), good[:, i] * 180 / np.pi)
         assert np.isnan(hold_line.get_ydata()).sum() == np.sum(t >= 2.0)
-        assert [x.get_text() for x in ax.get_legend().get_texts()] == ["truth", "KF", "protocol (holds)"]
     assert len(fig.axes[0].patches) == 1 and not fig.axes[1].patches   # shaded on roll only
+    assert [x.get_text() for x in fig.legends[0].get_texts()] == ["truth", "KF", "protocol (holds)"]
+    assert all(ax.get_legend() is None for ax in fig.axes)   # one legend for both panels
     assert line_colours(fig) <= PALETTE
     no_truth = plots.tilt_panels(t, None, {"KF": ((good[:, 0], good[:, 1]), "kf")})
     assert all(len(ax.get_lines()) == 1 for ax in no_truth.axes)
