@@ -14,6 +14,8 @@ Markers (the ones nbgrader uses), each on a line of its own:
   ``YOUR ANSWER HERE``.
 * cells tagged ``solution-only`` (instructor notes, checks of the model
   answer) are left out of the lab entirely.
+* nbval's cell markers (``# NBVAL_CHECK_OUTPUT``, ``# NBVAL_IGNORE_OUTPUT``, …) are removed: nbval
+  validates the solutions, and a student has no use for them.
 
 The labs carry no outputs and no run state, so they are byte-identical
 whoever regenerates them.
@@ -33,6 +35,7 @@ ANSWER_STUB = ["YOUR ANSWER HERE"]
 SOLUTION_ONLY_TAG = "solution-only"
 RUN_STATE_KEYS = ("execution", "collapsed", "scrolled")
 NOTEBOOK_METADATA_KEPT = ("kernelspec", "language_info")
+NBVAL_MARKER = "# NBVAL_"
 
 
 class AuthoringError(ValueError):
@@ -57,6 +60,7 @@ def strip_solutions(nb: nbformat.NotebookNode, name: str | None = None) -> nbfor
         if stub:
             cell.source = _replace_blocks(cell.source, stub, f"{where}cell index {index}")
         if cell.cell_type == "code":
+            cell.source = _without_test_markers(cell.source)
             cell.outputs = []
             cell.execution_count = None
         for key in RUN_STATE_KEYS:
@@ -89,6 +93,11 @@ def _replace_blocks(source: str, stub: list[str], where: str) -> str:
     if begin_line is not None:
         raise AuthoringError(f"{where}, line {begin_line}: '{BEGIN}' without '{END}'")
     return "\n".join(out)
+
+
+def _without_test_markers(source: str) -> str:
+    """``source`` without the lines that are only an nbval marker (``# NBVAL_CHECK_OUTPUT`` …)."""
+    return "\n".join(line for line in source.split("\n") if not line.strip().startswith(NBVAL_MARKER))
 
 
 def _check_clean(lab: nbformat.NotebookNode, where: str) -> None:

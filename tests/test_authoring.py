@@ -60,6 +60,17 @@ def test_single_block_replaced_and_outputs_cleared():
     assert lab.cells[1].execution_count is None
 
 
+def test_nbval_markers_stay_in_the_solution_and_leave_the_lab():
+    nb = solution_notebook()
+    nb.cells[0].source = "# NBVAL_CHECK_OUTPUT\n" + nb.cells[0].source
+    nb.cells[1].source = "  # NBVAL_IGNORE_OUTPUT\n" + nb.cells[1].source + "\n# the NBVAL_ word in a comment stays"
+    lab = strip_solutions(nb)
+    assert nb.cells[0].source.startswith("# NBVAL_CHECK_OUTPUT")
+    assert lab.cells[0].source == "import numpy as np\n# YOUR CODE HERE\nraise NotImplementedError()\nprint(K)"
+    assert lab.cells[1].source.startswith("import math") and "# NBVAL_IGNORE_OUTPUT" not in lab.cells[1].source
+    assert lab.cells[1].source.endswith("# the NBVAL_ word in a comment stays")
+
+
 def test_solution_notebook_is_not_modified():
     nb = solution_notebook()
     strip_solutions(nb)
