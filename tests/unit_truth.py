@@ -102,3 +102,13 @@ def mag_fit_sd(mag, h, S, sigma):
     for k, (a, b) in enumerate(pairs):
         sd_S[a, b] = sd_S[b, a] = sd[3 + k]
     return sd[:3], sd_S
+
+
+def assert_mag_fit_within(rec, mag, h, S, k=4.0):
+    """Assert a fit (h, S) of ``rec``'s body-frame magnetometer ``mag`` (N, 3, µT; NaN rows = no sample) lies within
+    ``k`` of its own linearised standard deviations (:func:`mag_fit_sd`) of the simulated unit's hard and soft iron."""
+    truth = body_truth(rec)
+    fresh = np.isfinite(mag[:, 0])
+    sd_h, sd_S = mag_fit_sd(mag[fresh], truth["mag_hard_iron"], truth["mag_S"], sample_sigma(rec, "mag"))
+    assert np.all(np.abs(h - truth["mag_hard_iron"]) < k * sd_h), (h - truth["mag_hard_iron"]) / sd_h
+    assert np.all(np.abs(S - truth["mag_S"]) < k * sd_S), (S - truth["mag_S"]) / sd_S
