@@ -2,6 +2,7 @@
 
     kfkit make-labs [--check]          solutions/ → labs/ (instructors)
     kfkit data regenerate [--check]    rebuild data/ from seeded simulations
+    kfkit data real [--check] [--source DIR]   convert the real excerpts (BROAD, race track) from their originals
     kfkit doctor                       check this environment and say what to fix
     kfkit boards                       list the boards plugged in over USB
     kfkit capture --port P --seconds S --out FILE   record from a board (or --port virtual, or phyphox://HOST:PORT)
@@ -40,6 +41,25 @@ def _data(args) -> int:
         for line in report:
             print(line)
         print("data/ matches its simulations" if not report else "data/ is stale: run 'kfkit data regenerate'")
+        return 1 if report else 0
+    for line in report:
+        print(f"wrote {line}")
+    return 0
+
+
+def _data_real(args) -> int:
+    from .datasets import convert_real
+
+    report, skipped = convert_real(check=args.check, source=args.source)
+    for line in skipped:
+        print(f"skipped {line}")
+    if args.check:
+        for line in report:
+            print(line)
+        if skipped and not report:
+            print("the real files found match their originals; the others could not be checked")
+        else:
+            print("data/'s real files match their originals" if not report else "data/ is stale: run 'kfkit data real'")
         return 1 if report else 0
     for line in report:
         print(f"wrote {line}")
@@ -180,6 +200,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = data_sub.add_parser("regenerate", help="rebuild data/ from seeded simulations")
     p.add_argument("--check", action="store_true", help="write nothing; fail if a shipped file differs")
     p.set_defaults(run=_data)
+    p = data_sub.add_parser("real", help="convert data/'s real excerpts (BROAD, race track) from their originals")
+    p.add_argument("--check", action="store_true", help="write nothing; fail if a shipped file differs")
+    p.add_argument("--source", type=Path, default=None,
+                   help="folder holding broad/ and racetrack/ (default: $KFKIT_SHARED_DATA or ../shared/data beside the kit)")
+    p.set_defaults(run=_data_real)
 
     p = sub.add_parser("doctor", help="check versions, Jupyter extensions, serial ports and data")
     p.set_defaults(run=_doctor)

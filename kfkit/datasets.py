@@ -1,7 +1,9 @@
 """The bundled recordings under ``data/``: how each is made, loading by name, regeneration.
 
-Every file is a seeded simulation, so ``kfkit data regenerate`` rebuilds them all and
+Most files are seeded simulations, so ``kfkit data regenerate`` rebuilds them all and
 ``kfkit data regenerate --check`` fails when a shipped file differs from what the code makes.
+The real recordings (:mod:`kfkit.real_data`) are converted from their originals by ``kfkit data real``
+(``--check`` likewise); :func:`load` reads both kinds by name.
 The data folder is ``data/`` beside the ``kfkit`` package; ``KFKIT_DATA`` overrides it.
 """
 from __future__ import annotations
@@ -12,7 +14,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from . import sim, vehicle
+from . import real_data, sim, vehicle
 from .frames import G
 from .calibration import Calibration, calibrate
 from .io import Recording, load_recording, recording_text
@@ -221,15 +223,17 @@ BUNDLED = {
 }
 
 
-def _entry(name: str) -> Bundled:
-    try:
-        return BUNDLED[name]
-    except KeyError:
-        raise ValueError(f"no bundled recording {name!r}; available: {', '.join(BUNDLED)}") from None
+def _entry(name: str):
+    entry = BUNDLED.get(name) or real_data.REAL.get(name)
+    if entry is None:
+        raise ValueError(f"no bundled recording {name!r}; simulated: {', '.join(BUNDLED)}; real: {', '.join(real_data.REAL)}")
+    return entry
 
 
 def build(name: str):
-    """Build the bundled recording ``name`` from its seeded simulation."""
+    """Build the bundled recording ``name`` from its seeded simulation (a real one from its original)."""
+    if name in real_data.REAL:
+        return real_data.REAL[name].build(real_data.shared_dir())
     return _entry(name).build()
 
 
@@ -238,7 +242,8 @@ def load(name: str):
     entry = _entry(name)
     path = data_dir() / f"{name}{entry.suffix}"
     if not path.exists():
-        raise FileNotFoundError(f"bundled recording missing: {path}. Rebuild it with: python -m kfkit data regenerate")
+        rebuild = "data real (from the originals)" if name in real_data.REAL else "data regenerate"
+        raise FileNotFoundError(f"bundled recording missing: {path}. Rebuild it with: python -m kfkit {rebuild}")
     return entry.read(path)
 
 
@@ -259,6 +264,30 @@ def regenerate(check: bool = False, directory=None) -> list[str]:
                 target.write_text(content, encoding="utf-8", newline="\n")
             report.append(str(path))
     return report
+
+
+def convert_real(check: bool = False, source=None, directory=None) -> tuple[list[str], list[str]]:
+    """Rebuild the real files (:data:`kfkit.real_data.REAL`) from the originals under ``source``
+    (default :func:`kfkit.real_data.shared_dir`).
+
+    Returns (report, skipped): with ``check`` the report lists bundled files that differ from the
+    conversion (nothing is written), else the files written; ``skipped`` names the originals not found.
+    """
+    source = Path(source) if source is not None else real_data.shared_dir()
+    folder = Path(directory) if directory is not None else data_dir()
+    report, skipped = [], []
+    for name, entry in real_data.REAL.items():
+        if not (source / entry.origin).is_file():
+            skipped.append(f"{name}: no original at {source / entry.origin}")
+            continue
+        path = folder / f"{name}{entry.suffix}"
+        text = entry.text(entry.build(source))
+        if check:
+            report += _check_files(path, {None: text})
+        else:
+            path.write_text(text, encoding="utf-8", newline="\n")
+            report.append(str(path))
+    return report, skipped
 
 
 def _check_files(path: Path, files: dict) -> list[str]:

@@ -11,7 +11,8 @@ column-name line, then one row per sample::
 - Raw sensor columns hold integer counts as the board sent them; the metadata's
   ``sensors`` entry gives each sensor's sensitivity (SI per count) and ``mount`` its
   mounting matrix M_bs (body ← sensor). Magnetometer cells may be empty: no new sample.
-- Simulated recordings add ``true_roll``, ``true_pitch``, ``true_yaw`` (rad).
+- Simulated recordings add ``true_roll``, ``true_pitch``, ``true_yaw`` (rad); real ones with a
+  reference (motion capture) too, and a ``true_*`` cell may be empty: no truth for that sample (NaN).
 - Guided captures and simulations label time windows in the metadata:
   ``"phases": [{"label": "stationary", "start": 0.0, "end": 120.0}, …]`` (s, end excluded).
 
@@ -178,6 +179,8 @@ def _format_cell(name: str, value) -> str:
         return "" if math.isnan(value) else _count_text(name, value)
     if name == "t":
         return f"{value:.6f}"
+    if name.startswith("true_") and math.isnan(value):
+        return ""
     return f"{value:.9g}"
 
 
@@ -272,7 +275,7 @@ def _parse_columns(path, line: str) -> list[str]:
 
 
 def _parse_cell(path, lineno: int, col: str, text: str):
-    if col in OPTIONAL_INT_COLUMNS and text == "":
+    if text == "" and (col in OPTIONAL_INT_COLUMNS or col.startswith("true_")):
         return math.nan
     try:
         return parse_count(text) if col in INT_COLUMNS or col in OPTIONAL_INT_COLUMNS else parse_number(text)
