@@ -24,7 +24,7 @@ What the conversion changes, and why:
   3.9e-3 m/s², 0.074 µT), so the rounding adds at most 0.5 % of a sensor step.
 - **Rate.** Most labs run at 100 Hz. ``rate_hz=100`` resamples by 7/20 with :func:`scipy.signal.resample_poly`
   and the kit's own anti-alias filter (:func:`antialias_fir`: a linear-phase Kaiser FIR, pass band to
-  40 Hz within 0.1 %, at least 60 dB down from the new Nyquist frequency 50 Hz, so nothing above 50 Hz
+  40 Hz within 0.2 %, at least 60 dB down from the new Nyquist frequency 50 Hz, so nothing above 50 Hz
   folds back into the band the labs look at; zero delay). The truth quaternion is interpolated
   (slerp between the two neighbouring motion-capture samples, none across a gap), not filtered.
   Lab 02's rest keeps the native 285.7 Hz: its noise is what it measures.
