@@ -121,7 +121,10 @@ def innovations(t, y, S, ax=None, ylabel="innovation"):
 def nis_plot(t, values, dof=1, window=None, ax=None, alpha=0.05):
     """NIS per step with its (1 − alpha) χ² bounds, and a moving average with the bounds of an average.
 
-    window: samples in the moving average (default: one second's worth, at least 10).
+    window: samples in the moving average (default: one second's worth, at least 10). NaN values (no
+    update at that step) are left out of the average, so the average at step k is over the n_k valid
+    samples of its window, and its bounds are those of n_k values: χ²⁻¹(α/2; n_k·dof)/n_k … χ²⁻¹(1 − α/2;
+    n_k·dof)/n_k (fewer samples, a wider band: a magnetometer on every other row halves n_k).
     """
     fig, ax = _axes(ax)
     values = np.asarray(values, dtype=float)
@@ -129,14 +132,14 @@ def nis_plot(t, values, dof=1, window=None, ax=None, alpha=0.05):
         window = max(10, int(round(1.0 / np.median(np.diff(t)))))
     ax.plot(t, values, ".", ms=1.5, color=COLORS["gyro"], alpha=0.5, label="NIS per step")
     valid = np.where(np.isnan(values), 0.0, values)
-    counts = np.convolve(~np.isnan(values), np.ones(window), "same")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        average = np.convolve(valid, np.ones(window), "same") / counts
-    ax.plot(t, average, color=COLORS["kf"], lw=1.5, label=f"{window}-sample average")
+    counts = np.convolve(~np.isnan(values), np.ones(window), "same").round()
+    n = np.where(counts > 0, counts, np.nan)  # samples in each average; none: no average, no bounds
+    average = np.convolve(valid, np.ones(window), "same") / n
+    ax.plot(t, average, color=COLORS["kf"], lw=1.5, label=f"{window}-sample average (of its valid samples)")
     _, hi1 = chi2_bounds(dof, 1, alpha)
-    lo, hi = chi2_bounds(dof, window, alpha)
+    lo, hi = chi2_bounds(dof, n, alpha)
     ax.axhline(hi1, color=COLORS["bound"], ls=":", lw=1, label=f"{100 * (1 - alpha):.0f} % bound, one step ({hi1:.2f})")
-    ax.axhspan(lo, hi, color=COLORS["bound"], alpha=0.12, lw=0, label=f"{100 * (1 - alpha):.0f} % bounds, average")
+    ax.fill_between(t, lo, hi, color=COLORS["bound"], alpha=0.12, lw=0, label=f"{100 * (1 - alpha):.0f} % bounds, average")
     ax.axhline(dof, color=COLORS["truth"], lw=0.8, alpha=0.6)
     ax.set_yscale("log")
     ax.set_ylim(1e-4, max(10 * hi1, 2 * np.nanmax(average, initial=0.0)))

@@ -312,3 +312,42 @@ def test_vehicle_signals_are_four_panels_in_degrees_and_km_per_hour():
     assert [ax.get_lines()[0].get_ydata()[0] for ax in fig.axes] == pytest.approx([5.0, 10.0, 2.5, 36.0])
     assert fig.axes[-1].get_xlabel() == "time (s)" and fig.get_suptitle() == "drive"
     assert all(ax.get_legend() is not None for ax in fig.axes) and line_colours(fig) <= PALETTE
+
+
+def _band_at(ax, label, x):
+    """(lower, upper) of the filled band called ``label`` at abscissa ``x``."""
+    band = next(c for c in ax.collections if c.get_label() == label)
+    v = np.concatenate([p.vertices for p in band.get_paths()])
+    y = v[np.isclose(v[:, 0], x), 1]
+    return y.min(), y.max()
+
+
+@pytest.mark.parametrize("every", [1, 2, 3])
+def test_nis_average_bounds_count_the_valid_samples_in_the_window(every):
+    # A magnetometer on every other (or third) row: a 96-sample average holds 96/every values, and its
+    # 95 % band is that of an average of 96/every χ²(6) values (scipy), wider than a full window's.
+    rng = np.random.default_rng(3)
+    t = np.arange(1040) / 104.0
+    values = rng.chisquare(6, len(t))
+    values[np.arange(len(t)) % every != 0] = np.nan
+    fig = plots.nis_plot(t, values, dof=6, window=96)
+    ax = fig.axes[0]
+    n = 96 // every
+    for k in (300, 500, 700):  # inside the record: the whole window is there
+        lo, hi = _band_at(ax, "95 % bounds, average", t[k])
+        assert lo == pytest.approx(chi2.ppf(0.025, 6 * n) / n, rel=1e-9)
+        assert hi == pytest.approx(chi2.ppf(0.975, 6 * n) / n, rel=1e-9)
+    # at the first sample half the window lies before the record: fewer values, a wider band
+    lo0, hi0 = _band_at(ax, "95 % bounds, average", t[0])
+    assert lo0 < chi2.ppf(0.025, 6 * n) / n and hi0 > chi2.ppf(0.975, 6 * n) / n
+    # the drawn average is the mean of the valid values in the window (numpy)
+    line = next(ln for ln in ax.lines if "average" in ln.get_label())
+    k = 500
+    assert line.get_ydata()[k] == pytest.approx(np.nanmean(values[k - 48:k + 48]), rel=1e-12)
+
+
+def test_nis_plot_of_an_update_that_never_happened_draws_no_band():
+    t = np.arange(200) / 100.0
+    fig = plots.nis_plot(t, np.full(len(t), np.nan), dof=3)
+    band = next(c for c in fig.axes[0].collections if c.get_label() == "95 % bounds, average")
+    assert band.get_paths() == []  # no valid sample in any window: no average, no bounds
