@@ -213,6 +213,15 @@ class MagicFormula:
         x = self.B * alpha
         return self.D * np.sin(self.C * np.arctan(x - self.E * (x - np.arctan(x))))
 
+    def slope(self, alpha):
+        """dF_y/dα (N/rad) at ``alpha`` (rad): the local cornering stiffness, B·C·D at α = 0, 0 at the
+        force's peak and negative beyond it. With x = Bα, φ = x − E(x − atan x):
+        dF/dα = D cos(C atan φ)·C/(1 + φ²)·B(1 − E + E/(1 + x²))."""
+        x = self.B * alpha
+        phi = x - self.E * (x - np.arctan(x))
+        return self.D * np.cos(self.C * np.arctan(phi)) * self.C / (1.0 + phi * phi) * \
+            self.B * (1.0 - self.E + self.E / (1.0 + x * x))
+
 
 def axle_tyres(params: BicycleParams):
     """Front and rear :class:`MagicFormula` with static loads F_zf = m g b/L, F_zr = m g a/L."""

@@ -1,4 +1,7 @@
-"""kfkit.filters.sideslip: the bicycle-model KF against filterpy, NEES bounds, bundled drives, bad input."""
+"""kfkit.filters.sideslip: the bicycle-model KF against filterpy, NEES bounds, bundled drives, bad input.
+
+The KF runs as ``estimate_sideslip(..., model=linear_model)`` (:func:`estimate_kf`); the default
+saturating-tyre EKF has its own tests (test_sideslip_ekf.py)."""
 import math
 import warnings
 
@@ -14,6 +17,11 @@ from kfkit.metrics import chi2_bounds, nees, rmse
 
 CAR = V.BicycleParams()
 SIGNALS = ("t", "delta", "yaw_rate", "ay", "vx")
+
+
+def estimate_kf(*args, **kwargs):
+    """estimate_sideslip with lab 06's linear KF."""
+    return estimate_sideslip(*args, model=V.linear_model, **kwargs)
 
 
 def linear_drive(vx=15.0, n=600, dt=0.01, q=(1e-4, 1e-3), r=(0.003, 0.05), seed=0):
@@ -35,7 +43,7 @@ def linear_drive(vx=15.0, n=600, dt=0.01, q=(1e-4, 1e-3), r=(0.003, 0.05), seed=
 
 def test_matches_filterpy_on_the_linear_model():
     t, delta, zs, vx, _ = linear_drive()
-    ours = estimate_sideslip(t, delta, zs[:, 0], zs[:, 1], vx, CAR)
+    ours = estimate_kf(t, delta, zs[:, 0], zs[:, 1], vx, CAR)
     A, B, C, D = V.linear_model(CAR, 15.0)
     kf = FilterpyKF(dim_x=2, dim_z=2, dim_u=1)
     kf.F, kf.B, _ = V.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))
@@ -57,7 +65,7 @@ def test_nees_is_inside_chi_square_bounds_on_linear_model_data():
     values = []
     for seed in range(runs):
         t, delta, zs, vx, xs = linear_drive(seed=seed, n=400)
-        res = estimate_sideslip(t, delta, zs[:, 0], zs[:, 1], vx, CAR, x0=xs[0], P0=np.diag([1e-8, 1e-8]))
+        res = estimate_kf(t, delta, zs[:, 0], zs[:, 1], vx, CAR, x0=xs[0], P0=np.diag([1e-8, 1e-8]))
         values.append(np.mean(nees(res.x - xs, res.P)[50:]))
     lo, hi = chi2_bounds(2, runs)  # runs are independent; the time average only narrows each run's spread
     assert lo < np.mean(values) < hi
@@ -65,7 +73,7 @@ def test_nees_is_inside_chi_square_bounds_on_linear_model_data():
 
 def test_bundled_slalom_beta_rmse_is_under_half_a_degree():
     rec = datasets.load("06_slalom_20kmh")
-    res = estimate_sideslip(*(rec[c] for c in SIGNALS), CAR)
+    res = estimate_kf(*(rec[c] for c in SIGNALS), CAR)
     assert np.degrees(rmse(res.beta, rec["true_beta"])) < 0.5
     np.testing.assert_allclose(res.vy, rec["vx"] * np.tan(res.beta))
     assert res.low_speed[0] and not res.low_speed[len(rec) // 2]
@@ -75,7 +83,7 @@ def test_bundled_slalom_beta_rmse_is_under_half_a_degree():
 def test_correct_model_beats_the_copied_ones(name):
     rec = datasets.load(name)
     truth = rec["true_beta"]
-    good = rmse(estimate_sideslip(*(rec[c] for c in SIGNALS), CAR).beta, truth)
+    good = rmse(estimate_kf(*(rec[c] for c in SIGNALS), CAR).beta, truth)
     wrong = rmse(estimate_sideslip(*(rec[c] for c in SIGNALS), CAR, model=V.miscopied_linear_model).beta, truth)
     naive = rmse(copied_kinematic_kf(rec.t, rec["yaw_rate"], rec["ay"], rec["vx"])[1], truth)
     assert good < wrong / 3 and good < naive / 3
@@ -84,9 +92,9 @@ def test_correct_model_beats_the_copied_ones(name):
 def test_bias_state_recovers_an_accelerometer_bias():
     d = V.slalom(80.0, cone_spacing=18.0, cones=30)
     rec = V.simulate_drive(d, seed=11, accel_bias=0.3)
-    res = estimate_sideslip(*(rec[c] for c in SIGNALS), CAR, bias_ay=True)
+    res = estimate_kf(*(rec[c] for c in SIGNALS), CAR, bias_ay=True)
     assert res.bias_ay[-1] == pytest.approx(0.3, abs=0.05)
-    assert estimate_sideslip(*(rec[c] for c in SIGNALS), CAR).bias_ay is None
+    assert estimate_kf(*(rec[c] for c in SIGNALS), CAR).bias_ay is None
 
 
 def test_kinematic_integration_drifts_by_bias_times_time():
@@ -108,7 +116,7 @@ def test_low_speed_guard_stops_and_restarts_without_blowing_up():
     yaw, ay = rng.normal(0, 0.003, t.size), rng.normal(0, 0.05, t.size)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        res = estimate_sideslip(t, delta, yaw, ay, vx, CAR)
+        res = estimate_kf(t, delta, yaw, ay, vx, CAR)
     assert np.all(np.isfinite(res.x)) and np.all(np.isfinite(res.P))
     low = vx < 2.0
     np.testing.assert_array_equal(res.low_speed, low)
@@ -120,8 +128,8 @@ def test_low_speed_guard_stops_and_restarts_without_blowing_up():
 def test_speed_bins_do_not_change_the_estimate():
     """The 20 km/h drive spends 6 s between 1 and 5.6 m/s, where 0.05 m/s bins matter most."""
     rec = datasets.load("06_slalom_20kmh")
-    coarse = estimate_sideslip(*(rec[c] for c in SIGNALS), CAR)
-    fine = estimate_sideslip(*(rec[c] for c in SIGNALS), CAR, vx_step=1e-4)
+    coarse = estimate_kf(*(rec[c] for c in SIGNALS), CAR)
+    fine = estimate_kf(*(rec[c] for c in SIGNALS), CAR, vx_step=1e-4)
     assert np.max(np.abs(coarse.beta - fine.beta)) < math.radians(0.01)
 
 
@@ -153,7 +161,7 @@ def test_matches_filterpy_while_braking_and_with_jittery_timestamps():
     rec = datasets.load("06_lane_change")
     t = rec.t + np.random.default_rng(8).uniform(-3e-4, 3e-4, len(rec))
     signals = (t, rec["delta"], rec["yaw_rate"], rec["ay"], rec["vx"])
-    ours = estimate_sideslip(*signals, CAR)
+    ours = estimate_kf(*signals, CAR)
     ref = filterpy_reference(*signals, exact_model(rec["vx"]))
     assert np.max(np.abs(ours.beta - ref)) < math.radians(0.002)
     assert rmse(ours.beta, rec["true_beta"]) < math.radians(0.05)
@@ -165,7 +173,7 @@ def test_low_speed_guard_hands_over_to_the_model_when_starting_from_a_crawl():
     vx = 0.5 + 9.5 * np.clip(t / 6.0, 0.0, 1.0) ** 2
     drive = V.Drive(t, 0.06 * np.sin(2 * np.pi * 0.4 * t), vx, [], "pull away from a crawl while weaving")
     rec = V.simulate_drive(drive, seed=12)
-    res = estimate_sideslip(*(rec[c] for c in SIGNALS), CAR)
+    res = estimate_kf(*(rec[c] for c in SIGNALS), CAR)
     low = res.low_speed
     assert low[:100].all() and not low[-100:].any()
     err = np.abs(res.beta - rec["true_beta"])
@@ -178,9 +186,9 @@ def test_low_speed_guard_hands_over_to_the_model_when_starting_from_a_crawl():
 def test_tuning_and_speed_bins_are_validated():
     d = good_inputs()
     with pytest.raises(ValueError, match="vx_step = 3 m/s is coarser than v_min = 2.0 m/s"):
-        estimate_sideslip(**d, params=CAR, vx_step=3)
+        estimate_kf(**d, params=CAR, vx_step=3)
     with pytest.raises(ValueError, match="q_beta must be a finite positive number, got -0.001"):
-        estimate_sideslip(**d, params=CAR, q_beta=-1e-3)
+        estimate_kf(**d, params=CAR, q_beta=-1e-3)
 
 
 def good_inputs(n=50):
@@ -237,7 +245,7 @@ def test_run_is_a_loop_of_steps_and_estimate_sideslip_is_run(bias_ay):
     t, delta, yaw, ay, vx = (rec[c] for c in SIGNALS)
     t = t + np.random.default_rng(1).uniform(-2e-4, 2e-4, len(t))
     dt0 = float(np.median(np.diff(t)))
-    run = estimate_sideslip(t, delta, yaw, ay, vx, CAR, bias_ay=bias_ay)
+    run = estimate_kf(t, delta, yaw, ay, vx, CAR, bias_ay=bias_ay)
     assert isinstance(run, SideslipRun) and run.low_speed.any() and not run.low_speed.all()
     kf = SideslipKF(dt0, CAR, SideslipSettings(bias_ay=bias_ay))
     steps = [kf.step(delta[k], yaw[k], ay[k], vx[k], t[k] - t[k - 1] if k else None) for k in range(len(t))]
@@ -249,7 +257,7 @@ def test_run_is_a_loop_of_steps_and_estimate_sideslip_is_run(bias_ay):
 
 def test_run_properties_read_the_state():
     rec = datasets.load("06_slalom_80kmh").head(3.0)
-    run = estimate_sideslip(*(rec[c] for c in SIGNALS), CAR, bias_ay=True)
+    run = estimate_kf(*(rec[c] for c in SIGNALS), CAR, bias_ay=True)
     np.testing.assert_array_equal(run.beta, run.x[:, 0])
     np.testing.assert_array_equal(run.yaw_rate, run.x[:, 1])
     np.testing.assert_array_equal(run.bias_ay, run.x[:, 2])
@@ -261,5 +269,9 @@ def test_unknown_or_misplaced_settings_are_named():
         SideslipKF(0.01, CAR, q_yaw=1.0)
     with pytest.raises(TypeError, match="unknown setting qbeta"):
         estimate_sideslip(**good_inputs(), params=CAR, qbeta=1.0)
+    with pytest.raises(TypeError, match="bias_ay is a setting of the linear KF; pass model=kfkit.vehicle.linear_model"):
+        estimate_sideslip(**good_inputs(), params=CAR, bias_ay=True)
+    with pytest.raises(TypeError, match="tyres is for the default EKF"):
+        estimate_sideslip(**good_inputs(), params=CAR, model=V.linear_model, tyres=V.axle_tyres(CAR))
     with pytest.raises(ValueError, match="SideslipKF: dt must be a positive number, got 0"):
         SideslipKF(0, CAR)

@@ -5,7 +5,8 @@ import numpy as np
 from scipy.signal import cont2discrete
 
 from .. import datasets
-from ..filters.sideslip import estimate_sideslip, sideslip_step
+from ..filters.sideslip import sideslip_step
+from ..filters.sideslip_estimate import estimate_sideslip
 from ..metrics import rmse
 from ..vehicle import BicycleParams, discretize, linear_model, miscopied_linear_model
 from . import Case, Checkpoint, compare, register
@@ -145,7 +146,7 @@ def _slalom_cases(rng):
         args, truth = bundled_inputs(name)
         cases.append(Case(dict(args, params=BicycleParams()), (truth, limit), label))
     args, truth = bundled_inputs(SLALOM)
-    kfkit = estimate_sideslip(**args, params=BicycleParams(), gyro_noise=MODEL_R_STD[0], accel_noise=MODEL_R_STD[1]).beta
+    kfkit = estimate_sideslip(**args, params=BicycleParams(), model=linear_model, gyro_noise=MODEL_R_STD[0], accel_noise=MODEL_R_STD[1]).beta
     limit = MODEL_FACTOR * float(np.degrees(rmse(kfkit, truth)))
     cases.append(Case(dict(args, params=BicycleParams(), r_std=MODEL_R_STD), (truth, limit),
                       f"the slalom at 20 km/h with r_std = {MODEL_R_STD} (the filter leans on its model; kfkit: "

@@ -16,7 +16,9 @@ The contract (x-io Fusion's and VQF's shape: settings with units and defaults, t
     tilt      lab 05: TiltBiasKF + TiltSettings ([angle, gyro bias] per axis, accelerometer gating) → TiltRun;
               TiltAttitude, roll and pitch from raw counts as the mpu6050_tilt_kf sketch computes them
     sideslip  lab 06: SideslipKF + SideslipSettings (bicycle-model KF, D-term, low-speed guard) → SideslipRun;
-              estimate_sideslip, the lesson's other estimators
+              the lesson's other estimators (kinematic integration, the copied kinematic KF)
+    sideslip_ekf       SideslipEKF + TyreEkfSettings: the same model with saturating tyres (the race-track fix)
+    sideslip_estimate  estimate_sideslip (the EKF by default, the KF with model=linear_model), compare_estimators
     attitude        lab 04's front door estimate_attitude, over:
     attitude_run    AttitudeRun (quat, euler, bias from x), check_inputs, tilt_heading, learn_field
     euler_ekf       EulerAttitudeEKF + EulerEkfSettings and the textbook step functions (run = a loop over step)
@@ -36,5 +38,6 @@ from .euler_ekf import (EulerAttitudeEKF, EulerEkfSettings, attitude_jacobian, a
 from .euler_ekf_fast import FastEulerAttitudeEKF
 from .mekf import MekfSettings, MultiplicativeEKF
 from .attitude import estimate_attitude
-from .sideslip import (SideslipKF, SideslipRun, SideslipSettings, compare_estimators, copied_kinematic_kf,
-                       estimate_sideslip, kinematic_sideslip, sideslip_step)
+from .sideslip import SideslipKF, SideslipRun, SideslipSettings, copied_kinematic_kf, kinematic_sideslip, sideslip_step
+from .sideslip_ekf import SideslipEKF, TyreEkfSettings
+from .sideslip_estimate import compare_estimators, estimate_sideslip

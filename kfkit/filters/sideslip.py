@@ -23,7 +23,8 @@ only (a_y carries no information on β at a crawl). Nothing divides by V_x there
 start from rest is safe; the run's ``low_speed`` mask says which samples were handled so.
 
 :class:`SideslipKF` is the filter (construct with dt and a :class:`SideslipSettings`; ``step`` one
-sample, ``run`` a drive → :class:`SideslipRun`); :func:`estimate_sideslip` runs it over a drive.
+sample, ``run`` a drive → :class:`SideslipRun`); ``estimate_sideslip(..., model=linear_model)``
+(:mod:`kfkit.filters.sideslip_estimate`) runs it over a drive.
 
 Speed and sample-interval changes: (Ad, Bd, Qd) are recomputed whenever V_x moves to another
 ``vx_step`` bin (default 0.05 m/s; the model is evaluated at the bin centre, so V_x is off by at most
@@ -41,7 +42,7 @@ from functools import lru_cache
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from ..vehicle import BicycleParams, discretize, linear_model, miscopied_linear_model
+from ..vehicle import BicycleParams, discretize, linear_model
 from .linear import FilterRun, KalmanFilter, Step, configure, require_positive
 
 
@@ -271,20 +272,6 @@ class SideslipKF:
         return SideslipRun(xs, Ps, ys, Ss, vx=d["vx"], low_speed=d["vx"] < self.settings.v_min)
 
 
-def estimate_sideslip(t, delta, yaw_rate, ay, vx, params: BicycleParams = BicycleParams(), *, model=linear_model,
-                      x0=None, P0=None, **settings) -> SideslipRun:
-    """Sideslip β over a drive: a :class:`SideslipKF` at the drive's median sample interval, run from (x0, P0).
-
-    t (s), delta (rad, road wheel), yaw_rate (rad/s), ay (m/s²), vx (m/s ≥ 0): equal-length 1-D
-    arrays, ISO 8855 signs. ``params``: the car; ``model``, x0, P0 as :class:`SideslipKF`'s;
-    ``settings``: any :class:`SideslipSettings` field (q_beta, q_r, gyro_noise, accel_noise, v_min,
-    beta_low_std, bias_ay, q_bias, bias_std, vx_step).
-    """
-    d = _as_inputs(t, delta, yaw_rate, ay, vx)
-    kf = SideslipKF(float(np.median(np.diff(d["t"]))), params, model=model, **settings)
-    return kf.run(*d.values(), x0=x0, P0=P0)
-
-
 @lru_cache(maxsize=1)
 def _blas_controller():
     """BLAS thread control: the filter loop runs with one BLAS thread. scipy's expm on these 2×2–6×6
@@ -372,20 +359,3 @@ def copied_kinematic_kf(t, yaw_rate, ay, vx, q=1e-4, gyro_noise=0.003, accel_noi
     with np.errstate(divide="ignore", invalid="ignore"):
         beta = np.where(vx > 0, np.arctan2(vy, vx), np.nan)
     return vy, beta
-
-
-def compare_estimators(rec, params: BicycleParams = BicycleParams(), **tuning) -> dict:
-    """β (rad) of every estimator lab 06 compares, on a vehicle recording: name → (N,) array.
-
-    The KF with the correct model, with an a_y bias state, with the miscopied model; the copied
-    "kinematic" KF; open-loop kinematic integration; and β = 0 (what not estimating gives).
-    """
-    signals = [rec[c] for c in ("t", "delta", "yaw_rate", "ay", "vx")]
-    return {
-        "KF, correct model": estimate_sideslip(*signals, params, **tuning).beta,
-        "KF + a_y bias state": estimate_sideslip(*signals, params, bias_ay=True, **tuning).beta,
-        "KF, miscopied model": estimate_sideslip(*signals, params, model=miscopied_linear_model, **tuning).beta,
-        "copied kinematic KF": copied_kinematic_kf(rec["t"], rec["yaw_rate"], rec["ay"], rec["vx"])[1],
-        "kinematic integration": kinematic_sideslip(rec["t"], rec["yaw_rate"], rec["ay"], rec["vx"])[1],
-        "β = 0": np.zeros(len(signals[0])),
-    }

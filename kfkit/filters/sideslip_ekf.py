@@ -1,0 +1,195 @@
+"""Sideslip β with saturating tyres: an EKF on the single-track model whose axle forces follow the tyre curve.
+
+The linear bicycle model (lab 06's :class:`~kfkit.filters.SideslipKF`) gives each axle the force C·α. Real
+tyres give less as α grows and level off at µ·F_z: on a race track at 1 g the linear model wants 30–50 %
+more lateral force than the tyres make, so the KF, told a_y, answers with too small a |β| (the a_y update
+then makes it worse than the model run open loop). Here each axle's force is F(α) on a saturating curve,
+by default the kit's magic formula (:func:`kfkit.vehicle.axle_tyres`: initial slope Cf or Cr, peak µ·F_z)::
+
+    α_f = δ − β − a r/V_x,   α_r = −β + b r/V_x                      (the linear model's small-angle slips)
+    β̇ = (F_f + F_r)/(m V_x) − r,   ṙ = (a F_f − b F_r)/I_z,   a_y = (F_f + F_r)/m
+
+With F = C·α this *is* the linear model, and the filter is lab 06's KF (a test holds them equal).
+
+EKF step (x = [β, r], z = [r, a_y]): the Jacobian J = ∂f/∂x is the linear model's A with Cf, Cr replaced
+by the local slopes k = dF/dα (:meth:`kfkit.vehicle.MagicFormula.slope`), and ∂a_y/∂x its C row::
+
+    predict   x⁻ = x + φ₁(J dt)·f(x, δ_{k−1})·dt,  φ₁(z) = (eᶻ − 1)/z    (exact when f is linear)
+              P⁻ = Ad P Adᵀ + Qd,  Ad = e^{J dt},  Qd = ∫₀^dt e^{Jτ} Q e^{Jᵀτ} dτ (Simpson's rule)
+    update    y = z − [r⁻, a_y(x⁻, δ_k)],  H = [[0, 1], ∂a_y/∂x],  then the KF update
+
+e^{J dt} and φ₁(J dt) of the 2×2 matrix come in closed form from its eigenvalues (Cayley–Hamilton), not
+scipy's expm: 15× faster and the same to rounding.
+
+Settings derived from physics and the sensors, none fitted to a drive's β (lab 06, part 9, shows how):
+
+* ``accel_noise`` 0.5 m/s²: a car body's accelerometer sees engine, road and wheel vibration that an ESC
+  cluster's sensor datasheet does not list. On the race-track log's straights (|a_y| < 1 m/s²,
+  |r| < 0.02 rad/s, no β needed) a_y scatters by 0.55 m/s² (σ) about its local mean. A filter that
+  believes 0.05 m/s² trusts each vibrating sample as a β measurement; a too-large σ only costs a
+  little on a quiet sensor (the bundled slaloms keep ≤ 0.03°).
+* ``stiffness_std`` 0.2: each axle's force from its curve is known to ±20 % (cornering stiffness and
+  friction vary with load, temperature, pressure and wear; published values are chosen, not measured).
+  The a_y update's variance grows accordingly: R_ay = σ_a² + ε²(F_f² + F_r²)/m², so at 1 g the
+  measurement says less about β than in a gentle bend, and the filter leans on its model where the tyres
+  are least certain.
+* ``gyro_noise``, ``q_beta``, ``q_r``, ``v_min``, ``beta_low_std`` as lab 06's KF (:class:`SideslipSettings`).
+
+Below ``v_min`` the filter hands over to the same kinematic guard as the KF (β = b·δ/L, yaw-rate update).
+"""
+from __future__ import annotations
+
+import cmath
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..vehicle import BicycleParams, axle_tyres
+from .linear import configure, require_positive
+from .sideslip import SideslipRun, _as_inputs, _blas_controller, _low_speed_step, _step2
+
+
+@dataclass(frozen=True)
+class TyreEkfSettings:
+    """Tuning of :class:`SideslipEKF` (the module doc says where each default comes from).
+
+    q_beta         process noise on β̇, rad²/s                                                   1e-4
+    q_r            process noise on ṙ, rad²/s³                                                  1e-3
+    gyro_noise     yaw-rate σ per sample, rad/s                                                0.003
+    accel_noise    lateral-acceleration σ per sample (vibration included), m/s²                 0.5
+    stiffness_std  relative σ of each axle's tyre force (stiffness and friction), 1              0.2
+    v_min          below this speed the kinematic β = b·δ/L is used, m/s                         2.0
+    beta_low_std   σ of that kinematic β, rad                                                     1°
+    """
+
+    q_beta: float = 1e-4
+    q_r: float = 1e-3
+    gyro_noise: float = 0.003
+    accel_noise: float = 0.5
+    stiffness_std: float = 0.2
+    v_min: float = 2.0
+    beta_low_std: float = math.radians(1.0)
+
+    def __post_init__(self):
+        require_positive("TyreEkfSettings", zero_ok=("stiffness_std",),
+                         **{name: getattr(self, name) for name in self.__dataclass_fields__})
+
+
+def matrix_function_2x2(M, g, dg):
+    """g(M) for a real 2×2 matrix M as (α, β) with g(M) = α I + β M (Cayley–Hamilton).
+
+    From M's eigenvalues λ₁,₂ = s ± √(s² − det M), s = tr M / 2 (complex for a yaw oscillation):
+    β = (g(λ₁) − g(λ₂))/(λ₁ − λ₂), α = g(λ₁) − β λ₁; for λ₁ ≈ λ₂ the limit β = g′(s), α = g(s) − s g′(s).
+    ``g`` and its derivative ``dg`` take and return complex numbers.
+    """
+    (m11, m12), (m21, m22) = M
+    s = 0.5 * (m11 + m22)
+    root = cmath.sqrt(s * s - (m11 * m22 - m12 * m21))
+    if abs(root) < 1e-7 * (1.0 + abs(s)):
+        beta = dg(s)
+        alpha = g(s) - s * beta
+    else:
+        l1, l2 = s + root, s - root
+        beta = (g(l1) - g(l2)) / (l1 - l2)
+        alpha = g(l1) - beta * l1
+    return alpha.real, beta.real
+
+
+def _phi1(z):
+    """φ₁(z) = (eᶻ − 1)/z, its series near 0."""
+    return (cmath.exp(z) - 1.0) / z if abs(z) > 1e-4 else 1.0 + z / 2.0 + z * z / 6.0
+
+
+def _dphi1(z):
+    """φ₁′(z) = (z eᶻ − eᶻ + 1)/z², its series near 0."""
+    return (z * cmath.exp(z) - cmath.exp(z) + 1.0) / (z * z) if abs(z) > 1e-3 else 0.5 + z / 3.0 + z * z / 8.0
+
+
+def _expm2(M):
+    """e^M of a 2×2 matrix (numpy array)."""
+    a, b = matrix_function_2x2(M, cmath.exp, cmath.exp)
+    return a * np.eye(2) + b * M
+
+
+class SideslipEKF:
+    """Sideslip β with saturating tyres (module doc); the contract of :class:`~kfkit.filters.SideslipKF`.
+
+    dt        nominal sample interval, s (the first step's)
+    params    the car (:class:`BicycleParams`; its Cf, Cr, mu shape the default tyres)
+    settings  :class:`TyreEkfSettings`; keyword changes apply on top
+    tyres     (front, rear) axle curves with ``force(α)`` (N) and ``slope(α)`` (N/rad); default
+              :func:`kfkit.vehicle.axle_tyres` (magic formula)
+    x0, P0    initial state (default 0) and covariance (default diag((2°)², (2°/s)²))
+    """
+
+    def __init__(self, dt, params: BicycleParams = BicycleParams(), settings: TyreEkfSettings | None = None, *,
+                 tyres=None, x0=None, P0=None, **changes):
+        require_positive("SideslipEKF", dt=dt)
+        self.dt, self.params = float(dt), params
+        self.settings = configure(TyreEkfSettings, settings, changes, "SideslipEKF")
+        self.front, self.rear = axle_tyres(params) if tyres is None else tyres
+        self._kinematic_gain = params.b / params.wheelbase
+        self.reset(x0, P0)
+
+    def reset(self, x0=None, P0=None):
+        """Set the state (default 0) and covariance (default diag((2°)², (2°/s)²)); forget δ_{k−1}."""
+        self.x = np.zeros(2) if x0 is None else np.asarray(x0, dtype=float).reshape(2).copy()
+        self.P = np.diag([math.radians(2.0) ** 2] * 2) if P0 is None else np.asarray(P0, dtype=float).reshape(2, 2).copy()
+        self._delta_prev = None
+
+    def axle_forces(self, beta, r, delta, vx):
+        """(F_f, F_r, k_f, k_r): axle forces (N) and their slopes dF/dα (N/rad) at the state, steering and speed."""
+        p = self.params
+        alpha_f, alpha_r = delta - beta - p.a * r / vx, -beta + p.b * r / vx
+        return (float(self.front.force(alpha_f)), float(self.rear.force(alpha_r)),
+                float(self.front.slope(alpha_f)), float(self.rear.slope(alpha_r)))
+
+    def jacobian(self, kf, kr, vx):
+        """J = ∂[β̇, ṙ]/∂[β, r] (the linear model's A with the local slopes) and ∂a_y/∂[β, r] (its C row)."""
+        p = self.params
+        lat = (p.b * kr - p.a * kf)
+        J = np.array([[-(kf + kr) / (p.m * vx), lat / (p.m * vx * vx) - 1.0],
+                      [lat / p.Iz, -(p.a * p.a * kf + p.b * p.b * kr) / (p.Iz * vx)]])
+        return J, (-(kf + kr) / p.m, lat / (p.m * vx))
+
+    def step(self, delta, yaw_rate, ay, vx, dt=None):
+        """One sample (as :meth:`SideslipKF.step <kfkit.filters.SideslipKF.step>`) → Step(x, P, y, S)."""
+        st, p = self.settings, self.params
+        dt = self.dt if dt is None else dt
+        delta_prev = delta if self._delta_prev is None else self._delta_prev
+        self._delta_prev = delta
+        if vx < st.v_min:
+            y, S = np.full(2, np.nan), np.full((2, 2), np.nan)
+            self.x, self.P, y[0], S[0, 0] = _low_speed_step(self.x, self.P, yaw_rate, delta * self._kinematic_gain,
+                                                            st.beta_low_std ** 2, st.q_r * dt, 0.0, st.gyro_noise ** 2)
+            return self.x, self.P, y, S
+        beta, r = self.x.tolist()
+        ff, fr, kf, kr = self.axle_forces(beta, r, delta_prev, vx)
+        J, _ = self.jacobian(kf, kr, vx)
+        Jdt = J * dt
+        a, b = matrix_function_2x2(Jdt, _phi1, _dphi1)
+        x_prior = self.x + (a * np.eye(2) + b * Jdt) @ np.array([(ff + fr) / (p.m * vx) - r, (p.a * ff - p.b * fr) / p.Iz]) * dt
+        Ad, Ah = _expm2(Jdt), _expm2(0.5 * Jdt)
+        Q = np.diag([st.q_beta, st.q_r])
+        Qd = (Q + 4.0 * Ah @ Q @ Ah.T + Ad @ Q @ Ad.T) * (dt / 6.0)
+        ff, fr, kf, kr = self.axle_forces(*x_prior.tolist(), delta, vx)
+        _, (c21, c22) = self.jacobian(kf, kr, vx)
+        offset = x_prior - Ad @ self.x  # the predict's x⁻ = Ad x + offset, in _step2's Ad x + Bd·1 form
+        d2 = (ff + fr) / p.m - c21 * x_prior[0] - c22 * x_prior[1]  # a_y(x⁻) = C x⁻ + d2·1
+        R = np.diag([st.gyro_noise ** 2, st.accel_noise ** 2 + (st.stiffness_std / p.m) ** 2 * (ff * ff + fr * fr)])
+        m = (*Ad.ravel().tolist(), *offset.tolist(), Qd[0, 0], Qd[0, 1], Qd[1, 1], c21, c22, d2)
+        self.x, self.P, y, S = _step2(self.x, self.P, 1.0, (yaw_rate, ay), 1.0, m, R)
+        return self.x, self.P, y, S
+
+    def run(self, t, delta, yaw_rate, ay, vx, x0=None, P0=None) -> SideslipRun:
+        """:meth:`step` over a drive (inputs as :meth:`SideslipKF.run <kfkit.filters.SideslipKF.run>`)."""
+        d = _as_inputs(t, delta, yaw_rate, ay, vx)
+        self.reset(x0, P0)
+        ts, N = d["t"].tolist(), len(d["t"])
+        xs, Ps, ys, Ss = np.empty((N, 2)), np.empty((N, 2, 2)), np.empty((N, 2)), np.empty((N, 2, 2))
+        with _blas_controller().limit(limits=1, user_api="blas"):
+            for k, (dk, rk, ak, vk) in enumerate(zip(d["delta"].tolist(), d["yaw_rate"].tolist(), d["ay"].tolist(),
+                                                     d["vx"].tolist())):
+                xs[k], Ps[k], ys[k], Ss[k] = self.step(dk, rk, ak, vk, ts[k] - ts[k - 1] if k else None)
+        return SideslipRun(xs, Ps, ys, Ss, vx=d["vx"], low_speed=d["vx"] < self.settings.v_min)
