@@ -89,6 +89,28 @@ def bundled_inputs():
     return rec.t, rec.body("gyr")[:, 0], roll_acc, rec["true_roll"], rec.t < STILL_SECONDS
 
 
+REAL_RECORDING = "01_broad_slow_rotation"
+#: BROAD trial 02 turns mostly about x until its pitch first passes this (at 102 s), then about all axes
+REAL_MAX_PITCH = np.radians(15.0)
+
+
+def real_excerpt():
+    """The real recording of lab 01's section 10: BROAD trial 02 from its start (the first rest: bias, x0 and r)
+    to the end of its rotations mostly about x, where |pitch| first exceeds :data:`REAL_MAX_PITCH` in the movement.
+
+    ``true_roll`` is made continuous (np.unwrap over the samples the markers saw, NaN kept): the rotations pass
+    ±180°, and the lab's 1-D filter does not wrap its innovation, so it is fed np.unwrap of the accelerometer roll.
+    """
+    rec = datasets.load(REAL_RECORDING)
+    tilted = rec.phase("movement") & (np.abs(rec["true_pitch"]) > REAL_MAX_PITCH)
+    excerpt = rec.head(rec.t[np.argmax(tilted)] - rec.t[0])
+    roll = excerpt["true_roll"].copy()
+    seen = ~np.isnan(roll)
+    roll[seen] = np.unwrap(roll[seen])
+    excerpt.data["true_roll"] = roll
+    return excerpt
+
+
 def _beats_cases(rng):
     t, gyro, roll_acc, truth, still = bundled_inputs()
     dt = float(t[1] - t[0])

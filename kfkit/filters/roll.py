@@ -105,7 +105,7 @@ def roll_kf(gyro_rate, roll_acc, dt, q, r, x0=None, P0=1.0) -> FilterRun:
 def roll_kf_steady_state(q, r):
     """Steady-state prior variance P⁻∞ and gain K∞ of the scalar roll filter.
 
-    P⁻ solves P⁻² − q·P⁻ − q·r = 0, so P⁻ = (q + √(q² + 4qr)) / 2 and K = P⁻ / (P⁻ + r).
+    P⁻ solves (P⁻)² − q·P⁻ − q·r = 0, so P⁻ = (q + √(q² + 4qr)) / 2 and K = P⁻ / (P⁻ + r).
     The filter then is the complementary filter x ← (1 − K)(x + ω dt) + K·z.
     """
     P_prior = 0.5 * (q + np.sqrt(q * q + 4.0 * q * r))
