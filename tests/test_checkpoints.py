@@ -74,6 +74,7 @@ RIGHT = {
     "03.counts_to_ut": lambda counts: counts * 0.15,
     "03.alignment": lambda turns: np.diag([np.sign(np.sum(g * m)) for g, m in (turns[a] for a in "xyz")]),
     "03.mag_calibration": C.fit_mag_calibration, "03.heading_error": C.fit_mag_calibration,
+    "03.real_magnet": C.fit_mag_calibration,
     "03.flat_heading": frames.mag_heading,
     "03.tilt_heading": frames.tilt_compensated_heading,
     "04.euler_rates": filters.euler_rates,

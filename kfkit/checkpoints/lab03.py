@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.ndimage import median_filter
 from scipy.spatial.transform import Rotation
 
 from .. import calibration, datasets
 from ..frames import MAG_FIELD_LONDON, accel_tilt, declination, mag_heading, tilt_compensated_heading, wrap_angle
+from ..metrics import angle_error, rmse
 from ..sensors import iis2mdc_mag
 from . import Case, Checkpoint, compare, fmt, fmt_pair, matches, register, structural
 
@@ -209,6 +211,75 @@ def _judge_heading_recording(case, got):
             f"{np.degrees(case.expected):.1f}°), allowed {HEADING_LIMIT_DEG:g}°")
 
 
+# --- the real recording: BROAD trial 34, a magnet attached to the IMU -------------------------------------
+
+REAL_MAGNET = "03_broad_attached_magnet"
+MAGNET_SIGMAS = 5.0     # the magnet is on where |m| (smoothed) is this many noise σ from the rests' field
+MAGNET_SMOOTH_S = 0.5   # s: the running median of |m| that is judged, so single noisy samples do not count
+REAL_BAR_FACTOR = 2.0   # the calibrated heading error allowed, × the same IMU's error with the magnet off
+
+
+def magnet_window(rec):
+    """Where a magnet sits on the board, from |m| alone, and the field without it.
+
+    B (µT) is the median |m| over the ``rest`` phases, σ its noise there (1.4826·MAD, robust to a few seconds
+    with the magnet); the magnet is on from the first to the last sample where the running median of |m| over
+    :data:`MAGNET_SMOOTH_S` lies more than :data:`MAGNET_SIGMAS`·σ from B (in between, the magnet's field can
+    add to the Earth's to about B, so the samples between count too). Returns (mask (N,), B, σ)."""
+    norm = np.linalg.norm(rec.body("mag"), axis=1)
+    rest = norm[rec.phase("rest")]
+    B = float(np.median(rest))
+    sigma = float(1.4826 * np.median(np.abs(rest - B)))
+    width = max(1, int(round(MAGNET_SMOOTH_S * rec.rate_hz))) | 1
+    off = np.flatnonzero(np.abs(median_filter(norm, size=width, mode="nearest") - B) > MAGNET_SIGMAS * sigma)
+    mask = np.zeros(len(rec), dtype=bool)
+    if off.size:
+        mask[off[0]:off[-1] + 1] = True
+    return mask, B, sigma
+
+
+def true_tilt_heading_error(mag, truth):
+    """RMS (rad) of the tilt-compensated heading of ``mag`` (N, 3) µT, body, against the motion capture's
+    ``truth`` (N, 3) [roll, pitch, yaw], with the motion capture's roll and pitch (so only the magnetometer is
+    judged) and no declination (BROAD's yaw is relative to the lab's magnetic north); NaN rows of the truth are
+    left out."""
+    psi = tilt_compensated_heading(mag, truth[:, 0], truth[:, 1])
+    return float(rmse(angle_error(psi, truth[:, 2]), 0.0))
+
+
+def _real_magnet_cases(rng):
+    rec = datasets.load(REAL_MAGNET)
+    magnet, B, _ = magnet_window(rec)
+    moving = rec.phase("movement")
+    mag, truth = rec.body("mag"), rec.truth()
+    on, off = magnet & moving, moving & ~magnet
+    budget = {"on": true_tilt_heading_error(mag[on], truth[on]), "off": true_tilt_heading_error(mag[off], truth[off]),
+              "truth": truth[on]}
+    return [Case({"mag": mag[on], "field_norm": B}, budget, "BROAD trial 34, the tumbling with the magnet on")]
+
+
+def _judge_real_magnet(case, got):
+    """The heading error after the student's fit against REAL_BAR_FACTOR × the error of the same IMU, same trial,
+    with the magnet off (both with the motion capture's tilt). What a right fit leaves is the magnetometer's
+    noise, the truth's own error and the authors' calibration residual: about that error; the factor 2 covers how
+    much that error changes with the motion (trial 02's movement: 3.2°, trial 34's without the magnet: 5.4°).
+    A hard iron left in (32°) or misfit by more than ≈ 2.5 µT of the 15.5 µT horizontal field fails."""
+    try:
+        h, S = (np.asarray(g, dtype=float) for g in got)
+    except (TypeError, ValueError) as e:
+        return f"expected (hard_iron (3,), soft_iron (3, 3)), got something else ({e})"
+    if h.shape != (3,) or S.shape != (3, 3):
+        return f"expected shapes (3,) and (3, 3), got {h.shape} and {S.shape}"
+    budget = case.expected
+    after = true_tilt_heading_error(calibration.apply_mag_calibration(case.args["mag"], h, S), budget["truth"])
+    allowed = REAL_BAR_FACTOR * budget["off"]
+    if after <= allowed:
+        return None
+    return (f"with your fit the heading errs by {np.degrees(after):.1f}° RMS while the magnet is on (uncalibrated "
+            f"{np.degrees(budget['on']):.1f}°, the same IMU with the magnet off {np.degrees(budget['off']):.1f}°), "
+            f"allowed {np.degrees(allowed):.1f}°: your hard iron h = {fmt(h)} µT is not the magnet's")
+
+
 register(
     Checkpoint("03.counts_to_ut", "counts_to_ut", _counts_cases, _judge_counts, points=1,
                hint="the IIS2MDC gives 1.5 mG per count; convert gauss to µT."),
@@ -226,4 +297,8 @@ register(
     Checkpoint("03.heading_error", "mag_calibration", _calibration_recording_cases, _judge_heading_recording, points=2,
                what="bundled recording",
                hint="if 03.mag_calibration passes, check that you pass only rows with a magnetometer sample (no NaN)."),
+    Checkpoint("03.real_magnet", "mag_calibration", _real_magnet_cases, _judge_real_magnet, points=1,
+               what="bundled real recording",
+               hint="h is the fitted ellipsoid's centre in µT (undo the centring and scaling); the mean of the readings "
+                    "is that centre only when the tumbling covers the sphere evenly, which a real one never does."),
 )
