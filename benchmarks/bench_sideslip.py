@@ -1,5 +1,6 @@
 """Sideslip filter: speed of estimate_sideslip vs filterpy on the same model, what the one-BLAS-thread limit
-buys, and β RMSE per model and drive (the README's results table).
+buys, β RMSE per model and drive (the README's results table), and β RMSE on the real race-track log (the bundled
+half, and the shared file when present): open-loop linear model, linear KF with its defaults, the default EKF.
 
     python benchmarks/bench_sideslip.py
 
@@ -20,8 +21,11 @@ import numpy as np
 from filterpy.kalman import KalmanFilter as FilterpyKF
 from threadpoolctl import threadpool_limits
 
+from pathlib import Path
+
 from kfkit import datasets, vehicle
 from kfkit.filters import compare_estimators, estimate_sideslip, sideslip
+from kfkit.readers import load_vehicle_csv
 from kfkit.metrics import rmse
 from timing import best_of
 
@@ -53,11 +57,11 @@ def speed_table():
     for label in ("slalom 80 km/h", "lane change 60 km/h"):
         rec = datasets.load(DRIVES[label])
         sig = [rec[c] for c in SIGNALS]
-        ours = estimate_sideslip(*sig, CAR).beta
+        ours = estimate_sideslip(*sig, CAR, model=vehicle.linear_model).beta
         theirs = filterpy_sideslip(*sig)
         agree = np.max(np.abs(ours - theirs))
-        t_ours = best_of(lambda: estimate_sideslip(*sig, CAR), clock=time.process_time)
-        t_bias = best_of(lambda: estimate_sideslip(*sig, CAR, bias_ay=True), clock=time.process_time)
+        t_ours = best_of(lambda: estimate_sideslip(*sig, CAR, model=vehicle.linear_model), clock=time.process_time)
+        t_bias = best_of(lambda: estimate_sideslip(*sig, CAR, model=vehicle.linear_model, bias_ay=True), clock=time.process_time)
         with threadpool_limits(1, user_api="blas"):
             t_fp = best_of(lambda: filterpy_sideslip(*sig), clock=time.process_time)
         n = len(rec)
@@ -86,7 +90,7 @@ def blas_table(repeats=7):
             with patch:
                 for _ in range(repeats):
                     w, c = time.perf_counter(), time.process_time()
-                    estimate_sideslip(*sig, CAR, bias_ay=bias)
+                    estimate_sideslip(*sig, CAR, model=vehicle.linear_model, bias_ay=bias)
                     walls.append(time.perf_counter() - w)
                     cpus.append(time.process_time() - c)
             name = ("+bias state, " if bias else "") + label
@@ -100,14 +104,42 @@ def rmse_table():
         for est, beta in compare_estimators(rec, CAR).items():
             table.setdefault(est, {})[label] = np.degrees(rmse(beta, rec["true_beta"]))
         for factor in (0.8, 1.2):
-            beta = estimate_sideslip(*(rec[c] for c in SIGNALS), CAR.scaled(factor)).beta
+            beta = estimate_sideslip(*(rec[c] for c in SIGNALS), CAR.scaled(factor), model=vehicle.linear_model).beta
             table.setdefault(f"KF, C ×{factor:g}", {})[label] = np.degrees(rmse(beta, rec["true_beta"]))
     print(f"\n{'β RMSE (°)':24s}" + "".join(f"{s:>21s}" for s in DRIVES))
     for est, row in table.items():
         print(f"{est:24s}" + "".join(f"{row[s]:21.3f}" for s in DRIVES))
 
 
+SHARED_TRACK = Path(__file__).resolve().parents[2] / "shared/data/racetrack/racetrack_first_half.csv"
+TRACK_COLUMNS = {"t": "t_s", "delta": "steer_road_wheel_rad", "yaw_rate": "yaw_rate_rad_s", "ay": "ay_cg_m_s2",
+                 "vx": "vx_m_s", "true_beta": "beta_true_rad"}
+
+
+def real_table():
+    """β RMSE (°, first 5 samples skipped) on the real race-track log with the published parameters."""
+    bundled = datasets.load("06_racetrack")
+    car = vehicle.BicycleParams(**bundled.meta["vehicle"])
+    logs = {"bundled 06_racetrack": bundled}
+    if SHARED_TRACK.exists():
+        logs["shared first half"] = load_vehicle_csv(SHARED_TRACK, TRACK_COLUMNS)
+    estimators = {"open loop (linear, no a_y)": dict(model=vehicle.linear_model, accel_noise=1e6),
+                  "linear KF, defaults": dict(model=vehicle.linear_model), "EKF, saturating tyres (default)": {}}
+    print(f"\n{'β RMSE (°), race track':32s}" + "".join(f"{name:>22s}" for name in logs) + f"{'CPU (s)':>9s}")
+    for label, kwargs in estimators.items():
+        row, cpu = [], 0.0
+        for rec in logs.values():
+            c = time.process_time()
+            beta = estimate_sideslip(*(rec[k] for k in SIGNALS), car, **kwargs).beta
+            cpu += time.process_time() - c
+            row.append(np.degrees(rmse(beta[5:], rec["true_beta"][5:])))
+        print(f"{label:32s}" + "".join(f"{v:22.3f}" for v in row) + f"{cpu:9.1f}")
+    print(f"{'true β (RMS)':32s}" + "".join(f"{np.degrees(rmse(0 * r['true_beta'][5:], r['true_beta'][5:])):22.3f}"
+                                               for r in logs.values()))
+
+
 if __name__ == "__main__":
     speed_table()
     blas_table()
     rmse_table()
+    real_table()

@@ -25,7 +25,7 @@ Settings derived from physics and the sensors, none fitted to a drive's β (lab 
 
 * ``accel_noise`` 0.5 m/s²: a car body's accelerometer sees engine, road and wheel vibration that an ESC
   cluster's sensor datasheet does not list. On the race-track log's straights (|a_y| < 1 m/s²,
-  |r| < 0.02 rad/s, no β needed) a_y scatters by 0.55 m/s² (σ) about its local mean. A filter that
+  |r| < 0.02 rad/s, 14 % of the log, no β needed) a_y has σ = 0.55 m/s². A filter that
   believes 0.05 m/s² trusts each vibrating sample as a β measurement; a too-large σ only costs a
   little on a quiet sensor (the bundled slaloms keep ≤ 0.03°).
 * ``stiffness_std`` 0.2: each axle's force from its curve is known to ±20 % (cornering stiffness and
