@@ -1,8 +1,36 @@
 """Shared by every test: no figure outlives the test that drew it (a helper's figures piling up across
-tests made matplotlib warn about memory)."""
+tests made matplotlib warn about memory); the longest test modules are handed out first.
+
+Scheduling: pytest-xdist's ``--dist loadscope`` keeps each module (and each notebook's nbval cells) on one
+worker and, with ``--no-loadscope-reorder`` (pyproject), hands the modules out in collection order. Left to
+its default it orders them by their number of tests, so a module of a few long tests (the browser run of
+every notebook, the grading of every lab) could start last and leave one worker running it alone for
+minutes. :func:`pytest_collection_modifyitems` moves the known long modules to the front, longest first.
+"""
 import sys
 
 import pytest
+
+#: the longest test modules and notebooks, longest first (CPU time on the 2-core machine; see the README's
+#: "Tests" section); everything else keeps pytest's order after them
+LONGEST_FIRST = (
+    "tests/browser/",
+    "tests/test_grading.py",
+    "tests/test_notebooks.py",
+    "tests/test_lab04_notebook.py",
+    "solutions/04_ekf_attitude.ipynb",
+    "tests/test_grading_isolation.py",
+    "tests/test_calibration_labs.py",
+)
+
+
+def _rank(item) -> int:
+    path = item.nodeid.split("::", 1)[0]
+    return next((i for i, prefix in enumerate(LONGEST_FIRST) if path.startswith(prefix)), len(LONGEST_FIRST))
+
+
+def pytest_collection_modifyitems(items):
+    items.sort(key=_rank)  # stable: each module's own order is kept
 
 
 @pytest.fixture(autouse=True)
