@@ -351,3 +351,16 @@ def test_nis_plot_of_an_update_that_never_happened_draws_no_band():
     fig = plots.nis_plot(t, np.full(len(t), np.nan), dof=3)
     band = next(c for c in fig.axes[0].collections if c.get_label() == "95 % bounds, average")
     assert band.get_paths() == []  # no valid sample in any window: no average, no bounds
+
+
+def test_rmse_table_rotation_leaves_out_rows_whose_truth_is_missing(attitude):
+    # Motion capture loses its markers now and then (BROAD: NaN rows); the rotation column is the RMSE of the rows
+    # that have a truth, the rotation angle between the two attitudes by scipy.
+    t, truth, good, _, _, _ = attitude
+    gappy = truth.copy()
+    gappy[50:80] = np.nan
+    lines = []
+    plots.rmse_table({"good": good}, gappy, rotation=True, out=lines.append)
+    keep = ~np.isnan(gappy[:, 0])
+    angle = (Rotation.from_euler("ZYX", good[keep][:, ::-1]).inv() * Rotation.from_euler("ZYX", truth[keep][:, ::-1])).magnitude()
+    assert float(lines[-1].split()[-1]) == pytest.approx(np.degrees(np.sqrt(np.mean(angle ** 2))), abs=0.006)
