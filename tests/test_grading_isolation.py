@@ -1,8 +1,9 @@
 """The grading sandbox seen from inside: nothing of the instructor's is there, nothing of the host
 is reachable (no kernel needed: small programs run exactly the way kernels are launched).
 
-The walk test reads the whole readable file system from inside and fails on any solution text,
-any git repository and any socket file but the box's own; a control run of the same walker over
+The walk test reads the whole readable file system from inside (less what is compiled or compressed, told by
+its first bytes: no plain source text to find there) and fails on any solution text, any git repository and any socket file but
+the box's own; a control run of the same walker over
 a planted folder outside the sandbox proves it finds each of those.
 """
 import json
@@ -31,7 +32,10 @@ args = json.loads(sys.argv[1])
 top, box, big = args["top"], args.get("box", "\0"), args["big"]
 skip = set(args.get("skip", []))
 found = {"solutions": [], "repositories": [], "sockets": [], "big_text": [], "files": 0, "bytes": 0, "big": 0,
-         "unreadable": 0}
+         "compiled": 0, "unreadable": 0}
+# compiled or compressed, by their first bytes: ELF, static library, Python bytecode (its magic ends in \r\n),
+# gettext catalogue, gzip, zip: no plain source text to find (a compressed marker is invisible to a text search)
+COMPILED = (b"\x7fELF", b"!<ar", b"\xde\x12\x04\x95", b"\x95\x04\x12\xde", b"\x1f\x8b", b"PK\x03\x04")
 t0, c0 = time.monotonic(), time.process_time()
 stack = [top]
 while stack:
@@ -63,6 +67,11 @@ while stack:
             try:
                 with open(path, "rb") as f:
                     size = os.fstat(f.fileno()).st_size
+                    magic = f.read(4)
+                    if magic.startswith(COMPILED) or (path.endswith(".pyc") and magic[2:4] == b"\r\n"):
+                        found["compiled"] += 1
+                        continue
+                    f.seek(0)
                     if size > big:  # binary (a NUL in its first 64 kB): counted, not searched
                         found["big"] += 1
                         head = f.read(65536)
@@ -109,6 +118,8 @@ def test_the_walker_finds_planted_solutions_repositories_sockets_and_big_text(tm
     (tmp_path / "checkout" / ".git").mkdir(parents=True)
     (tmp_path / "big.txt").write_text("x" * (BIG + 5) + "### BEGIN SOLUTION")
     (tmp_path / "big.bin").write_bytes(b"\0" * (BIG + 1))
+    (tmp_path / "lib.so").write_bytes(b"\x7fELF" + b"\0" * 60 + b"### BEGIN SOLUTION")  # compiled: not searched
+    (tmp_path / "mod.pyc").write_bytes(b"\xa7\r\r\n" + b"\0" * 12 + b"### BEGIN SOLUTION")
     with socket.socket(socket.AF_UNIX) as s:
         s.bind(str(tmp_path / "listener.sock"))
         done = subprocess.run([sys.executable, "-c", WALK, json.dumps({"top": str(tmp_path), "big": BIG})],
@@ -117,7 +128,7 @@ def test_the_walker_finds_planted_solutions_repositories_sockets_and_big_text(tm
     assert sorted(found["solutions"]) == [str(tmp_path / "big.txt"), str(tmp_path / "copy" / "lab.ipynb")]
     assert sorted(found["repositories"]) == [str(tmp_path / "checkout" / ".git"), str(tmp_path / "renamed_bare")]
     assert found["sockets"] == [str(tmp_path / "listener.sock")]
-    assert found["big_text"] == [str(tmp_path / "big.txt")] and found["big"] == 2
+    assert found["big_text"] == [str(tmp_path / "big.txt")] and found["big"] == 2 and found["compiled"] == 2
 
 
 def test_nothing_readable_inside_holds_a_solution_a_repository_or_a_host_socket(tmp_path):
@@ -129,7 +140,7 @@ def test_nothing_readable_inside_holds_a_solution_a_repository_or_a_host_socket(
     t0 = time.monotonic()
     found = run_inside(box, WALK, args)
     wall = time.monotonic() - t0
-    print(f"\nwalk ({mode}): {found['files']} files, {found['bytes'] / 1e6:.0f} MB read, {found['big']} binary "
+    print(f"\nwalk ({mode}): {found['files']} files ({found['compiled']} compiled or compressed), {found['bytes'] / 1e6:.0f} MB read, {found['big']} binary "
           f"files over {BIG >> 20} MB skipped ({len(found['big_text'])} text ones searched), {found['unreadable']} "
           f"unreadable; {found['wall']:.1f} s wall, "
           f"{found['cpu']:.1f} s CPU inside; {wall:.1f} s with the sandbox's start")
