@@ -16,7 +16,7 @@ from scipy.linalg import expm
 from kfkit import datasets
 from kfkit import vehicle as V
 from kfkit.filters import SideslipEKF, TyreEkfSettings, estimate_sideslip
-from kfkit.filters.sideslip_ekf import _dphi1, _phi1, matrix_function_2x2
+from kfkit.filters.sideslip_ekf import EXP, EXP_HALF, PHI1, matrix_functions_2x2
 from kfkit.metrics import rmse
 from kfkit.readers import load_vehicle_csv
 
@@ -59,12 +59,12 @@ def test_tyre_slope_is_the_derivative_of_the_force(alpha):
                                [[0.0, 0.0], [0.0, 0.0]]])
 def test_closed_form_matrix_functions_match_scipy(M):
     M = np.array(M) * 0.05
-    a, b = matrix_function_2x2(M, np.exp, np.exp)
-    np.testing.assert_allclose(a * np.eye(2) + b * M, expm(M), rtol=1e-10, atol=1e-14)
+    (a1, b1), (a2, b2), (a3, b3) = matrix_functions_2x2(M, EXP, EXP_HALF, PHI1)
+    np.testing.assert_allclose(a1 * np.eye(2) + b1 * M, expm(M), rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(a2 * np.eye(2) + b2 * M, expm(M / 2), rtol=1e-10, atol=1e-14)
     aug = np.zeros((3, 3))
-    aug[:2, :2], aug[:2, 2] = M, [0.7, -1.3]
-    a, b = matrix_function_2x2(M, _phi1, _dphi1)  # φ₁(M)·v is expm's top-right column of [[M, v], [0, 0]]
-    np.testing.assert_allclose((a * np.eye(2) + b * M) @ [0.7, -1.3], expm(aug)[:2, 2], rtol=1e-9, atol=1e-14)
+    aug[:2, :2], aug[:2, 2] = M, [0.7, -1.3]  # φ₁(M)·v is expm's top-right column of [[M, v], [0, 0]]
+    np.testing.assert_allclose((a3 * np.eye(2) + b3 * M) @ [0.7, -1.3], expm(aug)[:2, 2], rtol=1e-9, atol=1e-14)
 
 
 def test_with_linear_tyres_it_is_the_linear_kf():
