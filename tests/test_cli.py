@@ -4,6 +4,7 @@ import sys
 
 import nbformat
 
+from kfkit import datasets
 from kfkit.cli import main
 
 
@@ -27,6 +28,7 @@ def test_make_labs_then_check(tmp_path, capsys):
 
 def test_data_check_reports_stale_file(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("KFKIT_DATA", str(tmp_path))
+    monkeypatch.setattr(datasets, "BUNDLED", {"01_roll_sine": datasets.BUNDLED["01_roll_sine"]})  # one file: the messages
     assert main(["data", "regenerate"]) == 0
     assert main(["data", "regenerate", "--check"]) == 0
     f = next(tmp_path.glob("*.csv"))

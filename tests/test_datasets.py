@@ -19,18 +19,31 @@ def in_shakes(t, margin=0.0):
 
 
 # --- shipped files and regeneration -------------------------------------------------------
+# One full rebuild checks every shipped file; the checker's messages are tested on a few files of each kind
+# (a recording, a vehicle drive, a calibration), which go through the same code.
+FEW = (NAME, "06_lane_change", "calibration_phone-phyphox")
 
-def test_shipped_data_matches_the_simulations():
-    assert datasets.regenerate(check=True) == []
+
+@pytest.fixture()
+def few_files(monkeypatch):
+    monkeypatch.setattr(datasets, "BUNDLED", {name: datasets.BUNDLED[name] for name in FEW})
 
 
-def test_regenerate_writes_every_bundled_file(tmp_path):
+def test_regenerate_writes_every_bundled_file_byte_for_byte_as_shipped(tmp_path):
     written = datasets.regenerate(directory=tmp_path)
     assert written == [str(tmp_path / f"{name}{entry.suffix}") for name, entry in datasets.BUNDLED.items()]
+    shipped = datasets.data_dir()
+    for path in sorted(p for p in tmp_path.rglob("*") if p.is_file()):
+        rel = path.relative_to(tmp_path)
+        assert path.read_bytes() == (shipped / rel).read_bytes(), f"data/{rel} differs from what its simulation makes"
+
+
+def test_check_passes_on_what_regenerate_wrote(tmp_path, few_files):
+    datasets.regenerate(directory=tmp_path)
     assert datasets.regenerate(check=True, directory=tmp_path) == []
 
 
-def test_check_reports_a_changed_byte_with_its_line(tmp_path):
+def test_check_reports_a_changed_byte_with_its_line(tmp_path, few_files):
     datasets.regenerate(directory=tmp_path)
     path = tmp_path / f"{NAME}.csv"
     lines = path.read_text(encoding="utf-8").split("\n")
@@ -40,14 +53,14 @@ def test_check_reports_a_changed_byte_with_its_line(tmp_path):
     assert str(path) in report and "line 100" in report
 
 
-def test_check_reports_a_missing_file(tmp_path):
+def test_check_reports_a_missing_file(tmp_path, few_files):
     datasets.regenerate(directory=tmp_path)
     (tmp_path / f"{NAME}.csv").unlink()
     [report] = datasets.regenerate(check=True, directory=tmp_path)
     assert str(tmp_path / f"{NAME}.csv") in report and "missing" in report
 
 
-def test_check_reports_a_truncated_file(tmp_path):
+def test_check_reports_a_truncated_file(tmp_path, few_files):
     datasets.regenerate(directory=tmp_path)
     path = tmp_path / f"{NAME}.csv"
     lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
@@ -69,7 +82,7 @@ def test_unknown_name_lists_the_available(func):
         func("nope")
 
 
-def test_kfkit_data_overrides_the_folder(tmp_path, monkeypatch):
+def test_kfkit_data_overrides_the_folder(tmp_path, monkeypatch, few_files):
     monkeypatch.setenv("KFKIT_DATA", str(tmp_path))
     assert datasets.data_dir() == tmp_path
     with pytest.raises(FileNotFoundError, match="kfkit data regenerate") as err:

@@ -1,4 +1,4 @@
-"""The notebooks as CI sees them: labs/ run with only exercise-stub errors; labs/ and data/ are current.
+"""The notebooks as CI sees them: labs/ run with only exercise-stub errors; labs/ are current (data/: test_datasets).
 
 nbval validates solutions/ separately (pytest collects solutions/*.ipynb with --nbval-lax).
 """
@@ -9,7 +9,6 @@ import pytest
 from nbclient import NotebookClient
 
 from kfkit.authoring import make_labs
-from kfkit.datasets import regenerate
 from kfkit.paths import KIT_ROOT
 
 LABS = sorted((KIT_ROOT / "labs").glob("*.ipynb"))
@@ -62,10 +61,6 @@ def test_lab_runs_with_only_stub_errors(path):
 
 def test_labs_are_generated_from_current_solutions():
     assert make_labs(KIT_ROOT / "solutions", KIT_ROOT / "labs", check=True) == []
-
-
-def test_bundled_data_matches_its_simulations():
-    assert regenerate(check=True) == []
 
 
 def test_solution_notebooks_have_no_warnings_or_errors():
