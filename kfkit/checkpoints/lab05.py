@@ -29,6 +29,30 @@ def bundled():
     return datasets.load("05_tilt_protocol"), datasets.load("05_stationary"), datasets.load("05_six_faces")
 
 
+#: s cut from each end of a BROAD rest: its movement flag lets the hand still move there (trial 04: the gyro's σ
+#: over a whole rest is 3–7 mrad/s, without its outer 2 s 0.9–1.1 mrad/s, as in the middle of the long first rest)
+REST_TRIM = 2.0
+REAL = "05_broad_rotation_breaks"  # lab 05's real recording: rotations about all axes with rests between them
+
+
+def rest_windows(rec, trim=REST_TRIM) -> list[tuple[float, float]]:
+    """The (start, end) windows (s) of a recording's ``rest`` phases, ``trim`` s shorter at each end."""
+    return [(p["start"] + trim, p["end"] - trim) for p in rec.phases
+            if p["label"] == "rest" and p["end"] - p["start"] > 2 * trim]
+
+
+def known_angles(rec):
+    """(roll, pitch) in rad where the recording itself tells the angle, NaN elsewhere, each (N,): the tilt
+    protocol's holds (:func:`~kfkit.filters.protocol_angles`), or for a recording with motion-capture truth and
+    ``rest`` phases (BROAD) the truth during its rests (:func:`rest_windows`)."""
+    if "true_roll" not in rec.columns or not any(p["label"] == "rest" for p in rec.phases):
+        return protocol_angles(rec)
+    still = np.zeros(len(rec), dtype=bool)
+    for a, b in rest_windows(rec):
+        still |= (rec.t >= a) & (rec.t < b)
+    return tuple(np.where(still, rec[name], np.nan) for name in ("true_roll", "true_pitch"))
+
+
 def true_gyro_bias(rec) -> np.ndarray:
     """The simulated gyro bias in the body frame (rad/s): M_bs · b_s from the recording's metadata."""
     return mount_matrix(rec.meta["mount"]["gyr"]) @ np.asarray(rec.meta["sim"]["gyro_bias"], float)
