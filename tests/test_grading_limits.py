@@ -52,13 +52,23 @@ def watch(code, memory, cpu):
                 break
             time.sleep(0.1)
         proc.wait(timeout=30)
-        time.sleep(0.5)  # killed children are reaped by init meanwhile
     finally:
         proc.kill()
         proc.wait()
         dog.stop()
-    alive = [pid for pid in seen if psutil.pid_exists(pid) and psutil.Process(pid).status() != psutil.STATUS_ZOMBIE]
+    for _ in range(SAFETY * 10):  # killed children take a moment to die (freeing 400 MB on a busy machine)
+        alive = [pid for pid in seen if _running(pid)]
+        if not alive:
+            break
+        time.sleep(0.1)
     return dog, alive, len(seen)
+
+
+def _running(pid) -> bool:
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
 
 
 def test_three_children_of_400_mb_go_over_1_gb_together():
