@@ -306,3 +306,25 @@ def test_live_view_on_the_panel_starts_with_each_capture_stops_after_it_and_when
     other.canvas.close()  # its widget closed (as by the notebook): the next tick stops the timer
     other.timer._on_timer()
     assert other.timer._timer is None
+
+
+def test_tuning_sliders_start_at_their_values_even_outside_the_suggested_range(signals):
+    """A measured r below the lab's range widens the range; the browser's slider grid passes through each
+    initial value (value = 10**(min + k·step)), so its read-out shows what panel.values holds."""
+    t, truth, gyro, z = signals
+    panel = widgets.tune(lambda q, r: filters.roll_kf(gyro, z, 0.01, q, r).x, t, truth,
+                         {"q": (7.5e-11, 1e-9, 1e-2), "r": (3.3e-4, 1e-3, 1.0)})
+    assert panel.values == pytest.approx({"q": 7.5e-11, "r": 3.3e-4}, rel=1e-12)
+    for name, slider in panel.sliders.items():
+        assert 10 ** slider.min <= panel.values[name] <= 10 ** slider.max
+        k = (np.log10(panel.values[name]) - slider.min) / slider.step
+        assert abs(k - round(k)) < 1e-9, f"{name}: its value is not on the slider's grid"
+    assert 10 ** panel.sliders["q"].max >= 1e-2 and 10 ** panel.sliders["r"].max >= 1.0  # the suggested range is kept
+    with pytest.raises(ValueError, match="slider 'q'"):
+        widgets.tune(lambda q: truth, t, truth, {"q": (1e-3, 1.0, 1e-6)})
+
+
+def test_tuning_panel_without_truth_draws_no_error_line(signals):
+    t, _, gyro, z = signals
+    panel = widgets.tune(lambda q: filters.roll_kf(gyro, z, 0.01, q, 1e-3).x, t, None, {"q": (1e-6, 1e-9, 1e-2)})
+    assert not panel.err_line.get_visible() and np.isnan(panel.rmse)

@@ -15,15 +15,19 @@ class TuningPanel:
 
     ``run(**values)`` must return the estimated angle (rad) at the times ``t``. Moving a
     slider re-runs it and redraws. ``set(**values)`` does the same from code. ``truth`` None
-    (a recording of your own): the estimate and the references only, and no RMSE (NaN).
+    (a recording of your own): the estimate and the references only, no error line and no RMSE (NaN).
+
+    Each slider starts exactly at its initial value, whatever (min, max) say: the range is widened
+    to hold it (a q or r measured on a quiet board can fall below the range a lab suggests), and the
+    slider's grid of 0.05 decade is laid through it, so the browser's read-out and :attr:`values` agree.
     """
 
     def __init__(self, run, t, truth, sliders: dict, references: dict | None = None,
                  ylabel="roll", label="KF"):
         self.run, self.t, self.truth = run, np.asarray(t), None if truth is None else np.asarray(truth)
         self.sliders = {
-            name: W.FloatLogSlider(value=v0, base=10, min=np.log10(lo), max=np.log10(hi), step=0.05,
-                                   description=name, readout_format=".1e", continuous_update=True,
+            name: W.FloatLogSlider(value=v0, base=10, **_log_range(name, v0, lo, hi), description=name,
+                                   readout_format=".1e", continuous_update=True,
                                    style={"description_width": "initial"}, layout=W.Layout(width="420px"))
             for name, (v0, lo, hi) in sliders.items()
         }
@@ -36,7 +40,8 @@ class TuningPanel:
             self.ax.plot(self.t, np.degrees(values), color=COLORS[kind], ls=STYLES.get(kind, "-"), lw=0.8,
                          alpha=0.6, label=name)
         (self.line,) = self.ax.plot(self.t, np.zeros_like(self.t), color=COLORS["kf"], lw=1.4, label=label)
-        (self.err_line,) = self.ax_err.plot(self.t, np.zeros_like(self.t), color=COLORS["kf"], lw=0.9)
+        (self.err_line,) = self.ax_err.plot(self.t, np.zeros_like(self.t), color=COLORS["kf"], lw=0.9,
+                                            visible=self.truth is not None)
         self.ax.set_ylabel(f"{ylabel} (°)")
         legend_on_top(self.ax, ncols=4, fontsize=8)
         self.ax_err.set_ylabel(f"{label} error (°)")
@@ -87,6 +92,20 @@ class TuningPanel:
 
     def _repr_mimebundle_(self, **kwargs):
         return self.widget._repr_mimebundle_(**kwargs)
+
+
+STEP = 0.05  # decades per slider step
+
+
+def _log_range(name, v0, lo, hi) -> dict:
+    """FloatLogSlider's min, max, step (log10) holding ``v0`` on its grid, [lo, hi] widened to hold ``v0``."""
+    if not all(np.isfinite(v) and v > 0 for v in (v0, lo, hi)) or lo >= hi:
+        raise ValueError(f"slider {name!r}: need 0 < min < max and a positive initial value, got "
+                         f"({v0!r}, {lo!r}, {hi!r})")
+    x0 = np.log10(v0)
+    below = np.ceil(round((x0 - np.log10(min(lo, v0))) / STEP, 9))
+    above = np.ceil(round((np.log10(max(hi, v0)) - x0) / STEP, 9))
+    return {"min": x0 - below * STEP, "max": x0 + above * STEP, "step": STEP}
 
 
 def tune(run, t, truth, sliders: dict, references: dict | None = None, ylabel="roll", label="KF") -> TuningPanel:
