@@ -157,7 +157,7 @@ def _calibration_phone():
     return Calibration(board=board.name, rate_hz=board.rate_hz, gyro_noise=[board.gyro.noise_std(board.rate_hz)] * 3,
                        accel_noise=[board.accel.noise_std(board.rate_hz)] * 3, mag_noise=[board.mag.noise_std(board.rate_hz)] * 3,
                        source="kfkit default for a phone: identity (its OS removes the gyro bias and the magnetometer's "
-                              "hard iron; the accelerometer is taken as factory-calibrated); noise σ of kfkit.phone's "
+                              "hard iron; the accelerometer is taken as factory-calibrated); noise σ of kfkit.sensors.phone_board's "
                               "BMI160/AK09918-class model at 100 Hz")
 
 
