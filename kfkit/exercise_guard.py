@@ -128,15 +128,26 @@ def _outside_bodies(node: ast.AST):
 
 
 def _loaded_names(node: ast.AST) -> list[str]:
-    """Names a statement reads when it runs, except a function passed straight to ``check(...)`` (the check
-    reports a stub itself); builtins are left out."""
+    """Names a statement reads from the notebook when it runs: not those it binds itself before reading them
+    (a loop's target, a ``with … as`` name, an assignment earlier in a loop body) or in a comprehension, not
+    a function passed straight to ``check(...)`` (the check reports a stub itself), and no builtins."""
     nodes = list(_outside_bodies(node))
     skip = set()
-    for call in nodes:
-        if isinstance(call, ast.Call) and isinstance(call.func, ast.Name) and call.func.id == "check":
-            skip |= {id(a) for a in call.args[1:] if isinstance(a, ast.Name)}
-    names = [n.id for n in nodes if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load) and id(n) not in skip]
-    return [n for n in dict.fromkeys(names) if not hasattr(builtins, n)]
+    for n in nodes:
+        if isinstance(n, ast.Call) and isinstance(n.func, ast.Name) and n.func.id == "check":
+            skip |= {id(a) for a in n.args[1:] if isinstance(a, ast.Name)}
+    local = {t.id for n in nodes if isinstance(n, ast.comprehension)
+             for t in ast.walk(n.target) if isinstance(t, ast.Name)}
+    first_store = {}
+    for n in nodes:
+        if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store):
+            where = (n.lineno, n.col_offset)
+            first_store[n.id] = min(first_store.get(n.id, where), where)
+    names = sorted(((n.lineno, n.col_offset), n.id) for n in nodes
+                   if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load) and id(n) not in skip)
+    read = [name for where, name in names
+            if name not in local and not (name in first_store and first_store[name] < where)]
+    return [n for n in dict.fromkeys(read) if not hasattr(builtins, n)]
 
 
 def _assigned_names(tree: ast.AST) -> set[str]:

@@ -83,3 +83,14 @@ def test_loading_twice_installs_one_guard(shell):
     InteractiveShell.instance().run_line_magic("reload_ext", "kfkit.exercise_guard")
     guards = [t for t in InteractiveShell.instance().input_transformers_post if getattr(t, "is_exercise_guard", False)]
     assert len(guards) == 1
+
+
+def test_names_a_cell_binds_before_reading_them_are_its_own(shell):
+    """A loop target, a with-as name, an assignment earlier in a loop body, a comprehension's variable: not
+    "made by a skipped cell" even when a skipped cell also bound them."""
+    shell(STUB.format(name="board_time"))
+    shell("for v in range(2):\n    labels = board_time(v)\n")  # skipped: v and labels are missing
+    result, out = shell("import contextlib\n"
+                        "for v in range(2):\n    labels = [w * 2 for w in range(v)]\n    print(len(labels))\n"
+                        "with contextlib.nullcontext(5) as port:\n    print(port)\n")
+    assert result.success and "skipped" not in out and out.split() == ["0", "1", "5"]
