@@ -238,9 +238,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fast", action="store_true", help="the virtual board runs faster than real time (with --headless)")
     p.set_defaults(run=_demo)
 
-    from .grading import add_parser as add_grade_parser
+    from .grading import add_parser as add_grade_parser, add_report_parser
 
     add_grade_parser(sub)
+    add_report_parser(sub)
     return parser
 
 

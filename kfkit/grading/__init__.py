@@ -44,7 +44,12 @@ def __getattr__(name):
 def _cli(args) -> int:
     from .core import cli
 
-    return cli(args)
+    code = cli(args)
+    if args.report and code != 2 and Path(args.out).is_file():
+        from .report import write_report
+
+        print(f"class report: {write_report(args.out, feedback_dir=args.feedback)}")
+    return code
 
 
 def add_parser(sub):
@@ -68,8 +73,27 @@ def add_parser(sub):
     p.add_argument("--seed", type=int, default=None, help="fix the random cases (to reproduce a grade)")
     p.add_argument("--update", action="store_true",
                    help="replace only these submissions' rows in an existing gradebook (regrade one student)")
+    p.add_argument("--report", action="store_true",
+                   help="also write the HTML class report of the whole gradebook (<out stem>_report.html; kfkit report)")
     p.add_argument("--no-sandbox", action="store_true",
                    help="grade even where no isolation works (macOS, Windows): student code can then read and "
                         "change your files; by default kfkit grade refuses")
     p.set_defaults(run=_cli)
+    return p
+
+
+def _report_cli(args) -> int:
+    from .report import cli
+
+    return cli(args)
+
+
+def add_report_parser(sub):
+    """The ``report`` subcommand of ``kfkit``: a gradebook → one self-contained HTML page (see report.py)."""
+    p = sub.add_parser("report", help="a gradebook → one self-contained HTML class report (instructors)")
+    p.add_argument("gradebook", type=Path, help="the CSV kfkit grade wrote")
+    p.add_argument("--out", type=Path, default=None, help="HTML file (default: <gradebook stem>_report.html beside it)")
+    p.add_argument("--feedback", type=Path, default=None,
+                   help="the feedback folder to link (default: <gradebook stem>_feedback/, as kfkit grade writes it)")
+    p.set_defaults(run=_report_cli)
     return p

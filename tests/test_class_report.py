@@ -1,0 +1,320 @@
+"""The class report (``kfkit report``, ``kfkit grade --report``) on a gradebook of 32 graded lab-01 submissions.
+
+Where the rows come from: each submission is a set of lab-01 functions (correct ones written here, classic
+wrong ones, the hand-out's stubs raising NotImplementedError, none at all, one that loops), graded by the
+grader's own ``core.grade_checkpoints`` (cases drawn per submission, the grader's call sent through
+``wire.call_code`` and run by the kernel-side code in this process instead of a sandboxed kernel, the report
+read back with ``wire.extract``, judged by ``core.judge``); ``core.grade`` then writes the gradebook and the
+feedback files with its own writer and names (only its per-submission kernel run, ``_grade_one``, is replaced).
+A looping function is the one thing simulated: its call raises the runner's ``TimeoutError``.
+The page is opened in headless Chromium (Debian's, as in tests/browser/): DOM, requests, a screenshot.
+"""
+from __future__ import annotations
+
+import contextlib
+import csv
+import functools
+import io
+from pathlib import Path
+from urllib.parse import unquote
+
+import nbformat
+import numpy as np
+import pytest
+
+from kfkit.checkpoints import lab01
+from kfkit.cli import main
+from kfkit.grading import core, report, sandbox, wire
+
+CHECKPOINTS = core.lab_checkpoints("01")
+BOX = sandbox.Sandbox("root", True, ["/x"])
+XSS = "window.__kfkit_xss = 1"
+
+
+# ------------------------------------------------------------------ lab 01 answers: right, classic mistakes, stubs
+def accel_roll(ay, az):
+    return np.arctan2(-ay, -az)  # f_y = −g sin φ, f_z = −g cos φ
+
+
+def accel_roll_swapped(ay, az):
+    return np.arctan2(-az, -ay)
+
+
+def accel_roll_flipped(ay, az):
+    return np.arctan2(ay, -az)
+
+
+def kf_predict(x, P, omega, dt, q):
+    return x + omega * dt, P + q
+
+
+def kf_predict_no_q(x, P, omega, dt, q):
+    return x + omega * dt, P
+
+
+def kf_update(x, P, z, r):
+    y, S = z - x, P + r
+    K = P / S
+    return x + K * y, (1 - K) * P, y, S
+
+
+def kf_update_gain_over_r(x, P, z, r):
+    y, S = z - x, P + r
+    K = P / r
+    with np.errstate(over="ignore", invalid="ignore"):  # K > 1 makes run_kf diverge: that is the mistake
+        return x + K * y, (1 - K) * P, y, S
+
+
+def kf_update_raises(x, P, z, r):
+    raise ValueError(f'<img src=x onerror="{XSS}">')
+
+
+def stub(**_):
+    raise NotImplementedError()
+
+
+def make_run_kf(predict, update):
+    def run_kf(gyro_rate, roll_acc, dt, q, r, x0, P0):
+        out = np.empty((4, len(gyro_rate)))
+        x, P = x0, P0
+        for k in range(len(gyro_rate)):
+            x, P = predict(x, P, gyro_rate[k], dt, q)
+            x, P, y, S = update(x, P, roll_acc[k], r)
+            out[:, k] = x, P, y, S
+        return tuple(out)
+    return run_kf
+
+
+def answers(roll=accel_roll, predict=kf_predict, update=kf_update):
+    return {"accel_roll": roll, "kf_predict": predict, "kf_update": update, "run_kf": make_run_kf(predict, update)}
+
+
+EMPTY = {"accel_roll": stub, "kf_predict": stub, "kf_update": stub, "run_kf": stub}
+#: variant → (its functions, how many students, functions whose call times out)
+VARIANTS = {
+    "correct": (answers(), 10, ()),
+    "swapped": (answers(roll=accel_roll_swapped), 6, ()),
+    "flipped": (answers(roll=accel_roll_flipped), 3, ()),
+    "gain_over_r": (answers(update=kf_update_gain_over_r), 4, ()),
+    "no_q": (answers(predict=kf_predict_no_q), 3, ()),
+    "empty": (EMPTY, 3, ()),
+    "loops": (answers(), 1, ("run_kf",)),
+    "raises": (answers(update=kf_update_raises), 1, ()),
+    "nothing": ({}, 1, ()),
+}
+#: students whose names a browser must show as text (one of the correct ones each)
+AWKWARD = ["<script>window.__kfkit_xss = 1", f'<img src=x onerror="{XSS}">', "=HYPERLINK(1)", 'a&amp;b "q"']
+#: checkpoint → variants that pass it (the oracle: what each variant's functions do, not what the report counts)
+PASSING = {"01.accel_roll": {"correct", "gain_over_r", "no_q", "loops", "raises"},
+           "01.kf_predict": {"correct", "swapped", "flipped", "gain_over_r", "loops", "raises"},
+           "01.kf_update": {"correct", "swapped", "flipped", "no_q", "loops"},
+           "01.run_kf": {"correct", "swapped", "flipped"}}
+
+
+class InProcessRun:
+    """A :class:`kfkit.grading.runner.KernelRun` stand-in whose "kernel" is this process: the grader's call
+    cell (``wire.call_code``, the kernel-side code as the kernel runs it) executes over ``namespace``."""
+
+    cell_notes: dict = {}
+
+    def __init__(self, namespace, hangs=()):
+        self.namespace, self.hangs = namespace, hangs
+
+    def call(self, function, cases_args):
+        if function in self.hangs:
+            raise TimeoutError("timed out after 30 s")  # what KernelRun.call raises for a cell past its timeout
+        nonce, out = wire.new_nonce(), io.StringIO()
+        with contextlib.redirect_stdout(out):
+            exec(wire.call_code(function, cases_args, nonce), dict(self.namespace))
+        return wire.extract(out.getvalue(), nonce)
+
+
+def students():
+    """(file stem, variant) of each of the 32 submissions."""
+    names, n = [], 0
+    for variant, (_, count, _) in VARIANTS.items():
+        for _ in range(count):
+            stem = AWKWARD[n] if variant == "correct" and n < len(AWKWARD) else f"student_{n:02d}_{variant}"
+            names.append((stem, variant))
+            n += 1
+    return names
+
+
+@pytest.fixture(scope="module")
+def graded(tmp_path_factory):
+    """A gradebook of 32 submissions and its feedback files, written by core.grade: → (gradebook, {name: variant})."""
+    root = tmp_path_factory.mktemp("class")
+    subs = root / "submissions"
+    subs.mkdir()
+    variant_of = {}
+    for stem, variant in students():
+        nbformat.write(nbformat.v4.new_notebook(), subs / f"{stem}.ipynb")
+        variant_of[stem] = variant
+
+    def grade_one(task):
+        path, name, _lab, _box, _limits, seed = task
+        functions, _, hangs = VARIANTS[variant_of[Path(path).stem]]
+        sources = [f"def {f}(*args):\n    pass" for f in functions]
+        g = core.SubmissionGrade(name, seed or 7)
+        g.rows = list(core.grade_checkpoints(InProcessRun(functions, hangs), sources, CHECKPOINTS, g.seed))
+        return g
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.chdir(root)
+        mp.setattr(core, "_grade_one", grade_one)
+        mp.setattr(core.sb, "probe", lambda _paths: BOX)
+        mp.setattr(lab01, "bundled_inputs", functools.cache(lab01.bundled_inputs))  # read once, not 32 times
+        assert main(["grade", "--lab", "01", "--out", "gradebook.csv", "--jobs", "1", "--report", "submissions"]) == 0
+    by_name = {f"submissions/{stem}.ipynb": variant for stem, variant in variant_of.items()}
+    return root / "gradebook.csv", by_name
+
+
+def gradebook_rows(path):
+    with open(path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+def test_the_gradebook_holds_what_each_variant_deserves(graded):
+    """The rows behind the report: 32 submissions, each checkpoint passed exactly by the variants that should."""
+    path, variant_of = graded
+    rows = gradebook_rows(path)
+    assert len({core._csv_unsafe(r["submission"]) for r in rows}) == 32
+    for cp, passing in PASSING.items():
+        passed = {core._csv_unsafe(r["submission"]) for r in rows
+                  if r["checkpoint"] == cp and float(r["points"]) == float(r["max_points"])}
+        assert passed == {n for n, v in variant_of.items() if v in passing}, cp
+
+
+@pytest.mark.parametrize("message, expected", [
+    ("not attempted (run_kf still raises NotImplementedError)", "not attempted"),
+    ("run_kf timed out after 30 s on the grader's cases", "timed out"),
+    ("timed out: not graded, the submission used up its total time (300 s)", "timed out"),
+    ("calling run_kf on the grader's cases: timed out after 30 s and ignored the interrupt", "timed out"),
+    ("not graded, stopped: the submission used 1.1 GB of memory (limit 1 GB) while running …", "over limit"),
+    ("not graded: the file is not valid JSON (a damaged or renamed file?)", "not graded"),
+    ("GRADER ERROR, regrade this submission: KeyError: 'x'", "not graded"),
+    ("no function named run_kf after running the notebook (no cell defines it): keep …", "missing"),
+    ("run_kf is a int at the end of the notebook, not a function", "missing"),
+    ("0/12 random cases; first failure kf_update(x=1): value 1 of 4: expected 1, got 2 — timed out after all", "failed"),
+])
+def test_outcome_reads_each_status_core_writes(message, expected):
+    assert report.outcome(core.Row("01.run_kf", 0, 2, "?", message)) == expected
+    assert report.outcome(core.Row("01.run_kf", 2, 2, "?", message)) == "passed"
+
+
+def test_the_same_mistake_groups_and_different_ones_do_not():
+    """Random cases give every student different numbers; the mistake must still be one group."""
+    cp = next(c for c in CHECKPOINTS if c.name == "01.accel_roll")
+    from kfkit import checkpoints as cps
+
+    def groups(fn, seeds):
+        return {report.mistake(core._short(cps.run_checkpoint(cp, fn, s).message, cp.name)) for s in seeds}
+
+    swapped, flipped = groups(accel_roll_swapped, range(8)), groups(accel_roll_flipped, range(8))
+    assert len(swapped) == 1 and len(flipped) == 1 and swapped != flipped
+    assert "swapped" in swapped.pop() and "flipped" in flipped.pop()
+    upd = next(c for c in CHECKPOINTS if c.name == "01.kf_update")
+    texts = {report.mistake(core._short(cps.run_checkpoint(upd, kf_update_gain_over_r, s).message, upd.name))
+             for s in range(8)}
+    assert all(t.startswith("value 1 of 4: expected #, got #") for t in texts), texts
+    assert report.mistake("expected 4 values (-0.35, 2.6e-06, 1.1, 3.4e-05), got 1 value: 0.02") == \
+        "expected 4 values (…), got 1 value: #"
+
+
+def test_report_page_in_a_browser(graded, browser_page):
+    """The page in headless Chromium: every student a row linking their feedback, the charts' numbers equal the
+    gradebook's, the classic mistakes grouped, awkward names shown as text, nothing fetched from anywhere."""
+    path, variant_of = graded
+    page_path = path.with_name("gradebook_report.html")
+    assert page_path.is_file()  # written by kfkit grade --report
+    assert main(["report", str(path), "--out", str(path.parent / "again" / "report.html")]) == 0
+    requests = []
+    browser_page.on("request", lambda r: requests.append(r.url))
+    browser_page.goto(page_path.as_uri())
+    browser_page.wait_for_selector("tr.student")
+    assert requests == [page_path.as_uri()]  # no script, style, font or image from anywhere
+    assert browser_page.evaluate("() => window.__kfkit_xss") is None
+    assert browser_page.locator("script").count() == 0 and browser_page.locator("img").count() == 0
+
+    rows = gradebook_rows(path)
+    students = browser_page.locator("tr.student")
+    assert students.count() == 32
+    names = [students.nth(i).locator("td").first.inner_text() for i in range(32)]
+    for awkward in AWKWARD:
+        assert f"submissions/{awkward}.ipynb" in names
+    for i in range(32):  # each link opens that student's feedback file
+        link = students.nth(i).locator("td a")
+        target = (page_path.parent / unquote(link.get_attribute("href"))).resolve()
+        assert target.is_file() and f"feedback: {link.inner_text()}" in target.read_text(encoding="utf-8").splitlines()[0]
+
+    # the stacked bars: per checkpoint the outcomes add up to the class, passed = the gradebook's full marks
+    for cp in CHECKPOINTS:
+        segs = browser_page.locator(f'rect.segment[data-checkpoint="{cp.name}"]')
+        counts = {segs.nth(i).get_attribute("data-outcome"): int(segs.nth(i).get_attribute("data-count"))
+                  for i in range(segs.count())}
+        full = sum(1 for r in rows if r["checkpoint"] == cp.name and float(r["points"]) == float(r["max_points"]))
+        assert sum(counts.values()) == 32 and counts.get("passed", 0) == full, (cp.name, counts)
+    accel = browser_page.locator('rect.segment[data-checkpoint="01.accel_roll"]')
+    assert {accel.nth(i).get_attribute("data-outcome") for i in range(accel.count())} == \
+        {"passed", "failed", "not attempted", "missing"}
+    run_kf = browser_page.locator('rect.segment[data-checkpoint="01.run_kf"][data-outcome="timed out"]')
+    assert run_kf.get_attribute("data-count") == "1"
+
+    # the histogram: one bar per point total, its counts those of the gradebook's totals
+    totals = {}
+    for r in rows:
+        totals[r["submission"]] = totals.get(r["submission"], 0) + float(r["points"])
+    bars = browser_page.locator("svg.histogram rect.bar")
+    hist = {int(bars.nth(i).get_attribute("data-points")): int(bars.nth(i).get_attribute("data-count"))
+            for i in range(bars.count())}
+    assert hist == {k: sum(1 for t in totals.values() if int(t) == k) for k in range(9)}
+
+    mistakes = browser_page.locator("tr.mistake").all_inner_texts()
+    swapped = next(m for m in mistakes if "swapped" in m)
+    assert swapped.startswith("01.accel_roll\t6\t")  # the six students' random numbers differ; one group
+    assert any(m.startswith("01.kf_update\t4\tvalue 1 of 4") for m in mistakes)
+    assert any(f'raised ValueError: <img src=x onerror="{XSS}">' in m for m in mistakes)  # shown, not run
+    follow = {li.get_attribute("data-group"): li.inner_text() for li in browser_page.locator("li.follow-up").all()}
+    empty = sorted(n for n, v in variant_of.items() if v in ("empty", "nothing"))
+    assert follow["attempted nothing"].endswith(", ".join(empty))
+    assert follow["timed out or stopped by a limit"].endswith(next(n for n, v in variant_of.items() if v == "loops"))
+    browser_page.screenshot(path=str(ARTIFACTS / "class_report.png"), full_page=True)
+
+
+def test_bad_gradebooks_are_named(tmp_path, capsys):
+    bad = tmp_path / "marks.csv"
+    bad.write_text("name,score\nalice,3\n")
+    assert main(["report", str(bad)]) == 2
+    assert "marks.csv: line 1 should be the header submission,checkpoint" in capsys.readouterr().err
+    bad.write_text(",".join(core.COLUMNS) + "\n")
+    assert main(["report", str(bad)]) == 2
+    assert "marks.csv: the gradebook holds no submission" in capsys.readouterr().err
+    assert main(["report", str(tmp_path / "none.csv")]) == 2
+    assert "none.csv" in capsys.readouterr().err
+
+
+def test_a_missing_feedback_file_is_said_not_linked(tmp_path):
+    path = tmp_path / "g.csv"
+    core.write_gradebook(path, [core.SubmissionGrade("subs/x.ipynb", 1, [core.Row("01.accel_roll", 1, 1, "passed", "ok")])])
+    page = report.write_report(path).read_text(encoding="utf-8")
+    assert "subs/x.ipynb <small>(no feedback file)</small>" in page and "<a " not in page
+
+
+# ------------------------------------------------------------------ the browser (as tests/browser/ launches it)
+ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts" / "browser"
+
+
+@pytest.fixture(scope="module")
+def browser_page():
+    from browser.conftest import CHROMIUM_FLAGS, chromium_path
+
+    path = chromium_path()
+    if path is None:
+        pytest.skip("no Chromium installed (Debian: apt-get install chromium); the report is checked in a real browser")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (requirements-test.txt)")
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    with sync_api.sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=path, headless=True, args=CHROMIUM_FLAGS)
+        page = browser.new_page(viewport={"width": 1200, "height": 900})
+        yield page
+        browser.close()
