@@ -398,11 +398,13 @@ def rmse_table(estimates: dict, truth, columns=EULER, rotation=False, width=26, 
 def consistency_table(nees, nis_sets: dict, nees_dof=3, alpha=0.05, out=print):
     """Print the mean NEES and each NIS set's mean against what a consistent filter gives (its dof), with the
     (1 − alpha) χ² bounds of the mean and the fraction of steps inside the one-step bounds; NaN steps
-    (no such update) left out. ``nees`` None: one line saying it needs the truth."""
+    (no such update, no truth at that step) left out. ``nees`` None: one line saying it needs the truth."""
     level = f"{100 * (1 - alpha):.0f} %"
     if nees is None:
         out(f"{'NEES':13s} needs the truth: none in this recording")
     else:
+        nees = np.asarray(nees, dtype=float)
+        nees = nees[~np.isnan(nees)]
         out(f"{'NEES':13s} mean {np.mean(nees):6.2f} (expected {nees_dof}); "
             f"{100 * fraction_inside(nees, nees_dof, alpha):3.0f} % of samples inside the one-step {level} bounds")
     for name, (values, dof) in nis_sets.items():

@@ -364,3 +364,16 @@ def test_rmse_table_rotation_leaves_out_rows_whose_truth_is_missing(attitude):
     keep = ~np.isnan(gappy[:, 0])
     angle = (Rotation.from_euler("ZYX", good[keep][:, ::-1]).inv() * Rotation.from_euler("ZYX", truth[keep][:, ::-1])).magnitude()
     assert float(lines[-1].split()[-1]) == pytest.approx(np.degrees(np.sqrt(np.mean(angle ** 2))), abs=0.006)
+
+
+def test_consistency_table_nees_leaves_out_steps_without_truth():
+    # Motion capture that lost its markers gives NaN errors, so NaN NEES: the mean and the fraction inside the
+    # one-step bounds are those of the steps that have a truth (scipy's χ²(3) bounds).
+    rng = np.random.default_rng(4)
+    nees = rng.chisquare(3, 600)
+    nees[200:260] = np.nan
+    lines = []
+    plots.consistency_table(nees, {}, out=lines.append)
+    valid = nees[~np.isnan(nees)]
+    inside = np.mean((valid >= chi2.ppf(0.025, 3)) & (valid <= chi2.ppf(0.975, 3)))
+    assert f"mean {valid.mean():6.2f}" in lines[0] and f"{100 * inside:3.0f} % of samples" in lines[0]
