@@ -41,3 +41,17 @@ def test_lab04_runs_on_a_phone_export_without_truth(tmp_path):
     assert "NEES          needs the truth" in text and "NIS (6 rows)  mean" in text  # the NIS needs no truth
     assert "EKF (yours), calibrated" not in text  # no RMSE table without a truth
     assert "phone, EKF (yours): RMSE" in text  # section 12 still runs on the bundled phone recording
+
+
+def test_lab04_runs_on_the_bundled_real_recording():
+    """RECORDING = "real": BROAD trial 06 through the whole lab (its truth has gaps, every row has a magnetometer
+    sample, no slide is labelled, no calibration file exists for its IMU)."""
+    errors, text = run_solution_on(LAB, {"RECORDING": "real"})
+    assert errors == [] and "Warning" not in text
+    assert "board broad-myon-aktos-t: 14400 samples at 100 Hz" in text
+    assert "calibration: BROAD: calibrated by its authors; gyro bias = mean of the first rest" in text
+    assert "needs a labelled slide and the truth" in text  # section 10's slide figure says why it is skipped
+    assert re.search(r"^NEES\s+mean\s+[\d.]+ \(expected 3\)", text, re.MULTILINE)  # the truth's gaps left out
+    assert "04_broad_fast_rotation" in text  # the wrap-up table is the real recording's
+    assert rmse_row(text, "EKF (yours), calibrated").shape == (3,)
+    assert "✅ 04.real_ekf" in text  # section 14 runs whatever the data source

@@ -1,0 +1,142 @@
+"""Lab 04's real-sensor part (BROAD excerpts): the checkpoint 04.real_ekf's bar and the mistakes it catches, and
+the published-filter numbers the notebook quotes from benchmarks/bench_attitude.py, recomputed here."""
+import re
+import sys
+from pathlib import Path
+
+import nbformat
+import numpy as np
+import pytest
+
+from kfkit.checkpoints import get, run_checkpoint
+from kfkit.checkpoints.lab04 import real_inputs, truth_error_at_rest
+from kfkit.frames import euler_to_dcm
+from test_checkpoints_every import solution_namespace
+
+ROOT = Path(__file__).resolve().parents[1]
+SOLUTION = ROOT / "solutions" / "04_ekf_attitude.ipynb"
+
+
+def test_truth_error_at_rest_finds_a_known_misalignment():
+    # The truth turned by a known heading δψ and tilt δθ against the IMU: the helper must find √(δθ² + δψ²).
+    rec, gyr, acc, mag, field, q, moving = real_inputs(seconds=12.0)
+    base = truth_error_at_rest(rec, acc, mag)
+    still = rec.phase("rest") & (rec.t < 10.0)
+    tilt, turn = np.radians(1.5), np.radians(-4.0)
+    R = euler_to_dcm(0.0, tilt, turn)  # turns the truth's NED frame (applied on the left of R_nb)
+    truth = rec.truth()
+    R_nb = R @ euler_to_dcm(*truth[still].T)
+    roll = np.arctan2(R_nb[:, 2, 1], R_nb[:, 2, 2])
+    pitch = -np.arcsin(np.clip(R_nb[:, 2, 0], -1, 1))
+    yaw = np.arctan2(R_nb[:, 1, 0], R_nb[:, 0, 0])
+    for col, v in zip(("true_roll", "true_pitch", "true_yaw"), (roll, pitch, yaw)):
+        rec.data[col][still] = v
+    assert base < np.radians(2.5)  # the recording's own: ~2° (heading)
+    shifted = truth_error_at_rest(rec, acc, mag)
+    assert shifted > np.radians(3.0)  # a 4° heading and 1.5° tilt error of the truth is seen
+
+
+def test_real_ekf_passes_the_model_answer_and_fails_classic_mistakes():
+    cp = get("04.real_ekf")
+    assert run_checkpoint(cp, solution_namespace("04")["run_ekf"], 0).ok
+    for mutate, words in ((("euler_rates", "u / np.cos(theta)])", "u / np.cos(phi)])"), "total rotation error"),
+                          (("ekf_update", "if np.isnan(z[3:]).any() else slice(0, 6)", "if True else slice(0, 6)"),
+                           "heading"),
+                          (("measurement", "frames.euler_to_dcm(*x).T", "frames.euler_to_dcm(*x)"), "limit")):
+        result = run_checkpoint(cp, solution_namespace("04", mutate)["run_ekf"], 0)
+        assert not result.ok and words in result.message, (mutate, result.message)
+
+
+def published_table():
+    """{(trial, filter): (total, heading, inclination)} from the notebook's benchmark table."""
+    text = next(c.source for c in nbformat.read(SOLUTION, 4).cells if "VQF (benchmark)" in c.source)
+    rows = {}
+    for trial, *cells in re.findall(r"^\| (\d\d) whole \| (.+?) \| (.+?) \|$", text, re.MULTILINE):
+        for name, cell in zip(("VQF", "mekf"), cells):
+            rows[(trial, name)] = tuple(float(v) for v in re.findall(r"[\d.]+", cell))
+    return rows
+
+
+def test_the_notebooks_published_filter_numbers_are_the_benchmarks():
+    pytest.importorskip("vqf")
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import bench_attitude
+    rows = published_table()
+    assert set(rows) == {("06", "VQF"), ("06", "mekf"), ("28", "VQF"), ("28", "mekf")}
+    seen = set()
+    for name, *case in bench_attitude.bundled_real_cases():
+        trial = {"04_broad_fast_rotation": "06", "04_broad_stationary_magnet": "28"}.get(name)
+        if trial is None:
+            continue
+        seen.add(trial)
+        gyr, acc, mag, rate, q_true, mask = case
+        for fname in ("VQF", "mekf"):
+            q = bench_attitude.FILTERS[fname](gyr, acc, mag, rate)
+            got = {k: np.degrees(v) for k, v in bench_attitude.attitude_rmse(q, q_true, mask).items()}
+            want = rows[(trial, fname)]
+            np.testing.assert_allclose([got["total"], got["heading"], got["inclination"]], want, atol=0.006,
+                                       err_msg=f"{fname} on {name}")
+    assert seen == {"06", "28"}  # both bundled excerpts were judged
+
+
+# --- the MEKF with a magnet near or on the IMU (BROAD trials 28 and 34) --------------------------------------
+
+BROAD_DIR = ROOT.parent / "shared" / "data" / "broad"
+MAGNET_TRIALS = sorted(p for p in BROAD_DIR.glob("*.mat") if p.name[:3] in ("28_", "34_"))
+
+
+def gate_against_no_magnetometer(gyr, acc, mag, rate, q_true, moving, first_rest):
+    """BROAD's total RMSE over the movement (°) of the MEKF as it is (norm, dip and χ² gates), and of the same
+    MEKF whose magnetometer is switched off after the first rest (heading learned at rest, then the gyro alone)."""
+    from kfkit.filters import estimate_attitude
+    from kfkit.metrics import attitude_rmse
+    gated = estimate_attitude(gyr, acc, mag, rate, method="mekf")
+    rest_only = np.where(first_rest[:, None], mag, np.nan)
+    blind = estimate_attitude(gyr, acc, rest_only, rate, method="mekf")
+    return [np.degrees(attitude_rmse(run.quat, q_true, moving)["total"]) for run in (gated, blind)]
+
+
+@pytest.mark.parametrize("name", ["04_broad_stationary_magnet", "03_broad_attached_magnet"])
+def test_mekf_with_a_magnet_beats_switching_its_magnetometer_off(name):
+    # The bar for a disturbed trial, derived rather than tuned: a magnetometer gate earns its place only if the
+    # disturbed field, gated, costs less than no magnetometer at all after the start. Without the gate the MEKF
+    # would follow the magnet; with the magnetometer off its heading is the gyro's alone. (On undisturbed trials
+    # the second is not worse: BROAD's truth has its own north, ~2° from the magnetometer's on trial 06.)
+    from kfkit import datasets
+    from kfkit.frames import euler_to_quat
+    rec = datasets.load(name)
+    first_rest = rec.phase("rest") & (rec.t < rec.phases[0]["end"])
+    gated, blind = gate_against_no_magnetometer(rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz,
+                                                euler_to_quat(rec.truth()), rec.phase("movement"), first_rest)
+    assert gated < blind, (name, gated, blind)
+
+
+@pytest.mark.skipif(not MAGNET_TRIALS, reason=f"no BROAD magnet trials (28, 34) in {BROAD_DIR}")
+@pytest.mark.parametrize("path", MAGNET_TRIALS, ids=[p.stem for p in MAGNET_TRIALS])
+def test_mekf_on_a_whole_magnet_trial_beats_switching_its_magnetometer_off(path):
+    # The same bar on the whole trial at its native 285.7 Hz (tests/test_broad.py holds the undisturbed ones to 2°).
+    from kfkit.readers import load_broad
+    rec = load_broad(path)
+    moving = rec["movement"].astype(bool)
+    first_rest = np.arange(len(rec)) < np.argmax(moving)
+    q = np.column_stack([rec[c] for c in ("true_qw", "true_qx", "true_qy", "true_qz")])
+    gated, blind = gate_against_no_magnetometer(rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz, q,
+                                                moving, first_rest)
+    assert gated < blind, (path.name, gated, blind)
+
+
+def test_the_magnet_bar_fails_an_mekf_without_its_magnetometer_gates():
+    # The bar can fail: on trial 28 (the magnet beside the path) the MEKF with its norm, dip and χ² gates off
+    # follows the magnet (9.1° total against 6.5° with the magnetometer off). On 34 (the magnet attached to the IMU
+    # through the movement) the ungated MEKF stays under this bar (4.2° against 6.3°): there it tests less.
+    from kfkit import datasets
+    from kfkit.filters import estimate_attitude
+    from kfkit.frames import euler_to_quat
+    from kfkit.metrics import attitude_rmse
+    rec = datasets.load("04_broad_stationary_magnet")
+    args = (rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz)
+    q, moving = euler_to_quat(rec.truth()), rec.phase("movement")
+    first_rest = rec.phase("rest") & (rec.t < rec.phases[0]["end"])
+    _, blind = gate_against_no_magnetometer(*args, q, moving, first_rest)
+    ungated = estimate_attitude(*args, method="mekf", mag_norm_gate=None, mag_dip_gate=None, mag_nis_gate=None)
+    assert np.degrees(attitude_rmse(ungated.quat, q, moving)["total"]) > blind
