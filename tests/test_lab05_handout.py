@@ -1,0 +1,112 @@
+"""Lab 05's hand-out runs to its end (issue 18): unfilled, and half done (up to run_kf, without tune and the final).
+
+Oracles: the hand-out's own stubs (every skip note must name one of them, the one the cell truly waits for) and the
+solution notebook's stored outputs, which nbval validates (every cell the half-done hand-out runs prints exactly them).
+"""
+import ast
+import re
+
+import nbformat
+import pytest
+from nbclient import NotebookClient
+
+from kfkit.authoring import BEGIN, END, strip_solutions
+from kfkit.paths import KIT_ROOT
+
+SOLUTION = KIT_ROOT / "solutions" / "05_tilt_bias_kf.ipynb"
+LAB = KIT_ROOT / "labs" / "05_tilt_bias_kf.ipynb"
+WRITTEN = {"to_body", "gyro_bias", "correct_accel", "accel_tilt", "static_ok", "kf_predict", "kf_update", "run_kf"}
+SKIPPED = re.compile(r"⏭  skipped: (.*)\. Run this cell again when that is done\.")
+NEEDS = re.compile(r"(\w+) \(not written yet\)")
+
+
+def stubs(nb) -> set[str]:
+    """The functions a hand-out leaves to the student: those whose body raises NotImplementedError."""
+    names = set()
+    for cell in nb.cells:
+        if cell.cell_type != "code" or "NotImplementedError" not in cell.source:
+            continue
+        for node in ast.parse(cell.source).body:
+            if isinstance(node, ast.FunctionDef) and "NotImplementedError" in ast.unparse(node):
+                names.add(node.name)
+    return names
+
+
+def half_done() -> nbformat.NotebookNode:
+    """The hand-out as a student has it who wrote the functions in WRITTEN (the solution's code) and nothing else."""
+    nb = nbformat.read(SOLUTION, as_version=4)
+    for cell in nb.cells:
+        if cell.cell_type == "code" and BEGIN in cell.source:
+            defined = {n.name for n in ast.parse(cell.source).body if isinstance(n, ast.FunctionDef)}
+            if defined and defined <= WRITTEN:
+                cell.source = "\n".join(line for line in cell.source.split("\n") if line.strip() not in (BEGIN, END))
+    return strip_solutions(nb)
+
+
+def run(nb) -> nbformat.NotebookNode:
+    NotebookClient(nb, timeout=300, allow_errors=False, kernel_name="python3",
+                   resources={"metadata": {"path": str(LAB.parent)}}).execute()
+    return nb
+
+
+def printed(cell) -> str:
+    return "".join(o.get("text", "") for o in cell.get("outputs", []) if o.output_type == "stream")
+
+
+@pytest.fixture(scope="module")
+def unfilled():
+    nb = nbformat.read(LAB, as_version=4)
+    return stubs(nb), run(nb)
+
+
+@pytest.fixture(scope="module")
+def partly():
+    nb = half_done()
+    return stubs(nb), run(nb)
+
+
+def skip_notes(nb) -> dict[int, str]:
+    notes = {}
+    for i, cell in enumerate(nb.cells):
+        if cell.cell_type == "code":
+            found = SKIPPED.findall(printed(cell))
+            if found:
+                notes[i] = found[0]
+    return notes
+
+
+@pytest.mark.parametrize("state", ["unfilled", "partly"])
+def test_every_skip_note_names_an_unwritten_function(state, request):
+    left, nb = request.getfixturevalue(state)
+    notes = skip_notes(nb)
+    assert notes, "nothing was skipped in a hand-out with stubs: the guard is not loaded"
+    for i, why in notes.items():
+        named = NEEDS.findall(why)
+        assert named and set(named) <= left, f"cell {i}: the note names {named}, not one of the stubs {sorted(left)}: {why}"
+
+
+def test_unfilled_hand_out_runs_what_needs_no_exercise(unfilled):
+    left, nb = unfilled
+    assert WRITTEN | {"tune", "estimate_tilt"} == left
+    out = "".join(printed(c) for c in nb.cells if c.cell_type == "code")
+    assert "3600 samples at 100 Hz" in out, "the recording's description needs no exercise and must print"
+    assert out.count("not attempted yet") == 10 and "✅" not in out   # every check, one per exercise function
+    figures = sum("image/png" in o.get("data", {}) for c in nb.cells if c.cell_type == "code" for o in c.outputs)
+    assert figures == 1, "only the raw counts' figure needs no exercise"
+
+
+def test_half_done_hand_out_prints_what_the_solution_printed_and_skips_only_what_needs_tune(partly):
+    left, nb = partly
+    assert left == {"tune", "estimate_tilt"}
+    solution = nbformat.read(SOLUTION, as_version=4)
+    assert [c.cell_type for c in nb.cells] == [c.cell_type for c in solution.cells]
+    notes = skip_notes(nb)
+    not_attempted = [i for i, c in enumerate(nb.cells) if c.cell_type == "code" and "not attempted yet" in printed(c)]
+    assert [re.findall(r"05\.\w+", nb.cells[i].source) for i in not_attempted] == [["05.tune"], ["05.final"]]
+    for i, (ran, stored) in enumerate(zip(nb.cells, solution.cells)):
+        if ran.cell_type == "code" and i not in notes and i not in not_attempted:
+            assert printed(ran) == printed(stored), f"cell {i} printed something else than the solution"
+    skipped_sources = " ".join(nb.cells[i].source for i in notes)
+    assert "rest_bias" not in skipped_sources and "left_out_rates(w_r" not in skipped_sources, \
+        "section 12's real IMU needs no tune: it must run"
+    assert any("real (BROAD 04)" in printed(c) for c in nb.cells), "section 12's table needs no tune: it must print"
