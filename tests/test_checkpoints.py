@@ -84,13 +84,14 @@ RIGHT = {
     "04.numerical_jacobian": lambda h, x: central_differences(h, x),
     "04.update": filters.euler_ekf_update,
     "04.ekf_rmse": reference_run_ekf,
+    "04.real_ekf": reference_run_ekf,
     "06.bicycle_model": V.linear_model,
     "06.discretize": V.discretize,
     "06.kf_step": sideslip_step,
     "06.slalom_rmse": kfkit_run_sideslip,
 }
 SEEDS = {"00": (1,), "01": (0, 1, 2), "02": (0, 1), "03": (0, 1), "04": (0, 1), "06": (1,)}
-SEEDS_OF = {"04.ekf_rmse": (0,), "06.slalom_rmse": (None,)}  # a whole filter over bundled recordings: one run
+SEEDS_OF = {"04.ekf_rmse": (0,), "04.real_ekf": (0,), "06.slalom_rmse": (None,)}  # a whole filter over bundled recordings: one run
 WITHOUT_KFKIT_ANSWER = "05"  # lab 05's exercises are a pipeline of the notebook's own (test_checkpoints_every.py)
 
 
