@@ -82,3 +82,21 @@ def test_the_hand_out_runs_to_its_end_and_its_skip_notes_name_the_exercise():
     assert notes and all("not written yet" in n for n in notes), notes
     assert sum(isinstance(o.get("data", {}).get("image/png"), str) for c in nb.cells if c.cell_type == "code"
                for o in c.outputs) >= 5   # the signals, the tyre, section 6, the wrong models, the bias: no exercise needed
+
+
+def test_a_check_on_given_code_that_calls_an_unwritten_exercise_names_the_exercise():
+    """06.slalom_rmse checks run_sideslip, which the lab gives complete: "fill in run_sideslip" would send the
+    student to the wrong cell; the note names the stub it reached. A stub checked itself is named as before."""
+    from kfkit.checkpoints import run_checkpoint, get
+
+    def bicycle_model(params, vx):
+        raise NotImplementedError()
+
+    def run_sideslip(t, delta, yaw_rate, ay, vx, params, **_):
+        return bicycle_model(params, vx[0])
+
+    given = run_checkpoint(get("06.slalom_rmse"), run_sideslip)
+    assert given.status == "not attempted"
+    assert "(run_sideslip calls bicycle_model, which still raises NotImplementedError" in given.message
+    itself = run_checkpoint(get("06.bicycle_model"), bicycle_model)
+    assert "(bicycle_model still raises NotImplementedError" in itself.message

@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 import textwrap
+import traceback
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -221,8 +222,10 @@ def run_checkpoint(cp: Checkpoint, answer: Callable, seed=None) -> CheckResult:
     for case in cases:
         try:
             got = answer(**case.args)
-        except NotImplementedError:
-            msg = f"⏳ {head}not attempted yet ({cp.function} still raises NotImplementedError: fill it in, run its cell, then this one)"
+        except NotImplementedError as exc:
+            stub = traceback.extract_tb(exc.__traceback__)[-1].name   # where it was raised: a given function may call a stub
+            what = cp.function if stub in (cp.function, getattr(answer, "__name__", None)) else f"{cp.function} calls {stub}, which"
+            msg = f"⏳ {head}not attempted yet ({what} still raises NotImplementedError: fill it in, run its cell, then this one)"
             return CheckResult(cp.name, "not attempted", 0, total, 0, cp.points, msg)
         except Exception as exc:  # the student's code failed: report it, never crash the notebook
             where = f"on {case.label}, " if case.label else ""
