@@ -48,7 +48,7 @@ class ExerciseGuard:
 
     def __init__(self, user_ns: dict):
         self.user_ns = user_ns
-        self.missing: dict[str, str] = {}  # name → why a skipped cell did not make it
+        self.missing: dict[str, tuple[str, str]] = {}  # name → (why a skipped cell did not make it, that cell's code)
 
     def unfinished(self, name: str, seen=None) -> str | None:
         """Why the notebook function ``name`` cannot run yet (its own stub, or a stub it calls), or None."""
@@ -65,8 +65,9 @@ class ExerciseGuard:
         return None
 
     def __call__(self, lines: list[str]) -> list[str]:
+        source = "".join(lines)
         try:
-            tree = ast.parse("".join(lines))
+            tree = ast.parse(source)
         except SyntaxError:  # let IPython report it as usual
             return lines
         made = _assigned_names(tree)
@@ -74,24 +75,27 @@ class ExerciseGuard:
             why, cause = ("this cell is an exercise: replace '# YOUR CODE HERE' and the raise below it with your code",
                           "an exercise cell not filled in yet")
         else:
-            why, cause = self._needs(tree)
+            why, cause = self._needs(tree, source)
         if why is None:
             for name in made:
                 self.missing.pop(name, None)
             return lines
         for name in made:
-            self.missing.setdefault(name, cause)
+            self.missing[name] = (cause, source)  # the latest reason: the one before may be done by now
         return [f"print({NOTE.format(why=why)!r})\n"]
 
-    def _needs(self, tree: ast.Module) -> tuple[str | None, str | None]:
-        """(why this cell cannot run yet, what to tell the cells that use what it makes), or (None, None)."""
+    def _needs(self, tree: ast.Module, source: str) -> tuple[str | None, str | None]:
+        """(why this cell cannot run yet, what to tell the cells that use what it makes), or (None, None). What this
+        very cell would have made does not hold it back: Jupyter's kernel transforms each cell twice (ipykernel's
+        do_execute, then run_cell), and a skipped cell is run again once its exercise is done."""
         made_here = set()
         for node in tree.body:
             for name in _loaded_names(node):
                 if name in made_here:
                     continue
-                if name in self.missing:
-                    return f"it uses {name}, made by {self.missing[name]}", self.missing[name]
+                cause, maker = self.missing.get(name, (None, None))
+                if cause is not None and maker != source:
+                    return f"it uses {name}, made by {cause}", cause
                 why = self.unfinished(name)
                 if why:
                     return f"it needs {why}", f"a cell that needs {why}"
