@@ -85,16 +85,17 @@ class ExerciseGuard:
         return [f"print({NOTE.format(why=why)!r})\n"]
 
     def _needs(self, tree: ast.Module, source: str) -> tuple[str | None, str | None]:
-        """(why this cell cannot run yet, what to tell the cells that use what it makes), or (None, None). What this
-        very cell would have made does not hold it back: Jupyter's kernel transforms each cell twice (ipykernel's
-        do_execute, then run_cell), and a skipped cell is run again once its exercise is done."""
+        """(why this cell cannot run yet, what to tell the cells that use what it makes), or (None, None). A name that
+        this very cell would have rebound does not hold it back while its earlier value is there: Jupyter's kernel
+        transforms each cell twice (ipykernel's do_execute, then run_cell), and a skipped cell is run again once its
+        exercise is done."""
         made_here = set()
         for node in tree.body:
             for name in _loaded_names(node):
                 if name in made_here:
                     continue
                 cause, maker = self.missing.get(name, (None, None))
-                if cause is not None and maker != source:
+                if cause is not None and not (maker == source and name in self.user_ns):
                     return f"it uses {name}, made by {cause}", cause
                 why = self.unfinished(name)
                 if why:
@@ -142,16 +143,32 @@ def _loaded_names(node: ast.AST) -> list[str]:
             skip |= {id(a) for a in n.args[1:] if isinstance(a, ast.Name)}
     local = {t.id for n in nodes if isinstance(n, ast.comprehension)
              for t in ast.walk(n.target) if isinstance(t, ast.Name)}
-    first_store = {}
-    for n in nodes:
-        if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store):
-            where = (n.lineno, n.col_offset)
-            first_store[n.id] = min(first_store.get(n.id, where), where)
-    names = sorted(((n.lineno, n.col_offset), n.id) for n in nodes
-                   if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load) and id(n) not in skip)
-    read = [name for where, name in names
-            if name not in local and not (name in first_store and first_store[name] < where)]
+    bound = _bound_at(nodes)
+    loads = [n for n in nodes if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load) and id(n) not in skip]
+    loads += [n.target for n in nodes if isinstance(n, ast.AugAssign) and isinstance(n.target, ast.Name)]  # x += …
+    names = sorted(((n.lineno, n.col_offset), n.id) for n in loads)
+    read = [name for where, name in names if name not in local and not (name in bound and bound[name] <= where)]
     return [n for n in dict.fromkeys(read) if not hasattr(builtins, n)]
+
+
+def _bound_at(nodes: list[ast.AST]) -> dict[str, tuple[int, int]]:
+    """(line, column) where a statement first binds each name: after what the binding evaluates first (an
+    assignment's value, a loop's iterable, a with's context), so ``x = x + 1`` and ``for x in f(x)`` read x."""
+    bound = {}
+    for n in nodes:
+        if isinstance(n, (ast.Assign, ast.AnnAssign, ast.AugAssign, ast.NamedExpr)):
+            targets, after = getattr(n, "targets", [getattr(n, "target", None)]), n
+        elif isinstance(n, (ast.For, ast.AsyncFor)):
+            targets, after = [n.target], n.iter
+        elif isinstance(n, ast.withitem) and n.optional_vars is not None:
+            targets, after = [n.optional_vars], n.context_expr
+        else:
+            continue
+        where = (after.end_lineno, after.end_col_offset)
+        for name in (t for target in targets for t in ast.walk(target)):
+            if isinstance(name, ast.Name) and isinstance(name.ctx, ast.Store):
+                bound[name.id] = min(bound.get(name.id, where), where)
+    return bound
 
 
 def _assigned_names(tree: ast.AST) -> set[str]:

@@ -50,3 +50,14 @@ def test_a_note_names_what_is_still_missing_not_what_was_missing_before(run):
     run(DONE.format(name="heading"))
     run(make)
     assert run(use).strip() == "4.0"
+
+
+@pytest.mark.parametrize("reads_it", ["total = total + 1", "total += 1", "for total in sorted(total):\n    pass",
+                                      "(total := total * 2)"])
+def test_a_statement_that_reads_a_name_before_rebinding_it_waits_for_it(run, reads_it):
+    """An assignment binds its name after its value is evaluated (a loop after its iterable): ``total = total + 1``
+    reads the ``total`` a skipped cell never made, and must be skipped, not raise NameError."""
+    run(STUB.format(name="count"))
+    run("total = count(3)")
+    note = run(reads_it)
+    assert "it uses total, made by a cell that needs count (not written yet)" in note
