@@ -224,8 +224,8 @@ REAL = {
     "03_broad_attached_magnet": _broad("34_disturbed_attached_magnet_3cm", 0.0, 169.0, 100.0,
                                        "BROAD trial 34: at rest, then medium-speed motions about all axes with a magnet "
                                        "attached to the board 3 cm from the IMU, then at rest"),
-    "04_broad_fast_rotation": _broad("06_undisturbed_fast_rotation_A", 27.0, 171.0, 100.0,
-                                     "BROAD trial 06: 10 s at rest, fast rotations by hand about all axes (up to ~15 rad/s), "
+    "04_broad_fast_rotation": _broad("06_undisturbed_fast_rotation_A", 0.0, 171.0, 100.0,
+                                     "BROAD trial 06: 38 s at rest, fast rotations by hand about all axes (up to ~16 rad/s), "
                                      "10 s at rest"),
     "04_broad_stationary_magnet": _broad("28_disturbed_stationary_magnet_A", 0.0, 184.0, 100.0,
                                          "BROAD trial 28: at rest, then medium-speed motions near a small magnet placed "
