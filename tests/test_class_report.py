@@ -26,6 +26,8 @@ from kfkit.checkpoints import lab01
 from kfkit.cli import main
 from kfkit.grading import core, report, sandbox, wire
 
+from browser.conftest import ARTIFACTS, browser  # noqa: F401 (a fixture)
+
 CHECKPOINTS = core.lab_checkpoints("01")
 BOX = sandbox.Sandbox("root", True, ["/x"])
 XSS = "window.__kfkit_xss = 1"
@@ -300,21 +302,10 @@ def test_a_missing_feedback_file_is_said_not_linked(tmp_path):
     assert "subs/x.ipynb <small>(no feedback file)</small>" in page and "<a " not in page
 
 
-# ------------------------------------------------------------------ the browser (as tests/browser/ launches it)
-ARTIFACTS = Path(__file__).resolve().parent.parent / "artifacts" / "browser"
-
-
+# ------------------------------------------------------------------ the browser: tests/browser/'s (Debian's Chromium)
 @pytest.fixture(scope="module")
-def browser_page():
-    from browser.conftest import CHROMIUM_FLAGS, chromium_path
-
-    path = chromium_path()
-    if path is None:
-        pytest.skip("no Chromium installed (Debian: apt-get install chromium); the report is checked in a real browser")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (requirements-test.txt)")
+def browser_page(browser):
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
-    with sync_api.sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=path, headless=True, args=CHROMIUM_FLAGS)
-        page = browser.new_page(viewport={"width": 1200, "height": 900})
-        yield page
-        browser.close()
+    context = browser.new_context(viewport={"width": 1200, "height": 900})
+    yield context.new_page()
+    context.close()

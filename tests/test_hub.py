@@ -19,6 +19,7 @@ import urllib.parse
 import pytest
 
 import hub as hubkit
+from browser.conftest import browser  # noqa: F401 (a fixture)
 from kfkit.paths import KIT_ROOT
 
 LAB = "01_roll_kf_1d.ipynb"
@@ -207,18 +208,3 @@ def _wait_for(get, what, timeout=60.0):
         assert time.monotonic() < deadline, f"{what}: not there after {timeout:g} s"
         time.sleep(0.5)
     return value
-
-
-@pytest.fixture(scope="module")
-def browser():
-    from browser.conftest import CHROMIUM_FLAGS, chromium_path
-
-    path = chromium_path()
-    if path is None:
-        pytest.skip("no Chromium installed (Debian: apt-get install chromium): alice's lab runs in a real browser")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (requirements-test.txt)")
-    with sync_api.sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=path, headless=True, args=CHROMIUM_FLAGS)
-        yield b
-        b.close()
-

@@ -18,6 +18,7 @@ import html
 import math
 import os
 import re
+import statistics
 import sys
 import urllib.parse
 from collections import Counter
@@ -122,7 +123,7 @@ def render(grades: list[SubmissionGrade], title: str, links: dict[str, str]) -> 
     outcomes = {n: Counter(outcome(r) for g in grades for r in g.rows if r.checkpoint == n) for n in names}
     parts = [f"<h1>{e(title)}</h1>",
              f"<p>{len(grades)} submissions, {len(names)} checkpoints; total score mean "
-             f"{sum(totals) / len(totals):.2f} / {top:g}, median {_median(totals):g}.</p>",
+             f"{sum(totals) / len(totals):.2f} / {top:g}, median {statistics.median(totals):g}.</p>",
              "<h2>Score distribution</h2>", _histogram(totals, top),
              "<h2>Outcomes per checkpoint</h2>", _legend(), _stacked_bars(names, outcomes, len(grades)),
              "<h2>Most frequent failures</h2>", _mistakes(grades, names),
@@ -139,11 +140,6 @@ _CSS = ("body{font-family:sans-serif;max-width:70em;margin:1em auto;color:#222}"
         "td.num{text-align:right}.legend span{display:inline-block;margin-right:1em}"
         ".sw{display:inline-block;width:.9em;height:.9em;margin-right:.3em;vertical-align:middle}"
         "svg text{font-family:sans-serif;font-size:12px}")
-
-
-def _median(values):
-    s = sorted(values)
-    return (s[(len(s) - 1) // 2] + s[len(s) // 2]) / 2
 
 
 def _histogram(totals, top) -> str:
