@@ -15,6 +15,7 @@ import pytest
 #: "Tests" section); everything else keeps pytest's order after them
 LONGEST_FIRST = (
     "tests/browser/",
+    "tests/test_hub.py",
     "tests/test_grading.py",
     "tests/test_notebooks.py",
     "tests/test_lab04_notebook.py",
