@@ -89,18 +89,22 @@ class ExerciseGuard:
         this very cell would have rebound does not hold it back while its earlier value is there: Jupyter's kernel
         transforms each cell twice (ipykernel's do_execute, then run_cell), and a skipped cell is run again once its
         exercise is done."""
-        made_here = set()
+        made_here, defined_here = set(), {}  # defined_here: a function this cell defines → the names its body reads
         for node in tree.body:
             for name in _loaded_names(node):
-                if name in made_here:
+                if name in made_here and name not in defined_here:
                     continue
-                cause, maker = self.missing.get(name, (None, None))
-                if cause is not None and not (maker == source and name in self.user_ns):
-                    return f"it uses {name}, made by {cause}", cause
-                why = self.unfinished(name)
-                if why:
-                    return f"it needs {why}", f"a cell that needs {why}"
+                for used, via in [(name, "")] + [(inner, f"{name}, which calls ") for inner in defined_here.get(name, ())]:
+                    cause, maker = self.missing.get(used, (None, None))
+                    if cause is not None and not (maker == source and used in self.user_ns):
+                        return f"it uses {via}{used}, made by {cause}", cause
+                    why = self.unfinished(used)
+                    if why:
+                        return f"it needs {via}{why}", f"a cell that needs {via}{why}"
             made_here |= _assigned_names(ast.Module(body=[node], type_ignores=[]))
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                defined_here[node.name] = sorted({n.id for n in ast.walk(node) if isinstance(n, ast.Name)
+                                                  and isinstance(n.ctx, ast.Load)} - {node.name})
         return None, None
 
 
@@ -114,18 +118,19 @@ def _raises_at_top_level(tree: ast.Module) -> bool:
     return False
 
 
-_SCOPES = (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef, ast.Lambda)
+_SCOPES = (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)
 
 
 def _outside_bodies(node: ast.AST):
     """``node`` and what it holds, except what runs later: function and class bodies (their decorators,
-    defaults and base classes run now, and are kept)."""
+    defaults and base classes run now, and are kept). A lambda's body is kept: one handed to a widget or a
+    helper is called at once."""
     stack = [node]
     while stack:
         n = stack.pop()
         yield n
         if isinstance(n, _SCOPES):
-            args = n.args if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)) else None
+            args = n.args if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)) else None
             stack.extend(getattr(n, "decorator_list", []) + getattr(n, "bases", []) +
                          (args.defaults + [d for d in args.kw_defaults if d is not None] if args else []))
         else:
@@ -143,6 +148,8 @@ def _loaded_names(node: ast.AST) -> list[str]:
             skip |= {id(a) for a in n.args[1:] if isinstance(a, ast.Name)}
     local = {t.id for n in nodes if isinstance(n, ast.comprehension)
              for t in ast.walk(n.target) if isinstance(t, ast.Name)}
+    local |= {a.arg for n in nodes if isinstance(n, ast.Lambda)
+              for a in n.args.posonlyargs + n.args.args + n.args.kwonlyargs + [n.args.vararg, n.args.kwarg] if a}
     bound = _bound_at(nodes)
     loads = [n for n in nodes if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load) and id(n) not in skip]
     loads += [n.target for n in nodes if isinstance(n, ast.AugAssign) and isinstance(n.target, ast.Name)]  # x += …

@@ -94,3 +94,20 @@ def test_names_a_cell_binds_before_reading_them_are_its_own(shell):
                         "for v in range(2):\n    labels = [w * 2 for w in range(v)]\n    print(len(labels))\n"
                         "with contextlib.nullcontext(5) as port:\n    print(port)\n")
     assert result.success and "skipped" not in out and out.split() == ["0", "1", "5"]
+
+
+def test_a_function_defined_and_called_in_the_same_cell_is_followed_into(shell):
+    """Before the cell runs its function does not exist yet: the guard reads its body instead."""
+    shell(STUB.format(name="to_body"))
+    result, out = shell("def body_si(x):\n    return to_body(x)\nsi = body_si(3)\nprint('ran')")
+    assert result.success and "ran" not in out and "body_si, which calls to_body (not written yet)" in out
+
+
+def test_a_lambda_handed_on_is_read_as_running_now_and_its_parameters_are_its_own(shell):
+    shell(STUB.format(name="run_kf"))
+    shell("def tune(f, q):\n    return f(q)\n")
+    result, out = shell("panel = tune(lambda q: run_kf(q), 1.0)\nprint('ran')")
+    assert result.success and "ran" not in out and "run_kf (not written yet)" in out
+    shell("q = 0.5")
+    result, out = shell("print(tune(lambda q: q * 2, 3.0))")  # q is the lambda's, not the notebook's
+    assert result.success and out.strip() == "6.0"

@@ -1,4 +1,5 @@
-"""Lab 05's hand-out runs to its end (issue 18): unfilled, and half done (up to run_kf, without tune and the final).
+"""Lab 05's hand-out runs to its end half done (issue 18): up to run_kf, without tune and the final (unfilled:
+``tests/test_notebooks.py``, for every lab).
 
 Oracles: the hand-out's own stubs (every skip note must name one of them, the one the cell truly waits for) and the
 solution notebook's stored outputs, which nbval validates (every cell the half-done hand-out runs prints exactly them).
@@ -54,12 +55,6 @@ def printed(cell) -> str:
 
 
 @pytest.fixture(scope="module")
-def unfilled():
-    nb = nbformat.read(LAB, as_version=4)
-    return stubs(nb), run(nb)
-
-
-@pytest.fixture(scope="module")
 def partly():
     nb = half_done()
     return stubs(nb), run(nb)
@@ -75,24 +70,13 @@ def skip_notes(nb) -> dict[int, str]:
     return notes
 
 
-@pytest.mark.parametrize("state", ["unfilled", "partly"])
-def test_every_skip_note_names_an_unwritten_function(state, request):
-    left, nb = request.getfixturevalue(state)
+def test_every_skip_note_names_an_unwritten_function(partly):
+    left, nb = partly
     notes = skip_notes(nb)
     assert notes, "nothing was skipped in a hand-out with stubs: the guard is not loaded"
     for i, why in notes.items():
         named = NEEDS.findall(why)
         assert named and set(named) <= left, f"cell {i}: the note names {named}, not one of the stubs {sorted(left)}: {why}"
-
-
-def test_unfilled_hand_out_runs_what_needs_no_exercise(unfilled):
-    left, nb = unfilled
-    assert WRITTEN | {"tune", "estimate_tilt"} == left
-    out = "".join(printed(c) for c in nb.cells if c.cell_type == "code")
-    assert "3600 samples at 100 Hz" in out, "the recording's description needs no exercise and must print"
-    assert out.count("not attempted yet") == 10 and "✅" not in out   # every check, one per exercise function
-    figures = sum("image/png" in o.get("data", {}) for c in nb.cells if c.cell_type == "code" for o in c.outputs)
-    assert figures == 1, "only the raw counts' figure needs no exercise"
 
 
 def test_half_done_hand_out_prints_what_the_solution_printed_and_skips_only_what_needs_tune(partly):

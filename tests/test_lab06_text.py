@@ -1,4 +1,4 @@
-"""Lab 06's words checked against physics, and its hand-out run to the end (issue 18).
+"""Lab 06's words checked against physics, and its hand-out run half done (issue 18; unfilled: test_notebooks.py).
 
 Oracles: scipy's rotations for the accelerometer on a bank, a force balance for the banked straight, the
 magic formula's own definition (slope B·C·D at 0, peak D = μ F_z) for what friction changes.
@@ -82,19 +82,6 @@ def run_hand_out(done=()):
     code = [c for c in nb.cells if c.cell_type == "code"]
     printed = ["".join(o.get("text", "") for o in c.outputs) for c in code]
     return printed, sum("image/png" in o.get("data", {}) for c in code for o in c.outputs)
-
-
-def test_the_hand_out_runs_to_its_end_and_its_skip_notes_name_the_exercise():
-    """Run All on labs/06 with nothing filled in: no error; cells that need no exercise run (kfkit's filter, the
-    copied model's unit check, the race track's force ratios); cells that need one say which."""
-    printed, figures = run_hand_out()
-    text = "".join(printed)
-    assert "units of the copied model: A[0,0] ok, A[0,1] WRONG, A[1,0] WRONG" in text
-    assert "low-speed guard active for 7% of the samples" in text
-    assert "measured a_y ÷ the linear tyres' a_y" in text
-    notes = [p for p in printed if "skipped" in p]
-    assert notes and all("not written yet" in n for n in notes), notes
-    assert figures >= 5   # the signals, the tyre, section 6, the wrong models, the bias: none needs an exercise
 
 
 def test_half_done_the_hand_out_runs_what_the_written_exercise_allows_and_names_the_next():
