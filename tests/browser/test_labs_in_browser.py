@@ -1,8 +1,9 @@
-"""Each solution notebook, run in JupyterLab in Chromium: what the kernel-side tests cannot see.
+"""The labs in JupyterLab in Chromium, as a student meets them: what the kernel-side tests cannot see.
 
-For every notebook: run all cells and wait for the kernel; no error or stderr output; no
-"Error displaying widget"; every ipympl figure shows a drawn canvas; and where the lab has a
-tuning panel, moving a slider changes the figure's pixels and the printed RMSE.
+Every hand-out (``labs/``, exercises unfilled), Run All: it runs to its end (the exercise guard skips the
+cells that wait for an exercise, with a note), no error or stderr output, no "Error displaying widget",
+every ipympl figure shows a drawn canvas. Lab 01's solution, filled in: the same, and moving its tuning
+panel's slider changes the figure's pixels and the printed RMSE. (nbval runs every solution in a kernel.)
 """
 from __future__ import annotations
 
@@ -18,13 +19,9 @@ from kfkit.paths import KIT_ROOT
 
 from .conftest import ARTIFACTS
 
-NOTEBOOKS = sorted(p.name for p in (KIT_ROOT / "solutions").glob("*.ipynb"))
+HANDOUTS = sorted(f"labs/{p.name}" for p in (KIT_ROOT / "labs").glob("*.ipynb"))
+SOLVED = "01_roll_kf_1d.ipynb"  # a solution with a tuning panel: the slider's round trip through the browser
 RUN_TIMEOUT_S = 180
-
-
-def _has_tuning_panel(name: str) -> bool:
-    nb = json.loads((KIT_ROOT / "solutions" / name).read_text(encoding="utf-8"))
-    return any("widgets.tune(" in "".join(c["source"]) for c in nb["cells"] if c["cell_type"] == "code")
 
 
 def open_notebook(page, lab, name: str):
@@ -81,11 +78,10 @@ def canvas_png(element) -> np.ndarray:
 
 def screenshot(page, name: str, suffix: str):
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
-    page.screenshot(path=str(ARTIFACTS / f"{name.removesuffix('.ipynb')}{suffix}.png"))
+    page.screenshot(path=str(ARTIFACTS / f"{name.replace('/', '-').removesuffix('.ipynb')}{suffix}.png"))
 
 
-@pytest.mark.parametrize("name", NOTEBOOKS)
-def test_notebook_runs_and_renders_in_jupyterlab(page, jupyter_lab, name):
+def run_and_check_rendering(page, jupyter_lab, name):
     open_notebook(page, jupyter_lab, name)
     run_all(page)
     screenshot(page, name, "-end")
@@ -102,8 +98,18 @@ def test_notebook_runs_and_renders_in_jupyterlab(page, jupyter_lab, name):
         pixels = canvas_png(canvas)
         assert pixels.std() > 5, f"{name}: ipympl figure {i} shows a blank canvas"
 
-    if _has_tuning_panel(name):
-        _check_slider_moves_figure(page, name)
+
+@pytest.mark.parametrize("name", HANDOUTS)
+def test_handout_runs_to_its_end_and_renders_in_jupyterlab(page, jupyter_lab, name):
+    run_and_check_rendering(page, jupyter_lab, name)
+    notes = page.get_by_text("skipped:")
+    assert notes.count() > 0, f"{name}: no cell waits for an exercise? (the guard's notes are missing)"
+
+
+def test_solved_lab_renders_and_its_slider_moves_the_figure(page, jupyter_lab):
+    run_and_check_rendering(page, jupyter_lab, SOLVED)
+    assert page.get_by_text("skipped:").count() == 0
+    _check_slider_moves_figure(page, SOLVED)
 
 
 def _check_slider_moves_figure(page, name):
@@ -136,10 +142,18 @@ def _check_slider_moves_figure(page, name):
     assert readout.inner_text() != before_text
 
 
+BROKEN_NOTEBOOK = {
+    "cells": [{"cell_type": "code", "metadata": {}, "execution_count": None, "outputs": [],
+               "source": ["def kf_predict(x):\n", "    raise NotImplementedError()\n", "kf_predict(1.0)"]}],
+    "metadata": {"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}},
+    "nbformat": 4, "nbformat_minor": 5,
+}
+
+
 def test_the_checks_see_errors_a_student_would_see(page, jupyter_lab):
-    """The detector above is not blind: a student notebook with unattempted exercises shows errors."""
-    name = sorted(p.name for p in (KIT_ROOT / "labs").glob("*.ipynb"))[0]
-    open_notebook(page, jupyter_lab, f"labs/{name}")
+    """The detector above is not blind: a notebook without the guard that calls a stub shows the error."""
+    (jupyter_lab.root / "broken.ipynb").write_text(json.dumps(BROKEN_NOTEBOOK))
+    open_notebook(page, jupyter_lab, "broken.ipynb")
     run_all(page)
     assert any("NotImplementedError" in text for text in error_outputs(page))
 
