@@ -48,7 +48,7 @@ def test_lab04_runs_on_the_bundled_real_recording():
     sample, no slide is labelled, no calibration file exists for its IMU)."""
     errors, text = run_solution_on(LAB, {"RECORDING": "real"})
     assert errors == [] and "Warning" not in text
-    assert "board broad-myon-aktos-t: 14400 samples at 100 Hz" in text
+    assert "board broad-myon-aktos-t: 17100 samples at 100 Hz" in text
     assert "calibration: BROAD: calibrated by its authors; gyro bias = mean of the first rest" in text
     assert "needs a labelled slide and the truth" in text  # section 10's slide figure says why it is skipped
     assert re.search(r"^NEES\s+mean\s+[\d.]+ \(expected 3\)", text, re.MULTILINE)  # the truth's gaps left out
