@@ -78,16 +78,24 @@ def _ellipsoid_cases(rng):
     return cases
 
 
+def _hard_and_soft_iron(got):
+    """(h (3,), S (3, 3)) as float arrays from an answer, or (None, what is wrong with it)."""
+    try:
+        h, S = (np.asarray(g, dtype=float) for g in got)
+    except (TypeError, ValueError) as e:
+        return None, f"expected (hard_iron (3,), soft_iron (3, 3)), got something else ({e})"
+    if h.shape != (3,) or S.shape != (3, 3):
+        return None, f"expected shapes (3,) and (3, 3), got {h.shape} and {S.shape}"
+    return h, S
+
+
 def _judge_ellipsoid(case, got):
     """Against the ellipsoid's true hard iron h and soft-iron correction W⁻¹ (W symmetric), within the
     noise of a 400-reading fit, so any sound least-squares fit passes, not only the reference's."""
     h_true, S_true = case.expected
-    try:
-        h, S = (np.asarray(g, dtype=float) for g in got)
-    except (TypeError, ValueError) as e:
-        return f"expected (hard_iron (3,), soft_iron (3, 3)), got something else ({e})"
-    if h.shape != (3,) or S.shape != (3, 3):
-        return f"expected shapes (3,) and (3, 3), got {h.shape} and {S.shape}"
+    h, S = _hard_and_soft_iron(got)
+    if h is None:
+        return S
     text = f"true h = {fmt(h_true)} µT, yours {fmt(h)}"
     if not np.all(np.isfinite(S)) or not np.all(np.isfinite(h)):
         return f"{text}; h or S holds NaN or inf"
@@ -264,12 +272,9 @@ def _judge_real_magnet(case, got):
     noise, the truth's own error and the authors' calibration residual: about that error; the factor 2 covers how
     much that error changes with the motion (trial 02's movement: 3.2°, trial 34's without the magnet: 5.4°).
     A hard iron left in (32°) or misfit by more than ≈ 2.5 µT of the 15.5 µT horizontal field fails."""
-    try:
-        h, S = (np.asarray(g, dtype=float) for g in got)
-    except (TypeError, ValueError) as e:
-        return f"expected (hard_iron (3,), soft_iron (3, 3)), got something else ({e})"
-    if h.shape != (3,) or S.shape != (3, 3):
-        return f"expected shapes (3,) and (3, 3), got {h.shape} and {S.shape}"
+    h, S = _hard_and_soft_iron(got)
+    if h is None:
+        return S
     budget = case.expected
     after = true_tilt_heading_error(calibration.apply_mag_calibration(case.args["mag"], h, S), budget["truth"])
     allowed = REAL_BAR_FACTOR * budget["off"]

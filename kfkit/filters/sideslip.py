@@ -246,10 +246,8 @@ class SideslipKF:
         delta_prev = delta if self._delta_prev is None else self._delta_prev
         self._delta_prev = delta
         if vx < st.v_min:
-            y, S = np.full(2, np.nan), np.full((2, 2), np.nan)
-            self.x, self.P, y[0], S[0, 0] = _low_speed_step(self.x, self.P, yaw_rate, delta * self._kinematic_gain,
-                                                            st.beta_low_std ** 2, st.q_r * dt, st.q_bias * dt,
-                                                            st.gyro_noise ** 2)
+            self.x, self.P, y, S = low_speed_step(self.x, self.P, yaw_rate, delta * self._kinematic_gain, st, dt,
+                                                  st.q_bias * dt)
         elif st.n == 2:
             self.x, self.P, y, S = _step2(self.x, self.P, delta_prev, (yaw_rate, ay), delta, self._models(vx, dt)[1], self.R)
         else:
@@ -310,8 +308,18 @@ def _step2(x, P, delta_prev, z, delta, m, R):
             np.array([[s11, s12], [s12, s22]]))
 
 
-def _low_speed_step(x, P, z_r, beta_kin, p_beta, q_r_dt, q_b_dt, r_gyro):
-    """Below v_min: β⁻ = b δ / L (kinematic), r⁻ = r, yaw-rate-only update; returns (x, P, y_r, S_r)."""
+def low_speed_step(x, P, yaw_rate, beta_kin, settings, dt, q_bias_dt=0.0):
+    """Below v_min (both sideslip filters): β⁻ = b δ / L (kinematic, variance beta_low_std²), r⁻ = r (P_rr grows by
+    q_r·dt), a bias state's variance by ``q_bias_dt``; the yaw rate (gyro_noise²) updates alone. Returns (x, P, y, S)
+    with the a_y entries of the innovation y and of S NaN (no a_y update)."""
+    y, S = np.full(2, np.nan), np.full((2, 2), np.nan)
+    x, P, y[0], S[0, 0] = _yaw_rate_update(x, P, yaw_rate, beta_kin, settings.beta_low_std ** 2, settings.q_r * dt,
+                                           q_bias_dt, settings.gyro_noise ** 2)
+    return x, P, y, S
+
+
+def _yaw_rate_update(x, P, z_r, beta_kin, p_beta, q_r_dt, q_b_dt, r_gyro):
+    """:func:`low_speed_step`'s arithmetic; returns (x, P, y_r, S_r)."""
     x = x.copy()
     x[0] = beta_kin
     P = P.copy()

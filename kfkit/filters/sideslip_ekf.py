@@ -48,8 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..vehicle import BicycleParams, axle_tyres
-from .linear import configure, require_positive
-from .sideslip import SideslipRun, _as_inputs, _blas_controller, _low_speed_step, _step2
+from .linear import Step, configure, require_positive
+from .sideslip import SideslipRun, _as_inputs, _blas_controller, _step2, low_speed_step
 
 
 @dataclass(frozen=True)
@@ -180,10 +180,8 @@ class SideslipEKF:
         delta_prev = delta if self._delta_prev is None else self._delta_prev
         self._delta_prev = delta
         if vx < st.v_min:
-            y, S = np.full(2, np.nan), np.full((2, 2), np.nan)
-            self.x, self.P, y[0], S[0, 0] = _low_speed_step(self.x, self.P, yaw_rate, delta * self._kinematic_gain,
-                                                            st.beta_low_std ** 2, st.q_r * dt, 0.0, st.gyro_noise ** 2)
-            return self.x, self.P, y, S
+            self.x, self.P, y, S = low_speed_step(self.x, self.P, yaw_rate, delta * self._kinematic_gain, st, dt)
+            return Step(self.x, self.P, y, S)
         beta, r = self.x.tolist()
         ff, fr, kf, kr = self.axle_forces(beta, r, delta_prev, vx)
         J, _ = self.jacobian(kf, kr, vx)
@@ -199,7 +197,7 @@ class SideslipEKF:
         R = np.array(((st.gyro_noise ** 2, 0.0), (0.0, st.accel_noise ** 2 + (st.stiffness_std / p.m) ** 2 * (ff * ff + fr * fr))))
         m = (*Ad.ravel().tolist(), *offset.tolist(), Qd[0, 0], Qd[0, 1], Qd[1, 1], c21, c22, d2)
         self.x, self.P, y, S = _step2(self.x, self.P, 1.0, (yaw_rate, ay), 1.0, m, R)
-        return self.x, self.P, y, S
+        return Step(self.x, self.P, y, S)
 
     def run(self, t, delta, yaw_rate, ay, vx, x0=None, P0=None) -> SideslipRun:
         """:meth:`step` over a drive (inputs as :meth:`SideslipKF.run <kfkit.filters.SideslipKF.run>`)."""
