@@ -94,7 +94,9 @@ class ExerciseGuard:
             for name in _loaded_names(node):
                 if name in made_here and name not in defined_here:
                     continue
-                for used, via in [(name, "")] + [(inner, f"{name}, which calls ") for inner in defined_here.get(name, ())]:
+                # a function this cell defines is judged by its new body, not by the notebook's older one
+                direct = [] if name in defined_here else [(name, "")]
+                for used, via in direct + [(inner, f"{name}, which calls ") for inner in defined_here.get(name, ())]:
                     cause, maker = self.missing.get(used, (None, None))
                     if cause is not None and not (maker == source and used in self.user_ns):
                         return f"it uses {via}{used}, made by {cause}", cause
@@ -103,9 +105,16 @@ class ExerciseGuard:
                         return f"it needs {via}{why}", f"a cell that needs {via}{why}"
             made_here |= _assigned_names(ast.Module(body=[node], type_ignores=[]))
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                defined_here[node.name] = sorted({n.id for n in ast.walk(node) if isinstance(n, ast.Name)
-                                                  and isinstance(n.ctx, ast.Load)} - {node.name})
+                defined_here[node.name] = sorted(_globals_read(node))
         return None, None
+
+
+def _globals_read(func: ast.FunctionDef) -> set[str]:
+    """The names a function's body reads from the notebook: not its parameters, not what it binds itself."""
+    params = {a.arg for a in ast.walk(func.args) if isinstance(a, ast.arg)}
+    local = {n.id for n in ast.walk(func) if isinstance(n, ast.Name) and not isinstance(n.ctx, ast.Load)}
+    loads = {n.id for n in ast.walk(func) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load)}
+    return loads - params - local - {func.name}
 
 
 def _raises_at_top_level(tree: ast.Module) -> bool:

@@ -111,3 +111,18 @@ def test_a_lambda_handed_on_is_read_as_running_now_and_its_parameters_are_its_ow
     shell("q = 0.5")
     result, out = shell("print(tune(lambda q: q * 2, 3.0))")  # q is the lambda's, not the notebook's
     assert result.success and out.strip() == "6.0"
+
+
+def test_a_cell_that_redefines_a_stub_and_uses_it_runs(shell):
+    """The notebook's stub is the old definition: the cell's own new one is what runs."""
+    shell(STUB.format(name="kf_update"))
+    result, out = shell("def kf_update(x):\n    return x + 1\nprint(kf_update(1))")
+    assert result.success and out.strip() == "2"
+
+
+def test_a_function_defined_here_is_judged_by_the_names_it_reads_not_its_parameters(shell):
+    shell(STUB.format(name="tilt_heading"))
+    shell("asked = tilt_heading(1)")  # skipped: 'asked' is missing
+    result, out = shell("def errors(psi, asked):\n    total = 0\n    for a in asked:\n        total += a\n    return total\n"
+                        "print(errors(0, [1, 2]))")
+    assert result.success and out.strip() == "3"

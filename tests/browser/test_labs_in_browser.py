@@ -24,6 +24,14 @@ SOLVED = "01_roll_kf_1d.ipynb"  # a solution with a tuning panel: the slider's r
 RUN_TIMEOUT_S = 180
 
 
+@pytest.fixture(autouse=True)
+def fresh_kernels(jupyter_lab):
+    """After each test its notebook's kernel is shut down: a kernel left running (lab 00's virtual board and
+    capture timers) keeps a core busy for the rest of the suite."""
+    yield
+    jupyter_lab.shutdown_kernels()
+
+
 def open_notebook(page, lab, name: str):
     page.goto(lab.url(name))
     page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=60_000)
