@@ -1,5 +1,7 @@
-"""Lab 04's solution run top to bottom on the other data sources its data-source cell takes: the bundled phone
-recording, and a student's own phyphox export (no truth, no labelled phases)."""
+"""Lab 04's solution run top to bottom on the other data sources its data-source cell takes: a student's own
+phyphox export (no truth, no labelled phases; the phone path and its calibration) and the bundled real recording.
+(The bundled phone recording's budget is held at kfkit level by tests/test_phyphox.py, and section 12 of every
+run prints the phone's RMSE, which the export run below checks.)"""
 import re
 
 import numpy as np
@@ -17,16 +19,6 @@ def rmse_row(text, name):
     match = re.search(rf"^{re.escape(name)}\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+[\d.]+$", text, re.MULTILINE)
     assert match, f"no wrap-up row {name!r} in the output"
     return np.array([float(v) for v in match.groups()])
-
-
-def test_lab04_runs_on_the_bundled_phone_recording_within_its_budget():
-    errors, text = run_solution_on(LAB, {"RECORDING": "phone"})
-    assert errors == [] and "Warning" not in text
-    assert "board phone-phyphox" in text and "kfkit default for a phone" in text  # calibration_for picked the phone's
-    assert "04_phone_attitude_tour" in text  # the wrap-up table is the phone's
-    roll, pitch, yaw = rmse_row(text, "EKF (yours), calibrated")
-    assert roll < 1.0 and pitch < 1.0 and yaw < 2.0  # the lab's budget, now on a phone
-    assert (rmse_row(text, "MEKF (kfkit), calibrated")[:2] < 1.0).all()
 
 
 def test_lab04_runs_on_a_phone_export_without_truth(tmp_path):
