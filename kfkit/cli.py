@@ -8,6 +8,7 @@
     kfkit capture --port P --seconds S --out FILE   record from a board (or --port virtual, or phyphox://HOST:PORT)
     kfkit demo tilt --port P|virtual   steer a car by tilting the board (mpu6050_tilt_kf's $ATT lines)
     kfkit grade --lab NN --out gradebook.csv SUBMISSION…   grade notebooks in isolated kernels
+    kfkit report gradebook.csv         the class report: one self-contained HTML page
 """
 from __future__ import annotations
 
