@@ -10,8 +10,9 @@ before each cell runs, IPython hands its code to :class:`ExerciseGuard`, which r
 note when the cell
 
 - is an unfinished exercise itself (a ``raise NotImplementedError`` outside any function): "fill in this cell";
-- uses a function that is still a stub, or that calls one (followed through your own functions), or a
-  name that only a skipped cell would have made: "needs kf_predict (not written yet)".
+- uses a function that is still a stub, or that calls one (followed through your own functions, into a
+  function the same cell defines, and into a lambda handed on), or a name that only a skipped cell would
+  have made: "needs kf_predict (not written yet)".
 
 Everything else runs as usual, so the lab's own figures, the capture panel and every cell that needs no
 exercise run. ``check("…", f)`` cells always run: the check itself says "not attempted yet". A solution
