@@ -251,3 +251,17 @@ def test_the_printed_allan_formula_is_the_checkpoints_and_allantools():
     taus = np.array([1, 2, 5, 20, 70]) / rate
     theirs = allantools.oadev(x, rate=rate, data_type="freq", taus=taus)[1]
     np.testing.assert_allclose(printed_allan_formula()(x - x.mean(), rate, taus), theirs, rtol=1e-9)
+
+
+@pytest.mark.parametrize("judge", ["_judge_rmse", "_judge_real"])
+@pytest.mark.parametrize("answer, words", [
+    ("a string", "expected (x, P, nis) with x of shape (N, 3), got str"),
+    ((np.zeros((3, 5)), None, None), "expected 5 rows of [roll, pitch, yaw] (shape (5, 3)), got shape (3, 5)"),
+    (np.zeros(5), "got shape (5,)"),
+])
+def test_a_whole_run_answer_of_the_wrong_kind_is_named_not_crashed_on(judge, answer, words):
+    """04.ekf_rmse and 04.real_ekf judge run_ekf's (x, P, nis): a wrong type or shape says what was expected."""
+    from kfkit.checkpoints import Case, lab04
+    truth = np.zeros((5, 3))
+    expected = (truth, lab04.RMSE_LIMITS) if judge == "_judge_rmse" else (np.tile([1.0, 0, 0, 0], (5, 1)), None, 0.0, 0.0)
+    assert words in getattr(lab04, judge)(Case({}, expected), answer)

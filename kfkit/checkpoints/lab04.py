@@ -293,16 +293,24 @@ def _rmse_cases(rng):
                  f"{ACCEL_GATE:g} m/s²")]
 
 
-def _judge_rmse(case, got):
+def _estimate(got, rows):
+    """The (rows, 3) float array x of run_ekf's answer (x, P, nis), or (None, what is wrong with it)."""
     try:
         x = np.asarray(got[0] if isinstance(got, (tuple, list)) else got, dtype=float)
     except (TypeError, ValueError):
-        return f"expected (x, P, nis) with x of shape (N, 3), got {type(got).__name__}"
-    truth, limits = case.expected
-    if x.shape != truth.shape:
-        return f"expected {len(truth)} rows of [roll, pitch, yaw] (shape {truth.shape}), got shape {x.shape}"
+        return None, f"expected (x, P, nis) with x of shape (N, 3), got {type(got).__name__}"
+    if x.shape != (rows, 3):
+        return None, f"expected {rows} rows of [roll, pitch, yaw] (shape {(rows, 3)}), got shape {x.shape}"
     if not np.isfinite(x).all():
-        return f"the estimate holds NaN or inf from row {int(np.argmax(~np.isfinite(x).all(axis=1)))}"
+        return None, f"the estimate holds NaN or inf from row {int(np.argmax(~np.isfinite(x).all(axis=1)))}"
+    return x, None
+
+
+def _judge_rmse(case, got):
+    truth, limits = case.expected
+    x, problem = _estimate(got, len(truth))
+    if x is None:
+        return problem
     err = rmse(angle_error(x, truth), 0.0)
     over = [f"{name} RMSE {np.degrees(e):.2f}° (limit {np.degrees(lim):.0f}°)"
             for name, e, lim in zip(ANGLES, err, limits) if not e < lim]
@@ -384,15 +392,10 @@ def _real_cases(rng):
 
 def _judge_real(case, got):
     """BROAD's total error over the movement phases within the reference's plus the truth's own error."""
-    try:
-        x = np.asarray(got[0] if isinstance(got, (tuple, list)) else got, dtype=float)
-    except (TypeError, ValueError):
-        return f"expected (x, P, nis) with x of shape (N, 3), got {type(got).__name__}"
     q_true, moving, ref_rmse, truth_error = case.expected
-    if x.shape != (len(q_true), 3):
-        return f"expected {len(q_true)} rows of [roll, pitch, yaw] (shape {(len(q_true), 3)}), got shape {x.shape}"
-    if not np.isfinite(x).all():
-        return f"the estimate holds NaN or inf from row {int(np.argmax(~np.isfinite(x).all(axis=1)))}"
+    x, problem = _estimate(got, len(q_true))
+    if x is None:
+        return problem
     errors = {k: np.degrees(v) for k, v in attitude_rmse(euler_to_quat(x), q_true, moving).items()}
     limit = np.degrees(ref_rmse + truth_error)
     if errors["total"] <= limit:
