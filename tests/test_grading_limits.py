@@ -86,7 +86,9 @@ def test_cpu_time_is_counted_across_the_tree_and_stops_the_submission(code):
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     used = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)  # the kernel's own count
     assert dog.over is not None and dog.over.what == "CPU time", dog.over
-    assert 2.0 < dog.over.used <= used + 0.05  # it stopped at the limit, on no more than was really used
+    # it stopped at the limit, on no more than was really used: the kernel's count misses only the worker that was
+    # running when the tree was killed (orphaned, init reaps it), which the watchdog saw: one worker's CPU, < 0.25 s
+    assert 2.0 < dog.over.used <= used + (0.25 if code is REAPED else 0.05)
     assert used < 2.0 + 1.0  # and soon after (sampled every 0.1 s), whatever the machine's load
     assert "s of CPU time (limit 2 s)" in str(dog.over)
 
