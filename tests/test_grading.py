@@ -7,7 +7,8 @@ what it left:
   as a new user would) on a folder of honest and adversarial lab 01 submissions built from the
   solution notebook, kept in a folder *outside* /tmp so only the sandbox protects it;
 * ``every_lab``: meanwhile, every other lab's solution notebook, run in a fresh sandboxed kernel
-  and graded on several fresh seeds, then its hand-out's exercise stubs, graded once.
+  and graded on a fresh seed (``tests/test_checkpoints_every.py`` holds every checkpoint's model answer on many
+  seeds, outside the sandbox), then its hand-out's exercise stubs, graded once.
 
 Expected grades come from what each submission does (which function it breaks, how), never from
 the grader's own output.
@@ -46,7 +47,7 @@ LAB = KIT_ROOT / "labs" / "01_roll_kf_1d.ipynb"
 # lab 01's points as the lab's author set them in kfkit/checkpoints/lab01.py
 POINTS = {"01.accel_roll": 1, "01.kf_predict": 1, "01.kf_update": 2, "01.run_kf": 2, "01.kf_beats_sensors": 2}
 TIMEOUT = 4  # s per cell / call in these tests (the grader's warm-up has loaded the heavy modules)
-SEEDS_PER_SOLUTION = 3  # fresh seeds each solution is graded on, in one kernel (lab 01: one per CLI submission)
+SEEDS_PER_SOLUTION = 1  # fresh seeds each solution is graded on, in one kernel (lab 01: one per CLI submission)
 KIT_FILE = KIT_ROOT / "kfkit" / "checkpoints" / "lab01.py"
 SITE = Path(sysconfig.get_paths()["purelib"])
 # wall-clock limits for honest notebooks: only safety nets, so that a busy machine fails nobody (lab 04's
@@ -438,7 +439,7 @@ def _grade_unsandboxed(path):
 
 
 def _grade_every_other_lab(tmp_path_factory, box):
-    """Lab 01 is the CLI run's; the others: each solution on fresh seeds, each hand-out once."""
+    """Lab 01 is the CLI run's; the others: each solution on a fresh seed, each hand-out once."""
     slow = tmp_path_factory.mktemp("slow") / "slow.ipynb"  # kf_predict hangs, and so do three cells at the end
     nb = edit(minimal(), "return x + omega * dt, P + q", "import time\n    while True:\n        time.sleep(0.1)")
     for _ in range(3):

@@ -1,8 +1,13 @@
 """The notebooks as CI sees them: every hand-out in labs/ runs to its end unfilled; labs/ are current (data/: test_datasets).
 
-nbval validates solutions/ separately (pytest collects solutions/*.ipynb with --nbval-lax).
+Each hand-out runs once per session (:func:`ran`); the tests of one lab's hand-out that read that run live here too,
+so they share it. nbval validates solutions/ separately (pytest collects solutions/*.ipynb with --nbval-lax).
+
+Oracles: the hand-out's own stubs (every skip note must name one of them) and the solution notebook's stored outputs,
+which nbval validates (a cell that runs in the hand-out must print exactly them).
 """
 import ast
+import functools
 import re
 
 import nbformat
@@ -45,14 +50,21 @@ def printed(cell) -> str:
     return "".join(o.get("text", "") for o in cell.get("outputs", []) if o.output_type == "stream")
 
 
-@pytest.mark.parametrize("path", LABS, ids=[p.stem for p in LABS])
-def test_handout_runs_to_its_end_with_its_exercises_unfilled(path):
-    """Run All on a hand-out as handed out (issue 18): no error anywhere (nbclient raises on the first, naming the
-    cell); each cell the exercise guard skips names one of the hand-out's own stubs (or is an exercise cell); the
-    cells that need no exercise run; every check says 'not attempted yet' and none passes; no warning."""
+@functools.cache
+def ran(path) -> nbformat.NotebookNode:
+    """The hand-out at ``path`` after Run All as handed out (nbclient raises on the first error, naming the cell)."""
     nb = nbformat.read(path, as_version=4)
     NotebookClient(nb, timeout=300, allow_errors=False, kernel_name="python3",
                    resources={"metadata": {"path": str(path.parent)}}).execute()
+    return nb
+
+
+@pytest.mark.parametrize("path", LABS, ids=[p.stem for p in LABS])
+def test_handout_runs_to_its_end_with_its_exercises_unfilled(path):
+    """Run All on a hand-out as handed out (issue 18): no error anywhere; each cell the exercise guard skips names
+    one of the hand-out's own stubs (or is an exercise cell); the cells that need no exercise run; every check says
+    'not attempted yet' and none passes; no warning."""
+    nb = ran(path)
     left = stubs(nb)
     notes = [(i, m) for i, c in enumerate(nb.cells) if c.cell_type == "code" for m in NOTE.findall(printed(c))]
     assert notes, f"{path.name}: nothing was skipped in a hand-out with stubs: is the exercise guard loaded?"
@@ -81,3 +93,36 @@ def test_solution_notebooks_have_no_warnings_or_errors():
             for out in cell.get("outputs", []):
                 assert out.output_type != "error", f"{path.name} cell {i} stored an error"
                 assert not (out.output_type == "stream" and out.name == "stderr"), f"{path.name} cell {i} wrote to stderr: {out.text[:200]}"
+
+
+LAB04 = KIT_ROOT / "labs" / "04_ekf_attitude.ipynb"
+
+
+def test_lab04_handout_names_its_exercises_in_every_skip_note():
+    exercises = stubs(nbformat.read(LAB04, as_version=4))
+    assert {"euler_rates", "ekf_predict", "measurement", "jacobian", "run_ekf"} <= exercises
+    notes = [why for cell in ran(LAB04).cells if cell.cell_type == "code" for why in NOTE.findall(printed(cell))]
+    assert notes, "nothing was skipped: are the stubs still stubs?"
+    for why in notes:
+        named = re.findall(r"(\w+) \(not written yet\)", why)
+        assert named and set(named) <= exercises, why
+
+
+def test_lab04_handout_cells_that_need_no_exercise_print_what_the_solution_prints():
+    handout, solution = ran(LAB04), nbformat.read(KIT_ROOT / "solutions" / LAB04.name, as_version=4)
+    assert len(solution.cells) == len(handout.cells)
+    compared = 0
+    for mine, want in zip(handout.cells, solution.cells):
+        text = printed(mine)
+        if mine.cell_type != "code" or NOTE.search(text) or "check(" in mine.source:
+            continue
+        if "# NBVAL_CHECK_OUTPUT" in want.source:
+            assert text == printed(want), mine.source[:200]
+            compared += 1
+    assert compared >= 5
+    # what the guard must let through: the σ_a sweep (it needs rmse_deg, not the EKF) and kfkit's runs on BROAD
+    sweep = next(c for c in handout.cells if c.cell_type == "code" and c.source.startswith("sigmas_a = "))
+    drawn = next(c for c in handout.cells if c.cell_type == "code" and "plots.sweep(" in c.source)
+    assert "best σ_a" in printed(sweep) and any(o.output_type == "display_data" for o in drawn.outputs)
+    broad = next(c for c in handout.cells if c.cell_type == "code" and "real_runs, mekf_real = {}, {}" in c.source)
+    assert not NOTE.search(printed(broad))

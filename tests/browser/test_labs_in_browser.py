@@ -1,9 +1,11 @@
 """The labs in JupyterLab in Chromium, as a student meets them: what the kernel-side tests cannot see.
 
-Every hand-out (``labs/``, exercises unfilled), Run All: it runs to its end (the exercise guard skips the
-cells that wait for an exercise, with a note), no error or stderr output, no "Error displaying widget",
-every ipympl figure shows a drawn canvas. Lab 01's solution, filled in: the same, and moving its tuning
-panel's slider changes the figure's pixels and the printed RMSE. (nbval runs every solution in a kernel.)
+Every hand-out (``labs/``, exercises unfilled) that shows a widget, Run All: it runs to its end (the exercise
+guard skips the cells that wait for an exercise, with a note), no error or stderr output, no "Error displaying
+widget", every ipympl figure shows a drawn canvas. Lab 01's solution, filled in: the same, and moving its tuning
+panel's slider changes the figure's pixels and the printed RMSE. (A hand-out without widgets shows the browser
+nothing a kernel does not: ``tests/test_notebooks.py`` runs every hand-out to its end with the same checks, and
+nbval runs every solution.)
 """
 from __future__ import annotations
 
@@ -19,7 +21,15 @@ from kfkit.paths import KIT_ROOT
 
 from .conftest import ARTIFACTS
 
-HANDOUTS = sorted(f"labs/{p.name}" for p in (KIT_ROOT / "labs").glob("*.ipynb"))
+WIDGET_VIEW = "application/vnd.jupyter.widget-view+json"
+
+
+def shows_a_widget(lab) -> bool:
+    """Whether the lab's solution, as stored with its outputs, displays an ipywidget (a panel, a slider, a 3-D view)."""
+    return WIDGET_VIEW in (KIT_ROOT / "solutions" / lab.name).read_text(encoding="utf-8")
+
+
+HANDOUTS = sorted(f"labs/{p.name}" for p in (KIT_ROOT / "labs").glob("*.ipynb") if shows_a_widget(p))
 SOLVED = "01_roll_kf_1d.ipynb"  # a solution with a tuning panel: the slider's round trip through the browser
 RUN_TIMEOUT_S = 180
 
