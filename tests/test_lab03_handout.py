@@ -76,8 +76,9 @@ def test_run_all_reaches_the_end_then_filling_each_exercise_in_gives_the_solutio
 
 def test_room_to_think_questions_at_the_end_a_prediction_before_the_tilted_headings():
     """One Questions section, the lab's last cell, each question naming its section and one model answer each
-    (every figure explained in the very next cell: ``tests/test_solutions_layout.py``); the prompt to predict comes before anything shows how the
-    tilted board's headings come out (the table before the key figure prints its errors)."""
+    (every figure explained in the very next cell: ``tests/test_solutions_layout.py``); the prompt to predict comes
+    before anything shows how the tilted board's headings come out (the table before the key figure prints its
+    errors)."""
     cells = nbformat.read(SOLUTION, as_version=4).cells
     assert [i for i, c in enumerate(cells) if c.cell_type == "markdown" and "Questions" in c.source] == [len(cells) - 1]
     asked, answers = cells[-1].source.split("### BEGIN SOLUTION")

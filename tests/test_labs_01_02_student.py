@@ -2,7 +2,8 @@
 
 (Run All on each hand-out with every exercise unfilled: ``tests/test_notebooks.py``, for every lab.) The text
 leaves room to think: one Questions section at the end whose questions name their section (every figure explained
-in the very next cell: ``tests/test_solutions_layout.py``, for every lab), and a prompt to predict before the key figure (lab 01's consistency, lab 02's Allan curve).
+in the very next cell: ``tests/test_solutions_layout.py``, for every lab), and a prompt to predict before the key
+figure (lab 01's consistency, lab 02's Allan curve).
 """
 import re
 

@@ -31,6 +31,7 @@ MUST_RUN = {
                        "low-speed guard active for 7% of the samples", "measured a_y ÷ the linear tyres' a_y"],
 }
 NOTE = re.compile(r"⏭  skipped: (.*)\. Run this cell again when that is done\.")
+NEEDS = re.compile(r"(\w+) \(not written yet\)")  # the stubs a skip note names
 EXERCISE_CELL = ("this cell is an exercise", "an exercise cell not filled in yet")
 
 
@@ -69,7 +70,7 @@ def test_handout_runs_to_its_end_with_its_exercises_unfilled(path):
     notes = [(i, m) for i, c in enumerate(nb.cells) if c.cell_type == "code" for m in NOTE.findall(printed(c))]
     assert notes, f"{path.name}: nothing was skipped in a hand-out with stubs: is the exercise guard loaded?"
     for i, why in notes:
-        named = set(re.findall(r"(\w+) \(not written yet\)", why))
+        named = set(NEEDS.findall(why))
         assert (named and named <= left) or (not named and why.endswith(EXERCISE_CELL)), (
             f"cell {i}: the note names {sorted(named)}, not one of the stubs {sorted(left)}: {why}")
     everything = "".join(printed(c) for c in nb.cells if c.cell_type == "code")
@@ -99,16 +100,18 @@ LAB04 = KIT_ROOT / "labs" / "04_ekf_attitude.ipynb"
 
 
 def test_lab04_handout_names_its_exercises_in_every_skip_note():
+    """Its five exercise functions are stubs, and every skip note names only them."""
     exercises = stubs(nbformat.read(LAB04, as_version=4))
     assert {"euler_rates", "ekf_predict", "measurement", "jacobian", "run_ekf"} <= exercises
     notes = [why for cell in ran(LAB04).cells if cell.cell_type == "code" for why in NOTE.findall(printed(cell))]
     assert notes, "nothing was skipped: are the stubs still stubs?"
     for why in notes:
-        named = re.findall(r"(\w+) \(not written yet\)", why)
+        named = NEEDS.findall(why)
         assert named and set(named) <= exercises, why
 
 
 def test_lab04_handout_cells_that_need_no_exercise_print_what_the_solution_prints():
+    """A cell the guard lets run prints exactly what the solution's (nbval-checked) cell prints."""
     handout, solution = ran(LAB04), nbformat.read(KIT_ROOT / "solutions" / LAB04.name, as_version=4)
     assert len(solution.cells) == len(handout.cells)
     compared = 0
