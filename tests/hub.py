@@ -20,6 +20,7 @@ import asyncio
 import json
 import os
 import pwd
+import re
 import secrets
 import shutil
 import socket
@@ -39,6 +40,7 @@ from kfkit.paths import KIT_ROOT
 CHP = "configurable-http-proxy"
 PASSWORD = "kfkit-class-" + secrets.token_hex(4)
 START_TIMEOUT = 180.0  # s a server may take to start on a busy machine (a safety net, not a measurement)
+POLL = re.compile(r"200 GET /hub/api/users/\w+ \(instructor@")  # wait_ready's requests: noise in a failure's log
 
 
 def why_no_hub() -> str | None:
@@ -280,8 +282,14 @@ c.JupyterHub.cleanup_servers = True
         self.api("POST", f"/users/{name}/server")
 
     def wait_ready(self, name):
-        self._wait(lambda: (self.api("GET", f"/users/{name}") or {}).get("servers", {}).get("", {}).get("ready"),
-                   f"{name}'s server did not become ready")
+        """Wait for the server :meth:`spawn` asked for; a spawn the hub gave up on fails at once, with the log."""
+        def ready():
+            server = ((self.api("GET", f"/users/{name}") or {}).get("servers") or {}).get("")
+            if server is None or not (server.get("ready") or server.get("pending")):
+                raise AssertionError(f"{name}'s server stopped before it was ready: {server}; the hub's log:\n"
+                                     f"{self.hub_log()}")
+            return server["ready"]
+        self._wait(ready, f"{name}'s server did not become ready")
 
     def server_api(self, name, method, path, body=None, token=None):
         """The student's Jupyter server REST API (``/user/<name>/api``) through the proxy."""
@@ -360,8 +368,12 @@ c.JupyterHub.cleanup_servers = True
             time.sleep(0.3)
 
     def hub_log(self) -> str:
+        """The end of the hub's log (its servers' output included), without the test's own polling of the REST API."""
         path = self.instructor / "jupyterhub.log"
-        return path.read_text(errors="replace")[-4000:] if path.exists() else "(no log)"
+        if not path.exists():
+            return "(no log)"
+        lines = [ln for ln in path.read_text(errors="replace").splitlines() if not POLL.search(ln)]
+        return "\n".join(lines)[-6000:]
 
     def stop(self):
         """Stop every server and the hub (cleanup_servers), then remove the users and the folder."""
