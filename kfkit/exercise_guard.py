@@ -112,10 +112,15 @@ class ExerciseGuard:
 
 def _globals_read(func: ast.FunctionDef) -> set[str]:
     """The names a function's body reads from the notebook: not its parameters, not what it binds itself."""
-    params = {a.arg for a in ast.walk(func.args) if isinstance(a, ast.arg)}
+    params = _parameters(func.args)
     local = {n.id for n in ast.walk(func) if isinstance(n, ast.Name) and not isinstance(n.ctx, ast.Load)}
     loads = {n.id for n in ast.walk(func) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load)}
     return loads - params - local - {func.name}
+
+
+def _parameters(args: ast.arguments) -> set[str]:
+    """The parameter names of a function or a lambda."""
+    return {a.arg for a in [*args.posonlyargs, *args.args, *args.kwonlyargs, args.vararg, args.kwarg] if a}
 
 
 def _raises_at_top_level(tree: ast.Module) -> bool:
@@ -158,8 +163,7 @@ def _loaded_names(node: ast.AST) -> list[str]:
             skip |= {id(a) for a in n.args[1:] if isinstance(a, ast.Name)}
     local = {t.id for n in nodes if isinstance(n, ast.comprehension)
              for t in ast.walk(n.target) if isinstance(t, ast.Name)}
-    local |= {a.arg for n in nodes if isinstance(n, ast.Lambda)
-              for a in n.args.posonlyargs + n.args.args + n.args.kwonlyargs + [n.args.vararg, n.args.kwarg] if a}
+    local |= {name for n in nodes if isinstance(n, ast.Lambda) for name in _parameters(n.args)}
     bound = _bound_at(nodes)
     loads = [n for n in nodes if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load) and id(n) not in skip]
     loads += [n.target for n in nodes if isinstance(n, ast.AugAssign) and isinstance(n.target, ast.Name)]  # x += …

@@ -8,6 +8,7 @@ import re
 import nbformat
 from nbclient import NotebookClient
 
+from handouts import printed
 from kfkit.paths import KIT_ROOT
 
 LAB = KIT_ROOT / "labs" / "03_mag_alignment_heading.ipynb"
@@ -15,11 +16,6 @@ SOLUTION = KIT_ROOT / "solutions" / "03_mag_alignment_heading.ipynb"
 SKIPPED = "⏭  skipped:"
 NOT_ATTEMPTED = "not attempted yet"
 WAITS_FOR = re.compile(r"(\w+) (?:\(not written yet\)|still raises NotImplementedError)")
-
-
-def printed(cell) -> str:
-    """What a code cell printed (stdout, however the kernel chunked it)."""
-    return "".join(o.get("text", "") for o in cell.get("outputs", []) if o.get("name") == "stdout")
 
 
 def waits_for(cell) -> str | None:

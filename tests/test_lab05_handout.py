@@ -4,67 +4,30 @@
 Oracles: the hand-out's own stubs (every skip note must name one of them, the one the cell truly waits for) and the
 solution notebook's stored outputs, which nbval validates (every cell the half-done hand-out runs prints exactly them).
 """
-import ast
 import re
 
 import nbformat
 import pytest
-from nbclient import NotebookClient
 
-from kfkit.authoring import BEGIN, END, strip_solutions
+from handouts import NEEDS, NOTE, execute, half_done, printed, stubs
 from kfkit.paths import KIT_ROOT
 
 SOLUTION = KIT_ROOT / "solutions" / "05_tilt_bias_kf.ipynb"
 LAB = KIT_ROOT / "labs" / "05_tilt_bias_kf.ipynb"
 WRITTEN = {"to_body", "gyro_bias", "correct_accel", "accel_tilt", "static_ok", "kf_predict", "kf_update", "run_kf"}
-SKIPPED = re.compile(r"⏭  skipped: (.*)\. Run this cell again when that is done\.")
-NEEDS = re.compile(r"(\w+) \(not written yet\)")
-
-
-def stubs(nb) -> set[str]:
-    """The functions a hand-out leaves to the student: those whose body raises NotImplementedError."""
-    names = set()
-    for cell in nb.cells:
-        if cell.cell_type != "code" or "NotImplementedError" not in cell.source:
-            continue
-        for node in ast.parse(cell.source).body:
-            if isinstance(node, ast.FunctionDef) and "NotImplementedError" in ast.unparse(node):
-                names.add(node.name)
-    return names
-
-
-def half_done() -> nbformat.NotebookNode:
-    """The hand-out as a student has it who wrote the functions in WRITTEN (the solution's code) and nothing else."""
-    nb = nbformat.read(SOLUTION, as_version=4)
-    for cell in nb.cells:
-        if cell.cell_type == "code" and BEGIN in cell.source:
-            defined = {n.name for n in ast.parse(cell.source).body if isinstance(n, ast.FunctionDef)}
-            if defined and defined <= WRITTEN:
-                cell.source = "\n".join(line for line in cell.source.split("\n") if line.strip() not in (BEGIN, END))
-    return strip_solutions(nb)
-
-
-def run(nb) -> nbformat.NotebookNode:
-    NotebookClient(nb, timeout=300, allow_errors=False, kernel_name="python3",
-                   resources={"metadata": {"path": str(LAB.parent)}}).execute()
-    return nb
-
-
-def printed(cell) -> str:
-    return "".join(o.get("text", "") for o in cell.get("outputs", []) if o.output_type == "stream")
 
 
 @pytest.fixture(scope="module")
 def partly():
-    nb = half_done()
-    return stubs(nb), run(nb)
+    nb = half_done(LAB, WRITTEN)
+    return stubs(nb), execute(nb)
 
 
 def skip_notes(nb) -> dict[int, str]:
     notes = {}
     for i, cell in enumerate(nb.cells):
         if cell.cell_type == "code":
-            found = SKIPPED.findall(printed(cell))
+            found = NOTE.findall(printed(cell))
             if found:
                 notes[i] = found[0]
     return notes

@@ -4,11 +4,10 @@ Oracles: scipy's rotations for the accelerometer on a bank, a force balance for 
 magic formula's own definition (slope B·C·D at 0, peak D = μ F_z) for what friction changes.
 """
 import numpy as np
-import nbformat
 import pytest
-from nbclient import NotebookClient
 from scipy.spatial.transform import Rotation
 
+from handouts import execute, half_done, printed
 from kfkit import vehicle
 from kfkit.filters import estimate_sideslip
 from kfkit.frames import G
@@ -70,27 +69,20 @@ LAB = KIT_ROOT / "labs" / "06_sideslip_kf.ipynb"
 
 
 def run_hand_out(done=()):
-    """Execute labs/06 with the cells of the exercises ``done`` (function names) taken from the solution; no error
-    allowed. Returns (what each code cell printed, the number of figures drawn)."""
-    nb = nbformat.read(LAB, as_version=4)
-    solution = {c.id: c.source for c in nbformat.read(KIT_ROOT / "solutions" / LAB.name, as_version=4).cells}
-    for cell in nb.cells:
-        if any(cell.source.startswith(f"def {name}(") for name in done):
-            cell.source = solution[cell.id]
-    NotebookClient(nb, timeout=600, allow_errors=False, kernel_name="python3",
-                   resources={"metadata": {"path": str(LAB.parent)}}).execute()
+    """Execute labs/06 with the exercises ``done`` (function names) written as the solution does; no error allowed.
+    Returns (what each code cell printed, the number of figures drawn)."""
+    nb = execute(half_done(LAB, done), timeout=600)
     code = [c for c in nb.cells if c.cell_type == "code"]
-    printed = ["".join(o.get("text", "") for o in c.outputs) for c in code]
-    return printed, sum("image/png" in o.get("data", {}) for c in code for o in c.outputs)
+    return [printed(c) for c in code], sum("image/png" in o.get("data", {}) for c in code for o in c.outputs)
 
 
 def test_half_done_the_hand_out_runs_what_the_written_exercise_allows_and_names_the_next():
     """bicycle_model written, discretize and kf_step not: section 3's checks and section 4's eigenvalues run;
     the timing and your filter name discretize; the checks of the other two still say 'not attempted'."""
-    printed, _ = run_hand_out(done=("bicycle_model",))
-    text = "".join(printed)
+    outputs, _ = run_hand_out(done=("bicycle_model",))
+    text = "".join(outputs)
     assert "06.bicycle_model: 12/12" in text and "units: A[0,0] ok" in text and "V_x =  1.0 m/s" in text
-    notes = [p for p in printed if "skipped" in p]
+    notes = [p for p in outputs if "skipped" in p]
     assert notes and all("discretize (not written yet)" in n for n in notes), notes
     assert "06.discretize: not attempted yet" in text and "06.kf_step: not attempted yet" in text
 

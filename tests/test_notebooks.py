@@ -6,14 +6,12 @@ so they share it. nbval validates solutions/ separately (pytest collects solutio
 Oracles: the hand-out's own stubs (every skip note must name one of them) and the solution notebook's stored outputs,
 which nbval validates (a cell that runs in the hand-out must print exactly them).
 """
-import ast
 import functools
-import re
 
 import nbformat
 import pytest
-from nbclient import NotebookClient
 
+from handouts import NEEDS, NOTE, execute, printed, stubs
 from kfkit.authoring import make_labs
 from kfkit.paths import KIT_ROOT
 
@@ -30,34 +28,13 @@ MUST_RUN = {
     "06_sideslip_kf": ["units of the copied model: A[0,0] ok, A[0,1] WRONG, A[1,0] WRONG",
                        "low-speed guard active for 7% of the samples", "measured a_y ÷ the linear tyres' a_y"],
 }
-NOTE = re.compile(r"⏭  skipped: (.*)\. Run this cell again when that is done\.")
-NEEDS = re.compile(r"(\w+) \(not written yet\)")  # the stubs a skip note names
 EXERCISE_CELL = ("this cell is an exercise", "an exercise cell not filled in yet")
-
-
-def code(cell) -> str:
-    """A cell's Python, IPython's % and ! lines left out."""
-    return "\n".join(line for line in cell.source.splitlines() if not line.lstrip().startswith(("%", "!")))
-
-
-def stubs(nb) -> set[str]:
-    """The functions a hand-out leaves to the student: those whose body raises NotImplementedError."""
-    return {node.name for cell in nb.cells if cell.cell_type == "code"
-            for node in ast.walk(ast.parse(code(cell))) if isinstance(node, ast.FunctionDef)
-            and any(isinstance(n, ast.Name) and n.id == "NotImplementedError" for n in ast.walk(node))}
-
-
-def printed(cell) -> str:
-    return "".join(o.get("text", "") for o in cell.get("outputs", []) if o.output_type == "stream")
 
 
 @functools.cache
 def ran(path) -> nbformat.NotebookNode:
-    """The hand-out at ``path`` after Run All as handed out (nbclient raises on the first error, naming the cell)."""
-    nb = nbformat.read(path, as_version=4)
-    NotebookClient(nb, timeout=300, allow_errors=False, kernel_name="python3",
-                   resources={"metadata": {"path": str(path.parent)}}).execute()
-    return nb
+    """The hand-out at ``path`` after Run All as handed out."""
+    return execute(nbformat.read(path, as_version=4))
 
 
 @pytest.mark.parametrize("path", LABS, ids=[p.stem for p in LABS])

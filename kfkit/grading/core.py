@@ -447,6 +447,12 @@ def _grade_one(args):
     return grade_submission(path, lab_checkpoints(lab), sandbox, limits, seed, name)
 
 
+def default_feedback_dir(gradebook: Path) -> Path:
+    """Where the per-submission feedback goes unless told: ``<gradebook stem>_feedback/`` beside the gradebook."""
+    gradebook = Path(gradebook)
+    return gradebook.with_name(gradebook.stem + "_feedback")
+
+
 def grade(paths, lab, out: Path, jobs: int = 1, limits: Limits | None = None, feedback_dir: Path | None = None,
           seed: int | None = None, update: bool = False, progress: bool = True, sandbox: sb.Sandbox | None = None,
           unsandboxed: bool = False):
@@ -460,7 +466,7 @@ def grade(paths, lab, out: Path, jobs: int = 1, limits: Limits | None = None, fe
     limits = limits or Limits()
     out = Path(out)
     earlier = read_gradebook(out) if update and out.exists() else None  # a damaged one: said before grading
-    feedback_dir = Path(feedback_dir) if feedback_dir else out.with_name(out.stem + "_feedback")
+    feedback_dir = Path(feedback_dir) if feedback_dir else default_feedback_dir(out)
     found, warnings = find_submissions(paths)
     instructor = {Path(p).resolve().parent if Path(p).is_file() else Path(p).resolve() for p in paths}
     instructor |= {out.resolve().parent, feedback_dir.resolve().parent}
@@ -528,5 +534,5 @@ def cli(args) -> int:
         print(f"kfkit grade: {exc}", file=sys.stderr)
         return 2
     print(text)
-    print(f"gradebook: {args.out}; feedback: {args.feedback or Path(args.out).with_name(Path(args.out).stem + '_feedback')}")
+    print(f"gradebook: {args.out}; feedback: {args.feedback or default_feedback_dir(args.out)}")
     return 1 if any("GRADER ERROR" in r.message for g in grades for r in g.rows) else 0

@@ -24,7 +24,7 @@ import urllib.parse
 from collections import Counter
 from pathlib import Path
 
-from .core import Row, SubmissionGrade, feedback_names, read_gradebook
+from .core import Row, SubmissionGrade, default_feedback_dir, feedback_names, read_gradebook
 
 #: outcome → colour (Okabe–Ito, colour-blind safe), in the order the bars stack
 OUTCOMES = {"passed": "#009E73", "failed": "#D55E00", "missing": "#CC79A7", "not attempted": "#999999",
@@ -86,17 +86,11 @@ def _after_case(text: str) -> str:
     return rest if sep else head
 
 
-def default_paths(gradebook: Path) -> tuple[Path, Path]:
-    """(report, feedback folder) as ``kfkit grade`` places them: ``<stem>_report.html``, ``<stem>_feedback/``."""
-    gradebook = Path(gradebook)
-    return gradebook.with_name(gradebook.stem + "_report.html"), gradebook.with_name(gradebook.stem + "_feedback")
-
-
 def write_report(gradebook: Path, out: Path | None = None, feedback_dir: Path | None = None) -> Path:
     """Read ``gradebook`` (ValueError naming file and line if it is not one), write the HTML page; → its path."""
     gradebook = Path(gradebook)
-    default_out, default_feedback = default_paths(gradebook)
-    out, feedback_dir = Path(out or default_out), Path(feedback_dir or default_feedback)
+    out = Path(out or gradebook.with_name(gradebook.stem + "_report.html"))
+    feedback_dir = Path(feedback_dir or default_feedback_dir(gradebook))
     grades = read_gradebook(gradebook)
     if not grades:
         raise ValueError(f"{gradebook}: the gradebook holds no submission (only its header)")
@@ -195,10 +189,11 @@ def _stacked_bars(names, outcomes, n) -> str:
 def _mistakes(grades, names) -> str:
     rows = []
     for name in names:
-        failing = [r for g in grades for r in g.rows if r.checkpoint == name and outcome(r) == "failed"]
-        groups = Counter(mistake(r.message) for r in failing)
+        failing = [(mistake(r.message), r.message) for g in grades for r in g.rows
+                   if r.checkpoint == name and outcome(r) == "failed"]
+        groups = Counter(text for text, _ in failing)
         for text, count in groups.most_common(TOP_MISTAKES):
-            example = next(r.message for r in failing if mistake(r.message) == text)
+            example = next(message for key, message in failing if key == text)
             rows.append(f'<tr class="mistake"><td>{html.escape(name)}</td><td class="num">{count}</td>'
                         f'<td>{html.escape(text)}<br><small>e.g. {html.escape(example)}</small></td></tr>')
     if not rows:
