@@ -151,7 +151,7 @@ def test_section12_covering_the_coupling_keeps_the_bias_at_the_rests(real, secti
 
 
 def test_notebook_section12_functions_match_the_oracle(real, section12):
-    """The notebook's left_out_rates (through filters.euler_rates) and run_kf_moving (through the student's
+    """The notebook's left_out_rates (through frames.body_rates_to_euler_rates) and run_kf_moving (through the student's
     kf_predict/kf_update, here the model answers) agree with this file's independent versions."""
     ns = solution_namespace("05")
     f, w, dt = real.body("acc"), real.body("gyr"), 1.0 / real.rate_hz
