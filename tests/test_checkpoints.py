@@ -9,7 +9,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from kfkit import calibration as C
-from kfkit import datasets, filters, frames
+from kfkit import datasets, discrete, filters, frames
 from kfkit import vehicle as V
 from kfkit.checkpoints import REGISTRY, check, compare, get, run_checkpoint
 from kfkit.filters import estimate_sideslip, sideslip_step
@@ -86,7 +86,7 @@ RIGHT = {
     "04.ekf_rmse": reference_run_ekf,
     "04.real_ekf": reference_run_ekf,
     "06.bicycle_model": V.linear_model,
-    "06.discretize": V.discretize,
+    "06.discretize": discrete.discretize,
     "06.kf_step": sideslip_step,
     "06.slalom_rmse": kfkit_run_sideslip,
 }
