@@ -197,6 +197,7 @@ HardwareSerial Serial;
 TwoWire Wire;
 static uint32_t start = 0, now = 0, maxUs = 10000000u;
 static int whoAmI = 0x68;
+static uint8_t mpuRegisters[128];  /* what the sketch wrote (PWR_MGMT_1 powers on asleep: 0x40, set in main) */
 static long frames[40000][9];
 static long frameCount = 0, used = 0, current = -1;
 static struct { uint32_t at; int c; } commands[16];
@@ -224,13 +225,17 @@ size_t TwoWire::write(uint8_t value) { if (sent < sizeof pending) pending[sent] 
 uint8_t TwoWire::endTransmission(bool) {
     if (address != 0x68) return 2;  /* NACK on the address */
     reg = pending[0];
-    if (sent == 2) fprintf(stderr, "MPU6050 write 0x%02X = 0x%02X\n", reg, pending[1]);
+    if (sent == 2) {
+        fprintf(stderr, "MPU6050 write 0x%02X = 0x%02X\n", reg, pending[1]);
+        mpuRegisters[reg & 0x7F] = pending[1];
+    }
     return 0;
 }
 uint8_t TwoWire::requestFrom(uint8_t a, uint8_t count) {
     position = length = 0;
     if (a != 0x68 || count > sizeof buffer) return 0;
     if (reg == 0x75) { buffer[0] = (uint8_t)whoAmI; length = count; return count; }
+    if (reg == 0x6B && count == 1) { buffer[0] = mpuRegisters[0x6B]; length = count; return count; }  /* PWR_MGMT_1 */
     if (reg == 0x3B && count == 14) {
         if (!nextFrame()) return 0;
         const long *f = frames[current];
@@ -342,6 +347,7 @@ int main(int argc, char **argv) {
         frameCount++;
     }
     for (int i = 0; i < commandCount; i++) commands[i].at += start;
+    mpuRegisters[0x6B] = 0x40;
     now = start;
     setup();
     while (used < frameCount && now - start <= maxUs) { loop(); now += 500u; }
