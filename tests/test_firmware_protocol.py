@@ -275,6 +275,26 @@ def test_mpu6050_logger_reports_a_missing_or_wrong_chip(tmp_path):
     assert "WHO_AM_I 0x70" in notes[0].text and notes[0].text.startswith("ERROR,")
 
 
+def test_a_board_that_only_reports_its_missing_chip_is_not_taken_for_a_wrong_baud_rate(tmp_path):
+    """What the sketch sends without its sensor ('#ERROR' notes, nothing else) reaches kfkit's capture as the board's
+    own words: NoDataError quoting them (each once), not "wrong baud rate" (notes are protocol v1 lines)."""
+    exe = arduino_host.build_sketch(FIRMWARE / "mpu6050_logger" / "mpu6050_logger.ino", tmp_path)
+    lines, _ = arduino_host.run_sketch(exe, [[0] * 6], "--who-am-i", "0x70", "--max-us", 2_500_000)
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        rec = C.Recorder(os.ttyname(slave), out=tmp_path / "x.csv", no_data_s=1.0, garbage_s=1.0).start()
+        os.write(master, b"".join(lines))
+        assert rec.wait(30)  # it ends by itself
+        rec.stop(raise_error=False)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert isinstance(rec.error, C.NoDataError) and rec.stats.samples == 0 and not (tmp_path / "x.csv").exists()
+    message = str(rec.error)
+    assert "only notes from the board" in message and message.count("WHO_AM_I 0x70") == 1
+
+
 def test_mpu6050_logger_stop_and_start(tmp_path):
     exe = arduino_host.build_sketch(FIRMWARE / "mpu6050_logger" / "mpu6050_logger.ino", tmp_path)
     frames = np.zeros((50, 6), dtype=int)

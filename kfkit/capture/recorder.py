@@ -280,7 +280,7 @@ class Recorder:
 
     def _check_startup(self, waited):
         s = self.stats
-        valid = s.samples + s.before_header + (self.header is not None)
+        valid = s.samples + s.before_header + (self.header is not None) + len(s.notes)  # a '#' note is protocol v1
         if waited >= self.garbage_s and s.bytes >= 20 and valid <= 0.1 * (valid + s.bad_lines):
             hint = ("check Serial.begin(...) in the sketch" if self.baud == DEFAULT_BAUD
                     else f"pass baud={DEFAULT_BAUD} (kfkit capture --baud {DEFAULT_BAUD})")
@@ -294,6 +294,10 @@ class Recorder:
             self._fail(NoDataError, f"{self.device}: the board sent its header but no samples in {waited:.1f} s: "
                        f"it may be stopped (the 's' command toggles streaming) or its sensor failed to start"
                        f"{self._notes()}; press the board's reset button")
+        elif waited >= self.no_data_s and self.header is None and s.notes and not s.before_header:
+            self._fail(NoDataError, f"{self.device}: no header and no samples in {waited:.1f} s, only notes from the board"
+                       f"{self._notes()}: its sketch runs but cannot start; fix what it says, then press the board's "
+                       f"reset button")
         elif waited >= self.no_data_s and valid == 0 and s.bytes < 20:
             notes = self._notes() + (f" except {s.bytes} stray bytes" if s.bytes else "")
             self._fail(NoDataError, f"{self.device}: nothing received in {waited:.1f} s{notes}. Check that the logger "
@@ -301,7 +305,7 @@ class Recorder:
                        f"program reads the port")
 
     def _notes(self) -> str:
-        return f" (the board said: {'; '.join(self.stats.notes)})" if self.stats.notes else ""
+        return f" (the board said: {'; '.join(dict.fromkeys(self.stats.notes))})" if self.stats.notes else ""  # each once
 
     def _handle(self, line: bytes):
         item = parse_line(line)
