@@ -260,11 +260,12 @@ def test_mpu6050_logger_configures_the_chip_and_streams_every_sample(tmp_path):
     assert s.jitter_us == 0.0
 
 
-def test_mpu6050_logger_builds_for_the_arduino_uno(tmp_path):
+def test_mpu6050_logger_builds_for_the_arduino_uno():
     """The real thing: avr-gcc with the Arduino AVR core and Wire library (Debian's arduino-core-avr),
-    every warning an error, linked; it must fit the ATmega328P (32 KB flash less the 512 B bootloader, 2 KB RAM)."""
-    size = arduino_host.build_avr(FIRMWARE / "mpu6050_logger" / "mpu6050_logger.ino", tmp_path)
-    assert 0 < size["flash"] < 32_256 and 0 < size["ram"] < 1_500  # RAM: leave room for the stack
+    every warning an error, linked; it must fit the ATmega328P (32 KB flash less the 512 B bootloader, 2 KB RAM).
+    It runs on an emulated Uno in tests/test_firmware_emulated_uno.py."""
+    image = arduino_host.uno_image("mpu6050_logger")
+    assert 0 < image.flash < 32_256 and 0 < image.ram < 1_500  # RAM: leave room for the stack
 
 
 def test_mpu6050_logger_reports_a_missing_or_wrong_chip(tmp_path):
