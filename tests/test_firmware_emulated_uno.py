@@ -15,7 +15,6 @@ peripheral with an ISM330DHCX and an IIS2MDC on it, so it is proven by its real 
 the protocol tests on the host (test_firmware_protocol.py), not by running.
 """
 import json
-import os
 import subprocess
 import sys
 import time
@@ -27,7 +26,7 @@ import serial
 
 import arduino_host
 from kfkit import datasets
-from kfkit.capture import CaptureError, Message, NoDataError, Recorder, Sample, parse_line
+from kfkit.capture import CaptureError, Recorder, Sample, parse_line
 from kfkit.capture import emulated_uno as E
 from kfkit.checkpoints import lab05
 from kfkit.cli import main
@@ -138,12 +137,12 @@ def test_kfkit_capture_records_every_sample_the_emulated_sensor_produced(toolcha
     np.testing.assert_array_equal(served[:, 1], first + np.arange(n))
     np.testing.assert_array_equal(served[:, 2:], frames[first:first + n])
     # time is the board's: t_us steps of exactly 10 000 µs of the emulated clock, no jitter, the clock's rate 100 Hz;
-    # and the AVR read each sample within 0.1 ms of its t on the same clock (its cycle count)
+    # and the AVR read each sample at its t on that clock (its cycle count, from the first read) to within 0.1 ms
     assert (stats["clock_rate_hz"], stats["dt_mean_us"], stats["jitter_us"]) == (RATE, 10000.0, 0.0)
     np.testing.assert_array_equal(np.round(captured.t * 1e6), np.arange(n) * 10000)
     read_us = (served[:, 0] - served[0, 0]) / CYCLES_PER_US
     assert np.max(np.abs(read_us - captured.t * 1e6)) < 100
-    # the file runs through lab 05: its reference pipeline and filter find the 0° hold as on the bundled data
+    # the file runs through lab 05: its reference pipeline (the phases are the recording's) and filter hold the 0° hold
     tilt_rec = with_phases(captured, recording, first)
     _, still, faces = lab05.bundled()
     axes, dt, r, q0 = lab05.pipeline_inputs(tilt_rec, still, faces)
