@@ -34,6 +34,8 @@ LONGEST_FIRST = (
     "solutions/04_ekf_attitude.ipynb",
     "tests/test_grading_isolation.py",
     "tests/test_calibration_labs.py",
+    "tests/test_firmware_stm32.py",  # the STM32duino core's build, about a minute of CPU
+    "tests/test_firmware_emulated_uno.py",
 )
 
 
