@@ -34,7 +34,7 @@ from .roll import RollKF, RollSettings, integrate_rate, roll_kf, roll_kf_predict
 from .tilt import TiltAttitude, TiltBiasKF, TiltRun, TiltSettings, accel_static_ok, protocol_angles
 from .attitude_run import AttitudeRun
 from .euler_ekf import (EulerAttitudeEKF, EulerEkfSettings, attitude_jacobian, attitude_measurement, euler_ekf_predict,
-                        euler_ekf_update, euler_process_noise, euler_rates)
+                        euler_ekf_update, euler_process_noise)
 from .euler_ekf_fast import FastEulerAttitudeEKF
 from .mekf import MekfSettings, MultiplicativeEKF
 from .attitude import estimate_attitude
