@@ -107,6 +107,11 @@ class TimedOutEarlier(Exception):
     """Raised instead of running again a notebook function that timed out earlier in this submission."""
 
 
+def _notebook_function(value):
+    """A function defined in the notebook (not one it imported, from kfkit or elsewhere)."""
+    return isinstance(value, types.FunctionType) and getattr(value, "__module__", None) in ("__main__", None)
+
+
 def _interrupted(user_ns):
     """The innermost function of the notebook running when the last cell was interrupted (a KeyboardInterrupt
     that IPython kept in ``sys.last_value``), or None; forgets that interrupt."""
@@ -114,8 +119,7 @@ def _interrupted(user_ns):
     sys.last_type = sys.last_value = sys.last_traceback = None
     if not isinstance(value, KeyboardInterrupt):
         return None
-    codes = {v.__code__: k for k, v in list(user_ns.items())
-             if isinstance(v, types.FunctionType) and not k.startswith("_")}
+    codes = {v.__code__: k for k, v in list(user_ns.items()) if _notebook_function(v) and not k.startswith("_")}
     found = None
     while tb is not None:
         found = codes.get(tb.tb_frame.f_code, found)
@@ -138,9 +142,9 @@ def stop(user_ns, nonce, names, message):
     stopped = []
     for name in ([_interrupted(user_ns)] if names is None else names):
         func = user_ns.get(name) if name else None
-        if not isinstance(func, types.FunctionType) or hasattr(func, "__kfkit_original__"):
+        if not _notebook_function(func) or hasattr(func, "__kfkit_original__"):
             continue
-        stub = _stub(name, func, message.format(name=name))
+        stub = _stub(name, func, message.replace("{name}", name))
         for key, value in list(user_ns.items()):
             if value is func:
                 user_ns[key] = stub

@@ -193,7 +193,7 @@ class KernelRun:
         self.skipped: set[int] = set()
         self.cell_notes: dict[int, str] = {}
         self.stopped: dict[str, Stopped] = {}  # function name → where it timed out
-        self.affected: dict[int, tuple[str, str]] = {}  # cell → (the stopped function behind its error, the error)
+        self.affected: dict[int, tuple[str, str]] = {}  # cell → (the stopped function behind its error, why)
         self.unmade: dict[str, str] = {}  # a name a timed-out or affected cell did not make → the function behind
         self.restarts = 0
         self.current = 0  # index of the cell running (len(sources): the grader's calls)
@@ -427,6 +427,30 @@ class KernelRun:
             self.until = self.deadline
         self._restore_functions()
 
+    def _outcome(self, i: int, status: str, error) -> list[str]:
+        """The notes on cell ``i`` after it ran; a loop paid for once: a function it timed out in is stopped,
+        an error that only follows from a stopped function is put in ``affected``, not in the notes."""
+        notes, cause = [], None
+        if status == "timeout":
+            notes.append(f"timed out after {self.last_timeout:g} s (interrupted)")
+            cause = next(iter(self._stop_functions(i, None)), None)
+            if cause is not None:
+                notes[-1] += (f" inside {cause}; later calls of {cause} in the notebook failed at once instead of "
+                              "running again")
+        elif status == "error":
+            cause = self._follow_on(i, error)
+            if cause is None:
+                notes.append(f"{error.ename}: {error.evalue}" if error.evalue else error.ename)
+            elif self.stopped[cause].cell != i:
+                self.affected[i] = (cause, f"calls {cause}" if error.ename == wire.TIMED_OUT_EARLIER
+                                    else f"{error.ename}: {error.evalue}")
+        if cause is not None:
+            self._note_unmade(i, cause)
+        for name, s in list(self.stopped.items()):  # a replay: stopped again before the cells calling it
+            if s.defined_in == i < s.cell:
+                self._stop_functions(s.cell, [name], s.checkpoint, s.seconds)
+        return notes
+
     def _run_cells(self):
         while True:
             try:
@@ -440,24 +464,8 @@ class KernelRun:
                                               "functions)")
                         return
                     status, error = self._execute(i, source)
-                    notes, cause, printed = [], None, self.client.cell_bytes
-                    if status == "timeout":
-                        notes.append(f"timed out after {self.last_timeout:g} s (interrupted)")
-                        cause = next(iter(self._stop_functions(i, None)), None)
-                        if cause is not None:
-                            notes[-1] += (f" inside {cause}; later calls of {cause} in the notebook failed at once "
-                                          "instead of running again")
-                    elif status == "error":
-                        cause = self._follow_on(i, error)
-                        if cause is None:
-                            notes.append(f"{error.ename}: {error.evalue}" if error.evalue else error.ename)
-                        elif self.stopped[cause].cell != i:
-                            self.affected[i] = (cause, f"{error.ename}: {error.evalue}")
-                    if cause is not None:
-                        self._note_unmade(i, cause)
-                    for name, s in list(self.stopped.items()):  # a replay: stopped again before the cells calling it
-                        if s.defined_in == i < s.cell:
-                            self._stop_functions(s.cell, [name], s.checkpoint, s.seconds)
+                    printed = self.client.cell_bytes
+                    notes = self._outcome(i, status, error)
                     if printed > self.limits.output_bytes:
                         notes.append(f"printed {printed / 1e6:.1f} MB of output (discarded)")
                     if notes:  # a replay after a restart says it again, once

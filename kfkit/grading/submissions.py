@@ -116,8 +116,9 @@ def _walk(root: Path):
     refused). ``os.walk`` lists a link to a folder among the folders and, told so, does not enter it."""
     for folder, dirs, files in os.walk(root, followlinks=False):
         here = Path(folder)
+        dirs[:] = [d for d in dirs if d not in SKIPPED_FOLDERS]
         links = [d for d in dirs if os.path.islink(here / d)]
-        dirs[:] = sorted(d for d in dirs if d not in SKIPPED_FOLDERS and d not in links)
+        dirs[:] = sorted(d for d in dirs if d not in links)
         for name in sorted(links + [f for f in files if f.endswith(".ipynb")]):
             rel = (here / name).relative_to(root)
             yield _submission(root, rel, Path(root.name) / rel)
@@ -179,11 +180,13 @@ def _refused_step(exc: OSError, part: str, folder: int) -> OSError:
 
 
 def _read_by_path(root: Path, parts: tuple, limit: int) -> bytes:
+    """:func:`read_submission` where ``openat`` is missing: each step checked with ``lstat``, the file opened
+    by its path and its ``fstat`` compared with the ``lstat`` (a swap in between is refused)."""
     path = Path(root)
-    for part in parts:
+    for i, part in enumerate(parts):
         path = path / part
         mode = os.lstat(path).st_mode
-        if stat.S_ISLNK(mode) or (part == parts[-1] and not stat.S_ISREG(mode)):
+        if stat.S_ISLNK(mode) or (i == len(parts) - 1 and not stat.S_ISREG(mode)):
             raise Refused(f"refused: {part} is {kind(mode)}, not opened")
     before = os.lstat(path)
     fd = os.open(path, SAFE_OPEN)
