@@ -393,6 +393,20 @@ def test_numbers_are_masked_as_the_old_pattern_did_but_in_one_pass():
         faulthandler.cancel_dump_traceback_later()
 
 
+def test_long_tokens_wrap_in_a_browser(tmp_path, browser_page):
+    """A 5,000-character token in a name, a message and a feedback file: the page stays as wide as the window."""
+    token = "W" * 5000
+    path = tmp_path / "g.csv"
+    gradebook.write_gradebook(path, [gradebook.SubmissionGrade(f"{token[:200]}.ipynb", 1, [
+        gradebook.Row(f"01.c{k}", 0, 1, Status.FAILED, f"expected 1, got {token}") for k in range(5)])])
+    (tmp_path / "g_feedback").mkdir()
+    (tmp_path / "g_feedback" / f"{token[:200]}.md").write_text(token)
+    browser_page.goto(report.write_report(path).as_uri())
+    browser_page.wait_for_selector("tr.student")
+    widths = browser_page.evaluate("() => [document.documentElement.scrollWidth, window.innerWidth]")
+    assert widths[0] <= widths[1], widths
+
+
 # ------------------------------------------------------------------ the browser: tests/browser/'s (Debian's Chromium)
 @pytest.fixture(scope="module")
 def browser_page(browser):

@@ -188,7 +188,7 @@ def build(folder: Path, vandal: str):
         "huge_print": add(minimal(), HUGE_PRINT),
         "loop_update": append(edit(minimal(), "    y = z - x\n", "    while True:\n        pass\n    y = z - x\n"),
                               *AFTER_THE_LOOP),
-        "busy": append(edit(minimal(), "return x + omega * dt, P + q", "sum(range(20_000))  # slow, but right"
+        "busy": append(edit(minimal(), "return x + omega * dt, P + q", "sum(range(2_000))  # slow, but right"
                             "\n    return x + omega * dt, P + q"),
                        "for _ in range(10**9):  # a cell that calls a right function too often\n"
                        "    kf_predict(0.0, 1.0, 0.1, 0.01, 1e-4)", "after = kf_predict(0.0, 1.0, 0.1, 0.01, 1e-4)"),
@@ -372,8 +372,16 @@ def test_a_loop_is_paid_for_once_and_what_follows_from_it_is_not_a_fault(graded)
 def test_a_function_caught_by_a_cells_timeout_is_still_judged_on_the_graders_cases(graded):
     """A cell calls a right (if slow) kf_predict too often and times out, most likely inside kf_predict: the
     grader still calls kf_predict on its own cases, and it earns its point."""
-    assert points(graded, "busy") == POINTS
+    assert points(graded, "busy")["01.kf_predict"] == 1, graded["subs"]["busy"]["01.kf_predict"]
     assert f"timed out after {TIMEOUT} s (interrupted)" in feedback(graded, "busy")
+
+
+def test_functions_stopped_in_the_notebook_are_put_back_even_unheard_of(every_lab):
+    """The kernel's stubs, not the grader's notes of them, decide: a stop whose answer never reached the grader is
+    undone before grading all the same; a grading stop stays."""
+    predict, update = every_lab["restored"]
+    assert predict == [{"out": {"__tuple__": [0.1, 1.5]}}]
+    assert update == [{"raised": "TimedOutEarlier", "message": "kf_update stopped"}]
 
 
 def test_loop_ignoring_interrupts_restarts_the_kernel_and_grading_goes_on(graded):
@@ -485,6 +493,21 @@ def _grade_unsandboxed(path):
     return core.grade_submission(path, core.lab_checkpoints("01"), sandbox.Sandbox("none", warning="test"), GENEROUS)
 
 
+def _restore_unheard_stops(box):
+    """A kernel where the notebook's kf_predict was stopped without the grader hearing of it (its answer lost on
+    a loaded machine), and kf_update stopped for the grading: → (kf_predict's report, kf_update's) after the
+    functions are put back before the grader's calls."""
+    sources = [c.source for c in minimal().cells]
+    with runner.KernelRun(sources, box, GENEROUS) as run:
+        run.run_notebook()
+        run._quiet(wire.stop_code(["kf_predict"], "{name} stopped", "KFKITx", False), 60)
+        run._quiet(wire.stop_code(["kf_update"], "{name} stopped", "KFKITx", True), 60)
+        run._restore_functions()
+        return [run.call(name, [args])["results"] for name, args in
+                (("kf_predict", {"x": 0.0, "P": 1.0, "omega": 1.0, "dt": 0.1, "q": 0.5}),
+                 ("kf_update", {"x": 0.0, "P": 1.0, "z": 1.0, "r": 1.0}))]
+
+
 def _grade_every_other_lab(tmp_path_factory, box):
     """Lab 01 is the CLI run's; the others: each solution on a fresh seed, each hand-out once."""
     slow = tmp_path_factory.mktemp("slow") / "slow.ipynb"  # kf_predict hangs, and so do three cells at the end
@@ -504,8 +527,9 @@ def _grade_every_other_lab(tmp_path_factory, box):
         flood = tmp_path_factory.mktemp("flood") / "flood.ipynb"
         nbformat.write(add(add(minimal(), HUGE_PRINT), ENDLESS_PRINT, at=-1), flood)
         flood_job = pool.submit(_grade_generously, flood, box)
+        restore_job = pool.submit(_restore_unheard_stops, box)
         return {"labs": {lab: f.result() for lab, f in jobs.items()}, "slow": slow_job.result(),
-                "unsandboxed": plain_job.result(), "flood": flood_job.result()}
+                "unsandboxed": plain_job.result(), "flood": flood_job.result(), "restored": restore_job.result()}
 
 
 OTHER_LABS = [name[3:] for name in LABS if name != "lab01"]
@@ -715,7 +739,7 @@ def test_same_named_submissions_from_different_folders_stay_apart(tmp_path):
         (tmp_path / course / "sub").mkdir(parents=True)
         shutil.copy(LAB, tmp_path / course / "sub" / "alice.ipynb")
     found, _ = core.find_submissions([tmp_path / "a" / "sub" / "alice.ipynb", tmp_path / "b" / "sub" / "alice.ipynb"])
-    assert len({name for _, name in found}) == 2
+    assert len({sub.name for sub in found}) == 2
 
 
 # ------------------------------------------------------------------ the wire format (no kernel)

@@ -195,3 +195,23 @@ def test_kfkit_grade_refuses_a_link_to_the_solution_and_a_pipe(tmp_path):
     assert {g.submission: {r.status for r in g.rows} for g in rows} == {"subs/alice.ipynb": {Status.REFUSED},
                                                                         "subs/carol.ipynb": {Status.REFUSED}}
     assert sum(g.points for g in rows) == 0
+
+
+def test_a_folder_that_cannot_be_read_is_named(tmp_path, kernels, monkeypatch):
+    notebook(tmp_path / "subs" / "alice.ipynb")
+    notebook(tmp_path / "subs" / "locked" / "bob.ipynb")
+
+    def walk_without_locked(top, onerror=None, followlinks=False):  # os.walk meeting a folder it may not list
+        # (simulated: root, as the grader often runs, may list any folder whatever its mode)
+        for folder, dirs, files in real_walk(top, followlinks=followlinks):
+            if "locked" in dirs:
+                onerror(PermissionError(13, "Permission denied", os.path.join(folder, "locked")))
+                dirs.remove("locked")
+            yield folder, dirs, files
+
+    real_walk = os.walk
+    monkeypatch.setattr(os, "walk", walk_without_locked)
+    found, warnings = core.find_submissions([tmp_path / "subs"])
+    assert [s.name for s in found] == ["subs/alice.ipynb"]
+    assert warnings == [f"{tmp_path.resolve() / 'subs' / 'locked'}: folder cannot be read (Permission denied): "
+                        "what it holds is not graded"]

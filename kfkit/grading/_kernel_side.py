@@ -6,9 +6,9 @@ grader: trusted in this direction), calls the student's function on each, and pr
 objects for tuples, dicts, arrays and dataclasses; anything else is named, not sent. The grader
 decodes that JSON with size limits and never unpickles anything the kernel sends.
 
-``stop(user_ns, nonce, names, message)`` replaces notebook functions that timed out by stubs that raise
+``stop(user_ns, nonce, names, message, keep)`` replaces notebook functions that timed out by stubs that raise
 :class:`TimedOutEarlier` at once (``names``, or when None the function the last interrupt stopped), so a
-loop is paid for once, not once per cell that calls it; ``restore(user_ns, names)`` puts them back.
+loop is paid for once, not once per cell that calls it; ``restore(user_ns)`` puts back all but those kept.
 """
 import base64
 import dataclasses
@@ -127,24 +127,32 @@ def _interrupted(user_ns):
     return found
 
 
-def _stub(name, func, text):
+def _stub(name, func, text, keep):
     def timed_out_earlier(*args, **kwargs):
         raise TimedOutEarlier(text)
 
     timed_out_earlier.__name__ = timed_out_earlier.__qualname__ = name
-    timed_out_earlier.__kfkit_original__ = func
+    timed_out_earlier.__kfkit_original__, timed_out_earlier.__kfkit_keep__ = func, keep
     return timed_out_earlier
 
 
-def stop(user_ns, nonce, names, message):
+def _stubs(user_ns):
+    """(name, stub) of every stub in the notebook's namespace (only functions are looked at: getting an
+    attribute of any other object could run the notebook's code)."""
+    return [(k, v) for k, v in list(user_ns.items())
+            if isinstance(v, types.FunctionType) and hasattr(v, "__kfkit_original__")]
+
+
+def stop(user_ns, nonce, names, message, keep):
     """Replace each function ``names`` (None: the interrupted one) of the notebook, under every name bound to
-    it, by a stub raising TimedOutEarlier(``message`` with its name); print the names stopped (JSON)."""
+    it, by a stub raising TimedOutEarlier(``message`` with its name), kept by :func:`restore` when ``keep``;
+    print the names stopped (JSON)."""
     stopped = []
     for name in ([_interrupted(user_ns)] if names is None else names):
         func = user_ns.get(name) if name else None
-        if not _notebook_function(func) or hasattr(func, "__kfkit_original__"):
+        if not _notebook_function(func):
             continue
-        stub = _stub(name, func, message.replace("{name}", name))
+        stub = _stub(name, func, message.replace("{name}", name), keep)
         for key, value in list(user_ns.items()):
             if value is func:
                 user_ns[key] = stub
@@ -153,9 +161,8 @@ def stop(user_ns, nonce, names, message):
     sys.stdout.flush()
 
 
-def restore(user_ns, names):
-    """Put back the functions :func:`stop` replaced under ``names`` (those the notebook has not redefined)."""
-    for key, value in list(user_ns.items()):
-        original = getattr(value, "__kfkit_original__", None)
-        if original is not None and value.__name__ in names:
-            user_ns[key] = original
+def restore(user_ns):
+    """Put back the functions :func:`stop` replaced (those the notebook has not redefined since), but the kept."""
+    for key, stub in _stubs(user_ns):
+        if not stub.__kfkit_keep__:
+            user_ns[key] = stub.__kfkit_original__

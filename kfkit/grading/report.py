@@ -31,8 +31,9 @@ from ..checkpoints import Status
 from .gradebook import SubmissionGrade, default_feedback_dir, feedback_names, read_gradebook
 from .quoting import clip, visible_controls
 
-#: outcome → colour (Okabe–Ito, colour-blind safe, then greys), in the order the bars stack
-OUTCOMES = {Status.PASSED: "#009E73", Status.FAILED: "#D55E00", Status.ERROR: "#F0E442", Status.MISSING: "#CC79A7",
+#: outcome → colour (Okabe–Ito, colour-blind safe; error in Tol's wine, readable as text; greys), in the order
+#: the bars stack
+OUTCOMES = {Status.PASSED: "#009E73", Status.FAILED: "#D55E00", Status.ERROR: "#882255", Status.MISSING: "#CC79A7",
             Status.NOT_ATTEMPTED: "#999999", Status.TIMED_OUT: "#E69F00", Status.OVER_LIMIT: "#56B4E9",
             Status.NOT_GRADED: "#0072B2", Status.REFUSED: "#000000", Status.UNKNOWN: "#DDDDDD"}
 MISTAKES = (Status.FAILED, Status.ERROR, Status.UNKNOWN)  # rows whose messages are grouped into mistakes
@@ -186,7 +187,8 @@ def render(grades: list[SubmissionGrade], title: str, feedback: dict[str, str]) 
             + "\n</body></html>\n")
 
 
-_CSS = ("body{font-family:sans-serif;max-width:70em;margin:1em auto;color:#222;overflow-wrap:anywhere}"
+_CSS = ("body{font-family:sans-serif;max-width:70em;margin:1em auto;color:#222}"
+        ".wrap,pre,h3{overflow-wrap:anywhere}"  # a long token (a name, a message) wraps instead of stretching the page
         "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:2px 6px;text-align:left;vertical-align:top}"
         "td.num{text-align:right}.legend span{display:inline-block;margin-right:1em}"
         ".sw{display:inline-block;width:.9em;height:.9em;margin-right:.3em;vertical-align:middle;border:1px solid #888}"
@@ -255,7 +257,8 @@ def _mistakes(grades, names) -> str:
         for text, count in groups.most_common(TOP_MISTAKES):
             example = next(message for key, message in failing if key == text)
             rows.append(f'<tr class="mistake"><td>{_text(name, CHECKPOINT_CHARS)}</td><td class="num">{count}</td>'
-                        f'<td>{_text(text, MESSAGE_CHARS)}<br><small>e.g. {_text(example, MESSAGE_CHARS)}</small></td></tr>')
+                        f'<td class="wrap">{_text(text, MESSAGE_CHARS)}<br><small>e.g. {_text(example, MESSAGE_CHARS)}'
+                        '</small></td></tr>')
     if not rows:
         return "<p>No checkpoint failed.</p>"
     return ("<table><tr><th>checkpoint</th><th>students</th><th>mistake (numbers masked as #)</th></tr>\n"
@@ -274,7 +277,7 @@ def _follow_up(grades) -> str:
                                                                                if any_of(g, Status.REFUSED)],
     }
     return "<ul>" + "".join(
-        f'<li class="follow-up" data-group="{k.split(" (")[0]}">{k} ({len(v)}): '
+        f'<li class="follow-up wrap" data-group="{k.split(" (")[0]}">{k} ({len(v)}): '
         + (", ".join(_text(g.submission, NAME_CHARS) for g in v) or "none") + "</li>" for k, v in groups.items()) + "</ul>"
 
 
@@ -294,7 +297,7 @@ def _students(grades, names, feedback) -> str:
                 continue
             cells.append(f'<td title="{_text(r.message, MESSAGE_CHARS)}" style="color:{OUTCOMES[r.status]}">'
                          f'{symbol.get(r.status, "✗")} {r.points:g}</td>')
-        rows.append(f'<tr class="student"><td>{who}</td><td class="num">{g.points:g} / {g.max_points:g}</td>'
+        rows.append(f'<tr class="student"><td class="wrap">{who}</td><td class="num">{g.points:g} / {g.max_points:g}</td>'
                     + "".join(cells) + "</tr>")
     return f"<table><tr><th>submission</th><th>score</th>{head}</tr>\n" + "\n".join(rows) + "</table>"
 

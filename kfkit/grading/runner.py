@@ -67,6 +67,7 @@ for name in {WARM_UP_MODULES!r}:
 WARM_UP = f"exec({_WARM_UP_CODE!r}, {{}})"  # the labs' heavy imports, outside the student's namespace
 SHORT_TMP = 48  # characters of temporary folder that leave room for box/ipc-N in an AF_UNIX path (≤ 107)
 PING_TIMEOUT = 5.0  # s a kernel gets to answer after an interrupted cell before it is restarted
+GRADER_CELL_TIMEOUT = 60.0  # s for the grader's own short cells (stopping, restoring functions): a hang guard
 IOPUB_TIMEOUT = 10  # s from a cell's reply to its last output; longer means the kernel's output has died
 _LOG = logging.getLogger("kfkit.grading.nbclient")
 _LOG.setLevel(logging.CRITICAL)
@@ -375,13 +376,14 @@ class KernelRun:
         where = f"the grader's call for {checkpoint}" if checkpoint else "the notebook"
         message = (f"{{name}} timed out earlier in {where} (after {seconds:g} s): kfkit grade does not run it again")
         nonce, captured = wire.new_nonce(), []
-        if not self._quiet(wire.stop_code(names, message, nonce), PING_TIMEOUT, captured):
-            return []
+        self._quiet(wire.stop_code(names, message, nonce, bool(checkpoint)), GRADER_CELL_TIMEOUT, captured)
         try:
             stopped = wire.extract("".join(captured), nonce).get("stopped")
         except wire.WireError:
-            return []
+            stopped = []
         stopped = [n for n in stopped if isinstance(n, str) and n.isidentifier()] if isinstance(stopped, list) else []
+        if checkpoint:  # the grader's own call timed out: not called again, whatever the kernel answered
+            stopped = list(dict.fromkeys(stopped + names))
         for name in stopped:
             if name not in self.stopped or checkpoint:  # a grader's call's timeout is the one that counts
                 defining = re.compile(rf"^\s*def\s+{re.escape(name)}\s*\(", re.M)
@@ -408,11 +410,10 @@ class KernelRun:
         return self.unmade.get(missing.group(1)) if missing else None
 
     def _restore_functions(self):
-        """Put back the functions the notebook's cells stopped, and stop again those the grader's calls stopped
-        (a replay after a restart made them anew)."""
-        notebook = [n for n, s in self.stopped.items() if not s.checkpoint]
-        if notebook:
-            self._quiet(wire.restore_code(notebook), PING_TIMEOUT)
+        """Put back the functions the notebook's cells stopped (all the kernel holds, whatever this side heard of
+        them), and stop again those the grader's calls stopped (a replay after a restart made them anew)."""
+        if self.client is not None:
+            self._quiet(wire.restore_code(), GRADER_CELL_TIMEOUT)
         for name, s in list(self.stopped.items()):
             if s.checkpoint:
                 self._stop_functions(s.cell, [name], s.checkpoint, s.seconds)

@@ -93,7 +93,7 @@ def find_submissions(paths) -> tuple[list[Submission], list[str]]:
     for p in map(Path, paths):
         if p.is_dir():
             root = p.resolve()
-            held = list(_walk(root))
+            held = list(_walk(root, warnings))
             if not held:
                 warnings.append(f"{p}: folder holds no .ipynb file")
             for sub in held:
@@ -111,10 +111,14 @@ def find_submissions(paths) -> tuple[list[Submission], list[str]]:
     return subs, warnings
 
 
-def _walk(root: Path):
+def _walk(root: Path, warnings: list):
     """Every ``.ipynb`` below ``root`` and every link to a folder there, as submissions (links and non-files
-    refused). ``os.walk`` lists a link to a folder among the folders and, told so, does not enter it."""
-    for folder, dirs, files in os.walk(root, followlinks=False):
+    refused); a folder that cannot be read is named in ``warnings``. ``os.walk`` lists a link to a folder among
+    the folders and, told so, does not enter it."""
+    def unreadable(exc: OSError):
+        warnings.append(f"{exc.filename}: folder cannot be read ({exc.strerror}): what it holds is not graded")
+
+    for folder, dirs, files in os.walk(root, onerror=unreadable, followlinks=False):
         here = Path(folder)
         dirs[:] = [d for d in dirs if d not in SKIPPED_FOLDERS]
         links = [d for d in dirs if os.path.islink(here / d)]

@@ -54,22 +54,22 @@ def call_code(function: str, cases_args: list[dict], nonce: str) -> str:
     return _kernel_code("call", function, base64.b64encode(data).decode(), nonce, MAX_NUMBERS)
 
 
-def stop_code(names: list[str] | None, message: str, nonce: str) -> str:
+def stop_code(names: list[str] | None, message: str, nonce: str, keep: bool) -> str:
     """Source of the cell that replaces the notebook's functions ``names`` (None: the one the last interrupt
-    stopped) by stubs raising :data:`TIMED_OUT_EARLIER` with ``message`` (``{name}`` filled in); its report
-    (:func:`extract`) is ``{"stopped": [names]}``."""
-    return _kernel_code("stop", nonce, names, message)
+    stopped) by stubs raising :data:`TIMED_OUT_EARLIER` with ``message`` (``{name}`` filled in), left in place
+    by :func:`restore_code` when ``keep``; its report (:func:`extract`) is ``{"stopped": [names]}``."""
+    return _kernel_code("stop", nonce, names, message, keep)
 
 
-def restore_code(names: list[str]) -> str:
-    """Source of the cell that puts back the functions :func:`stop_code` replaced under ``names``."""
-    return _kernel_code("restore", names)
+def restore_code() -> str:
+    """Source of the cell that puts back every function :func:`stop_code` replaced, except the kept ones."""
+    return _kernel_code("restore")
 
 
 def _kernel_code(entry: str, *args) -> str:
     """A cell calling ``_kernel_side.<entry>(the notebook's namespace, *args)`` in a namespace of its own."""
     return ("(lambda g: (exec(compile(g['__src__'], '<kfkit-grader>', 'exec'), g), "
-            f"g[{entry!r}](globals(), {', '.join(map(repr, args))})))"
+            f"g[{entry!r}](globals(){''.join(f', {a!r}' for a in args)})))"
             f"({{'__name__': '__kfkit_grader__', '__src__': {KERNEL_SIDE!r}}});")
 
 
