@@ -9,13 +9,6 @@ from __future__ import annotations
 import argparse
 import math
 
-SHOWN_CHARS = 40  # an option's text is shown up to this many characters
-
-
-def shown(text: str, limit: int = SHOWN_CHARS) -> str:
-    """``text`` quoted, cut to ``limit`` characters (with its length) when longer: for messages."""
-    return repr(text) if len(text) <= limit else f"{text[:limit]!r}… ({len(text)} characters)"
-
 
 def _plain(x) -> str:
     """A bound as people write it: 12000000, 0.5."""
@@ -35,6 +28,8 @@ def number(kind=float, low=0.0, high=math.inf, *, include_low=False, unit=""):
         except ValueError:
             value = math.nan
         if not (math.isfinite(value) and (low <= value if include_low else low < value) and value <= high):
+            from .io import shown  # only now: the command starts without NumPy
+
             raise argparse.ArgumentTypeError(f"{shown(text)} is not {what}")
         return value
 

@@ -190,5 +190,5 @@ def test_option_types_name_what_they_take():
             seconds(text)
     with pytest.raises(argparse.ArgumentTypeError, match="'1.5' is not a whole number > 0 and ≤ 10"):
         number(int, 0, 10)("1.5")
-    with pytest.raises(argparse.ArgumentTypeError, match=r"'1111111111111111111111111111111111111111'… \(1000 characters\)"):
+    with pytest.raises(argparse.ArgumentTypeError, match=r"'111111111111111111111111'… \(1,000 characters\) is not"):
         seconds("1" * 1000)
