@@ -11,8 +11,9 @@ with memory and CPU time limited for all its processes together (:mod:`kfkit.gra
    output cap (see :mod:`kfkit.grading.runner`);
 2. for each checkpoint of the lab (``kfkit.checkpoints.labNN``), draw fresh cases in the
    grader's process (a new seed per submission, written in the feedback), send only their
-   inputs to the kernel, call the student's function there, and receive only its outputs as
-   JSON numbers (:mod:`kfkit.grading.wire`);
+   inputs to the kernel (pickled), call the student's function there, and receive only its outputs,
+   or the class name and message of what it raised, as JSON (:mod:`kfkit.grading.wire`: nothing
+   the kernel sends is unpickled);
 3. judge those outputs here, with the checkpoint's own ``judge`` and ``points``, against
    expected values the kernel never sees. Nothing the notebook prints or patches in its kernel
    (``kfkit.checkpoints``, kfkit's reference functions) enters that judgement.
