@@ -19,8 +19,9 @@ column-name line, then one row per sample::
 Loading fails with :class:`RecordingError` naming the file and line: for a header that is not the
 format's, metadata without a positive finite ``rate_hz`` or without ``sensors``/``mount`` entries for the
 sensor columns present, duplicate or unnamed columns, a count that is not an exact integer within ±2^53
-(exact both as int64 and as float64, so no count is ever rounded), a number that is not plain ASCII
-decimal, time that does not increase, and a last line without its newline (see :func:`load_recording`).
+(exact both as int64 and as float64, so no count is ever rounded), a ``seq`` outside 0 … 65535 (a 16-bit
+counter), a number that is not plain ASCII decimal or is longer than :data:`MAX_NUMBER_CHARS`, time that
+does not increase, and a last line without its newline (see :func:`load_recording`).
 A UTF-8 byte-order mark (Excel writes one) is accepted.
 """
 from __future__ import annotations
@@ -45,6 +46,12 @@ TRUTH_COLUMNS = ("true_roll", "true_pitch", "true_yaw")
 BOM = "\ufeff"
 #: the largest count magnitude: integers up to 2^53 are exact as int64 and as float64 (counts() and NaN-able mag columns)
 MAX_COUNT = 2**53
+SEQ_MODULO = 2**16  # ``seq`` is the board's 16-bit sample counter: 0 … 65535
+#: the longest number text read: every writer of the kit's formats writes far shorter ones (a count ≤ 2^53 has 17
+#: characters, %.9g 16, a time in %.6f 24 below 10^16 s), so a longer one is a corrupted file (a megabyte of digits
+#: that parses to 0.0), refused before it is parsed
+MAX_NUMBER_CHARS = 64
+SHOWN_CHARS = 24  # a value in a message is cut to this many characters
 _INTEGER = re.compile(r"[+-]?[0-9]+")
 _DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 
@@ -58,12 +65,24 @@ class RecordingError(ValueError):
         self.path, self.line = path, line
 
 
+def shown(text: str, limit: int = SHOWN_CHARS) -> str:
+    """``text`` quoted for a message, cut to ``limit`` characters (saying how long it is) when longer."""
+    return repr(text) if len(text) <= limit else f"{text[:limit]!r}… ({len(text):,} characters)"
+
+
+def _check_length(text: str):
+    if len(text) > MAX_NUMBER_CHARS:
+        raise ValueError(f"{shown(text)} is longer than any number the file's writer produces "
+                         f"(≤ {MAX_NUMBER_CHARS} characters): a corrupted value?")
+
+
 def parse_count(text: str) -> int:
     """An integer count in ASCII decimal digits with |n| ≤ :data:`MAX_COUNT` (2^53), never through float.
 
     Raises ValueError saying why (callers add the file, line and column)."""
+    _check_length(text)
     if not _INTEGER.fullmatch(text):
-        raise ValueError(f"{text!r} is not an integer count")
+        raise ValueError(f"{shown(text)} is not an integer count")
     n = int(text)
     if abs(n) > MAX_COUNT:
         raise ValueError(f"{text} is out of range for a count (|n| ≤ 2^53 = {MAX_COUNT}): a corrupted value?")
@@ -74,14 +93,16 @@ def parse_number(text: str) -> float:
     """A finite number in plain ASCII decimal or scientific notation (``-1.5``, ``9.80665E0``).
 
     Stricter than ``float``, which also takes ``1_000``, non-ASCII digits, ``nan`` and ``inf``, and
-    overflows ``1e999`` to inf. Raises ValueError saying why."""
+    overflows ``1e999`` to inf; nor does it take more than :data:`MAX_NUMBER_CHARS` characters. Raises
+    ValueError saying why."""
+    _check_length(text)
     if text.lower().lstrip("+-") in ("nan", "inf", "infinity"):
         raise ValueError(f"{text!r} is not a finite number")
     if not _DECIMAL.fullmatch(text):
-        raise ValueError(f"{text!r} is not a number")
+        raise ValueError(f"{shown(text)} is not a number")
     value = float(text)
     if not math.isfinite(value):
-        raise ValueError(f"{text!r} is not a finite number (beyond ±1.8e308)")
+        raise ValueError(f"{shown(text)} is not a finite number (beyond ±1.8e308)")
     return value
 
 
@@ -169,6 +190,8 @@ def _count_text(name: str, value) -> str:
     n = int(value)
     if abs(n) > MAX_COUNT:
         raise ValueError(f"column {name!r}: {n} is out of range for a count (|n| ≤ 2^53)")
+    if name == "seq" and not 0 <= n < SEQ_MODULO:
+        raise ValueError(f"column 'seq': {n} is not a 16-bit sample counter (0 … {SEQ_MODULO - 1}): take it modulo 2^16")
     return str(n)
 
 
@@ -278,9 +301,13 @@ def _parse_cell(path, lineno: int, col: str, text: str):
     if text == "" and (col in OPTIONAL_INT_COLUMNS or col.startswith("true_")):
         return math.nan
     try:
-        return parse_count(text) if col in INT_COLUMNS or col in OPTIONAL_INT_COLUMNS else parse_number(text)
+        value = parse_count(text) if col in INT_COLUMNS or col in OPTIONAL_INT_COLUMNS else parse_number(text)
     except ValueError as e:
         raise RecordingError(path, lineno, f"column {col!r}: {e}") from None
+    if col == "seq" and not 0 <= value < SEQ_MODULO:
+        raise RecordingError(path, lineno, f"column 'seq': {value} is not a sample counter: seq counts the board's "
+                             f"samples modulo 2^16, 0 … {SEQ_MODULO - 1}")
+    return value
 
 
 def load_recording(path) -> Recording:

@@ -446,7 +446,7 @@ def read_csv_rows(path, lines, first_lineno, header, columns, delimiter=","):
     values = {name: [] for name in columns}
     linenos = []
     t_prev = None
-    for offset, cells in enumerate(csv.reader(lines, delimiter=delimiter)):
+    for offset, cells in enumerate(csv_rows(path, lines, first_lineno, delimiter)):
         lineno = first_lineno + offset
         if not cells or all(not c.strip() for c in cells):
             continue
@@ -467,6 +467,21 @@ def read_csv_rows(path, lines, first_lineno, header, columns, delimiter=","):
     if t_prev is None:
         raise RecordingError(path, first_lineno, "no data rows")
     return {name: np.asarray(v) for name, v in values.items()}, np.asarray(linenos)
+
+
+def csv_rows(path, lines, first_lineno, delimiter=","):
+    """The cells of each of ``lines`` (one row per line) as :func:`csv.reader` splits them; what it cannot read (a field
+    over its limit of 131,072 characters, a NUL byte) is a RecordingError naming the file and line."""
+    reader = csv.reader(lines, delimiter=delimiter)
+    while True:
+        try:
+            cells = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as e:
+            raise RecordingError(path, first_lineno + reader.line_num - 1, f"not readable as CSV ({e}): no number is "
+                                 f"that long or holds such a character; a corrupted file?") from None
+        yield cells
 
 
 def read_lines(path) -> tuple[list[str], bool]:

@@ -3,6 +3,10 @@ test over all labs), and each lab's judges naming the classic mistakes in answer
 
 The solutions' own exercise functions as answers, NaN/inf answers and the catalogue of mutated model answers
 are in test_checkpoints_every.py; lab 05's answers are the notebook's (its pipeline: test_tilt.py)."""
+import dataclasses
+import math
+import re
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
@@ -397,3 +401,82 @@ def test_lab06_judges_name_the_classic_mistakes():
 
     flat = run_checkpoint(get("06.bicycle_model"), b_as_a_row, seed=1)
     assert not flat.ok and "B has shape (2,), expected (2, 1)" in flat.message
+
+
+# --- the hint matches the kind of failure: the checkpoint's own only for wrong numbers ------------------------------
+
+def not_for_arrays(**kwargs):
+    return math.atan2(np.ones(3), np.ones(3))  # math takes one number: a function written for scalars
+
+
+def shapes_that_do_not_fit(**kwargs):
+    return np.ones(3) @ np.ones(2)
+
+
+def divides_by_zero(**kwargs):
+    return 1 / 0
+
+
+def returns_nan(**kwargs):
+    return float("nan")
+
+
+def returns_nothing(**kwargs):
+    pass
+
+
+KINDS = {  # student function → words of the hint its failure must get
+    not_for_arrays: "is called with NumPy arrays",
+    shapes_that_do_not_fit: "shapes do not fit together",
+    divides_by_zero: "a division by zero",
+    returns_nan: "NaN or inf comes from",
+    returns_nothing: "returns None when no return statement runs",
+}
+
+
+@pytest.mark.parametrize("name", all_checkpoints())
+def test_every_checkpoint_gives_the_hint_of_the_failures_kind_not_its_own(name):
+    """`math.atan2` on arrays used to get the atan2-sign hint of 01.accel_roll, and every exception, NaN or missing
+    return its checkpoint's hint about the numbers. The grader's path too: its exception is rebuilt from the
+    kernel's class name and message (kfkit.grading.core), so kinds are matched by name."""
+    from kfkit.grading.core import _student_exception
+
+    cp = get(name)
+    drawn = cp.cases(np.random.default_rng(0))
+    cp = dataclasses.replace(cp, cases=lambda rng: drawn)  # drawn once: some build a filter's whole run
+    for student, words in KINDS.items():
+        result = run_checkpoint(cp, student)
+        assert not result.ok and words in result.message and cp.hint not in result.message, (student.__name__, result)
+
+        def in_the_kernel(**kwargs):
+            try:
+                return student(**kwargs)
+            except Exception as e:  # as the grader sees it: a class of that name, that message
+                raise _student_exception(type(e).__name__, str(e)) from None
+
+        assert words in run_checkpoint(cp, in_the_kernel).message, student.__name__
+
+
+def test_wrong_numbers_keep_the_checkpoints_own_hint_and_a_wrong_form_says_the_expected_one():
+    cp = get("01.accel_roll")
+    assert cp.hint in run_checkpoint(cp, lambda ay, az: np.arctan2(ay, az), seed=0).message
+    update = run_checkpoint(get("01.kf_update"), lambda x, P, z, r: (x, P), seed=0).message
+    assert "Hint: return a tuple of 4 numbers, as the exercise's docstring says" in update
+    run_kf = run_checkpoint(get("01.run_kf"), lambda **kw: np.zeros((3, 2)), seed=0).message
+    assert re.search(r"Hint: return a tuple of 4 arrays of shape \(\d+,\)", run_kf), run_kf
+    jacobian = run_checkpoint(get("04.jacobian"), lambda x, field_n: np.zeros((3, 6)), seed=0).message  # a judge's words
+    assert "got shape (3, 6)" in jacobian and "Hint: return an array of shape (6, 3)" in jacobian, jacobian
+
+
+@pytest.mark.parametrize("raised, words", [
+    (TypeError("f() got an unexpected keyword argument 'omega'"), "the check calls kf_predict(x, P, omega, dt, q) by these names"),
+    (NameError("name 'kf_gain' is not defined"), "a name kf_predict uses is not defined"),
+    (ValueError("math domain error"), "outside its domain"),
+    (KeyError("x"), "run kf_predict yourself on the input shown"),
+])
+def test_other_exception_kinds(raised, words):
+    def student(**kwargs):
+        raise raised
+
+    message = run_checkpoint(get("01.kf_predict"), student, seed=0).message
+    assert words in message and get("01.kf_predict").hint not in message

@@ -156,3 +156,15 @@ def test_ci_runs_exactly_the_readme_test_command():
     [tests] = fenced_commands("Tests")
     ci = (KIT_ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
     assert tests in ci, f".ci/run does not run the README's test command {tests!r}"
+
+
+def test_no_comment_says_the_kernels_results_are_pickled():
+    """The grader pickles the cases' inputs into the kernel and parses only JSON back (kfkit/grading/wire.py; the
+    grader-side modules never load a pickle: test_grading.py). environment.txt said "results pickled back": every
+    comment, docstring and document of the kit must say what the code does."""
+    claim = re.compile(r"\b(results?|outputs?|returns?|answers?)\b[^.;:]*\bpickled\b|\bpickled back\b", re.IGNORECASE)
+    files = [*KIT_ROOT.glob("*.txt"), KIT_ROOT / "README.md", *(KIT_ROOT / "kfkit").rglob("*.py"),
+             *(KIT_ROOT / "solutions").glob("*.ipynb")]
+    said = [f"{path.relative_to(KIT_ROOT)}:{number}: {line.strip()}" for path in files
+            for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1) if claim.search(line)]
+    assert said == [], said

@@ -471,6 +471,23 @@ def test_student_csv_numbers_are_plain_decimal_and_a_drive_has_two_rows(tmp_path
         load_vehicle_csv(student_csv(tmp_path, edit(STUDENT)), MAPPING, UNITS, delimiter=";")
 
 
+@pytest.mark.parametrize("loader, where", [("load_vehicle", "row"), ("load_vehicle_csv", "row"),
+                                           ("load_vehicle_csv", "header")])  # load_vehicle splits its header itself
+def test_a_field_beyond_the_csv_modules_limit_names_file_and_line(tmp_path, short_drive, loader, where):
+    """csv's own "field larger than field limit (131072)" used to escape with no file or line."""
+    path = V.save_vehicle(short_drive, tmp_path / "drive.csv")
+    lines = path.read_text().split("\n")
+    at = 1 if where == "header" else 9  # the column line, or a data row
+    lines[at] = '"' + "9" * 200_000 + '",' + lines[at]
+    path.write_text("\n".join(lines))
+    with pytest.raises(RecordingError, match=rf"drive\.csv, line {at + 1}: not readable as CSV \(field larger than "
+                                             r"field limit"):
+        if loader == "load_vehicle":
+            V.load_vehicle(path)
+        else:
+            load_vehicle_csv(path, {c: c for c in V.VEHICLE_COLUMNS}, comment="#")
+
+
 def test_fuzzed_vehicle_files_load_the_same_numbers_or_name_the_file(tmp_path, short_drive):
     from test_io import check_fuzzed, same_rows
 

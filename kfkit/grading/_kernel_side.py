@@ -2,9 +2,11 @@
 
 ``call(user_ns, name, blob, nonce, max_numbers)`` unpickles the grader's inputs (pickled by the
 grader: trusted in this direction), calls the student's function on each, and prints one line
-``nonce + JSON + nonce``. Outputs are encoded as plain JSON: numbers, strings, lists, and tagged
-objects for tuples, dicts, arrays and dataclasses; anything else is named, not sent. The grader
-decodes that JSON with size limits and never unpickles anything the kernel sends.
+``nonce + JSON + nonce``. Outputs are encoded as plain JSON: numbers, strings (cut to 2000
+characters), lists, and tagged objects for tuples, dicts, arrays and dataclasses; anything else is
+named, not sent. A case that raises ends the calls and sends the exception's class name and message
+(cut to 500 characters) instead. The grader decodes that JSON with size limits and never unpickles
+anything the kernel sends.
 
 ``stop(user_ns, nonce, names, message, keep)`` replaces notebook functions that timed out by stubs that raise
 :class:`TimedOutEarlier` at once (``names``, or when None the function the last interrupt stopped), so a

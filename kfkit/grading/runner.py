@@ -6,9 +6,9 @@ which ``reserve`` seconds are kept for the grader's calls (so a looping function
 cell calls still leaves time to grade the other functions; cells past that share are not run). A cell
 that times out is interrupted; if the kernel stays busy or dies (``sys.exit`` in a thread,
 ``os._exit``, a crash), the kernel is restarted and the notebook replayed without that cell.
-Outputs of student cells are counted and dropped (only error names are kept), so a huge print
-costs nothing but its transfer; a cell that prints more than ``Limits.max_cell_output`` is
-stopped the same way (its kernel restarted, as a thread may go on printing), and no single
+Outputs of student cells are counted and dropped (only an error's name and message, cut short, are
+kept), so a huge print costs nothing but its transfer; a cell that prints more than
+``Limits.max_cell_output`` is stopped the same way (its kernel restarted, as a thread may go on printing), and no single
 message above ``Limits.max_message`` is even received (ZeroMQ's MAXMSGSIZE on the grader's sockets).
 Memory and CPU time are limited per submission, all its processes together
 (:mod:`kfkit.grading.resources`): over either, the submission is stopped (:class:`StoppedByLimit`).
@@ -478,9 +478,12 @@ class KernelRun:
                 self._restart()
 
     def call(self, function: str, cases_args: list[dict], checkpoint: str = "") -> dict:
-        """Call the student's ``function`` on each input in the kernel (for ``checkpoint``); → the decoded
-        report dict. Raises KernelLost (after restarting and replaying the notebook) or TimeoutError (and the
-        function is stopped for the rest of the grading)."""
+        """Call the student's ``function`` on each input in the kernel (for ``checkpoint``); → the report parsed from
+        the kernel's line of JSON (:func:`wire.extract`; each output still encoded, for :func:`wire.decode`).
+
+        Raises KernelLost (after restarting and replaying the notebook) or TimeoutError (and the function is stopped
+        for the rest of the grading).
+        """
         nonce, captured = wire.new_nonce(), []
         index = len(self.sources)
         try:

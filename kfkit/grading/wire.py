@@ -3,9 +3,12 @@
 Grader → kernel: the cases' inputs, pickled (cloudpickle when they hold lambdas; the kernel may
 trust the grader) inside a code cell
 that runs ``_kernel_side.call`` in a private namespace. Kernel → grader: one line of JSON between
-two copies of a random nonce, decoded here by :func:`decode` into floats, ints, strings, lists,
-tuples, dicts, float/int/bool arrays, and :class:`Returned` for dataclasses; nothing is ever
-unpickled or evaluated, and sizes are capped before parsing.
+two copies of a random nonce (:func:`extract`), a report of each case's output, or of what it raised
+(class name and message), and :func:`decode` turns each output into None, bools, ints, floats, strings,
+lists, tuples, dicts, bool/int/unsigned/float arrays, object arrays of these, :class:`Returned` for
+dataclasses and :class:`Unsupported` for any other type (sent as its name only); nothing is ever
+unpickled or evaluated, and sizes are capped: numbers in the kernel (:data:`MAX_NUMBERS`), characters
+here before parsing (:data:`MAX_PAYLOAD`).
 """
 from __future__ import annotations
 
