@@ -17,6 +17,15 @@ Markers (the ones nbgrader uses), each on a line of its own:
 * nbval's cell markers (``# NBVAL_CHECK_OUTPUT``, ``# NBVAL_IGNORE_OUTPUT``, …) are removed: nbval
   validates the solutions, and a student has no use for them.
 
+Predict, run, then read. A markdown cell tagged ``predict`` asks the student to predict what the cells after it
+will show; the lab gets a markdown cell for the student's answer right after it ("My prediction: …", tag
+``my-prediction``, ungraded). Markdown cells tagged ``reveal`` explain the answer: in the lab they are folded
+(``jupyter.source_hidden``, which JupyterLab shows as a bar to click) until the student opens them, and start with a
+line that names them (the bar previews a cell's first line, which would otherwise give the answer away). A reveal may
+quote the bundled run's numbers for the instructor as ``<!-- run: the RMSE printed above -->0.33°<!-- /run -->``:
+the solution shows 0.33° (the comment is invisible), the lab reads "the RMSE printed above", so a hand-out never
+gives a number the student has not produced yet.
+
 The labs carry no outputs and no run state, so they are byte-identical
 whoever regenerates them.
 """
@@ -24,6 +33,7 @@ whoever regenerates them.
 from __future__ import annotations
 
 import copy
+import re
 from pathlib import Path
 
 import nbformat
@@ -36,6 +46,12 @@ SOLUTION_ONLY_TAG = "solution-only"
 RUN_STATE_KEYS = ("execution", "collapsed", "scrolled")
 NOTEBOOK_METADATA_KEPT = ("kernelspec", "language_info")
 NBVAL_MARKER = "# NBVAL_"
+PREDICT_TAG, REVEAL_TAG, MY_PREDICTION_TAG = "predict", "reveal", "my-prediction"
+MY_PREDICTION = ("**My prediction:** *(write it here before you run the cells below; the explanation after them is "
+                 "folded: click its bar to open it once you have compared)*")
+#: the first line of a folded explanation: JupyterLab's fold bar previews a cell's first line, which must not be the answer
+REVEAL_LEAD = "**Explanation** *(folded: open it after you have run the cells above and compared with your prediction)*"
+RUN_NUMBER = re.compile(r"<!--\s*run:\s*(.*?)\s*-->(.*?)<!--\s*/run\s*-->", re.S)
 
 
 class AuthoringError(ValueError):
@@ -54,8 +70,12 @@ def strip_solutions(nb: nbformat.NotebookNode, name: str | None = None) -> nbfor
     )
     cells = []
     for index, cell in enumerate(lab.cells):
-        if SOLUTION_ONLY_TAG in cell.metadata.get("tags", []):
+        tags = cell.metadata.get("tags", [])
+        if SOLUTION_ONLY_TAG in tags:
             continue
+        if REVEAL_TAG in tags:
+            cell.source = f"{REVEAL_LEAD}\n\n{_lab_wording(cell.source, f'{where}cell index {index}')}"
+            cell.metadata.setdefault("jupyter", {})["source_hidden"] = True
         stub = {"code": CODE_STUB, "markdown": ANSWER_STUB}.get(cell.cell_type)
         if stub:
             cell.source = _replace_blocks(cell.source, stub, f"{where}cell index {index}")
@@ -66,6 +86,9 @@ def strip_solutions(nb: nbformat.NotebookNode, name: str | None = None) -> nbfor
         for key in RUN_STATE_KEYS:
             cell.metadata.pop(key, None)
         cells.append(cell)
+        if PREDICT_TAG in tags:
+            cells.append(nbformat.v4.new_markdown_cell(MY_PREDICTION, id=f"{cell.id}-mine"[:64],
+                                                       metadata={"tags": [MY_PREDICTION_TAG]}))
     lab.cells = cells
     _check_clean(lab, where)
     return lab
@@ -93,6 +116,14 @@ def _replace_blocks(source: str, stub: list[str], where: str) -> str:
     if begin_line is not None:
         raise AuthoringError(f"{where}, line {begin_line}: '{BEGIN}' without '{END}'")
     return "\n".join(out)
+
+
+def _lab_wording(source: str, where: str) -> str:
+    """A reveal cell's text for the lab: each ``<!-- run: words -->number<!-- /run -->`` becomes ``words``."""
+    lab = RUN_NUMBER.sub(lambda m: m.group(1), source)
+    if re.search(r"<!--\s*/?run\b", lab):
+        raise AuthoringError(f"{where}: a '<!-- run: … -->' needs its '<!-- /run -->' (and the other way round)")
+    return lab
 
 
 def _without_test_markers(source: str) -> str:

@@ -45,7 +45,12 @@ def _rank(item) -> int:
 
 
 def pytest_collection_modifyitems(items):
+    """Longest modules first (see above); every notebook's nbval cells are slow (the quick tier, -m 'not slow', runs
+    kfkit's own tests and leaves the notebook runs to the full suite)."""
     items.sort(key=_rank)  # stable: each module's own order is kept
+    for item in items:
+        if item.nodeid.split("::", 1)[0].endswith(".ipynb"):
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture(autouse=True)

@@ -514,6 +514,7 @@ def heading_of(field_n):
     return np.degrees(np.arctan2(field_n[1], field_n[0]))
 
 
+@pytest.mark.slow
 def test_mekf_adopts_a_changed_field_once_the_gyro_alone_is_no_better():
     # The field changes for good at 20 s (the board moved to a steel desk): +3 µT east, +8 µT down,
     # norm +15 % (fails the gate), heading of the new field 8.7° east of the old one. It is rejected
@@ -605,6 +606,7 @@ def test_mekf_fed_in_pieces_equals_one_run():
     assert whole.mag_gated.any()
 
 
+@pytest.mark.slow
 def test_mekf_nees_and_nis_inside_chi2_bounds():
     # White Gaussian sensor noise, no bias, raw accelerometer (no low-pass, whose output is
     # correlated in time): the MEKF tuned with the true noise must be consistent.

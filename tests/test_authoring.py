@@ -191,3 +191,36 @@ def test_output_is_byte_deterministic(tmp_path):
         first = (tmp_path / "a" / name).read_bytes()
         assert first == (tmp_path / "b" / name).read_bytes()
         assert b"YOUR CODE HERE" in first
+
+
+def predicting_notebook(reveal_text="The RMSE falls to <!-- run: the RMSE printed above -->0.33°<!-- /run -->."):
+    nb = new_notebook()
+    nb.cells = [new_markdown_cell("**Predict before you run.** Will the RMSE fall?", metadata={"tags": ["predict"]}),
+                new_code_cell("print(0.33)", execution_count=1,
+                              outputs=[new_output("stream", name="stdout", text="0.33\n")]),
+                new_markdown_cell(reveal_text, metadata={"tags": ["reveal"]}),
+                new_markdown_cell("## Next")]
+    return nb
+
+
+def test_a_prediction_gets_an_answer_cell_and_its_explanation_is_folded_in_the_lab_only():
+    nb = predicting_notebook()
+    lab = strip_solutions(nb)
+    assert [c.cell_type for c in lab.cells] == ["markdown", "markdown", "code", "markdown", "markdown"]
+    mine = lab.cells[1]
+    assert mine.source.startswith("**My prediction:**") and mine.metadata["tags"] == ["my-prediction"]
+    assert mine.id == f"{nb.cells[0].id}-mine"
+    reveal = lab.cells[3]
+    assert reveal.metadata["jupyter"]["source_hidden"] is True
+    lead, text = reveal.source.split("\n\n")
+    assert lead.startswith("**Explanation**")  # what the fold bar previews: not the answer
+    assert text == "The RMSE falls to the RMSE printed above."  # the run's number stays in the solution
+    assert "jupyter" not in nb.cells[2].metadata and "0.33°" in nb.cells[2].source  # the solution keeps all open
+    nbformat.validate(lab)  # the new cell's id is a valid nbformat 4.5 id
+    assert strip_solutions(nb).cells[1].id == mine.id  # deterministic
+
+
+@pytest.mark.parametrize("text", ["falls to <!-- run: the RMSE -->0.33°.", "falls to 0.33°<!-- /run -->."])
+def test_an_unclosed_run_number_is_refused(text):
+    with pytest.raises(AuthoringError, match="run"):
+        strip_solutions(predicting_notebook(text))

@@ -16,6 +16,8 @@ import unit_truth
 from test_calibration import PHONE, phone_export
 from waiting import HANG_GUARD_S
 
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
+
 
 # --- lab 00's recordings from the virtual board --------------------------------------------
 

@@ -208,6 +208,7 @@ def recorded(tmp_path_factory):
     return folder, {key: load_recording(path) for key, path in files.items()}  # as the labs load them
 
 
+@pytest.mark.slow
 def test_each_guided_dataset_is_saved_under_the_name_its_lab_reads(recorded):
     folder, recs = recorded
     assert sorted(p.name for p in folder.iterdir()) == sorted(
@@ -220,6 +221,7 @@ def test_each_guided_dataset_is_saved_under_the_name_its_lab_reads(recorded):
         assert [(p["start"], p["end"], p["label"]) for p in rec.phases] == [tuple(ph) for ph in motion.phases]
 
 
+@pytest.mark.slow
 def test_lab02_bias_noise_and_six_faces_on_the_recordings(recorded):
     """Lab 02's analysis of each board's rest and faces finds its unit (the bundled recordings', kfkit.datasets):
     biases and scale within 4 standard deviations of white noise and bias walk (tests/unit_truth.py), noise σ at
@@ -251,6 +253,7 @@ def test_lab02_bias_noise_and_six_faces_on_the_recordings(recorded):
         # (the Allan read-outs of this 2 min rest: tests/test_capture_virtual.py, against allantools' intervals)
 
 
+@pytest.mark.slow
 def test_lab03_and_lab04_magnetometer_and_attitude_on_the_recordings(recorded, tmp_path, monkeypatch):
     """Lab 03's fit of the recorded rotations finds the unit's hard and soft iron within the fit's linearised
     uncertainty (4σ); lab 04's MEKF on them is right with labs 02/03's calibration of the recordings and with the kit's

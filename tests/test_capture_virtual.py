@@ -271,6 +271,7 @@ except C.PortPermissionError as e:
 """
 
 
+@pytest.mark.slow
 def test_permission_denied_names_the_group_and_the_command():
     """A real pty owned by root:dialout, mode 660, opened by a user outside dialout (as /dev/ttyACM0 is)."""
     import grp
@@ -362,6 +363,7 @@ def curves_and_model(rec, sensor, chip, K):
     return taus, adev, model_adev(taus, chip.noise_density, K, rec.meta["sensors"][sensor]["sensitivity"], rate)
 
 
+@pytest.mark.slow
 def test_allan_deviation_shows_white_noise_then_the_walk_beyond_the_chunks():
     """5 min at 104 Hz with a strong walk (τ_min < 1 s): slope −½ below the minimum, +½ from 5 s to 30 s, far past
     the simulator's 1 s chunks (a walk restarted per chunk gives −½ there), at the level the densities give."""
@@ -378,6 +380,7 @@ def test_allan_deviation_shows_white_noise_then_the_walk_beyond_the_chunks():
         assert outside_chi2_interval(taus, adev, model, len(rec), rec.rate_hz) == [], sensor
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("board", ["nucleo-iks02a1", "mpu6050"])
 def test_allan_deviation_of_a_long_rest_at_the_boards_densities(board):
     """40 min at rest at 12.5 Hz (the ISM330DHCX's lowest rate, as lab 02's bundled rest): every point of the Allan
@@ -592,6 +595,7 @@ def fresh_shell_env():
     return {k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "PYTEST"))}
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not KFKIT.exists(), reason="the kfkit console script is not installed")
 def test_kfkit_capture_from_a_fresh_shell(tmp_path):
     """`kfkit capture --port virtual --seconds S --out x.csv`, as typed in a new terminal."""

@@ -249,6 +249,7 @@ def test_mag_calibration_checkpoint_judges_against_the_true_ellipsoid():
     assert "off by" in run_checkpoint(cp, centre_only, seed=3).message
 
 
+@pytest.mark.slow
 def test_bundled_recording_checks_reject_estimates_a_few_uncertainties_off():
     from kfkit.checkpoints.lab02 import gyro_bias_truth, noise_truth, six_face_truth
     rec = datasets.load("02_six_faces")

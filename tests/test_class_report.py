@@ -182,6 +182,7 @@ def gradebook_rows(path):
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_the_gradebook_holds_what_each_variant_deserves(graded):
     """The rows behind the report: 32 submissions, each checkpoint passed exactly by the variants that should."""
     path, variant_of = graded
@@ -212,6 +213,7 @@ def test_the_same_mistake_groups_and_different_ones_do_not():
         "expected 4 values (…), got 1 value: #"
 
 
+@pytest.mark.slow
 def test_report_page_in_a_browser(graded, browser_page):
     """The page in headless Chromium: every student a row linking their feedback, the charts' numbers equal the
     gradebook's, the classic mistakes grouped, awkward names shown as text, nothing fetched from anywhere."""

@@ -111,6 +111,7 @@ def test_each_lab_imports_only_what_the_student_install_pins(notebook):
     assert not {m: d for m, d in imported.items() if d not in student}, f"{notebook.name} needs a package environment.txt lacks"
 
 
+@pytest.mark.slow
 def test_pytest_starts_with_only_the_student_plugins():
     """pyproject.toml's addopts (--nbval-lax…) and tests/conftest.py parse with just environment.txt's pytest
     plugins, so ``python -m pytest NOTEBOOK`` works in a student install, which carries no test runner's

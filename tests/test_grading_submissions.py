@@ -179,6 +179,7 @@ def test_update_refuses_a_link_it_is_given(tmp_path, kernels, monkeypatch):
     assert status == {"subs/alice.ipynb": {Status.REFUSED}, "subs/bob.ipynb": {Status.PASSED}}
 
 
+@pytest.mark.slow
 def test_kfkit_grade_refuses_a_link_to_the_solution_and_a_pipe(tmp_path):
     """The command an instructor runs, on a folder holding only what must be refused: it ends (no pipe is
     read), exits 1, and the gradebook and the summary name both; nothing is graded, so no kernel starts."""

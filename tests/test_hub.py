@@ -22,6 +22,8 @@ from waiting import HANG_GUARD_MS, wait_until
 from browser.conftest import browser  # noqa: F401 (a fixture)
 from kfkit.paths import KIT_ROOT
 
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
+
 LAB = "01_roll_kf_1d.ipynb"
 FIX_01 = "\n\n*Corrected in week 3: the recording's rate is 104 Hz.*"
 FIX_02 = "\n\n*Corrected in week 3: see the note on the gyro's rounding.*"

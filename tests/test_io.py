@@ -382,6 +382,7 @@ def same_rows(ref):
     return check
 
 
+@pytest.mark.slow
 def test_fuzzed_recordings_load_the_same_numbers_or_name_the_file(tmp_path):
     from kfkit.readers import load_any
 

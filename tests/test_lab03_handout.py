@@ -6,11 +6,14 @@ import ast
 import re
 
 import nbformat
+import pytest
 from nbclient import NotebookClient
 
 from handouts import printed
 from kfkit.paths import KIT_ROOT
 from waiting import HANG_GUARD_S
+
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
 LAB = KIT_ROOT / "labs" / "03_mag_alignment_heading.ipynb"
 SOLUTION = KIT_ROOT / "solutions" / "03_mag_alignment_heading.ipynb"

@@ -5,11 +5,14 @@ run prints the phone's RMSE, which the export run below checks.)"""
 import re
 
 import numpy as np
+import pytest
 
 from kfkit import sim
 from kfkit.phone_sim import simulate_phone
 from kfkit.readers import phyphox_export
 from test_calibration_labs import run_solution_on
+
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
 LAB = "04_ekf_attitude.ipynb"
 

@@ -13,6 +13,8 @@ from kfkit.checkpoints.lab04 import REAL_MOVING_SECONDS, real_inputs, truth_erro
 from kfkit.frames import euler_to_dcm
 from test_checkpoints_every import solution_namespace
 
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
+
 ROOT = Path(__file__).resolve().parents[1]
 SOLUTION = ROOT / "solutions" / "04_ekf_attitude.ipynb"
 

@@ -77,6 +77,7 @@ def run_hand_out(done=()):
     return [printed(c) for c in code], sum("image/png" in o.get("data", {}) for c in code for o in c.outputs)
 
 
+@pytest.mark.slow
 def test_half_done_the_hand_out_runs_what_the_written_exercise_allows_and_names_the_next():
     """bicycle_model written, discretize and kf_step not: section 3's checks and section 4's eigenvalues run;
     the timing and your filter name discretize; the checks of the other two still say 'not attempted'."""

@@ -52,6 +52,7 @@ def simulate_linear_gaussian(rng, N):
     return F, H, Q, R, np.array(xs), np.array(zs)
 
 
+@pytest.mark.slow
 def test_consistent_filter_has_nees_inside_chi2_bounds_over_monte_carlo_runs():
     # Errors are correlated in time, so NEES is averaged over independent runs (Bar-Shalom §5.4).
     rng = np.random.default_rng(42)

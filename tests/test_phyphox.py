@@ -539,6 +539,7 @@ def test_consistency_figure_and_tuning_panel_work_without_truth():
     assert with_truth.rmse == pytest.approx(1e-3) and "RMSE" in with_truth.status.value
 
 
+@pytest.mark.slow
 def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
     """A student's own phyphox export of lab 01's experiment (rest, then rolls by hand): no truth, no labels."""
     from kfkit import sim
@@ -631,6 +632,7 @@ def test_a_garbled_truth_file_is_named_with_its_line(small_export, tmp_path, edi
         readers.load_phyphox(folder)
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore:.*the last line has no newline and is cut short:UserWarning")  # the cuts: dropped
 def test_fuzzed_exports_load_the_same_numbers_or_name_the_file(tmp_path, small_export):
     """The gyroscope CSV cut or garbled in a folder, and the zip cut or garbled: the loader's own error naming

@@ -114,6 +114,7 @@ def test_real_headings_are_refused_with_what_to_do():
         load("real", "03_headings")
 
 
+@pytest.mark.slow
 def test_the_lab_runs_on_the_real_imu_and_finds_its_alignment():
     """AXIS_TURNS = MAG_ROTATIONS = "real": every cell runs without an error or a warning; the turns found in
     BROAD's gyro give D = I (one package), and nothing is saved as the student's calibration."""

@@ -169,6 +169,7 @@ def test_notebook_section12_functions_match_the_oracle(real, section12):
     np.testing.assert_allclose(got, coupled_run(*args), rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_lab05_runs_on_the_real_recording():
     """SOURCE = "real": every cell of the solution runs on the BROAD recording (no six faces, no protocol holds,
     not an MPU6050), without errors or warnings, and the checkpoints still pass."""

@@ -155,6 +155,7 @@ def exact_model(vx):
     return model_at
 
 
+@pytest.mark.slow
 def test_matches_filterpy_while_braking_and_with_jittery_timestamps():
     """Lane change braking 60 → 50 km/h, timestamps jittered by ±0.3 ms like a logger's: the binned model
     cache (speed and interval) gives what filterpy gives with the model recomputed at every sample."""
@@ -237,6 +238,7 @@ def test_one_step_with_the_bias_state_matches_filterpy():
     np.testing.assert_allclose(got[3], kf.S, rtol=1e-10)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bias_ay", [False, True])
 def test_run_is_a_loop_of_steps_and_estimate_sideslip_is_run(bias_ay):
     """A drive that starts from rest (low-speed steps), with jittered sample intervals: stepping the

@@ -123,6 +123,7 @@ def hard_slalom(params=OTHER, seed=5):
     return V.simulate_drive(drive, params, seed=seed)
 
 
+@pytest.mark.slow
 def test_agrees_with_filterpys_ukf_on_the_same_model():
     rec = hard_slalom()
     ekf = estimate_sideslip(*(rec[c] for c in SIGNALS), OTHER).beta
@@ -158,10 +159,12 @@ def check_race_track(rec):
     assert ekf <= 0.45 and ekf < 0.85 * open_loop
 
 
+@pytest.mark.slow
 def test_bundled_race_track_log():
     check_race_track(datasets.load("06_racetrack"))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not SHARED.exists(), reason=f"no shared race-track file at {SHARED}")
 def test_shared_race_track_file():
     check_race_track(load_vehicle_csv(SHARED, {"t": "t_s", "delta": "steer_road_wheel_rad", "yaw_rate": "yaw_rate_rad_s",

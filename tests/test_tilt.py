@@ -389,6 +389,7 @@ def reference_estimate(start_bias="zero", tuned=True):
     return estimate_tilt
 
 
+@pytest.mark.slow
 def test_final_checkpoint_passes_kfkits_pipeline_and_fails_known_mistakes():
     from kfkit.checkpoints import get, run_checkpoint
 

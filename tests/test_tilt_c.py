@@ -208,6 +208,7 @@ def test_virtual_board_speaks_like_the_sketch(sketch_output):
 # by kfkit (tests/arduino_host.uno_image); the image runs on an emulated Uno in tests/test_firmware_emulated_uno.py.
 
 
+@pytest.mark.slow
 def test_sketch_compiles_for_an_uno_and_fits():
     image = arduino_host.uno_image("mpu6050_tilt_kf")
     assert image.flash < UNO_FLASH / 2  # ≈ 13 KB of 31.5 KB

@@ -99,6 +99,7 @@ def test_bad_dt():
 
 # --- the stream and the game, end to end --------------------------------------------------------------
 
+@pytest.mark.slow
 def test_att_lines_from_the_virtual_board_drive_the_game_by_board_time():
     """The whole path without a window: virtual board → pty → AttitudeStream → controls → RaceGame."""
     from kfkit.demo import run_tilt_demo
@@ -154,6 +155,7 @@ def test_unplugged_board_is_named():
 
 # --- the command ----------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_demo_runs_headless_against_the_virtual_board(capsys):
     assert main(["demo", "tilt", "--port", "virtual", "--seconds", "30", "--headless", "--fast"]) == 0
     out = capsys.readouterr().out
@@ -233,6 +235,7 @@ def test_notebook_panel_drives_the_game_from_the_virtual_board():
         panel.close()
 
 
+@pytest.mark.slow
 def test_demo_window_opens_and_closes_after_its_seconds(tmp_path):
     """The real window (TkAgg) under a virtual X server, where Debian's xvfb is installed."""
     import os

@@ -174,6 +174,7 @@ def test_zoh_matches_scipy_cont2discrete():
         np.testing.assert_allclose(Bd, Bd_ref, rtol=1e-10, atol=1e-14)
 
 
+@pytest.mark.slow
 def test_van_loan_matches_numerical_integration():
     """Qd = ∫₀^dt e^{As} Qc e^{Aᵀs} ds by adaptive quadrature (scipy quad_vec), not by another matrix exponential trick."""
     rng = np.random.default_rng(4)

@@ -22,6 +22,8 @@ from kfkit.paths import KIT_ROOT
 
 from .conftest import ARTIFACTS
 
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
+
 WIDGET_VIEW = "application/vnd.jupyter.widget-view+json"
 
 
@@ -238,3 +240,31 @@ def test_capture_panel_records_from_the_virtual_board(page, jupyter_lab):
         assert abs(percent - 100 * samples / (rec.meta["rate_hz"] * CAPTURE_SECONDS)) <= 1.5, (percent, samples)
     assert readings[0][1] < readings[1][1] and readings[0][0] < readings[1][0] < 100, readings
     assert f"saved {len(rec)} samples" in panel.inner_text()
+
+
+def test_a_folded_explanation_opens_on_a_click(page, jupyter_lab):
+    """make-labs folds a prediction's explanation (``jupyter.source_hidden``): JupyterLab shows a bar, not the text,
+    until the student clicks it; the answer cell for the prediction is there and editable."""
+    import nbformat
+
+    from kfkit.authoring import strip_solutions
+
+    md = nbformat.v4.new_markdown_cell
+    solution = nbformat.v4.new_notebook(metadata=BROKEN_NOTEBOOK["metadata"])
+    solution.cells = [md("**Predict before you run.** Does the error fall?", metadata={"tags": ["predict"]}),
+                      nbformat.v4.new_code_cell("print(0.33)"),
+                      md("It falls: see <!-- run: the RMSE printed above -->0.33°<!-- /run -->. EXPLAINED-HERE",
+                         metadata={"tags": ["reveal"]})]
+    nbformat.write(strip_solutions(solution), str(jupyter_lab.root / "folded.ipynb"))
+    open_notebook(page, jupyter_lab, "folded.ipynb")
+    assert page.locator(".jp-RenderedMarkdown", has_text="My prediction:").count() == 1
+    explained = page.locator(".jp-RenderedMarkdown", has_text="EXPLAINED-HERE")
+    assert explained.count() == 0 or not explained.first.is_visible(), "the explanation is not folded"
+    screenshot(page, "folded", "-closed")
+    placeholder = page.locator(".jp-MarkdownCell .jp-InputPlaceholder, .jp-MarkdownCell .jp-Placeholder").first
+    placeholder.wait_for(timeout=HANG_GUARD_MS)
+    assert "Explanation" in placeholder.inner_text() and "EXPLAINED-HERE" not in placeholder.inner_text()
+    placeholder.click()
+    explained.first.wait_for(state="visible", timeout=HANG_GUARD_MS)
+    screenshot(page, "folded", "-opened")
+    assert "the RMSE printed above" in explained.first.inner_text()
