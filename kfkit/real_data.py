@@ -43,11 +43,10 @@ import numpy as np
 import scipy.signal
 
 from .frames import dcm_to_quat, quat_slerp, quat_to_dcm, quat_to_euler
-from .io import Recording, load_recording, recording_text
+from .io import Recording, load_recording, load_vehicle, recording_text, vehicle_text
 from .paths import KIT_ROOT, data_dir
 from .readers.broad import load_broad
 from .readers.vehicle_csv import load_vehicle_csv
-from .vehicle import load_vehicle, vehicle_text
 
 BROAD_CITATION = ("BROAD: D. Laidig, M. Caruso, A. Cereatti, T. Seel, \"BROAD — A Benchmark for Robust Inertial "
                   "Orientation Estimation\", Data 6(7), 2021, doi:10.3390/data6070072; CC BY 4.0")

@@ -248,3 +248,50 @@ def wrap(a):
 def test_rotations_live_in_frames_only(path):
     found = rotation_maths(path.read_text(encoding="utf-8"))
     assert not found, f"{path.relative_to(KFKIT.parent)} does rotation maths of its own (use kfkit.frames): {found}"
+
+
+# --- the layers docs/design.md states hold in the code (issue 27) --------------------------------------------------
+DESIGN = KFKIT.parent / "docs" / "design.md"
+
+
+def stated_layers(text: str) -> dict:
+    """{top-level name under kfkit: layer} from the package table's rows ``| n | `a`, `b` | … |``."""
+    layers = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.split("|")]
+        if len(cells) > 3 and cells[1].isdigit():
+            for name in cells[2].replace("`", "").split(","):
+                layers[name.strip()] = int(cells[1])
+    return layers
+
+
+def layer_violations(graph: dict, layers: dict, package="kfkit") -> list[str]:
+    """Imports that point up (to a higher layer); a module not in the table is reported too."""
+    def top(module):
+        parts = module.split(".")
+        return parts[1] if len(parts) > 1 else None
+
+    bad = []
+    for module, targets in graph.items():
+        if top(module) is None:
+            continue
+        if top(module) not in layers:
+            bad.append(f"{module}: not in docs/design.md's package table")
+            continue
+        for target in targets:
+            if top(target) is not None and top(target) in layers and layers[top(target)] > layers[top(module)]:
+                bad.append(f"{module} (layer {layers[top(module)]}) imports {target} (layer {layers[top(target)]})")
+    return sorted(bad)
+
+
+def test_the_layer_rule_sees_an_import_that_points_up():
+    layers = stated_layers("| 0 | `low` | … |\n| 2 | `high`, `other` | … |")
+    assert layers == {"low": 0, "high": 2, "other": 2}
+    graph = {"kfkit.low": {"kfkit.high.sub"}, "kfkit.high.sub": {"kfkit.low"}, "kfkit.new": set()}
+    assert layer_violations(graph, layers) == ["kfkit.low (layer 0) imports kfkit.high.sub (layer 2)",
+                                               "kfkit.new: not in docs/design.md's package table"]
+
+
+def test_every_import_points_to_its_own_layer_or_below_as_docs_design_states():
+    layers = stated_layers(DESIGN.read_text(encoding="utf-8"))
+    assert layer_violations(import_graph(modules(KFKIT)), layers) == []

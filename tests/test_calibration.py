@@ -509,12 +509,12 @@ PHONE = "phone-phyphox"
 def phone_export(folder, motion, seed, truth=False, unit=None):
     """A simulated phone through ``motion`` as a phyphox export folder (kfkit's writer; the format itself is
     tested in test_phyphox.py). Without ``truth``, like a real export: no kfkit_truth.csv, so no labels."""
+    from kfkit import phone_sim
     from kfkit.phone_sim import simulate_phone
-    from kfkit.readers import phyphox_export
-    files = phyphox_export.simple_experiment_files(simulate_phone(motion, seed=seed, unit=unit))
+    files = phone_sim.simple_experiment_files(simulate_phone(motion, seed=seed, unit=unit))
     if not truth:
-        files.pop(phyphox_export.TRUTH_FILE)
-    return phyphox_export.write_export(files, folder)
+        files.pop(phone_sim.TRUTH_FILE)
+    return phone_sim.write_export(files, folder)
 
 
 def test_phone_default_is_the_identity_with_the_phone_models_noise(tmp_path, monkeypatch):

@@ -424,3 +424,19 @@ def test_a_number_longer_than_any_writer_makes_is_refused_and_shown_short(tmp_pa
     cells[col] = cell
     msg = load_error(write(tmp_path, with_row(1, ",".join(cells) + "\n")), 4)
     assert re.search(expect, msg) and len(msg) < 300, msg[:300]
+
+
+def test_both_kit_formats_check_their_kind_and_version(tmp_path):
+    """One header reader for the recording and the vehicle formats: another version or the other kind is named."""
+    from kfkit.io import load_vehicle
+
+    future = tmp_path / "future.csv"
+    future.write_text('# kfkit-vehicle v2 {"rate_hz": 100}\nt,delta,yaw_rate,ay,vx\n0,0,0,0,10\n')
+    with pytest.raises(RecordingError, match=r"future\.csv, line 1: unsupported vehicle version 'v2'; this kfkit reads v1"):
+        load_vehicle(future)
+    imu = tmp_path / "imu.csv"
+    imu.write_text('# kfkit-recording v1 {"rate_hz": 100}\nt,seq\n0,0\n')
+    with pytest.raises(RecordingError, match=r"imu\.csv, line 1: expected the header '# kfkit-vehicle v1 .*load_vehicle_csv"):
+        load_vehicle(imu)
+    with pytest.raises(RecordingError, match=r"future\.csv, line 1: expected the header '# kfkit-recording v1"):
+        load_recording(future)

@@ -21,6 +21,7 @@ from kfkit import datasets, frames, io, metrics, readers
 from kfkit.clocks import OneClock, SampleCounter
 from kfkit.filters import estimate_attitude
 from kfkit.io import RecordingError
+from kfkit import phone_sim
 from kfkit.phone_sim import simulate_phone
 from kfkit.readers import phyphox_export
 from kfkit.sensors import PHONE_LSB, PHONE_MOUNTS, SENSORS
@@ -459,7 +460,7 @@ def test_bundled_phone_export_is_phyphox_shaped(bundled_phone):
     header = (folder / "Gyroscope.csv").read_text(encoding="utf-8").split("\n", 2)
     assert header[0] == '"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)"'
     t, *xyz = header[1].split(",")
-    assert all(phyphox_export.format_number(float(c)) == c == java_sci(float(c)) for c in [t, *xyz])
+    assert all(phone_sim.format_number(float(c)) == c == java_sci(float(c)) for c in [t, *xyz])
     assert (folder / "meta" / "device.csv").exists() and (folder / "meta" / "time.csv").exists()
     rec = bundled_phone
     assert rec.meta["board"] == "phone-phyphox" and rec.meta["source"] == "simulated phone (phyphox export)"
@@ -547,9 +548,9 @@ def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
 
     motion = sim.sine_roll(duration=40.0, rate_hz=400.0, amplitude=np.radians(30.0), freq_hz=0.1, still=5.0,
                            vibration_rms=0.3, seed=21)
-    files = phyphox_export.simple_experiment_files(simulate_phone(motion, seed=22))
-    files.pop(phyphox_export.TRUTH_FILE)
-    export = phyphox_export.write_export(files, tmp_path / "phyphox roll")
+    files = phone_sim.simple_experiment_files(simulate_phone(motion, seed=22))
+    files.pop(phone_sim.TRUTH_FILE)
+    export = phone_sim.write_export(files, tmp_path / "phyphox roll")
     errors, text = run_solution_on("01_roll_kf_1d.ipynb", {"RECORDING": str(export)})
     assert errors == [] and "Warning" not in text
     assert "board phone-phyphox" in text and "no truth in this recording" in text and "RMSE accel only :" not in text
@@ -564,7 +565,7 @@ def small_export(tmp_path_factory):
     from kfkit import sim
 
     samples = simulate_phone(sim.stationary(duration=1.0, rate_hz=100.0), seed=5)
-    folder = phyphox_export.write_export(phyphox_export.simple_experiment_files(samples), tmp_path_factory.mktemp("small") / "export")
+    folder = phone_sim.write_export(phone_sim.simple_experiment_files(samples), tmp_path_factory.mktemp("small") / "export")
     return folder, zip_folder(folder, folder.parent / "export.zip"), readers.load_phyphox(folder)
 
 
@@ -624,7 +625,7 @@ def test_duplicate_columns_are_named(tmp_path, tour_samples):
 def test_a_garbled_truth_file_is_named_with_its_line(small_export, tmp_path, edit, message):
     folder = tmp_path / "export"
     shutil.copytree(small_export[0], folder)
-    truth = folder / phyphox_export.TRUTH_FILE
+    truth = folder / phone_sim.TRUTH_FILE
     lines = truth.read_text(encoding="utf-8").rstrip("\n").split("\n")
     changed = edit(lines)
     truth.write_text("\n".join(changed) + ("" if message.endswith("cut short") else "\n"), encoding="utf-8")

@@ -42,7 +42,6 @@ Simulated exports made by the kit add ``kfkit_truth.csv`` (the true attitude at 
 """
 from __future__ import annotations
 
-import json
 import math
 import re
 import warnings
@@ -55,9 +54,9 @@ import numpy as np
 
 from ..clocks import OneClock, SampleCounter
 from ..frames import dcm_to_euler, quat_to_dcm
-from ..io import BOM, Recording, RecordingError, check_phases, parse_count, parse_number, shown
-from ..sensors import (DEFAULT_PHONE_MOUNT, PHONE_BOARD, PHONE_LSB, PHONE_MAG, PHONE_MAX_COUNTS, SI_UNITS, phone_board,
-                       phone_counts, phone_mount, phone_sensor_metadata)
+from ..io import BOM, Recording, RecordingError, parse_count, parse_header, parse_number, shown
+from ..phone_sim import TRUTH_FILE, TRUTH_KIND
+from ..sensors import (DEFAULT_PHONE_MOUNT, PHONE_BOARD, PHONE_LSB, PHONE_MAX_COUNTS, SI_UNITS, phone_counts, phone_mount, phone_sensor_metadata)
 
 SEPARATORS = (",", "\t", ";")
 #: sensor kinds phyphox exports, as named in its file format (``<sensor type="…">``)
@@ -75,8 +74,6 @@ _UNIT_ALIASES = {"m/s^2": "m/s^2", "m/s²": "m/s^2", "m s^-2": "m/s^2", "rad/s":
 _AXIS = re.compile(r"^(?P<name>.*?)\s*\b(?P<axis>[xyz])\s*\((?P<unit>[^)]*)\)$", re.IGNORECASE)
 _TIME = re.compile(r"^time\s*\(s\)$", re.IGNORECASE)
 MAX_TIME_S = 2**53 * 1e-6  # the latest time a recording holds exactly to the µs (285 years), s
-TRUTH_FILE = "kfkit_truth.csv"
-TRUTH_MAGIC = "# kfkit-truth v1 "
 SIMPLE_EXPERIMENT_HINT = ("in phyphox tap '+' → 'New simple experiment', tick Accelerometer, Gyroscope and "
                           "Magnetometer, record, then export 'CSV (Comma, decimal point)'")
 EXPERIMENT_FOR = {"acc": "'Acceleration with g'", "gyr": "'Gyroscope'", "mag": "'Magnetometer'"}
@@ -382,15 +379,7 @@ def _truth_euler(where, text, index, M):
     (quaternions phone → NED per gyro row): R_nb = R_ns M_bsᵀ. Also its metadata. The kit writes every
     line with its newline, so a last line without one is an error (it may be cut short), wherever it is."""
     lines = text.removeprefix(BOM).splitlines()
-    if not lines or not lines[0].startswith(TRUTH_MAGIC):
-        raise RecordingError(where, 1, f"expected the header '{TRUTH_MAGIC.strip()} {{…json…}}'")
-    try:
-        meta = json.loads(lines[0][len(TRUTH_MAGIC):])
-    except json.JSONDecodeError as e:
-        raise RecordingError(where, 1, f"the metadata is not valid JSON ({e.msg} at column {e.colno + len(TRUTH_MAGIC)})") from None
-    if not isinstance(meta, dict):
-        raise RecordingError(where, 1, "the metadata must be a JSON object")
-    check_phases(where, meta.get("phases", []))
+    meta = parse_header(where, lines[0] if lines else "", TRUTH_KIND, needs_rate=False)
     if len(lines) > 2 and not text.endswith(("\n", "\r")):
         raise RecordingError(where, len(lines), "the last line is cut short (no newline at the end): regenerate the export")
     table = np.empty((len(lines) - 2, 5)) if len(lines) > 2 else np.empty((0, 5))
@@ -474,66 +463,3 @@ def load_phyphox(path, mount=DEFAULT_PHONE_MOUNT, require=("acc", "gyr")) -> Rec
     for note in meta["phone"]["warnings"]:  # a dropped row: in the metadata and said now, as load_vehicle_csv does
         warnings.warn(note, stacklevel=2)
     return Recording(meta, data, Path(path))
-
-
-# --- writing (simulated exports) ----------------------------------------------------------------------
-
-def format_number(value: float, decimal: str = ".") -> str:
-    """A number as phyphox's CSV export writes it: ten significant digits, ``9.806650000E0``."""
-    if math.isnan(value):
-        return "NaN"
-    mantissa, exponent = f"{value:.9E}".split("E")
-    return f"{mantissa.replace('.', decimal)}E{int(exponent)}"
-
-
-def csv_text(columns, separator=",", decimal=".") -> str:
-    """One export set as phyphox-android writes it: quoted labels, then one row per sample, every line
-    ending in a newline. ``columns`` is [(label, values (N,)), …] of equal lengths."""
-    header = separator.join(f'"{label}"' for label, _ in columns) + "\n"
-    arrays = [np.asarray(v, dtype=float) for _, v in columns]
-    rows = (separator.join(format_number(v, decimal) for v in row) + "\n" for row in zip(*(a.tolist() for a in arrays)))
-    return header + "".join(rows)
-
-
-#: Android simple experiment: (set name, column labels) per sensor
-SIMPLE_EXPERIMENT_SETS = {
-    "acc": ("Accelerometer", ("Acceleration x (m/s^2)", "Acceleration y (m/s^2)", "Acceleration z (m/s^2)")),
-    "gyr": ("Gyroscope", ("Gyroscope x (rad/s)", "Gyroscope y (rad/s)", "Gyroscope z (rad/s)")),
-    "mag": ("Magnetometer", ("Magnetic field x (µT)", "Magnetic field y (µT)", "Magnetic field z (µT)")),
-}
-
-
-def write_export(files: dict, folder) -> Path:
-    """Write {relative path: text} (e.g. :func:`simple_experiment_files`) as the folder a phyphox zip unpacks to."""
-    folder = Path(folder)
-    for name, text in files.items():
-        (folder / name).parent.mkdir(parents=True, exist_ok=True)
-        (folder / name).write_text(text, encoding="utf-8", newline="\n")
-    return folder
-
-
-def simple_experiment_files(samples, separator=",", decimal=".", device=None) -> dict[str, str]:
-    """The files of an Android simple experiment's CSV export of ``samples``
-    (:class:`kfkit.phone_sim.PhoneSamples`), plus :data:`TRUTH_FILE`: {relative path: text}."""
-    files = {}
-    for k, (set_name, labels) in SIMPLE_EXPERIMENT_SETS.items():
-        v = samples.values[k]
-        files[f"{set_name}.csv"] = csv_text([("Time (s)", samples.t[k])] + [(labels[i], v[:, i]) for i in range(3)],
-                                            separator, decimal)
-    props = {"version": "1.2.0", "deviceModel": "kfkit simulated phone", "deviceBrand": "kfkit",
-             "deviceManufacturer": "kfkit", "deviceRelease": "simulation", **(device or {})}
-    for k, android in (("acc", "accelerometer"), ("gyr", "gyroscope"), ("mag", "magnetic_field")):
-        spec = phone_board().accel if k == "acc" else phone_board().gyro if k == "gyr" else PHONE_MAG
-        props[f"{android} Name"] = spec.chip
-        props[f"{android} Range"] = f"{spec.full_scale:.6g}"
-    files["meta/device.csv"] = (f'"property"{separator}"value"\n'
-                                + "".join(f'"{p}"{separator}"{v}"\n' for p, v in props.items()))
-    files["meta/time.csv"] = (separator.join(f'"{c}"' for c in ("event", "experiment time", "system time",
-                                                                "system time text")) + "\n"
-                              + separator.join(['"START"', format_number(0.0, decimal), "0.000".replace(".", decimal),
-                                                '"1970-01-01 00:00:00.000 UTC+00:00"']) + "\n")
-    truth = {"description": samples.description, "phases": samples.phases, "sim": samples.sim}
-    files[TRUTH_FILE] = (f"{TRUTH_MAGIC}{json.dumps(truth, ensure_ascii=False)}\nrow,true_qw,true_qx,true_qy,true_qz\n"
-                         + "".join(f"{i},{w:.9f},{x:.9f},{y:.9f},{z:.9f}\n" for i, (w, x, y, z)
-                                   in enumerate(samples.truth_quat.tolist())))
-    return files

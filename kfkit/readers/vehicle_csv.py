@@ -2,7 +2,7 @@
 
 :func:`load_vehicle_csv` maps the file's columns to the kit's vehicle recording (``t``, ``delta``,
 ``yaw_rate``, ``ay``, ``vx``, SI, ISO 8855 axes: the kit's own ``# kfkit-vehicle`` format is
-:func:`kfkit.vehicle.load_vehicle`), and :func:`sign_check` warns when the signs of δ, r and a_y
+:func:`kfkit.io.load_vehicle`), and :func:`sign_check` warns when the signs of δ, r and a_y
 disagree with ISO 8855 in the turns.
 """
 from __future__ import annotations
@@ -15,7 +15,8 @@ import numpy as np
 
 from ..frames import G
 from ..io import Recording, RecordingError
-from ..vehicle import KMH, VEHICLE_COLUMNS, VEHICLE_TRUTH, csv_rows, read_csv_rows, read_lines
+from ..io import VEHICLE_COLUMNS, VEHICLE_TRUTH, csv_rows, read_csv_rows, read_lines
+from ..vehicle import KMH
 
 #: unit name → factor to SI, per kind of quantity (the options of :func:`load_vehicle_csv`)
 CSV_UNITS = {
