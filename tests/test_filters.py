@@ -4,7 +4,7 @@ import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 from scipy.linalg import solve_discrete_are
 
-from kfkit.filters import KalmanFilter, RollKF, RollSettings, Step, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
+from kfkit.filters import KalmanFilter, RollKF, RollKFSettings, Step, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
 
 
 def random_stable_system(rng, n, m, with_input):
@@ -160,8 +160,8 @@ def test_roll_kf_class_is_the_function_form_step_by_step():
     rng = np.random.default_rng(12)
     omega, z = rng.normal(0, 0.5, 300), rng.normal(0, 0.3, 300)
     z[::11] = np.nan
-    run = RollKF(0.01, RollSettings(q=1e-5, r=4e-4)).run(omega, z, x0=0.1, P0=0.5)
-    kf = RollKF(0.01, q=1e-5, r=4e-4, x0=0.1, P0=0.5)
+    run = RollKF(0.01, RollKFSettings(q_angle=1e-5, r=4e-4), x0=0.1, P0=0.5).run(omega, z)
+    kf = RollKF(0.01, q_angle=1e-5, r=4e-4, x0=0.1, P0=0.5)
     x, P = 0.1, 0.5
     for k in range(300):
         step = kf.step(omega[k], z[k])
@@ -175,11 +175,17 @@ def test_roll_kf_class_is_the_function_form_step_by_step():
 
 
 @pytest.mark.parametrize("make, error, match", [
-    (lambda: RollSettings(q=0.0), ValueError, "RollSettings: q must be a positive number, got 0.0"),
-    (lambda: RollSettings(r=float("nan")), ValueError, "r must be a positive number, got nan"),
+    (lambda: RollKFSettings(q_angle=0.0), ValueError, "RollKFSettings: q_angle must be a positive number, got 0.0"),
+    (lambda: RollKFSettings(r=float("nan")), ValueError, "r must be a positive number, got nan"),
+    (lambda: RollKFSettings(r=True), ValueError, "RollKFSettings: r must be a positive number, got True"),
     (lambda: RollKF(-0.01), ValueError, "RollKF: dt must be a positive number, got -0.01"),
-    (lambda: RollKF(0.01, qq=1e-6), TypeError, "RollKF: unknown setting qq; RollSettings has q, r"),
-    (lambda: RollKF(0.01, {"q": 1e-6}), TypeError, "RollKF: settings must be a RollSettings, got dict"),
+    (lambda: RollKF(rate_hz=0), ValueError, "RollKF: rate_hz must be a positive number, got 0"),
+    (lambda: RollKF(100.0), ValueError, "RollKF: dt = 100 s is longer than 1 s; if 100 is a sample rate, pass rate_hz=100"),
+    (lambda: RollKF(), TypeError, r"RollKF: give the sample period dt \(s\) or the sample rate rate_hz \(Hz\), got neither"),
+    (lambda: RollKF(0.01, rate_hz=100), TypeError, "RollKF: give the sample period .* not both"),
+    (lambda: RollKF(0.01, qq=1e-6), TypeError, "RollKF: unknown setting qq; RollKFSettings has q_angle, r"),
+    (lambda: RollKF(0.01, {"q_angle": 1e-6}), TypeError, "RollKF: settings must be a RollKFSettings, got dict"),
+    (lambda: RollKF(0.01, x0=[0.1, 0.2]), ValueError, r"RollKF: x0 must have shape \(\), got \(2,\)"),
 ])
 def test_bad_roll_settings_are_named(make, error, match):
     with pytest.raises(error, match=match):

@@ -73,7 +73,7 @@ def test_known_angles_without_protocol_or_truth_say_what_is_missing():
 def coupled_run(w, z, ok, left_out, dt, q0, r):
     """kfkit's TiltBiasKF step by step with q_θ = q0 + (left_out·dt)² and the accelerometer angle taken nearest the
     prediction: section 12's filter, written independently of the notebook. Returns [angle, bias] (N, 2)."""
-    kf = filters.TiltBiasKF(dt, q_angle=q0, q_bias=1e-4 * q0, r=r, gate="skip")
+    kf = filters.TiltBiasKF(dt, q_angle=q0, q_bias=1e-4 * q0, r=r, accel_gating="skip")
     kf.reset((z[0], 0.0), np.diag([r, 0.1 ** 2]))
     out = np.empty((len(z), 2))
     for k in range(len(z)):
@@ -104,8 +104,8 @@ def section12(real):
     left_out = left_out_oracle(w - np.mean(w[first], axis=0), roll, pitch)
     runs = {}
     for i, (name, z) in enumerate((("roll", roll), ("pitch", pitch))):
-        constant = filters.TiltBiasKF(dt, q_angle=q0, q_bias=1e-4 * q0, r=r, gate="skip").run(
-            w[:, i], z, gates[i], x0=(z[0], 0.0), P0=np.diag([r, 0.1 ** 2]))
+        constant = filters.TiltBiasKF(dt, q_angle=q0, q_bias=1e-4 * q0, r=r, accel_gating="skip", x0=(z[0], 0.0),
+                                      P0=np.diag([r, 0.1 ** 2])).run(w[:, i], z, gates[i])
         runs[name] = (constant.x, coupled_run(w[:, i], z, gates[i], left_out[i], dt, q0, r), z)
     return runs
 
