@@ -1,6 +1,8 @@
 """Lab 05 on the real recording (issue 17): the helpers it uses, the claims section 12 makes (checked with kfkit's
 own TiltBiasKF, an implementation independent of the notebook's loop), the notebook's section-12 functions against
 that oracle, and the whole notebook run with SOURCE = "real"."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -77,10 +79,10 @@ def coupled_run(w, z, ok, left_out, dt, q0, r):
     kf.reset((z[0], 0.0), np.diag([r, 0.1 ** 2]))
     out = np.empty((len(z), 2))
     for k in range(len(z)):
-        kf.q_angle = q0 + (left_out[k] * dt) ** 2
-        predicted = kf.angle + (w[k] - kf.bias) * dt
-        kf.step(w[k], predicted + wrap_angle(z[k] - predicted), ok[k])
-        out[k] = kf.x
+        kf.settings = replace(kf.settings, q_angle=q0 + (left_out[k] * dt) ** 2)
+        angle, bias = kf.state.x
+        predicted = angle + (w[k] - bias) * dt
+        out[k] = kf.step(w[k], predicted + wrap_angle(z[k] - predicted), ok[k]).x
     return out
 
 
