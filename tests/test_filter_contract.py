@@ -271,7 +271,7 @@ def test_settings_are_a_frozen_dataclass_named_for_the_filter(name):
     settings = f.settings
     assert dataclasses.is_dataclass(settings) and type(settings).__dataclass_params__.frozen
     assert type(settings).__name__ in {c.__name__ + "Settings" for c in type(f).__mro__[:-1]}
-    first = dataclasses.fields(settings)[0].name  # a number in every settings class
+    first = next(f.name for f in dataclasses.fields(settings) if isinstance(f.default, float))
     changed = dataclasses.replace(settings, **{first: 2 * getattr(settings, first)})
     assert CASES[name]()["make"](settings=changed).settings == changed == \
         CASES[name]()["make"](**{first: 2 * getattr(settings, first)}).settings

@@ -39,7 +39,8 @@ def test_ungated_filter_matches_filterpy(seed):
     w, z, _ = random_inputs(rng)
     q_angle, q_bias, r = 10 ** rng.uniform(-7, -3), 10 ** rng.uniform(-12, -6), 10 ** rng.uniform(-5, -1)
     x0, P0 = (0.1, -0.02), np.array([[0.03, 0.001], [0.001, 0.01]])
-    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, accel_gating="none", x0=x0, P0=P0).run(w, z, rng.random(len(z)) > 0.5)
+    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, accel_gating="none", x0=x0, P0=P0).run(
+        w, z, rng.random(len(z)) > 0.5)
     oracle = filterpy_oracle(DT, q_angle, q_bias, r, x0, P0)
     for k in range(len(z)):
         oracle.predict(u=np.array([[w[k]]]))
