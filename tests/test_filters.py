@@ -34,10 +34,13 @@ def test_kalman_filter_matches_filterpy(seed, with_input):
     ref.F, ref.H, ref.Q, ref.R, ref.x, ref.P = F, H, Q, R, x0.copy(), P0.copy()
     if with_input:
         ref.B = B
+    run = KalmanFilter(F, H, Q, R, x0, P0, B=B).run(zs, us)
     for k in range(N):
         ours.predict(None if us is None else us[k])
         ref.predict(u=None if us is None else us[k])
         np.testing.assert_allclose(ours.P, ref.P, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(run.x_prior[k], ref.x_prior, rtol=1e-9, atol=1e-12)  # what an RTS smoother needs
+        np.testing.assert_allclose(run.P_prior[k], ref.P_prior, rtol=1e-9, atol=1e-12)
         ours.update(zs[k])
         ref.update(zs[k])
         np.testing.assert_allclose(ours.x, ref.x, rtol=1e-9, atol=1e-12)
@@ -127,6 +130,7 @@ def test_roll_kf_matches_filterpy_scalar_filter():
     ref.x, ref.P = np.array([0.1]), np.array([[0.5]])
     for k in range(N):
         ref.predict(u=np.array([omega[k]]))
+        assert (run.x_prior[k], run.P_prior[k]) == pytest.approx((ref.x_prior[0], ref.P_prior[0, 0]), rel=1e-9, abs=1e-12)
         if not np.isnan(z[k]):
             ref.update(np.array([z[k]]))
             assert run.y[k] == pytest.approx(ref.y[0], rel=1e-9, abs=1e-12)

@@ -50,14 +50,17 @@ def test_matches_filterpy_on_the_linear_model():
     kf.Q = V.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))[2]
     kf.H, kf.R = C, np.diag([0.003 ** 2, 0.05 ** 2])
     kf.x, kf.P = np.zeros(2), np.diag([math.radians(2.0) ** 2] * 2)
-    xs, Ps = [], []
+    xs, Ps, priors = [], [], []
     for k in range(len(t)):
         kf.predict(u=np.array([delta[k - 1 if k else 0]]))
+        priors.append((kf.x.copy(), kf.P.copy()))
         kf.update(zs[k] - D[:, 0] * delta[k])  # filterpy has no D: move D δ to the measurement side
         xs.append(kf.x.copy())
         Ps.append(kf.P.copy())
     np.testing.assert_allclose(ours.x, np.array(xs), rtol=1e-7, atol=1e-12)
     np.testing.assert_allclose(ours.P, np.array(Ps), rtol=1e-7, atol=1e-16)
+    np.testing.assert_allclose(ours.x_prior, np.array([p[0] for p in priors]), rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(ours.P_prior, np.array([p[1] for p in priors]), rtol=1e-7, atol=1e-16)
 
 
 def test_nees_is_inside_chi_square_bounds_on_linear_model_data():

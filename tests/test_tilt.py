@@ -44,6 +44,8 @@ def test_ungated_filter_matches_filterpy(seed):
     oracle = filterpy_oracle(DT, q_angle, q_bias, r, x0, P0)
     for k in range(len(z)):
         oracle.predict(u=np.array([[w[k]]]))
+        np.testing.assert_allclose(run.x_prior[k], oracle.x_prior[:, 0], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(run.P_prior[k], oracle.P_prior, rtol=1e-8, atol=1e-15)
         oracle.update(np.array([[z[k]]]))
         np.testing.assert_allclose(run.x[k], oracle.x[:, 0], rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(run.P[k], oracle.P, rtol=1e-8, atol=1e-15)
