@@ -67,9 +67,10 @@ from kfkit import datasets
 from kfkit.filters import EulerAttitudeEKF, estimate_attitude
 from kfkit.filters.registry import methods
 from kfkit.filters.attitude_run import learn_field, tilt_heading
-from kfkit.filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement, euler_kinematics_jacobian,
-                                     euler_process_noise, euler_rates)
-from kfkit.frames import G, declination, enu_to_ned_quat, euler_to_quat, quat_conjugate, quat_multiply, quat_to_dcm, wrap_angle
+from kfkit.filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement,
+                                     euler_kinematics_jacobian, euler_process_noise)
+from kfkit.frames import (G, body_rates_to_euler_rates, declination, enu_to_ned_quat, euler_to_quat, quat_conjugate,
+                          quat_multiply, quat_to_dcm, wrap_angle)
 from kfkit.readers import load_broad
 from kfkit.metrics import attitude_rmse
 
@@ -257,7 +258,7 @@ def filterpy_euler_ekf(gyr, acc, mag, rate):
 
     class EulerEKF(ExtendedKalmanFilter):
         def predict_x(self, u=0):
-            self.x = self.x + euler_rates(self.x, u) * self.dt
+            self.x = self.x + body_rates_to_euler_rates(self.x, u) * self.dt
             self.x[2] = wrap_angle(self.x[2])
 
     dt = 1.0 / rate

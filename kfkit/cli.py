@@ -5,7 +5,7 @@
     kfkit data real [--check] [--source DIR]   convert the real excerpts (BROAD, race track) from their originals
     kfkit doctor                       check this environment and say what to fix
     kfkit boards                       list the boards plugged in over USB
-    kfkit capture --port P --seconds S --out FILE   record from a board (or --port virtual, or phyphox://HOST:PORT)
+    kfkit capture --port P --seconds S --out FILE   record from a board (or --port virtual, emulated-uno, phyphox://HOST:PORT)
     kfkit demo tilt --port P|virtual   steer a car by tilting the board (mpu6050_tilt_kf's $ATT lines)
     kfkit grade --lab NN --out gradebook.csv SUBMISSION…   grade notebooks in isolated kernels
     kfkit report gradebook.csv         the class report: one self-contained HTML page
@@ -99,6 +99,8 @@ def _capture(args) -> int:
             seconds = seconds or length
         elif args.port == "virtual":
             options["virtual"] = {"board": args.board or "nucleo-iks02a1", "rate_hz": args.rate, "realtime": not args.fast}
+        elif args.port == "emulated-uno":
+            options["virtual"] = {"realtime": not args.fast}
     except ValueError as e:
         return _capture_report(args, None, e, 2)
     seconds = seconds or 10.0
@@ -215,7 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("capture", help="record from a board (protocol v1) into a recording file")
     p.add_argument("--port", default="auto", help="device path, pyserial URL (loop://, socket://, hwgrep://), "
-                   "'auto', 'virtual', or phyphox://HOST:PORT for a phone running phyphox with remote access "
+                   "'auto', 'virtual', 'emulated-uno' (the Uno firmware on simavr), or phyphox://HOST:PORT for a phone "
+                   "running phyphox with remote access "
                    "(default: %(default)s)")
     p.add_argument("--seconds", type=float, default=None, help="board time to record, s (default: 10, or the protocol's)")
     p.add_argument("--out", type=Path, required=True, help="recording file to write (CSV, kit format)")
@@ -225,7 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="guided protocol: prompts, phase labels; with --port virtual the board plays it")
     p.add_argument("--quick", action="store_true", help="short protocol durations (tests, demonstrations)")
     p.add_argument("--board", choices=["nucleo-iks02a1", "mpu6050"], help="virtual board type")
-    p.add_argument("--fast", action="store_true", help="the virtual board runs faster than real time")
+    p.add_argument("--fast", action="store_true", help="the virtual board (or emulated Uno) runs faster than real time")
     p.add_argument("--rate", type=float, default=None, help="virtual board rate, Hz (free recording)")
     p.set_defaults(run=_capture)
 

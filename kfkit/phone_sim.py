@@ -12,9 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
-from .frames import G, MAG_FIELD_LONDON, dcm_to_euler, dcm_to_quat, euler_to_dcm
+from .frames import G, MAG_FIELD_LONDON, dcm_slerp, dcm_to_euler, dcm_to_quat, euler_to_dcm
 from .sensors import DEFAULT_PHONE_MOUNT, PHONE_LSB, phone_board, phone_mount
 from .sim import Motion, simulate_imu
 from .unit_errors import PHONE_UNIT
@@ -43,8 +42,7 @@ class PhoneSamples:
 def resample_motion(motion, t):
     """The truth of ``motion`` at times t (s, inside its span): attitude by slerp, body rate and
     linear acceleration linearly. Returns (R_nb (N, 3, 3), ω_b (N, 3), a_n (N, 3))."""
-    rotations = Rotation.from_matrix(euler_to_dcm(*motion.euler.T))
-    R_nb = Slerp(motion.t, rotations)(t).as_matrix()
+    R_nb = dcm_slerp(motion.t, euler_to_dcm(motion.euler), t)
     omega = np.column_stack([np.interp(t, motion.t, motion.omega_b[:, i]) for i in range(3)])
     acc_n = np.column_stack([np.interp(t, motion.t, motion.acc_n[:, i]) for i in range(3)])
     return R_nb, omega, acc_n
@@ -72,7 +70,7 @@ def simulate_phone(motion, seed=0, rates=None, jitter_s=TIMESTAMP_JITTER, unit=N
         t_true = _sample_times(rng, t0, t1, rates[sensor])
         t_true = t_true[rng.random(len(t_true)) >= drop]
         R_nb, omega, acc_n = resample_motion(motion, t_true)
-        euler = np.column_stack(dcm_to_euler(R_nb))
+        euler = dcm_to_euler(R_nb)
         sampled = Motion(t_true, rates[sensor], euler, omega, acc_n)
         rec = simulate_imu(sampled, board=board, seed=int(rng.integers(2**31)), field_n=field_n,
                            mag_rate_hz=1e9, **unit)

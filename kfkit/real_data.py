@@ -41,9 +41,8 @@ from typing import Callable
 
 import numpy as np
 import scipy.signal
-from scipy.spatial.transform import Rotation
 
-from .frames import dcm_to_quat, quat_to_dcm, quat_to_euler
+from .frames import dcm_to_quat, quat_slerp, quat_to_dcm, quat_to_euler
 from .io import Recording, load_recording, recording_text
 from .paths import KIT_ROOT, data_dir
 from .readers.broad import load_broad
@@ -94,10 +93,7 @@ def slerp_at(q, fs_hz: float, t):
     a, b = q[i], q[i + 1]
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
     out = np.full((len(pos), 4), np.nan)
-    ra = Rotation.from_quat(a[ok][:, [1, 2, 3, 0]])  # scipy is scalar-last
-    rb = Rotation.from_quat(b[ok][:, [1, 2, 3, 0]])
-    step = (ra.inv() * rb).as_rotvec()
-    out[ok] = (ra * Rotation.from_rotvec(step * frac[ok, None])).as_quat()[:, [3, 0, 1, 2]]
+    out[ok] = quat_slerp(a[ok], b[ok], frac[ok])
     return out
 
 

@@ -1,4 +1,4 @@
-"""Single-track (bicycle) vehicle models, their discretisation, simulated drives, and the kit's vehicle
+"""Single-track (bicycle) vehicle models (made discrete by :func:`kfkit.discrete.discretize`), simulated drives, and the kit's vehicle
 recording format (``# kfkit-vehicle v1``; a CSV of your own: :mod:`kfkit.readers.vehicle_csv`).
 
 Axes and signs follow ISO 8855: x forward, y left, z up; steering δ > 0 turns left, yaw rate
@@ -25,7 +25,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.linalg import expm
 
 from .frames import G
 from .io import Recording, RecordingError, check_phases, parse_number, positive_number
@@ -108,30 +107,6 @@ def linear_model(params: BicycleParams, vx: float):
                   [-(Cf + Cr) / m, (b * Cr - a * Cf) / (m * vx)]])
     D = np.array([[0.0], [Cf / m]])
     return A, B, C, D
-
-
-def discretize(A, B, dt, Qc):
-    """Exact discretisation over a sample interval ``dt`` (s): (Ad, Bd, Qd).
-
-    Zero-order hold on the input: expm([[A, B], [0, 0]]·dt) = [[Ad, Bd], [0, I]].
-    Van Loan (1978) for the process noise of ẋ = A x + w, E[w wᵀ] = Qc δ(t−τ):
-    expm([[−A, Qc], [0, Aᵀ]]·dt) = [[·, G12], [0, G22]],  Ad = G22ᵀ,  Qd = Ad·G12
-    = ∫₀^dt e^{Aτ} Qc e^{Aᵀτ} dτ.
-    """
-    A = np.atleast_2d(np.asarray(A, dtype=float))
-    n = A.shape[0]
-    B = np.asarray(B, dtype=float).reshape(n, -1)
-    Qc = np.atleast_2d(np.asarray(Qc, dtype=float))
-    p = B.shape[1]
-    M = np.zeros((n + p, n + p))
-    M[:n, :n], M[:n, n:] = A, B
-    E = expm(M * dt)
-    Ad, Bd = E[:n, :n], E[:n, n:]
-    V = np.zeros((2 * n, 2 * n))
-    V[:n, :n], V[:n, n:], V[n:, n:] = -A, Qc, A.T
-    F = expm(V * dt)
-    Qd = Ad @ F[:n, n:]
-    return Ad, Bd, 0.5 * (Qd + Qd.T)
 
 
 def steady_state(params: BicycleParams, vx: float, delta: float):

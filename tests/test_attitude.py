@@ -6,10 +6,10 @@ from filterpy.kalman import ExtendedKalmanFilter
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from kfkit.frames import (G, MAG_FIELD_LONDON, euler_rates_to_body_rates, euler_to_quat, quat_to_dcm, quat_to_euler,
+from kfkit.frames import (G, MAG_FIELD_LONDON, body_rates_to_euler_rates, euler_rates_to_body_rates, euler_to_quat, quat_to_dcm, quat_to_euler,
                           wrap_angle)
 from kfkit.filters import (EulerAttitudeEKF, attitude_jacobian, attitude_measurement, estimate_attitude, euler_ekf_predict,
-                           euler_ekf_update, euler_process_noise, euler_rates)
+                           euler_ekf_update, euler_process_noise)
 from kfkit.filters import FastEulerAttitudeEKF, MekfSettings, MultiplicativeEKF, Step
 from kfkit.filters.attitude_run import learn_field, tilt_heading
 from kfkit.filters.euler_ekf import EulerAttitudeEKFSettings, euler_kinematics_jacobian, euler_rate_matrix
@@ -71,17 +71,17 @@ def test_euler_rates_invert_the_body_rate_map():
     rng = np.random.default_rng(1)
     x = random_states(rng, 200, np.radians(85))
     omega = rng.normal(0, 2.0, (200, 3))
-    rates = euler_rates(x, omega)
+    rates = body_rates_to_euler_rates(x, omega)
     np.testing.assert_allclose(euler_rates_to_body_rates(x, rates), omega, atol=1e-9)
     np.testing.assert_allclose([euler_rate_matrix(xi) @ wi for xi, wi in zip(x[:20], omega[:20])], rates[:20], atol=1e-9)
 
 
 def test_euler_rates_divide_by_cos_pitch_not_cos_roll():
     # Level in pitch, rolled 60°: a pure body z rate r gives ψ̇ = r cos φ / cos θ = r/2.
-    rates = euler_rates([np.radians(60), 0.0, 0.0], [0.0, 0.0, 1.0])
+    rates = body_rates_to_euler_rates([np.radians(60), 0.0, 0.0], [0.0, 0.0, 1.0])
     assert rates[2] == pytest.approx(0.5)
     # Pitched 60°, level in roll: ψ̇ = r / cos θ = 2r (÷ cos φ would give r).
-    assert euler_rates([0.0, np.radians(60), 0.0], [0.0, 0.0, 1.0])[2] == pytest.approx(2.0)
+    assert body_rates_to_euler_rates([0.0, np.radians(60), 0.0], [0.0, 0.0, 1.0])[2] == pytest.approx(2.0)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -111,11 +111,11 @@ def test_prediction_jacobian_against_finite_differences(seed):
     x = random_states(rng, 1)[0]
     omega, dt = rng.normal(0, 1.0, 3), 0.01
     A = euler_kinematics_jacobian(x, omega)
-    np.testing.assert_allclose(A, finite_difference(lambda s: euler_rates(s, omega), x), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(A, finite_difference(lambda s: body_rates_to_euler_rates(s, omega), x), rtol=1e-6, atol=1e-7)
     P = np.diag(rng.uniform(0.01, 0.1, 3))
     Q = euler_process_noise(x, 0.02, dt)
     _, P_pred = euler_ekf_predict(x, P, omega, dt, Q)
-    F = np.eye(3) + dt * finite_difference(lambda s: euler_rates(s, omega), x)
+    F = np.eye(3) + dt * finite_difference(lambda s: body_rates_to_euler_rates(s, omega), x)
     np.testing.assert_allclose(P_pred, F @ P @ F.T + Q, rtol=1e-6, atol=1e-12)
 
 
@@ -123,7 +123,7 @@ def test_process_noise_is_gyro_noise_through_the_rate_matrix():
     # Monte Carlo oracle: Q is the covariance of G·n·dt for gyro noise n ~ N(0, σ² I).
     rng = np.random.default_rng(3)
     x, sg, dt = np.array([0.4, 0.7, -1.0]), 0.05, 0.01
-    samples = np.array([euler_rates(x, n) * dt for n in rng.normal(0, sg, (40000, 3))])
+    samples = np.array([body_rates_to_euler_rates(x, n) * dt for n in rng.normal(0, sg, (40000, 3))])
     Q = euler_process_noise(x, sg, dt)
     np.testing.assert_allclose(Q, np.cov(samples.T), atol=0.03 * Q.max())
 

@@ -171,7 +171,7 @@ MISTAKES = [  # (checkpoint, (function, text of the model answer, mistaken text)
      "body rates p, q, r unchanged", 20),
     ("04.predict", ("ekf_predict", "x_new[2] = frames.wrap_angle(x_new[2])", ""), "not wrapped", 100),
     ("04.predict", ("ekf_predict", "F @ P @ F.T + Q", "F.T @ P @ F + Q"), "expected", 20),
-    ("04.measurement", ("measurement", "frames.euler_to_dcm(*x).T", "frames.euler_to_dcm(*x)"), "expected", 20),
+    ("04.measurement", ("measurement", "frames.euler_to_dcm(x).T", "frames.euler_to_dcm(x)"), "expected", 20),
     ("04.jacobian", ("jacobian", "return H", "return H.T"), "expected shape (6, 3), got shape (3, 6)", 20),
     ("04.update", ("ekf_update", "x_new[2] = frames.wrap_angle(x_new[2])", ""), "not wrapped", 100),
     ("04.update", ("ekf_update", "if np.isnan(z[3:]).any() else slice(0, 6)", "if False else slice(0, 6)"), "NaN", 20),

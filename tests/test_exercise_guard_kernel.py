@@ -4,6 +4,7 @@ must give the reason of this moment, and a cell must never be held back by what 
 import nbformat
 import pytest
 from nbclient import NotebookClient
+from waiting import HANG_GUARD_S
 
 STUB = "def {name}(x):\n    # YOUR CODE HERE\n    raise NotImplementedError()\n"
 DONE = "def {name}(x):\n    return 2 * x\n"
@@ -13,7 +14,7 @@ DONE = "def {name}(x):\n    return 2 * x\n"
 def run():
     """``run(code)`` executes one cell in one kernel (the guard loaded) and returns what it printed."""
     nb = nbformat.v4.new_notebook()
-    client = NotebookClient(nb, timeout=60, allow_errors=False, kernel_name="python3")
+    client = NotebookClient(nb, timeout=HANG_GUARD_S, startup_timeout=HANG_GUARD_S, allow_errors=False, kernel_name="python3")
     with client.setup_kernel():
         def run(code):
             cell = nbformat.v4.new_code_cell(code)

@@ -13,6 +13,7 @@ from kfkit.io import Recording
 from kfkit.paths import KIT_ROOT
 from kfkit.real_data import PASS_HZ, STOP_HZ
 from test_checkpoints_every import solution_namespace
+from waiting import HANG_GUARD_S
 
 
 @pytest.fixture(scope="module")
@@ -152,7 +153,7 @@ def test_section12_covering_the_coupling_keeps_the_bias_at_the_rests(real, secti
 
 
 def test_notebook_section12_functions_match_the_oracle(real, section12):
-    """The notebook's left_out_rates (through filters.euler_rates) and run_kf_moving (through the student's
+    """The notebook's left_out_rates (through frames.body_rates_to_euler_rates) and run_kf_moving (through the student's
     kf_predict/kf_update, here the model answers) agree with this file's independent versions."""
     ns = solution_namespace("05")
     f, w, dt = real.body("acc"), real.body("gyr"), 1.0 / real.rate_hz
@@ -180,7 +181,7 @@ def test_lab05_runs_on_the_real_recording():
     nb = nbformat.read(path, as_version=4)
     source = next(c for c in nb.cells if c.cell_type == "code" and c.source.startswith('SOURCE = "bundled"'))
     source.source = source.source.replace('SOURCE = "bundled"', 'SOURCE = "real"', 1)
-    NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}).execute()
+    NotebookClient(nb, timeout=HANG_GUARD_S, startup_timeout=HANG_GUARD_S, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}).execute()
     printed = ""
     for cell in nb.cells:
         for out in cell.get("outputs", []):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 
-from kfkit import datasets
+from kfkit import datasets, discrete
 from kfkit import vehicle as V
 from kfkit.filters import (SideslipKF, SideslipKFSettings, SideslipRun, Step, copied_kinematic_kf, estimate_sideslip,
                            kinematic_sideslip, sideslip_step)
@@ -28,7 +28,7 @@ def linear_drive(vx=15.0, n=600, dt=0.01, q=(1e-4, 1e-3), r=(0.003, 0.05), seed=
     """Data simulated from the discrete linear model itself (the filter's own assumptions)."""
     rng = np.random.default_rng(seed)
     A, B, C, D = V.linear_model(CAR, vx)
-    Ad, Bd, Qd = V.discretize(A, B, dt, np.diag(q))
+    Ad, Bd, Qd = discrete.discretize(A, B, dt, np.diag(q))
     t = np.arange(n) * dt
     delta = 0.02 * np.sin(2 * np.pi * 0.5 * t) + 0.01 * np.sin(2 * np.pi * 1.3 * t)
     x = np.zeros(2)
@@ -46,8 +46,8 @@ def test_matches_filterpy_on_the_linear_model():
     ours = estimate_kf(t, delta, zs[:, 0], zs[:, 1], vx, CAR)
     A, B, C, D = V.linear_model(CAR, 15.0)
     kf = FilterpyKF(dim_x=2, dim_z=2, dim_u=1)
-    kf.F, kf.B, _ = V.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))
-    kf.Q = V.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))[2]
+    kf.F, kf.B, _ = discrete.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))
+    kf.Q = discrete.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))[2]
     kf.H, kf.R = C, np.diag([0.003 ** 2, 0.05 ** 2])
     kf.x, kf.P = np.zeros(2), np.diag([math.radians(2.0) ** 2] * 2)
     xs, Ps, priors = [], [], []
@@ -154,7 +154,7 @@ def exact_model(vx):
     """The model discretised at each sample's own speed and interval (no bins)."""
     def model_at(k, dt):
         A, B, C, D = V.linear_model(CAR, vx[k])
-        return V.discretize(A, B, dt, np.diag([1e-4, 1e-3])) + (C, D)
+        return discrete.discretize(A, B, dt, np.diag([1e-4, 1e-3])) + (C, D)
     return model_at
 
 
@@ -225,7 +225,7 @@ def test_one_step_with_the_bias_state_matches_filterpy():
     rng = np.random.default_rng(7)
     A, B, C, D = V.linear_model(CAR, 12.0)
     Ab, Bb, Cb = np.pad(A, ((0, 1), (0, 1))), np.vstack([B, [[0.0]]]), np.hstack([C, [[0.0], [1.0]]])
-    Ad, Bd, Qd = V.discretize(Ab, Bb, 0.01, np.diag([1e-4, 1e-3, 1e-5]))
+    Ad, Bd, Qd = discrete.discretize(Ab, Bb, 0.01, np.diag([1e-4, 1e-3, 1e-5]))
     L = rng.normal(0, 0.05, (3, 3))
     x, P, R = rng.normal(0, 0.05, 3), L @ L.T + 1e-4 * np.eye(3), np.diag([0.003 ** 2, 0.05 ** 2])
     z, d_prev, d = np.array([0.1, 2.0]), 0.02, 0.03

@@ -5,6 +5,7 @@ import time
 import numpy as np
 import pytest
 import serial
+from waiting import HANG_GUARD_S
 
 from kfkit.capture import Message, VirtualBoard, encode_message, parse_line
 from kfkit.cli import main
@@ -22,10 +23,10 @@ def test_att_line_round_trip_and_checksum():
     assert parse_line(bad).kind == "checksum"
 
 
-def read_lines(board, n_lines, timeout=20.0):
+def read_lines(board, n_lines):
     with serial.Serial(board.port, 115200, timeout=1) as port:
         port.write(b"h")
-        lines, t_end = [], time.monotonic() + timeout
+        lines, t_end = [], time.monotonic() + HANG_GUARD_S  # a busy machine sends late, not never
         while len(lines) < n_lines and time.monotonic() < t_end:
             line = port.readline()
             if line:
@@ -118,7 +119,7 @@ def test_the_virtual_hand_steers_both_ways():
     game, xs = RaceGame(), []
     with ExitStack() as stack:
         stream = open_stream(stack, "virtual", fast=True)
-        deadline = time.monotonic() + 30
+        deadline = time.monotonic() + HANG_GUARD_S  # a hang guard: the game's time is the board's
         while game.time < 20.0 and time.monotonic() < deadline:
             if advance(game, stream):
                 xs.append(game.x)

@@ -9,6 +9,7 @@ from scipy.integrate import quad_vec, solve_ivp
 from scipy.linalg import expm, solve_discrete_are
 from scipy.signal import cont2discrete, lsim
 
+from kfkit import discrete
 from kfkit import vehicle as V
 from kfkit.filters import estimate_sideslip
 from kfkit.frames import G
@@ -124,7 +125,7 @@ def test_linear_model_follows_the_nonlinear_transient_at_small_slip():
 
 def steady_beta_std(A, B, C, R, dt=0.01, Qc=np.diag([1e-4, 1e-3])):
     """Steady-state posterior σ_β (rad) of a KF measuring C x with noise R: the DARE's answer, not our filter's."""
-    Ad, _, Qd = V.discretize(A, B, dt, Qc)
+    Ad, _, Qd = discrete.discretize(A, B, dt, Qc)
     prior = solve_discrete_are(Ad.T, C.T, Qd, R)
     post = prior - prior @ C.T @ np.linalg.solve(C @ prior @ C.T + R, C @ prior)
     return math.sqrt(post[0, 0])
@@ -167,7 +168,7 @@ def test_zoh_matches_scipy_cont2discrete():
             A, B = with_bias_state(A, B)
             C, D = np.hstack([C, [[0.0], [1.0]]]), D
         dt = rng.choice([0.001, 0.01, 0.05])
-        Ad, Bd, _ = V.discretize(A, B, dt, np.eye(len(A)))
+        Ad, Bd, _ = discrete.discretize(A, B, dt, np.eye(len(A)))
         Ad_ref, Bd_ref, *_ = cont2discrete((A, B, C, D), dt, method="zoh")
         np.testing.assert_allclose(Ad, Ad_ref, rtol=1e-10, atol=1e-14)
         np.testing.assert_allclose(Bd, Bd_ref, rtol=1e-10, atol=1e-14)
@@ -181,7 +182,7 @@ def test_van_loan_matches_numerical_integration():
         if bias:
             A, B = with_bias_state(A, B)
         Qc = np.diag(rng.uniform(1e-5, 1e-2, len(A)))
-        _, _, Qd = V.discretize(A, B, dt, Qc)
+        _, _, Qd = discrete.discretize(A, B, dt, Qc)
         ref, _ = quad_vec(lambda s: expm(A * s) @ Qc @ expm(A * s).T, 0.0, dt, epsabs=1e-16, epsrel=1e-11)
         np.testing.assert_allclose(Qd, ref, rtol=1e-8, atol=1e-18)
         assert np.all(np.linalg.eigvalsh(Qd) > 0)

@@ -7,6 +7,7 @@
 - :mod:`.timeline`       the board-time unwrap and drop bookkeeping of a stream
 - :mod:`.recorder`       ``Recorder`` (reader thread, statistics, streamed file) and ``capture``
 - :mod:`.virtual`        ``VirtualBoard``: the IMU simulator streaming to a pseudo-terminal
+- :mod:`.emulated_uno`   ``EmulatedUno``: the real Uno firmware on simavr with an emulated MPU6050, on a pseudo-terminal
 - :mod:`.virtual_phone`  ``VirtualPhone``: the phone simulator behind phyphox's remote interface
 - :mod:`.guided`         guided protocols (stationary, six faces, tilt, magnetometer rotations, axis turns, headings)
 

@@ -12,7 +12,8 @@ reader thread only feeds it.
 A port is a device path, a pyserial URL, ``phyphox://…`` or a *board object* that serves a port:
 anything with ``start()`` (returns itself; ``port`` is then what to open), ``close()``, ``description``,
 ``source`` (the recording's metadata "source") and ``phases`` (labelled windows of what it plays, or
-[]). :class:`kfkit.capture.virtual.VirtualBoard` is one; the name "virtual" makes a new one.
+[]). :class:`kfkit.capture.virtual.VirtualBoard` is one; the name "virtual" makes a new one, and
+"emulated-uno" a new :class:`kfkit.capture.emulated_uno.EmulatedUno` (the real firmware on simavr).
 
 Magnetometer: the Nucleo sketch sends ``mx,my,mz`` on every line (the last reading repeated) and
 a last field ``mag_new`` (1 = a new reading, 0 = a repeat); rows with ``mag_new = 0`` get NaN
@@ -30,6 +31,7 @@ import numpy as np
 
 from .. import sensors
 from ..io import INT_COLUMNS, Recording, format_header, format_row, save_recording
+from .emulated_uno import EmulatedUno
 from .errors import BoardDisconnectedError, CaptureError, NoDataError, ProtocolVersionError, WrongBaudError
 from .ports import SKETCHES, open_port, resolve_auto
 from .protocol import BadLine, Header, Message, Note, Sample, parse_line
@@ -84,7 +86,8 @@ class Recorder:
 
     port      device path, pyserial URL (loop://, socket://host:port, hwgrep://0483:374B),
               phyphox://HOST:PORT, "auto" (the single detected board), "virtual" (a new
-              :class:`VirtualBoard` built from ``virtual=dict(...)``) or a board object (module docstring)
+              :class:`VirtualBoard` built from ``virtual=dict(...)``), "emulated-uno" (a new
+              :class:`~kfkit.capture.emulated_uno.EmulatedUno`, the same) or a board object (module docstring)
     out       recording file streamed as samples arrive, rewritten with the final metadata
               (statistics, phases) by ``stop()``
     seconds   stop by itself once this much board time (s) has arrived (None: until stop())
@@ -135,6 +138,8 @@ class Recorder:
         port = self.port
         if port == "virtual":
             port, self._own_board = VirtualBoard(**self.virtual_options), True
+        elif port == "emulated-uno":  # the real AVR firmware on simavr (kfkit.capture.emulated_uno)
+            port, self._own_board = EmulatedUno(**self.virtual_options), True
         if not isinstance(port, str):  # a board object: start it (unless running) and open the port it serves
             self.board = port
             if self.board.port is None:
@@ -280,7 +285,7 @@ class Recorder:
 
     def _check_startup(self, waited):
         s = self.stats
-        valid = s.samples + s.before_header + (self.header is not None)
+        valid = s.samples + s.before_header + (self.header is not None) + len(s.notes)  # a '#' note is protocol v1
         if waited >= self.garbage_s and s.bytes >= 20 and valid <= 0.1 * (valid + s.bad_lines):
             hint = ("check Serial.begin(...) in the sketch" if self.baud == DEFAULT_BAUD
                     else f"pass baud={DEFAULT_BAUD} (kfkit capture --baud {DEFAULT_BAUD})")
@@ -294,6 +299,10 @@ class Recorder:
             self._fail(NoDataError, f"{self.device}: the board sent its header but no samples in {waited:.1f} s: "
                        f"it may be stopped (the 's' command toggles streaming) or its sensor failed to start"
                        f"{self._notes()}; press the board's reset button")
+        elif waited >= self.no_data_s and self.header is None and s.notes and not s.before_header:
+            self._fail(NoDataError, f"{self.device}: no header and no samples in {waited:.1f} s, only notes from the board"
+                       f"{self._notes()}: its sketch runs but cannot start; fix what it says, then press the board's "
+                       f"reset button")
         elif waited >= self.no_data_s and valid == 0 and s.bytes < 20:
             notes = self._notes() + (f" except {s.bytes} stray bytes" if s.bytes else "")
             self._fail(NoDataError, f"{self.device}: nothing received in {waited:.1f} s{notes}. Check that the logger "
@@ -301,7 +310,7 @@ class Recorder:
                        f"program reads the port")
 
     def _notes(self) -> str:
-        return f" (the board said: {'; '.join(self.stats.notes)})" if self.stats.notes else ""
+        return f" (the board said: {'; '.join(dict.fromkeys(self.stats.notes))})" if self.stats.notes else ""  # each once
 
     def _handle(self, line: bytes):
         item = parse_line(line)

@@ -11,6 +11,7 @@ judging the raw output. Each lab registers its checkpoints in its own module (``
 """
 from __future__ import annotations
 
+import enum
 import importlib
 import pkgutil
 import textwrap
@@ -47,10 +48,29 @@ class Checkpoint:
     what: str = "random cases"
 
 
+class Status(str, enum.Enum):
+    """The outcome of a checkpoint: a check's result, a gradebook row's ``status`` column, the class report's
+    bars. A check ends passed, failed, error (the function raised) or not attempted; the grader adds the rest."""
+
+    PASSED = "passed"
+    FAILED = "failed"
+    ERROR = "error"  # the student's function raised
+    NOT_ATTEMPTED = "not attempted"  # it still raises NotImplementedError
+    MISSING = "missing"  # no such function after the notebook ran
+    TIMED_OUT = "timed out"  # the call, a function it calls or the whole submission ran out of time
+    OVER_LIMIT = "over limit"  # the submission went over its memory or CPU-time limit
+    NOT_GRADED = "not graded"  # not a notebook, or a grader error (regrade)
+    REFUSED = "refused"  # not opened: a link or not a regular file in the folder graded
+    UNKNOWN = "unknown"  # a row of a gradebook written before the status column, short of full points
+
+    def __str__(self) -> str:
+        return self.value
+
+
 @dataclass
 class CheckResult:
     name: str
-    status: str  # "passed", "failed", "not attempted", "error"
+    status: Status  # PASSED, FAILED, NOT_ATTEMPTED or ERROR
     passed: int
     total: int
     points: float
@@ -59,7 +79,7 @@ class CheckResult:
 
     @property
     def ok(self) -> bool:
-        return self.status == "passed"
+        return self.status == Status.PASSED
 
     def __str__(self) -> str:
         return self.message
@@ -226,21 +246,21 @@ def run_checkpoint(cp: Checkpoint, answer: Callable, seed=None) -> CheckResult:
             stub = traceback.extract_tb(exc.__traceback__)[-1].name   # where it was raised: a given function may call a stub
             what = cp.function if stub in (cp.function, getattr(answer, "__name__", None)) else f"{cp.function} calls {stub}, which"
             msg = f"⏳ {head}not attempted yet ({what} still raises NotImplementedError: fill it in, run its cell, then this one)"
-            return CheckResult(cp.name, "not attempted", 0, total, 0, cp.points, msg)
+            return CheckResult(cp.name, Status.NOT_ATTEMPTED, 0, total, 0, cp.points, msg)
         except Exception as exc:  # the student's code failed: report it, never crash the notebook
             where = f"on {case.label}, " if case.label else ""
             msg = (f"❌ {head}{where}{call_repr(cp.function, case.args)} raised {type(exc).__name__}: {exc}. "
                    f"Hint: {cp.hint}")
-            return CheckResult(cp.name, "error", passed, total, 0, cp.points, msg)
+            return CheckResult(cp.name, Status.ERROR, passed, total, 0, cp.points, msg)
         problem = nonfinite_problem(got, case.expected) or cp.judge(case, got)
         if problem is None:
             passed += 1
         elif first_failure is None:
             first_failure = f"{case.label or call_repr(cp.function, case.args)}: {problem}"
     if passed == total:
-        return CheckResult(cp.name, "passed", passed, total, cp.points, cp.points, f"✅ {head}{passed}/{total} {cp.what}")
+        return CheckResult(cp.name, Status.PASSED, passed, total, cp.points, cp.points, f"✅ {head}{passed}/{total} {cp.what}")
     msg = f"❌ {head}{passed}/{total} {cp.what}; first failure {first_failure}. Hint: {cp.hint}"
-    return CheckResult(cp.name, "failed", passed, total, 0, cp.points, msg)
+    return CheckResult(cp.name, Status.FAILED, passed, total, 0, cp.points, msg)
 
 
 def check(name: str, answer: Callable, seed=None) -> CheckResult:

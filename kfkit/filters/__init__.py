@@ -36,7 +36,7 @@ from .roll import RollKF, RollKFSettings, integrate_rate, roll_kf, roll_kf_predi
 from .tilt import TiltAttitude, TiltBiasKF, TiltBiasKFSettings, TiltRun, accel_static_ok, protocol_angles
 from .attitude_run import AttitudeRun
 from .euler_ekf import (EulerAttitudeEKF, EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement,
-                        euler_ekf_predict, euler_ekf_update, euler_process_noise, euler_rates)
+                        euler_ekf_predict, euler_ekf_update, euler_process_noise)
 from .euler_ekf_fast import FastEulerAttitudeEKF
 from .mekf import MekfSettings, MultiplicativeEKF
 from .sideslip import (SideslipKF, SideslipKFSettings, SideslipRun, copied_kinematic_kf, kinematic_sideslip,

@@ -155,6 +155,6 @@ def learn_field(acc, mag, samples=50):
     if rows.size == 0:
         raise ValueError("learn_field: the magnetometer has no sample (all rows NaN)")
     roll, pitch = accel_tilt(acc[rows])
-    R_nb = euler_to_dcm(roll, pitch, np.zeros_like(roll))
+    R_nb = euler_to_dcm(np.stack([roll, pitch, np.zeros_like(roll)], axis=-1))
     m_level = np.einsum("nij,nj->ni", R_nb, mag[rows])
     return np.array([np.hypot(m_level[:, 0], m_level[:, 1]).mean(), 0.0, m_level[:, 2].mean()])

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..frames import G, MAG_FIELD_LONDON, euler_to_dcm, wrap_angle
+from ..frames import G, MAG_FIELD_LONDON, body_rates_to_euler_rates, euler_to_dcm, wrap_angle
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, tilt_heading
 from .contract import State, Step, check_settings, configure, sample_period, shaped
 
@@ -52,22 +52,6 @@ class EulerAttitudeEKFSettings:
     def __post_init__(self):
         check_settings(self, positive=("accel_noise", "mag_noise", "accel_gate", "accel_inflation"),
                        non_negative=("gyro_noise",), optional=("accel_gate",))
-
-
-def euler_rates(euler, omega_b):
-    """[φ̇, θ̇, ψ̇] (rad/s) from Euler angles [φ, θ, ψ] and body rate [p, q, r] (rad/s), ZYX:
-
-        φ̇ = p + (q sin φ + r cos φ) tan θ,   θ̇ = q cos φ − r sin φ,   ψ̇ = (q sin φ + r cos φ) / cos θ
-
-    Singular at cos θ = 0 (gimbal lock). Broadcasts over leading axes.
-    """
-    e = np.asarray(euler, dtype=float)
-    w = np.asarray(omega_b, dtype=float)
-    sf, cf = np.sin(e[..., 0]), np.cos(e[..., 0])
-    ct, tt = np.cos(e[..., 1]), np.tan(e[..., 1])
-    p, q, r = w[..., 0], w[..., 1], w[..., 2]
-    u = q * sf + r * cf
-    return np.stack(np.broadcast_arrays(p + u * tt, q * cf - r * sf, u / ct), axis=-1)
 
 
 def euler_rate_matrix(euler):
@@ -107,7 +91,7 @@ def euler_ekf_predict(x, P, omega_b, dt, Q):
     """
     x = np.asarray(x, dtype=float)
     F = np.eye(3) + dt * euler_kinematics_jacobian(x, omega_b)
-    x_new = x + euler_rates(x, omega_b) * dt
+    x_new = x + body_rates_to_euler_rates(x, omega_b) * dt
     x_new[2] = wrap_angle(x_new[2])
     return x_new, F @ np.asarray(P, dtype=float) @ F.T + np.asarray(Q, dtype=float)
 
@@ -118,7 +102,7 @@ def attitude_measurement(x, field_n=MAG_FIELD_LONDON):
 
     The first three are g·[sθ, −sφ cθ, −cφ cθ]; at rest and level, [0, 0, −g].
     """
-    R_bn = euler_to_dcm(*np.asarray(x, dtype=float)[:3]).T
+    R_bn = euler_to_dcm(np.asarray(x, dtype=float)[:3]).T
     return np.concatenate([R_bn @ np.array([0.0, 0.0, -G]), R_bn @ np.asarray(field_n, dtype=float)])
 
 

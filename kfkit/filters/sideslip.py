@@ -3,7 +3,7 @@
 State x = [β, r] (rad, rad/s), optionally [β, r, b_ay] with a lateral-accelerometer bias
 (m/s²); input δ (road-wheel steering, rad); measurement z = [r, a_y] (rad/s, m/s²). The linear
 bicycle model (:func:`kfkit.vehicle.linear_model`) at the measured speed V_x is discretised
-exactly (ZOH + Van Loan, :func:`kfkit.vehicle.discretize`) and the measurement has a direct
+exactly (ZOH + Van Loan, :func:`kfkit.discrete.discretize`) and the measurement has a direct
 feed-through D: a_y responds to δ at once, through the front tyre force::
 
     predict   x⁻ = Ad x + Bd δ_{k−1}          P⁻ = Ad P Adᵀ + Qd
@@ -42,7 +42,8 @@ from functools import lru_cache
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from ..vehicle import BicycleParams, discretize, linear_model
+from ..discrete import discretize
+from ..vehicle import BicycleParams, linear_model
 from .contract import FilterRun, State, Step, check_settings, configure, sample_period, shaped
 from .linear import KalmanFilter
 
@@ -132,7 +133,7 @@ class SideslipRun(FilterRun):
 def sideslip_step(x, P, delta_prev, z, delta, Ad, Bd, Qd, C, D, R):
     """One predict + update of the sideslip KF with the D-term; returns (x, P, y, S).
 
-    x (n,) with n = 2 or 3 (bias state), z = [r, a_y]; Ad, Bd, Qd from :func:`kfkit.vehicle.discretize`.
+    x (n,) with n = 2 or 3 (bias state), z = [r, a_y]; Ad, Bd, Qd from :func:`kfkit.discrete.discretize`.
     x⁻ = Ad x + Bd δ_{k−1}, P⁻ = Ad P Adᵀ + Qd; y = z − C x⁻ − D δ_k, S = C P⁻ Cᵀ + R;
     K = P⁻ Cᵀ S⁻¹, x = x⁻ + K y, P = (I − K C) P⁻ (I − K C)ᵀ + K R Kᵀ.
     """

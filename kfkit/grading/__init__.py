@@ -17,9 +17,10 @@ with memory and CPU time limited for all its processes together (:mod:`kfkit.gra
    expected values the kernel never sees. Nothing the notebook prints or patches in its kernel
    (``kfkit.checkpoints``, kfkit's reference functions) enters that judgement.
 
-Writes ``gradebook.csv`` (``submission,checkpoint,points,max_points,message``), one Markdown
-feedback file per submission (``<feedback>/<submission>.md``), and returns a summary with
-per-checkpoint pass rates.
+Writes ``gradebook.csv`` (``submission,checkpoint,points,max_points,status,message``: see
+:mod:`kfkit.grading.gradebook`), one Markdown feedback file per submission (``<feedback>/<submission>.md``),
+and returns a summary with per-checkpoint pass rates. A link or a non-regular file among the submissions is
+refused, never followed or opened (:mod:`kfkit.grading.submissions`).
 """
 from __future__ import annotations
 

@@ -21,6 +21,7 @@ import numpy as np
 KERNEL_SIDE = (Path(__file__).with_name("_kernel_side.py")).read_text()
 MAX_NUMBERS = 2_000_000  # numbers one checkpoint's outputs may hold
 MAX_PAYLOAD = 64 << 20  # characters of JSON accepted from the kernel for one checkpoint
+TIMED_OUT_EARLIER = "TimedOutEarlier"  # what a stopped function raises (see _kernel_side.stop)
 DTYPES = {"b": np.bool_, "i": np.int64, "u": np.uint64, "f": np.float64}
 
 
@@ -50,9 +51,25 @@ def call_code(function: str, cases_args: list[dict], nonce: str) -> str:
         import cloudpickle
 
         data = cloudpickle.dumps(cases_args, protocol=4)
-    blob = base64.b64encode(data).decode()
+    return _kernel_code("call", function, base64.b64encode(data).decode(), nonce, MAX_NUMBERS)
+
+
+def stop_code(names: list[str] | None, message: str, nonce: str, keep: bool) -> str:
+    """Source of the cell that replaces the notebook's functions ``names`` (None: the one the last interrupt
+    stopped) by stubs raising :data:`TIMED_OUT_EARLIER` with ``message`` (``{name}`` filled in), left in place
+    by :func:`restore_code` when ``keep``; its report (:func:`extract`) is ``{"stopped": [names]}``."""
+    return _kernel_code("stop", nonce, names, message, keep)
+
+
+def restore_code() -> str:
+    """Source of the cell that puts back every function :func:`stop_code` replaced, except the kept ones."""
+    return _kernel_code("restore")
+
+
+def _kernel_code(entry: str, *args) -> str:
+    """A cell calling ``_kernel_side.<entry>(the notebook's namespace, *args)`` in a namespace of its own."""
     return ("(lambda g: (exec(compile(g['__src__'], '<kfkit-grader>', 'exec'), g), "
-            f"g['call'](globals(), {function!r}, {blob!r}, {nonce!r}, {MAX_NUMBERS})))"
+            f"g[{entry!r}](globals(){''.join(f', {a!r}' for a in args)})))"
             f"({{'__name__': '__kfkit_grader__', '__src__': {KERNEL_SIDE!r}}});")
 
 

@@ -365,7 +365,7 @@ def _truth_euler(where, text, verified, index, M):
                              f"the export's last used gyro row is {index[-1] if len(index) else None})")
     q = table[index, 1:]
     R_nb = quat_to_dcm(q) @ M.T
-    return np.column_stack(dcm_to_euler(R_nb)), meta
+    return dcm_to_euler(R_nb), meta
 
 
 def load_phyphox(path, mount=DEFAULT_PHONE_MOUNT, require=("acc", "gyr")) -> Recording:
