@@ -65,9 +65,10 @@ import numpy as np
 
 from kfkit import datasets
 from kfkit.filters import EulerAttitudeEKF, estimate_attitude
+from kfkit.filters.registry import methods
 from kfkit.filters.attitude_run import learn_field, tilt_heading
-from kfkit.filters.euler_ekf import (EulerEkfSettings, attitude_jacobian, attitude_measurement, euler_kinematics_jacobian,
-                                     euler_process_noise)
+from kfkit.filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement,
+                                     euler_kinematics_jacobian, euler_process_noise)
 from kfkit.frames import (G, body_rates_to_euler_rates, declination, enu_to_ned_quat, euler_to_quat, quat_conjugate,
                           quat_multiply, quat_to_dcm, wrap_angle)
 from kfkit.readers import load_broad
@@ -126,9 +127,9 @@ def _fill_mag(mag):
     return mag
 
 
+KFKIT = tuple(methods("attitude"))  # estimate_attitude's methods: "euler-ekf", "mekf"
 FILTERS = {
-    "euler-ekf": lambda g, a, m, r: estimate_attitude(g, a, m, r).quat,
-    "mekf": lambda g, a, m, r: estimate_attitude(g, a, m, r, method="mekf").quat,
+    **{name: (lambda g, a, m, r, name=name: estimate_attitude(g, a, m, r, method=name).quat) for name in KFKIT},
     "ahrs EKF": run_ahrs_ekf,
     "ahrs Madgwick": run_ahrs_madgwick,
     "imufusion": run_imufusion,
@@ -270,13 +271,13 @@ def filterpy_euler_ekf(gyr, acc, mag, rate):
     hx6, hj6 = (lambda x: attitude_measurement(x, field)), (lambda x: attitude_jacobian(x, field))
     hx3, hj3 = (lambda x: attitude_measurement(x, field)[:3]), (lambda x: attitude_jacobian(x, field)[:3])
     out = np.empty((len(gyr), 3))
-    st = EulerEkfSettings()  # the defaults estimate_attitude uses
+    st = EulerAttitudeEKFSettings()  # the defaults estimate_attitude uses
     for k in range(len(gyr)):
         ekf.F = np.eye(3) + dt * euler_kinematics_jacobian(ekf.x, gyr[k])
         ekf.Q = euler_process_noise(ekf.x, st.gyro_noise, dt)
         ekf.predict(u=gyr[k])
         gated = abs(np.linalg.norm(acc[k]) - G) > st.accel_gate
-        R6 = np.diag([st.accel_noise ** 2 * (st.accel_gate_factor if gated else 1.0)] * 3 + [st.mag_noise ** 2] * 3)
+        R6 = np.diag([st.accel_noise ** 2 * (st.accel_inflation if gated else 1.0)] * 3 + [st.mag_noise ** 2] * 3)
         if np.isnan(mag[k, 0]):
             ekf.update(acc[k], hj3, hx3, R=R6[:3, :3])
         else:
@@ -292,10 +293,9 @@ def speed():
     gyr, acc, mag = Calibration.load(bundled_calibration_path("nucleo-iks02a1")).apply(rec)
     rate, n = rec.rate_hz, len(rec)
     contenders = {
-        "kfkit euler-ekf": lambda: estimate_attitude(gyr, acc, mag, rate),
-        "kfkit euler-ekf, reference (a loop over step)": lambda: EulerAttitudeEKF(rate, field_n=learn_field(acc, mag)).run(
+        **{f"kfkit {name}": (lambda name=name: estimate_attitude(gyr, acc, mag, rate, method=name)) for name in KFKIT},
+        "kfkit euler-ekf, reference (a loop over step)": lambda: EulerAttitudeEKF(rate_hz=rate, field_n=learn_field(acc, mag)).run(
             gyr, acc, mag),
-        "kfkit mekf": lambda: estimate_attitude(gyr, acc, mag, rate, method="mekf"),
         "filterpy EKF (same Euler model)": lambda: filterpy_euler_ekf(gyr, acc, mag, rate),
         "ahrs EKF": lambda: run_ahrs_ekf(gyr, acc, mag, rate),
     }

@@ -12,7 +12,7 @@ from kfkit.filters import (EulerAttitudeEKF, attitude_jacobian, attitude_measure
                            euler_ekf_update, euler_process_noise)
 from kfkit.filters import FastEulerAttitudeEKF, MekfSettings, MultiplicativeEKF, Step
 from kfkit.filters.attitude_run import learn_field, tilt_heading
-from kfkit.filters.euler_ekf import EulerEkfSettings, euler_kinematics_jacobian, euler_rate_matrix
+from kfkit.filters.euler_ekf import EulerAttitudeEKFSettings, euler_kinematics_jacobian, euler_rate_matrix
 from kfkit.filters.mag_gate import MagGate
 from kfkit.metrics import attitude_errors, chi2_bounds, nees
 
@@ -222,8 +222,8 @@ def test_reference_run_is_a_loop_of_steps_and_the_fast_run_equals_it():
     gyr, acc, mag = sensors(rng, euler, omega, 0.01, 0.05, 0.5)
     acc[100:130] *= 1.2  # ‖f‖ ≈ 1.2 g: gated rows
     mag[1::2] = np.nan  # magnetometer at half rate
-    ref = EulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
-    ekf = EulerAttitudeEKF(100.0, field_n=FIELD)
+    ref = EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
+    ekf = EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD)
     for k in range(len(t)):
         step = ekf.step(gyr[k], acc[k], mag[k])
         assert isinstance(step, Step) and step.y.shape == (6,) and step.S.shape == (6, 6)
@@ -232,9 +232,11 @@ def test_reference_run_is_a_loop_of_steps_and_the_fast_run_equals_it():
         m = 3 if np.isnan(mag[k, 0]) else 6
         assert np.isnan(step.y[m:]).all() and np.isnan(step.S[m:]).all() and np.isnan(step.S[:, m:]).all()
         assert ref.nis[k] == pytest.approx(step.y[:m] @ np.linalg.solve(step.S[:m, :m], step.y[:m]), rel=1e-12)
-    fast = FastEulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    fast = FastEulerAttitudeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
     np.testing.assert_allclose(fast.x, ref.x, rtol=0, atol=1e-12)  # rad
     np.testing.assert_allclose(fast.P, ref.P, rtol=1e-9, atol=1e-18)
+    np.testing.assert_allclose(fast.x_prior, ref.x_prior, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fast.P_prior, ref.P_prior, rtol=1e-9, atol=1e-18)
     np.testing.assert_allclose(fast.y, ref.y, rtol=0, atol=1e-10)  # m/s², µT
     np.testing.assert_allclose(fast.S, ref.S, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(fast.nis, ref.nis, rtol=1e-9, atol=1e-12)
@@ -246,17 +248,20 @@ def test_reference_run_is_a_loop_of_steps_and_the_fast_run_equals_it():
 
 
 def test_settings_carry_units_defaults_and_name_bad_values():
-    assert EulerAttitudeEKF(100.0, accel_noise=0.2).settings == EulerEkfSettings(accel_noise=0.2)
-    assert MultiplicativeEKF(100.0, MekfSettings(mag_nis_gate=None), accel_tau=None).settings == \
+    assert EulerAttitudeEKF(rate_hz=100.0, accel_noise=0.2).settings == EulerAttitudeEKFSettings(accel_noise=0.2)
+    assert MultiplicativeEKF(rate_hz=100.0, settings=MekfSettings(mag_nis_gate=None), accel_tau=None).settings == \
         MekfSettings(mag_nis_gate=None, accel_tau=None)
     with pytest.raises(ValueError, match="MekfSettings: mag_recovery must be a positive number, got 0"):
-        MultiplicativeEKF(100.0, mag_recovery=0)
-    with pytest.raises(ValueError, match="EulerEkfSettings: accel_noise must be a positive number, got -0.3"):
-        EulerAttitudeEKF(100.0, accel_noise=-0.3)
+        MultiplicativeEKF(rate_hz=100.0, mag_recovery=0)
+    with pytest.raises(ValueError, match="EulerAttitudeEKFSettings: accel_noise must be a positive number, got -0.3"):
+        EulerAttitudeEKF(rate_hz=100.0, accel_noise=-0.3)
     with pytest.raises(TypeError, match="MultiplicativeEKF: unknown setting mag_gate; MekfSettings has gyro_noise"):
-        MultiplicativeEKF(100.0, mag_gate=1.0)
-    with pytest.raises(TypeError, match="settings must be a EulerEkfSettings, got float"):
-        EulerAttitudeEKF(100.0, 0.01)  # the old positional gyro_noise
+        MultiplicativeEKF(rate_hz=100.0, mag_gate=1.0)
+    with pytest.raises(TypeError, match="settings must be a EulerAttitudeEKFSettings, got float"):
+        EulerAttitudeEKF(0.01, 0.01)  # the old positional gyro_noise
+    with pytest.raises(ValueError, match="EulerAttitudeEKF: dt = 100 s is longer than 1 s; if 100 is a sample rate, pass "
+                                         "rate_hz=100"):
+        EulerAttitudeEKF(100.0)  # the old positional rate_hz
 
 
 def test_mekf_run_is_its_steps():
@@ -266,14 +271,14 @@ def test_mekf_run_is_its_steps():
     t, euler, omega = smooth_motion(rng, 4.0, 100.0)
     gyr, acc, mag = sensors(rng, euler, omega, 0.01, 0.05, 0.5)
     mag[1::3] = np.nan
-    run = MultiplicativeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
-    f = MultiplicativeEKF(100.0, field_n=FIELD)  # both start from tilt_heading of the first samples
+    run = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
+    f = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD)  # both start from tilt_heading of the first samples
     steps = [f.step(gyr[k], acc[k], mag[k]) for k in range(len(t))]
     np.testing.assert_array_equal(np.array([s.x for s in steps]), run.x)
     np.testing.assert_array_equal(np.array([s.y for s in steps]), run.y)
     np.testing.assert_array_equal(np.array([s.S for s in steps]), run.S)
     R = quat_to_dcm(run.quat)
-    np.testing.assert_allclose(R @ np.array([s.P[:3, :3] for s in steps]) @ np.swapaxes(R, 1, 2), run.P, rtol=1e-12)
+    np.testing.assert_allclose(R @ np.array([s.P[:3, :3] for s in steps]) @ np.swapaxes(R, 1, 2), run.P_attitude, rtol=1e-12)
 
 
 def test_quaternions_match_scipy():
@@ -291,7 +296,7 @@ def test_tracks_a_smooth_motion_and_yaw_across_plus_minus_pi():
     euler[:, 2] = wrap_angle(euler[:, 2] + np.pi)  # heading around south: ψ crosses ±π repeatedly
     gyr, acc, mag = sensors(rng, euler, omega, 0.005, 0.05, 0.5)
     assert np.any(np.abs(np.diff(euler[:, 2])) > np.pi)
-    res = EulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    res = EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
     err = np.degrees(np.abs(wrap_angle(res.euler - euler)))
     assert np.sqrt((err ** 2).mean(axis=0)).max() < 1.0
     assert np.all((res.euler[:, 2] > -np.pi) & (res.euler[:, 2] <= np.pi))
@@ -305,7 +310,7 @@ def test_accelerometer_gating_flags_accelerating_rows_and_protects_tilt():
     acc_n[shake, 1] = 6.0 * np.sin(2 * np.pi * 1.0 * (t[shake] - 8.0))  # sideways shake, m/s²
     gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.02, 0.3, acc_n=acc_n)
     gated_truth = np.abs(np.linalg.norm(acc, axis=1) - G) > 1.0
-    runs = {gate: EulerAttitudeEKF(100.0, field_n=FIELD, accel_gate=gate, accel_noise=0.1).run(gyr, acc, mag)
+    runs = {gate: EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD, accel_gate=gate, accel_noise=0.1).run(gyr, acc, mag)
             for gate in (1.0, None)}
     np.testing.assert_array_equal(runs[1.0].accel_gated, gated_truth)
     assert not runs[None].accel_gated.any()
@@ -318,14 +323,14 @@ def test_nan_magnetometer_rows_leave_yaw_to_the_gyro():
     t, euler, omega = smooth_motion(rng, 10.0, 100.0)
     gyr, acc, mag = sensors(rng, euler, omega, 0.005, 0.05, 0.5)
     mag[200:] = np.nan
-    res = EulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    res = EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
     assert res.mag_used[:200].all() and not res.mag_used[200:].any()
     assert np.isnan(res.y[200:, 3:]).all() and np.isnan(res.S[200:, 3:, 3:]).all()
     # The accelerometer cannot observe yaw (H has a zero yaw column): a yaw error made after the
     # magnetometer stops stays, while a roll error is corrected.
     assert np.all(attitude_jacobian(euler[0], FIELD)[:3, 2] == 0)
     x0 = euler[0] + np.radians([10.0, 0.0, 20.0])
-    res = EulerAttitudeEKF(100.0, field_n=FIELD, x0=x0).run(gyr, acc, np.full_like(mag, np.nan))
+    res = EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD, x0=x0).run(gyr, acc, np.full_like(mag, np.nan))
     err = np.degrees(wrap_angle(res.euler[-1] - euler[-1]))
     assert abs(err[0]) < 1.0 and abs(err[2] - 20.0) < 2.0
 
@@ -343,7 +348,7 @@ def test_monte_carlo_nees_and_nis_inside_chi2_bounds():
         P0 = np.diag(np.radians([2.0, 2.0, 4.0]) ** 2)
         x0 = euler[0] + rng.multivariate_normal(np.zeros(3), P0)
         # gyr[k] is the rate at t_k; the filter predicts t_{k-1} → t_k, so its first sample is t_1.
-        res = FastEulerAttitudeEKF(100.0, gyro_noise=sg, accel_noise=sa, mag_noise=sm, field_n=FIELD, accel_gate=None,
+        res = FastEulerAttitudeEKF(rate_hz=100.0, gyro_noise=sg, accel_noise=sa, mag_noise=sm, field_n=FIELD, accel_gate=None,
                                    x0=x0, P0=P0).run(gyr[1:], acc[1:], mag[1:])
         final_nees.append(nees(wrap_angle(res.euler[-1:] - euler[-1:]), res.P[-1:])[0])
         nis_sum += res.nis.sum()
@@ -462,7 +467,7 @@ def test_mekf_heading_update_leaves_tilt_alone():
     R_nb = scipy_rotation(truth).as_matrix()
     P0 = np.diag(np.r_[[1e-12] * 6])
     P0[:3, :3] = R_nb.T @ np.diag(np.radians([1.0, 1.0, 20.0]) ** 2) @ R_nb  # diagonal in NED
-    f = MultiplicativeEKF(100.0, field_n=FIELD, q0=q_wrong, P0=P0, gyro_noise=0.0, gyro_bias_rw=0.0, accel_tau=None)
+    f = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD, q0=q_wrong, P0=P0, gyro_noise=0.0, gyro_bias_rw=0.0, accel_tau=None)
     res = f.run(np.zeros((1, 3)), acc[None], mag[None])
     _, heading, incl = attitude_errors(res.quat, euler_to_quat(truth)[None])
     assert res.mag_used[0]
@@ -534,7 +539,7 @@ def test_mekf_adopts_a_changed_field_once_the_gyro_alone_is_no_better():
     adopted = np.flatnonzero(moved & res.mag_used)[0]
     assert 30.0 < t[adopted] < 110.0
     assert res.mag_gated[moved & (t < t[adopted])].all()
-    sigma_h = np.degrees(np.sqrt(res.P[:, 2, 2]))  # heading σ: NED z of the attitude error covariance
+    sigma_h = np.degrees(np.sqrt(res.P_attitude[:, 2, 2]))  # heading σ: NED z of the attitude error covariance
     assert 0.6 * abs(offset) < 3 * sigma_h[adopted - 1] < 1.4 * abs(offset)
     heading_error = np.degrees(attitude_errors(res.quat, euler_to_quat(euler))[1])
     assert heading_error[adopted - 1] < 2.0 and abs(heading_error[-1] - abs(offset)) < 1.5
@@ -565,7 +570,7 @@ def test_mekf_skips_heading_outliers_for_at_most_the_recovery_time():
     # and dip, is skipped for 1 s and then used: the heading is pulled back, not locked out.
     q0 = euler_to_quat(euler[0] + [0.0, 0.0, np.radians(30.0)])
     P0 = np.diag(np.r_[np.radians([1.0, 1.0, 1.0]) ** 2, [1e-10] * 3])
-    res = MultiplicativeEKF(100.0, field_n=FIELD, q0=q0, P0=P0).run(gyr, acc, mag_clean)
+    res = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD, q0=q0, P0=P0).run(gyr, acc, mag_clean)
     assert t[np.flatnonzero(res.mag_used)[0]] == pytest.approx(1.0, abs=0.02)
     assert np.degrees(attitude_errors(res.quat[-100:], euler_to_quat(euler[-100:]))[1]).max() < 1.0
 
@@ -597,8 +602,8 @@ def test_mekf_fed_in_pieces_equals_one_run():
     gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.05, 0.3)
     mag += field_change_in_ned(euler, [15.0, -10.0, 5.0], (t >= 4.0) & (t < 6.0))
     mag[1::2] = np.nan
-    whole = MultiplicativeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
-    f = MultiplicativeEKF(100.0, field_n=FIELD)
+    whole = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
+    f = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD)
     cuts = np.r_[0, np.sort(rng.choice(np.arange(1, len(t)), 40, replace=False)), len(t)]
     pieces = [f.run(gyr[a:b], acc[a:b], mag[a:b]) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
     np.testing.assert_allclose(np.concatenate([p.quat for p in pieces]), whole.quat, atol=1e-12)
@@ -619,12 +624,12 @@ def test_mekf_nees_and_nis_inside_chi2_bounds():
         P0 = np.diag(np.r_[np.radians([2.0, 2.0, 4.0]) ** 2, [1e-14] * 3])
         q0 = (scipy_rotation(euler[0]) * Rotation.from_rotvec(rng.multivariate_normal(np.zeros(3), P0[:3, :3]))
               ).as_quat()[[3, 0, 1, 2]]
-        f = MultiplicativeEKF(100.0, gyro_noise=sg, gyro_bias_rw=0.0, accel_noise=sa, mag_noise=sm, accel_gate=None,
+        f = MultiplicativeEKF(rate_hz=100.0, gyro_noise=sg, gyro_bias_rw=0.0, accel_noise=sa, mag_noise=sm, accel_gate=None,
                               field_n=FIELD, mag_norm_gate=None, mag_dip_gate=None, mag_nis_gate=None, accel_tau=None,
                               q0=q0, P0=P0)
         res = f.run(gyr[1:], acc[1:], mag[1:])
         e = rotvec_error_ned(res.quat[-1:], euler[-1:])
-        final_nees.append(nees(e, res.P[-1:])[0])
+        final_nees.append(nees(e, res.P_attitude[-1:])[0])
         nis_sum += res.nis.sum()
         dof_sum += res.dof.sum()
     lo, hi = chi2_bounds(3, runs)
@@ -636,7 +641,7 @@ def test_mekf_result_layout_and_heading_innovations():
     euler, gyr, acc, mag = _clean_inputs(400)
     mag[1::2] = np.nan
     res = estimate_attitude(gyr, acc, mag, 100.0, method="mekf")
-    assert res.method == "mekf" and res.quat.shape == (400, 4) and res.P.shape == (400, 3, 3) and res.bias.shape == (400, 3)
+    assert res.method == "mekf" and res.quat.shape == (400, 4) and res.P_attitude.shape == (400, 3, 3) and res.bias.shape == (400, 3)
     assert np.array_equal(res.mag_used, ~np.isnan(mag[:, 0]) & ~res.mag_gated)
     assert set(np.unique(res.dof)) <= {3, 4}
     assert np.all(np.isnan(res.y[:, 4:])) and np.all(np.abs(res.y[res.mag_used, 3]) <= np.pi)

@@ -331,7 +331,7 @@ def test_lab05_tilt_filter_on_the_recordings(recorded):
     ok = filters.accel_static_ok(acc)
     known_roll, known_pitch = filters.tilt.protocol_angles(tilt)
     for axis, rate, angle, known in (("roll", 0, roll, known_roll), ("pitch", 1, pitch, known_pitch)):
-        kf = filters.TiltBiasKF(1.0 / tilt.rate_hz, filters.TiltSettings())
+        kf = filters.TiltBiasKF(rate_hz=tilt.rate_hz, settings=filters.TiltBiasKFSettings())
         run = kf.run(gyr_raw[:, rate], angle, ok)  # raw gyro: the filter finds the bias itself
         held = np.isfinite(known) & (tilt.t > 3.0)
         assert np.degrees(metrics.rmse(run.angle[held], known[held])) < 0.5, axis  # 0.1–0.2° here

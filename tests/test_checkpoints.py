@@ -53,7 +53,7 @@ def central_differences(h, x, eps=1e-6):
 
 
 def reference_run_ekf(gyr, acc, mag, rate_hz, gyro_noise, accel_noise, mag_noise, field_n, accel_gate=None):
-    run = FastEulerAttitudeEKF(rate_hz, gyro_noise=gyro_noise, accel_noise=accel_noise, mag_noise=mag_noise,
+    run = FastEulerAttitudeEKF(rate_hz=rate_hz, gyro_noise=gyro_noise, accel_noise=accel_noise, mag_noise=mag_noise,
                                field_n=field_n, accel_gate=accel_gate).run(gyr, acc, mag)
     return run.euler, run.P, run.nis
 

@@ -30,7 +30,7 @@ from kfkit.capture import CaptureError, Recorder, Sample, parse_line
 from kfkit.capture import emulated_uno as E
 from kfkit.checkpoints import lab05
 from kfkit.cli import main
-from kfkit.filters import TiltAttitude, TiltBiasKF, TiltSettings, tilt
+from kfkit.filters import TiltAttitude, TiltBiasKF, TiltBiasKFSettings, tilt
 from kfkit.io import Recording, load_recording
 
 RATE = 100.0  # what the sketches set: SMPLRT_DIV 9 with the DLPF on, 1 kHz / 10
@@ -208,8 +208,8 @@ def test_the_tilt_sketch_filter_equals_python_over_a_whole_recording(toolchain, 
     # state j (after sample j) is what the RAM held before read j + 1
     roll, pitch = (np.frombuffer(b"".join(w[i] for w in events.watched[1:n + 1]), TILT_KF) for i in (0, 1))
     s = roll[0]
-    settings = TiltSettings(q_angle=float(s["qAngle"]), q_bias=float(s["qBias"]), r=float(s["r"]),
-                            gate=tilt.GATES[int(s["gate"])], inflation=float(s["inflation"]))
+    settings = TiltBiasKFSettings(q_angle=float(s["qAngle"]), q_bias=float(s["qBias"]), r=float(s["r"]),
+                                  accel_gating=tilt.GATINGS[int(s["gate"])], accel_inflation=float(s["inflation"]))
     assert all(np.array_equal(roll[f], pitch[f]) for f in TILT_KF.names[:7])  # both axes: one setting, unchanged
     assert s["samplePeriod"] == np.float32(1 / RATE)
     assert s["initialBiasVariance"] == np.float32(0.1 ** 2)  # what TiltBiasKF.reset gives P11 (the Python twin's start)
@@ -217,7 +217,7 @@ def test_the_tilt_sketch_filter_equals_python_over_a_whole_recording(toolchain, 
     python = []
     for acc, gyr in zip(counts(captured)[:, :3], counts(captured)[:, 3:]):
         twin.step(acc, gyr)
-        python.append([(kf.angle, kf.bias) for kf in twin.kfs] if twin.gyro_bias is not None else np.full((2, 2), np.nan))
+        python.append([kf.state.x for kf in twin.kfs] if twin.gyro_bias is not None else np.full((2, 2), np.nan))
     python = np.array(python)  # (n, axis, [angle, bias])
     running = np.isfinite(python[:, 0, 0])
     assert running.sum() == n - 199  # the first 2 s measure the bias

@@ -130,7 +130,7 @@ def test_live_view_follows_a_growing_recording_and_a_reset():
         assert view.poll() is None
         q = view.latest
     # fed in half-second pieces, the filter ends where one run over the whole recording ends
-    whole = filters.EulerAttitudeEKF(rec.rate_hz).run(rec.body("gyr"), rec.body("acc"), rec.body("mag"))
+    whole = filters.EulerAttitudeEKF(rate_hz=rec.rate_hz).run(rec.body("gyr"), rec.body("acc"), rec.body("mag"))
     np.testing.assert_allclose(q, whole.quat[-1], atol=1e-9)
     assert sum(fed) > len(rec)  # it was shown overlapping snapshots, yet used each sample once
     true = Rotation.from_euler("ZYX", angles[::-1])
@@ -154,7 +154,7 @@ def test_live_attitude_applies_a_calibration_and_names_a_bad_method():
     cal = Calibration(gyro_bias=bias.tolist())
     q = widgets.LiveAttitude(calibration=cal).update(rec)
     gyr, acc, mag = cal.apply(rec)
-    np.testing.assert_allclose(q, filters.EulerAttitudeEKF(104.0).run(gyr, acc, mag).quat[-1], atol=1e-12)
+    np.testing.assert_allclose(q, filters.EulerAttitudeEKF(rate_hz=104.0).run(gyr, acc, mag).quat[-1], atol=1e-12)
     assert not np.allclose(q, widgets.LiveAttitude().update(rec), atol=1e-6)  # the bias matters
     with pytest.raises(ValueError, match="method must be one of euler-ekf, mekf, got 'ekf'"):
         widgets.LiveAttitude("ekf").update(rec)

@@ -1,6 +1,8 @@
 """Lab 05 on the real recording (issue 17): the helpers it uses, the claims section 12 makes (checked with kfkit's
 own TiltBiasKF, an implementation independent of the notebook's loop), the notebook's section-12 functions against
 that oracle, and the whole notebook run with SOURCE = "real"."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -74,14 +76,14 @@ def test_known_angles_without_protocol_or_truth_say_what_is_missing():
 def coupled_run(w, z, ok, left_out, dt, q0, r):
     """kfkit's TiltBiasKF step by step with q_θ = q0 + (left_out·dt)² and the accelerometer angle taken nearest the
     prediction: section 12's filter, written independently of the notebook. Returns [angle, bias] (N, 2)."""
-    kf = filters.TiltBiasKF(dt, q_angle=q0, q_bias=1e-4 * q0, r=r, gate="skip")
+    kf = filters.TiltBiasKF(dt, q_angle=q0, q_bias=1e-4 * q0, r=r, accel_gating="skip")
     kf.reset((z[0], 0.0), np.diag([r, 0.1 ** 2]))
     out = np.empty((len(z), 2))
     for k in range(len(z)):
-        kf.q_angle = q0 + (left_out[k] * dt) ** 2
-        predicted = kf.angle + (w[k] - kf.bias) * dt
-        kf.step(w[k], predicted + wrap_angle(z[k] - predicted), ok[k])
-        out[k] = kf.x
+        kf.settings = replace(kf.settings, q_angle=q0 + (left_out[k] * dt) ** 2)
+        angle, bias = kf.state.x
+        predicted = angle + (w[k] - bias) * dt
+        out[k] = kf.step(w[k], predicted + wrap_angle(z[k] - predicted), ok[k]).x
     return out
 
 
@@ -105,8 +107,8 @@ def section12(real):
     left_out = left_out_oracle(w - np.mean(w[first], axis=0), roll, pitch)
     runs = {}
     for i, (name, z) in enumerate((("roll", roll), ("pitch", pitch))):
-        constant = filters.TiltBiasKF(dt, q_angle=q0, q_bias=1e-4 * q0, r=r, gate="skip").run(
-            w[:, i], z, gates[i], x0=(z[0], 0.0), P0=np.diag([r, 0.1 ** 2]))
+        constant = filters.TiltBiasKF(dt, q_angle=q0, q_bias=1e-4 * q0, r=r, accel_gating="skip", x0=(z[0], 0.0),
+                                      P0=np.diag([r, 0.1 ** 2])).run(w[:, i], z, gates[i])
         runs[name] = (constant.x, coupled_run(w[:, i], z, gates[i], left_out[i], dt, q0, r), z)
     return runs
 

@@ -11,7 +11,7 @@ from filterpy.kalman import KalmanFilter as FilterpyKF
 
 from kfkit import datasets, discrete
 from kfkit import vehicle as V
-from kfkit.filters import (SideslipKF, SideslipRun, SideslipSettings, Step, copied_kinematic_kf, estimate_sideslip,
+from kfkit.filters import (SideslipKF, SideslipKFSettings, SideslipRun, Step, copied_kinematic_kf, estimate_sideslip,
                            kinematic_sideslip, sideslip_step)
 from kfkit.metrics import chi2_bounds, nees, rmse
 
@@ -50,14 +50,17 @@ def test_matches_filterpy_on_the_linear_model():
     kf.Q = discrete.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))[2]
     kf.H, kf.R = C, np.diag([0.003 ** 2, 0.05 ** 2])
     kf.x, kf.P = np.zeros(2), np.diag([math.radians(2.0) ** 2] * 2)
-    xs, Ps = [], []
+    xs, Ps, priors = [], [], []
     for k in range(len(t)):
         kf.predict(u=np.array([delta[k - 1 if k else 0]]))
+        priors.append((kf.x.copy(), kf.P.copy()))
         kf.update(zs[k] - D[:, 0] * delta[k])  # filterpy has no D: move D δ to the measurement side
         xs.append(kf.x.copy())
         Ps.append(kf.P.copy())
     np.testing.assert_allclose(ours.x, np.array(xs), rtol=1e-7, atol=1e-12)
     np.testing.assert_allclose(ours.P, np.array(Ps), rtol=1e-7, atol=1e-16)
+    np.testing.assert_allclose(ours.x_prior, np.array([p[0] for p in priors]), rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(ours.P_prior, np.array([p[1] for p in priors]), rtol=1e-7, atol=1e-16)
 
 
 def test_nees_is_inside_chi_square_bounds_on_linear_model_data():
@@ -188,7 +191,7 @@ def test_tuning_and_speed_bins_are_validated():
     d = good_inputs()
     with pytest.raises(ValueError, match="vx_step = 3 m/s is coarser than v_min = 2.0 m/s"):
         estimate_kf(**d, params=CAR, vx_step=3)
-    with pytest.raises(ValueError, match="q_beta must be a finite positive number, got -0.001"):
+    with pytest.raises(ValueError, match="SideslipKFSettings: q_beta must be a positive number, got -0.001"):
         estimate_kf(**d, params=CAR, q_beta=-1e-3)
 
 
@@ -249,7 +252,7 @@ def test_run_is_a_loop_of_steps_and_estimate_sideslip_is_run(bias_ay):
     dt0 = float(np.median(np.diff(t)))
     run = estimate_kf(t, delta, yaw, ay, vx, CAR, bias_ay=bias_ay)
     assert isinstance(run, SideslipRun) and run.low_speed.any() and not run.low_speed.all()
-    kf = SideslipKF(dt0, CAR, SideslipSettings(bias_ay=bias_ay))
+    kf = SideslipKF(dt0, CAR, SideslipKFSettings(bias_ay=bias_ay))
     steps = [kf.step(delta[k], yaw[k], ay[k], vx[k], t[k] - t[k - 1] if k else None) for k in range(len(t))]
     assert all(isinstance(s, Step) for s in steps)
     for name in "xPyS":
@@ -267,7 +270,7 @@ def test_run_properties_read_the_state():
 
 
 def test_unknown_or_misplaced_settings_are_named():
-    with pytest.raises(TypeError, match="SideslipKF: unknown setting q_yaw; SideslipSettings has q_beta, q_r"):
+    with pytest.raises(TypeError, match="SideslipKF: unknown setting q_yaw; SideslipKFSettings has q_beta, q_r"):
         SideslipKF(0.01, CAR, q_yaw=1.0)
     with pytest.raises(TypeError, match="unknown setting qbeta"):
         estimate_sideslip(**good_inputs(), params=CAR, qbeta=1.0)

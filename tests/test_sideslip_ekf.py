@@ -15,7 +15,7 @@ from scipy.linalg import expm
 
 from kfkit import datasets
 from kfkit import vehicle as V
-from kfkit.filters import SideslipEKF, TyreEkfSettings, estimate_sideslip
+from kfkit.filters import SideslipEKF, SideslipEKFSettings, estimate_sideslip
 from kfkit.filters.sideslip_ekf import EXP, EXP_HALF, PHI1, matrix_functions_2x2
 from kfkit.metrics import rmse
 from kfkit.readers import load_vehicle_csv
@@ -76,7 +76,7 @@ def test_with_linear_tyres_it_is_the_linear_kf():
     np.testing.assert_allclose(ekf.P, kf.P, rtol=1e-5, atol=1e-14)
 
 
-def ukf_sideslip(rec, params, settings=TyreEkfSettings()):
+def ukf_sideslip(rec, params, settings=SideslipEKFSettings()):
     """filterpy's UKF on the same continuous model (RK4 over the sample) and the same R (model-error term included)."""
     front, rear = V.axle_tyres(params)
     m, Iz, a, b = params.m, params.Iz, params.a, params.b
@@ -184,8 +184,8 @@ def test_stop_and_restart_uses_the_low_speed_guard():
 
 
 def test_settings_are_validated_and_named():
-    with pytest.raises(ValueError, match="TyreEkfSettings: accel_noise must be a positive number, got -0.5"):
-        TyreEkfSettings(accel_noise=-0.5)
-    assert TyreEkfSettings(stiffness_std=0.0).stiffness_std == 0.0
-    with pytest.raises(TypeError, match="SideslipEKF: unknown setting q_yaw; TyreEkfSettings has q_beta"):
+    with pytest.raises(ValueError, match="SideslipEKFSettings: accel_noise must be a positive number, got -0.5"):
+        SideslipEKFSettings(accel_noise=-0.5)
+    assert SideslipEKFSettings(stiffness_std=0.0).stiffness_std == 0.0
+    with pytest.raises(TypeError, match="SideslipEKF: unknown setting q_yaw; SideslipEKFSettings has q_beta"):
         SideslipEKF(0.01, CAR, q_yaw=1.0)

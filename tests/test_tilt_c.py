@@ -84,9 +84,9 @@ def test_c_filter_matches_python_on_the_bundled_recording(lib, recording, axis, 
     settings = default_settings(lib)
     settings.gate = GATES[gate]
     gyro, angle = recording[axis]
-    python = TiltBiasKF(recording["dt"], q_angle=settings.qAngle, q_bias=settings.qBias, r=settings.r, gate=gate,
-                        inflation=settings.inflation).run(
-        gyro, angle, recording["ok"], P0=np.diag([settings.r, settings.initialBiasVariance]))
+    python = TiltBiasKF(recording["dt"], q_angle=settings.qAngle, q_bias=settings.qBias, r=settings.r, accel_gating=gate,
+                        accel_inflation=settings.inflation, P0=np.diag([settings.r, settings.initialBiasVariance])).run(
+        gyro, angle, recording["ok"])
     c = run_c(lib, settings, recording["dt"], gyro, angle, recording["ok"])
     assert np.max(np.abs(c[:, 0] - python.angle)) < 1e-4
     assert np.max(np.abs(c[:, 1] - python.bias)) < 1e-5
@@ -109,8 +109,9 @@ def test_c_accelerometer_tilt_and_gate_match_python(lib, recording):
 def test_c_defaults_are_the_python_defaults(lib):
     s = default_settings(lib)
     got = [s.qAngle, s.qBias, s.r, s.inflation, s.initialBiasVariance]
-    np.testing.assert_allclose(got, [tilt.TiltSettings().q_angle, tilt.TiltSettings().q_bias, tilt.TiltSettings().r, tilt.TiltSettings().inflation, 0.1 ** 2], rtol=1e-6)
-    assert s.gate == GATES["skip"]
+    d = tilt.TiltBiasKFSettings()
+    np.testing.assert_allclose(got, [d.q_angle, d.q_bias, d.r, d.accel_inflation, 0.1 ** 2], rtol=1e-6)
+    assert s.gate == GATES[d.accel_gating]
 
 
 def test_c_filter_skips_a_nan_accel_angle(lib):

@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import datasets
 from ..calibration import Calibration, calibration_for, gyro_bias
-from ..filters.euler_ekf import (EulerEkfSettings, attitude_jacobian, attitude_measurement, euler_ekf_predict,
+from ..filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement, euler_ekf_predict,
                                  euler_ekf_update, euler_process_noise)
 from ..filters.attitude_run import learn_field
 from ..filters.euler_ekf_fast import FastEulerAttitudeEKF
@@ -279,7 +279,7 @@ def accelerated(acc, truth, t, rng):
 
 def _rmse_cases(rng):
     rec, gyr, acc, mag = bundled_inputs()
-    tuning = EulerEkfSettings()  # the lab's defaults
+    tuning = EulerAttitudeEKFSettings()  # the lab's defaults
     args = {"gyr": gyr, "acc": acc, "mag": mag, "rate_hz": rec.rate_hz, "gyro_noise": tuning.gyro_noise,
             "accel_noise": tuning.accel_noise, "mag_noise": tuning.mag_noise, "field_n": np.array(MAG_FIELD_LONDON)}
     biased = dict(args, gyr=gyr + EXTRA_GYRO_BIAS)
@@ -379,11 +379,11 @@ def _real_cases(rng):
     error at rest: a filter that is right reproduces the reference, so its error against this truth can exceed the
     reference's only by what the truth cannot resolve."""
     rec, gyr, acc, mag, field_n, q_true, moving = real_inputs(moving_seconds=REAL_MOVING_SECONDS)
-    tuning = EulerEkfSettings()
+    tuning = EulerAttitudeEKFSettings()
     args = {"gyr": gyr, "acc": acc, "mag": mag, "rate_hz": rec.rate_hz, "gyro_noise": tuning.gyro_noise,
             "accel_noise": tuning.accel_noise, "mag_noise": tuning.mag_noise, "field_n": field_n,
             "accel_gate": ACCEL_GATE}
-    reference = FastEulerAttitudeEKF(rec.rate_hz, tuning, field_n=field_n, accel_gate=ACCEL_GATE).run(gyr, acc, mag)
+    reference = FastEulerAttitudeEKF(rate_hz=rec.rate_hz, settings=tuning, field_n=field_n, accel_gate=ACCEL_GATE).run(gyr, acc, mag)
     ref_rmse = attitude_rmse(euler_to_quat(reference.euler), q_true, moving)["total"]
     return [Case(args, (q_true, moving, ref_rmse, truth_error_at_rest(rec, acc, mag)),
                  f"the real recording {REAL_RECORDING} (BROAD trial 06): its {movement_start(rec):.0f} s at rest and "

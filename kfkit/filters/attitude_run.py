@@ -4,7 +4,7 @@
     first_mag_row  the first magnetometer row that is a sample
     tilt_heading   the first attitude [φ, θ, ψ] from one accelerometer and magnetometer sample
     learn_field    the reference field m_n from the first magnetometer samples
-    AttitudeRun    the :class:`FilterRun` of an attitude filter, with quat, euler and bias read from x
+    AttitudeRun    the :class:`FilterRun` of an attitude filter, with quat, euler, bias and the attitude covariance
 """
 from __future__ import annotations
 
@@ -13,25 +13,26 @@ from functools import cached_property
 
 import numpy as np
 
-from ..frames import (G, MAG_FIELD_LONDON, accel_tilt, declination, euler_to_dcm, euler_to_quat, quat_to_euler,
-                      tilt_compensated_heading)
-from .linear import FilterRun
+from ..frames import (G, MAG_FIELD_LONDON, accel_tilt, declination, euler_to_dcm, euler_to_quat, quat_to_dcm,
+                      quat_to_euler, tilt_compensated_heading)
+from .contract import FilterRun
 
 
 @dataclass
 class AttitudeRun(FilterRun):
     """An attitude filter's history over a recording, one row per sample (a :class:`FilterRun`).
 
-    x         (N, 3) [φ, θ, ψ] (rad) for ``euler-ekf``; (N, 7) [q (w-x-y-z, body → NED, w ≥ 0), gyro
-              bias (rad/s)] for ``mekf``
-    P         (N, 3, 3) covariance of the attitude error, rad²: of [φ, θ, ψ] for ``euler-ekf``; of the
-              small-angle rotation error in the NED frame for ``mekf`` (the attitude block R P Rᵀ of
-              its 6×6 body-frame error covariance, so that the two compare)
+    x, x_prior  (N, 3) [φ, θ, ψ] (rad) for ``euler-ekf``; (N, 7) [q (w-x-y-z, body → NED, w ≥ 0), gyro
+                bias (rad/s)] for ``mekf``
+    P, P_prior  the filter's error covariance, as its ``step`` gives it: (N, 3, 3) of [φ, θ, ψ], rad², for
+                ``euler-ekf``; (N, 6, 6) of the error state [δθ (body frame, rad), δb (rad/s)] for ``mekf``
+                (the MEKF still returns the NED attitude block of it, (N, 3, 3), until branch mekf merges).
+                :attr:`P_attitude` is the 3×3 attitude covariance of both, for NEES and σ plots
     y         (N, 6) innovations z − h(x⁻): accel (m/s²) in 0–2; for euler-ekf mag (µT) in 3–5,
               for mekf the heading innovation (rad) in 3 and NaN in 4–5; NaN where not used
     S         (N, 6, 6) their covariances (NaN where not used)
     nis       (N,) normalised innovation squared yᵀ S⁻¹ y over the rows used
-    accel_gated (N,) True where the accelerometer rows were inflated (|‖f‖ − g| > gate)
+    accel_gated (N,) True where the accelerometer rows were inflated (|‖f‖ − g| > accel_gate)
     mag_used  (N,) True where a magnetometer update was made
     mag_gated (N,) True where a magnetometer sample was not used: a disturbed field or a heading
               outlier (mekf; all False for euler-ekf)
@@ -58,6 +59,15 @@ class AttitudeRun(FilterRun):
     def bias(self) -> np.ndarray:
         """(N, 3) gyro bias estimate, rad/s (mekf; zeros for euler-ekf, which has no bias state)."""
         return self.x[:, 4:] if self.method == "mekf" else np.zeros((len(self.x), 3))
+
+    @cached_property
+    def P_attitude(self) -> np.ndarray:
+        """(N, 3, 3) covariance of the attitude error, rad²: of [φ, θ, ψ] for ``euler-ekf``; of the small rotation
+        error in the NED frame for ``mekf``, R(q) P_δθ R(q)ᵀ from the body-frame block of its 6×6 P."""
+        if self.P.shape[-1] == 3:
+            return self.P
+        R = quat_to_dcm(self.quat)
+        return R @ self.P[:, :3, :3] @ np.swapaxes(R, 1, 2)
 
     @property
     def dof(self) -> np.ndarray:

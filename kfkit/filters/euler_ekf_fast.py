@@ -18,10 +18,10 @@ TWO_PI = 2.0 * math.pi
 class FastEulerAttitudeEKF(EulerAttitudeEKF):
     """:class:`EulerAttitudeEKF` (same settings, same ``step``) whose :meth:`run` is the unrolled loop."""
 
-    def run(self, gyr, acc, mag=None) -> AttitudeRun:
+    def run(self, gyr, acc, mag=None, *, resume=False) -> AttitudeRun:
         """The reference ``run``'s result, computed on plain floats: gyr (N, 3) rad/s, acc (N, 3) m/s²,
-        mag (N, 3) µT or None (NaN rows = no new sample). Continues from the filter's current state."""
-        return _unrolled_loop(self, *self._start(gyr, acc, mag))
+        mag (N, 3) µT or None (NaN rows = no new sample); from the start, or the current state with ``resume=True``."""
+        return _unrolled_loop(self, *self._start(gyr, acc, mag, resume))
 
 
 def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
@@ -41,14 +41,14 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
     ra0 = st_.accel_noise ** 2
     rm = st_.mag_noise ** 2
     gate = st_.accel_gate if st_.accel_gate is not None else math.inf
-    ra_gated = ra0 * st_.accel_gate_factor
+    ra_gated = ra0 * st_.accel_inflation
     mN, mE, mD = (float(v) for v in ekf.field_n)
     g = G
     W = gyr.tolist()
     A = acc.tolist()
     M = mag.tolist() if mag is not None else None
-    phi, theta, psi = (float(v) for v in ekf.x)
-    P = ekf.P
+    phi, theta, psi = (float(v) for v in ekf.state.x)
+    P = ekf.state.P
     p00, p01, p02, p11, p12, p22 = (float(P[0, 0]), float(P[0, 1]), float(P[0, 2]), float(P[1, 1]), float(P[1, 2]), float(P[2, 2]))
 
     xs = [None] * N
@@ -142,8 +142,8 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
         xs[k] = (phi, theta, psi)
         Ps[k] = (p00, p01, p02, p11, p12, p22)
 
-    ekf.x = np.array([phi, theta, psi])
-    ekf.P = _sym3(np.array([Ps[-1]]))[0] if N else ekf.P
+    ekf.state.x = np.array([phi, theta, psi])
+    ekf.state.P = _sym3(np.array([Ps[-1]]))[0] if N else ekf.state.P
     euler = np.array(xs, dtype=float).reshape(N, 3)
     mag_used = np.array(mag_out, dtype=bool)
     gated = np.array(gated_out, dtype=bool)
@@ -151,10 +151,11 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
     for k in range(N):
         y[k, :len(ys[k])] = ys[k]
     prior = np.array(priors, dtype=float).reshape(N, 9)
+    x_prior, P_prior = prior[:, :3], _sym3(prior[:, 3:])
     r_acc = np.where(gated, ra_gated, ra0)
-    S = _euler_innovation_cov(prior[:, :3], _sym3(prior[:, 3:]), r_acc, rm, ekf.field_n, mag_used)
-    return AttitudeRun(euler, _sym3(np.array(Ps, dtype=float).reshape(N, 6)), y, S, nis=np.array(nis), accel_gated=gated,
-                       mag_used=mag_used, mag_gated=np.zeros(N, dtype=bool), method=ekf.method)
+    S = _euler_innovation_cov(x_prior, P_prior, r_acc, rm, ekf.field_n, mag_used)
+    return AttitudeRun(euler, _sym3(np.array(Ps, dtype=float).reshape(N, 6)), y, S, x_prior, P_prior, nis=np.array(nis),
+                       accel_gated=gated, mag_used=mag_used, mag_gated=np.zeros(N, dtype=bool), method=ekf.method)
 
 
 def _sym3(p):
