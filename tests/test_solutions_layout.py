@@ -3,6 +3,7 @@ what a figure shows right under it, not after another code cell's printout.
 
 Read from the solutions' stored outputs (they are what nbval validates and what the hand-outs are made from).
 """
+import ast
 import re
 
 import nbformat
@@ -105,3 +106,74 @@ def test_the_prediction_rules_see_a_missing_reveal_and_a_number_given_away():
     assert unrevealed_predictions([prompt, reveal, run]) == [0]  # revealed before the run
     assert unrevealed_predictions([md("Predict before you run: …"), run, reveal]) == [0]  # untagged prompt
     assert numbers_given_away([prompt, run, reveal], [prompt, code("print(0.33)"), reveal]) == {2: ["0.33"]}
+
+
+# --- each lab says how long it takes (issue 26 §9) ----------------------------------------------------------------
+READING_WPM, MINUTES_PER_EXERCISE, MINUTES_PER_CODE_CELL = 200, 10, 1
+STATED = re.compile(r"\*\*Time:\*\*[^\n]*?core path[^\n]*?(\d+)\s*min", re.IGNORECASE)
+
+
+def core_minutes(cells) -> float:
+    """A student's time on a lab's core path: its markdown read at 200 words a minute, 10 minutes per exercise cell
+    (a function to write and check) and a minute per other code cell (run it, look at what it shows). Sections whose
+    heading says "(optional)" are left out, down to the next heading of the same or a higher level. The rule is
+    calibrated on lab 04 as it was: 169 minutes by it, where a student who did it estimated 2.5–3 hours."""
+    minutes, optional_level = 0.0, None
+    for cell in cells:
+        heading = re.match(r"(#+)\s", cell.source) if cell.cell_type == "markdown" else None
+        if heading:
+            level = len(heading[1])
+            if optional_level is not None and level <= optional_level:
+                optional_level = None
+            if optional_level is None and "(optional)" in cell.source.splitlines()[0].lower():
+                optional_level = level
+        if optional_level is not None:
+            continue
+        if cell.cell_type == "markdown":
+            minutes += len(re.findall(r"\w+", cell.source)) / READING_WPM
+        elif cell.cell_type == "code":
+            minutes += MINUTES_PER_EXERCISE if "### BEGIN SOLUTION" in cell.source else MINUTES_PER_CODE_CELL
+    return minutes
+
+
+@pytest.mark.parametrize("path", SOLUTIONS, ids=lambda p: p.stem)
+def test_each_lab_states_its_core_time_and_keeps_to_two_hours(path):
+    cells = nbformat.read(path, as_version=4).cells
+    stated = STATED.search(cells[0].source)
+    assert stated, f"{path.name}: the first cell must say '**Time:** … core path … N min' (and what is optional)"
+    estimate = core_minutes(cells)
+    assert estimate <= int(stated[1]) <= 120, f"{path.name}: states {stated[1]} min, the core path needs {estimate:.0f}"
+    assert int(stated[1]) <= 1.5 * estimate + 10, f"{path.name}: states {stated[1]} min for {estimate:.0f} min of work"
+
+
+def test_core_minutes_leaves_out_optional_sections():
+    md, code = nbformat.v4.new_markdown_cell, nbformat.v4.new_code_cell
+    cells = [md("# Lab\n" + "word " * 400), code("### BEGIN SOLUTION\nx = 1\n### END SOLUTION"), code("plot()"),
+             md("## 9. Extra (optional)\n" + "word " * 2000), code("### BEGIN SOLUTION\n### END SOLUTION"),
+             md("### 9.1 deeper"), md("## 10. Questions")]
+    assert core_minutes(cells) == pytest.approx((1 + 400 + 2) / 200 + 10 + 1)  # "Lab", 400 words, "10 Questions"
+
+
+# --- a lab notebook calls lab support, not the grader's checkpoints (issue 27 §3) ----------------------------------
+def checkpoint_imports(cells) -> set[str]:
+    """What a notebook's code imports from kfkit.checkpoints (modules or names), beyond ``check``."""
+    found = set()
+    for cell in cells:
+        if cell.cell_type != "code":
+            continue
+        try:
+            tree = ast.parse(re.sub(r"(?m)^\s*[%!].*$", "", cell.source))
+        except SyntaxError:
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("kfkit.checkpoints"):
+                found |= {f"{node.module}.{a.name}" for a in node.names} - {"kfkit.checkpoints.check"}
+            elif isinstance(node, ast.Import):
+                found |= {a.name for a in node.names if a.name.startswith("kfkit.checkpoints")}
+    return found
+
+
+@pytest.mark.parametrize("path", SOLUTIONS, ids=lambda p: p.stem)
+def test_a_lab_imports_only_check_from_the_checkpoints(path):
+    assert checkpoint_imports(nbformat.read(path, as_version=4).cells) == set(), \
+        f"{path.name}: a lab's data preparation and truth helpers live in kfkit.labs, not kfkit.checkpoints"
