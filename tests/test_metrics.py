@@ -4,6 +4,7 @@ import pytest
 from scipy.stats import chi2
 
 from kfkit.filters import KalmanFilter, roll_kf
+from kfkit import metrics
 from kfkit.metrics import angle_error, chi2_bounds, fraction_inside, nees, nis, rmse
 
 
@@ -96,3 +97,11 @@ def test_scalar_roll_filter_is_consistent_on_its_own_model():
     assert lo <= np.mean(final_nees) <= hi
     lo, hi = chi2_bounds(1, runs * N)
     assert lo <= np.mean(all_nis) <= hi
+
+
+def test_angle_rmse_deg_wraps_ignores_nan_and_reports_degrees():
+    est = np.radians([179.0, 10.0, 0.0])
+    truth = np.radians([-179.0, 12.0, np.nan])
+    assert metrics.angle_rmse_deg(est, truth) == pytest.approx(2.0)  # 179° vs −179° is 2° off, not 358°
+    both = np.column_stack([est, est])
+    np.testing.assert_allclose(metrics.angle_rmse_deg(both, np.column_stack([truth, truth])), [2.0, 2.0])
