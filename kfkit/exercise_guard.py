@@ -86,15 +86,15 @@ class ExerciseGuard:
             for name in made:
                 self.missing.pop(name, None)
             return lines
-        self._skip(tree, source, made, why, cause)
+        self._skip(tree, source, made, cause)
         return [f"print({NOTE.format(why=why)!r})\n"]
 
-    def _skip(self, tree: ast.Module, source: str, made: set[str], why: str, cause: str) -> None:
+    def _skip(self, tree: ast.Module, source: str, made: set[str], cause: str) -> None:
         """Record what the skipped cell would have made (the latest reason: the one before may be done by now), and
         set aside the notebook's older definitions of the functions it defines."""
         defined = _functions_defined(tree.body) | {n for n in made if self._notebook_function(self.user_ns.get(n))}
         for name in defined:
-            self.user_ns[name] = _set_aside(name, why)
+            self.user_ns[name] = _set_aside(name, cause)
         for name in made:
             self.missing[name] = _Missing(cause, source, self.user_ns.get(name, _ABSENT))
         # what its functions would have bound with a `global` statement: missing only where nothing is
@@ -201,11 +201,11 @@ class ExerciseGuard:
         return names
 
 
-def _set_aside(name: str, why: str) -> types.FunctionType:
-    """What stands for the function ``name`` while the cell that defines it anew is skipped (``why``): calling it, or
-    checking it, says so."""
-    message = (f"the cell that defines {name} was skipped ({why}), so the {name} defined before is set aside: "
-               "run that cell again once that is done")
+def _set_aside(name: str, cause: str) -> types.FunctionType:
+    """What stands for the function ``name`` while the cell that defines it anew is skipped, as ``cause``: calling it,
+    or checking it, says so."""
+    message = (f"the cell that defines {name} was skipped, as {cause}. The {name} defined before it is set aside; "
+               "run that cell again once that is done, then this one")
 
     def stand_in(*args, **kwargs):
         raise StaleDefinition(message)
