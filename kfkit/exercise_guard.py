@@ -19,10 +19,10 @@ note when the cell
   it since: a function's ``global x0``, ``globals().update(…)`` or ``exec`` that ran makes it there.
 
 Everything else runs as usual, so the lab's own figures, the capture panel and every cell that needs no
-exercise run. ``check("…", f)`` and ``check("…", answer=f)`` cells always run (unless ``f`` does not exist at all): the
-check itself says "not attempted yet". When a cell that defines a function is skipped, the notebook's older definition
-is set aside (:class:`StaleDefinition`), so that its check says "stale" instead of passing code the student has since
-changed. A solution notebook, with nothing unfinished, runs exactly as without the guard.
+exercise run. ``check("…", f)`` and ``check("…", answer=f)`` cells always run (unless ``f`` does not exist at
+all): the check itself says "not attempted yet". When a cell that defines a function is skipped, the notebook's
+older definition is set aside (:class:`StaleDefinition`), so that its check says "stale" instead of passing code
+the student has since changed. A solution notebook, with nothing unfinished, runs exactly as without the guard.
 """
 from __future__ import annotations
 

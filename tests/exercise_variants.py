@@ -147,7 +147,8 @@ WAYS = {
         f"class Solver_{fn.name}:\n    def solve(self, *args, **kwargs):\n        return impl_{fn.name}(*args, **kwargs)\n\n"
         f"{_impl(fn)}\n\n{fn.name} = Solver_{fn.name}().solve"),
     "classmethod": lambda fn: (
-        f"class Tools_{fn.name}:\n    @classmethod\n    def run(cls, *args, **kwargs):\n        return impl_{fn.name}(*args, **kwargs)\n\n"
+        f"class Tools_{fn.name}:\n    @classmethod\n    def run(cls, *args, **kwargs):\n"
+        f"        return impl_{fn.name}(*args, **kwargs)\n\n"
         f"{_impl(fn)}\n\n{fn.name} = Tools_{fn.name}.run"),
     "callable_instance": lambda fn: (
         f"{_impl(fn)}\n\nclass Callable_{fn.name}:\n    def __call__(self, *args, **kwargs):\n"

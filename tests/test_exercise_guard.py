@@ -148,7 +148,8 @@ def test_a_function_defined_here_is_judged_by_the_names_it_reads_not_its_paramet
     # catches it
     "def accel_roll(ay, az):\n    try:\n        return np.arctan2(ay, az)\n    except NotImplementedError:\n        return 0.0\n",
     # the stub left below the answer, never reached
-    "def accel_roll(ay, az):\n    '''Roll.'''\n    return np.arctan2(ay, az)\n    # YOUR CODE HERE\n    raise NotImplementedError()\n",
+    "def accel_roll(ay, az):\n    '''Roll.'''\n    return np.arctan2(ay, az)\n"
+    "    # YOUR CODE HERE\n    raise NotImplementedError()\n",
     # a helper in it raises it
     "def accel_roll(ay, az):\n    def two_d():\n        raise NotImplementedError()\n"
     "    return two_d() if np.ndim(ay) > 1 else np.arctan2(ay, az)\n",

@@ -6,9 +6,9 @@ without it, and exactly as the reference solution does.
 Oracles: the kernel without the guard (every cell's outputs, and the names each way leaves, must be the same with
 it), and the solution's own exercise cells run without the guard (each way's checks and results must match them).
 One pair of kernels per lab (running side by side) runs every way in turn, the lab's first cell (its imports)
-before them; a way's cells are its exercise cells, a cell of checks (the lab's random-case checkpoints, seeded, with
-``answer=`` in every other way) that also calls every exercise, and a cell that calls them through a function of the
-notebook, then puts the namespace back.
+before them; a way's cells are its exercise cells, a cell of checks (the lab's random-case checkpoints, on cases
+drawn once, with ``answer=`` in every other way) that also calls every exercise, and a cell that calls them through
+a function of the notebook, then puts the namespace back.
 """
 from __future__ import annotations
 
@@ -50,11 +50,17 @@ def exercise_inputs(prefix: str, exercises: list[str]) -> tuple[dict, list[str],
     return args, read_only, random
 
 
-def harness(args_path, args: dict, read_only: list[str]) -> tuple[str, str]:
-    """(the setup cell, the cell that calls every exercise): what it prints is a digest of every result."""
+def harness(args_path, args: dict, read_only: list[str], checked: list[str]) -> tuple[str, str]:
+    """(the setup cell, the cell that calls every exercise): what it prints is a digest of every result. The setup
+    draws the cases of each checkpoint in ``checked`` once (seed 1), and every way's check replays them."""
     calls = "".join(f"        {n!r}: {n}(**ARGS[{n!r}]),\n" for n in args)
     calls += "".join(f"        {n!r}: callable({n}),\n" for n in read_only)
-    setup = (f"import hashlib, pickle, warnings\nwith open({str(args_path)!r}, 'rb') as f:\n    ARGS = pickle.load(f)\n\n"
+    setup = ("import copy, dataclasses, hashlib, pickle, warnings\nimport numpy as np\n"
+             "from kfkit import checkpoints\n\n"
+             f"for name in {checked!r}:\n    drawn = checkpoints.get(name).cases(np.random.default_rng(1))\n"
+             "    checkpoints.REGISTRY[name] = dataclasses.replace(checkpoints.get(name),\n"
+             "                                                    cases=lambda rng, drawn=drawn: copy.deepcopy(drawn))\n\n"
+             f"with open({str(args_path)!r}, 'rb') as f:\n    ARGS = pickle.load(f)\n\n"
              "def digest(value):\n    return hashlib.sha256(pickle.dumps(value)).hexdigest()[:16]\n\n"
              "def use_all():\n    with warnings.catch_warnings():\n        warnings.simplefilter('ignore')\n"
              f"        return {{\n{calls}    }}\n\nSNAPSHOT = dict(globals())\n")
@@ -109,13 +115,13 @@ def test_every_way_of_writing_the_exercises_runs_as_without_the_guard(path, tmp_
     assert len(args) >= len(exercises) - 1, "call the exercises, not only read them"
     with open(tmp_path / "args.pickle", "wb") as f:
         cloudpickle.dump(args, f)  # a checkpoint's input may be a function (lab 04's numerical_jacobian)
-    setup, use = harness(tmp_path / "args.pickle", args, read_only)
+    setup, use = harness(tmp_path / "args.pickle", args, read_only, list(random))
     first = next(c.source for c in solution.cells if c.cell_type == "code")
     assert GUARD in first
     plan, where = [setup], {}  # where: (way, part) → index of the cell in the plan
     for k, way in enumerate(ways):
         answer = "answer=" if k % 2 else ""  # check(…, answer=f) in every other way
-        checks = "".join(f"check({name!r}, {answer}{function}, seed=1)\n" for name, function in random.items())
+        checks = "".join(f"check({name!r}, {answer}{function})\n" for name, function in random.items())
         parts = {**{f"exercise cell {i}": c for i, c in enumerate(way.cells)},
                  "checks and calls": checks + use, "calls through a function, names left": RESTORE}
         for part, source in parts.items():

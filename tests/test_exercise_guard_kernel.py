@@ -66,9 +66,11 @@ def test_a_statement_that_reads_a_name_before_rebinding_it_waits_for_it(run, rea
 def test_a_stub_is_told_from_a_finished_function_by_its_source_in_the_kernel(run):
     """ipykernel keeps each cell's source under a file name of its own: the guard reads the stub there."""
     run("import numpy as np")
-    run("def tilt(ay, az):\n    '''Tilt (rad).'''\n    ay = np.asarray(ay)\n    # YOUR CODE HERE\n    raise NotImplementedError()\n")
+    run("def tilt(ay, az):\n    '''Tilt (rad).'''\n    ay = np.asarray(ay)\n"
+        "    # YOUR CODE HERE\n    raise NotImplementedError()\n")
     assert "it needs tilt (not written yet)" in run("angle = tilt(1.0, 1.0)\nprint('ran')")
-    run("def tilt(ay, az):\n    if np.ndim(ay) > 1:\n        raise NotImplementedError('2-D input')\n    return np.arctan2(ay, az)\n")
+    run("def tilt(ay, az):\n    if np.ndim(ay) > 1:\n        raise NotImplementedError('2-D input')\n"
+        "    return np.arctan2(ay, az)\n")
     assert run("angle = tilt(1.0, 1.0)\nprint(round(angle, 4))").strip() == "0.7854"
 
 
