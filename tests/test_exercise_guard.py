@@ -343,3 +343,12 @@ def test_every_stub_of_a_hand_out_is_one_and_no_function_of_its_solution_is(name
                 assert shell(cell.source)[0].success
         assert {n for n in exercises if guard.unfinished(n) == f"{n} (not written yet)"} == stubs
         assert all(guard.unfinished(n) is None for n in exercises - stubs)
+
+
+def test_a_check_of_a_name_that_does_not_exist_at_all_is_skipped_not_a_name_error(shell):
+    """check(…) reports a stub itself, but cannot be handed a name a skipped cell never made."""
+    shell("from kfkit.checkpoints import check")
+    shell(STUB.format(name="make_update"))
+    shell("kf_update = make_update(1)")  # skipped: kf_update never existed
+    result, out = shell("check('01.kf_update', kf_update);")
+    assert result.success and "it uses kf_update, made by a cell that needs make_update (not written yet)" in out
