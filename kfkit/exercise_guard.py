@@ -47,7 +47,10 @@ _ABSENT = object()  # what a missing name held when its cell was skipped, if not
 
 class StaleDefinition(NotImplementedError):
     """Raised by a function the guard set aside: the cell that defines it anew was skipped, and the older definition
-    must not pass its check for code the student has changed since."""
+    must not pass its check for code the student has changed since. ``check`` knows it by ``stale_definition`` (not
+    by class: ``%reload_ext`` makes a new class)."""
+
+    stale_definition = True
 
 
 class _Missing(NamedTuple):
@@ -76,7 +79,7 @@ class ExerciseGuard:
             tree = ast.parse(source)
         except SyntaxError:  # let IPython report it as usual
             return lines
-        made = _assigned_names(tree.body)
+        made = assigned_names(tree.body)
         if is_stub(tree.body):
             why, cause = ("this cell is an exercise: replace '# YOUR CODE HERE' and the raise below it with your code",
                           "an exercise cell not filled in yet")
@@ -123,7 +126,7 @@ class ExerciseGuard:
                 found = self._blocked(name, "", for_check, source, defined_here, set())
                 if found:
                     return found
-            made_here |= _assigned_names([statement])
+            made_here |= assigned_names([statement])
             defined_here.update((n.name, n) for n in _in_scope([statement]) if isinstance(n, _DEFS))
         return None, None
 
@@ -392,7 +395,7 @@ def _bound_at(nodes: list[ast.AST]) -> dict[str, tuple[int, int]]:
     return bound
 
 
-def _assigned_names(statements: list[ast.stmt]) -> set[str]:
+def assigned_names(statements: list[ast.stmt]) -> set[str]:
     """Names cell statements bind in the notebook's namespace (assignments, defs, classes, imports, loop targets …;
     not a comprehension's variables, a lambda's parameters or a function's locals)."""
     nodes = list(_in_scope(statements))

@@ -302,6 +302,16 @@ def test_a_function_whose_only_cell_was_skipped_is_checked_as_stale_not_a_name_e
     assert result.success and "⏳ 01.kf_update: stale" in out
 
 
+def test_a_stale_check_still_says_stale_after_the_guard_is_reloaded(shell):
+    """%reload_ext makes a new StaleDefinition class; check knows a set-aside function by its mark, not its class."""
+    shell("from kfkit.checkpoints import check")
+    shell(STUB.format(name="run_kf"))
+    shell(CORRECT_KF_UPDATE + "x_kf = run_kf(1)")
+    InteractiveShell.instance().run_line_magic("reload_ext", "kfkit.exercise_guard")
+    result, out = shell("check('01.kf_update', kf_update);")
+    assert result.success and "⏳ 01.kf_update: stale" in out
+
+
 @pytest.mark.parametrize("call", ["check('01.run_kf', answer=by_hand);", "check('01.run_kf', by_hand);",
                                   "check('01.run_kf', lambda **kw: run_kf(**kw));",
                                   "import functools\ncheck('01.run_kf', functools.partial(run_kf));"])
