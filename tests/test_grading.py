@@ -41,9 +41,8 @@ from kfkit.checkpoints import LABS
 from kfkit.cli import main
 from kfkit.paths import KIT_ROOT
 from kfkit.grading import _kernel_side, core, runner, sandbox, wire
+from lab01_notebooks import LAB, SOLUTION, add, append, edit, minimal, read
 
-SOLUTION = KIT_ROOT / "solutions" / "01_roll_kf_1d.ipynb"
-LAB = KIT_ROOT / "labs" / "01_roll_kf_1d.ipynb"
 # lab 01's points as the lab's author set them in kfkit/checkpoints/lab01.py
 POINTS = {"01.accel_roll": 1, "01.kf_predict": 1, "01.kf_update": 2, "01.run_kf": 2, "01.kf_beats_sensors": 2}
 TIMEOUT = 4  # s of CPU per cell / call in these tests (the grader's warm-up has loaded the heavy modules)
@@ -51,38 +50,8 @@ BACKSTOP = int(TIMEOUT * runner.WALL_FACTOR)  # s of wall time after which a cel
 SEEDS_PER_SOLUTION = 1  # fresh seeds each solution is graded on, in one kernel (lab 01: one per CLI submission)
 KIT_FILE = KIT_ROOT / "kfkit" / "checkpoints" / "lab01.py"
 SITE = Path(sysconfig.get_paths()["purelib"])
-# wall-clock limits for honest notebooks: only safety nets, so that a busy machine fails nobody (lab 04's
-# Monte Carlo cell takes ~30 s of wall time with two other processes on the two cores); CPU time stays limited
+# limits for honest notebooks far above what they need, as safety nets (lab 04's Monte Carlo cell is the longest)
 GENEROUS = core.Limits(cell_timeout=300, total_timeout=1200)
-
-
-def read(path):
-    return nbformat.read(path, as_version=4)
-
-
-def minimal():
-    """Lab 01 reduced to its imports and the cells defining its exercise functions (solved)."""
-    cells = [c for c in read(SOLUTION).cells if c.cell_type == "code"]
-    keep = [cells[0]] + [c for c in cells if "### BEGIN SOLUTION" in c.source and "def " in c.source]
-    return nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(c.source) for c in keep])
-
-
-def edit(nb, old, new):
-    hits = [c for c in nb.cells if old in c.source]
-    assert hits, f"{old!r} not in the notebook"
-    for c in hits:
-        c.source = c.source.replace(old, new)
-    return nb
-
-
-def add(nb, source, at=1):
-    nb.cells.insert(at, nbformat.v4.new_code_cell(source))
-    return nb
-
-
-def append(nb, *sources):
-    nb.cells += [nbformat.v4.new_code_cell(source) for source in sources]
-    return nb
 
 
 #: the cells after a looping kf_update: its check (the one timeout), then a call of it, a use of what that call
