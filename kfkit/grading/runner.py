@@ -386,7 +386,8 @@ class KernelRun:
             cells.append(nbformat.v4.new_code_cell(""))
         cell = nbformat.v4.new_code_cell(source)
         cpu_left, wall_left = self._left()
-        self.cpu_budget = max(1.0, math.ceil(10 * min(self.limits.cell_timeout, cpu_left)) / 10)  # ≥ what is left
+        per_cell = self.limits.cell_timeout  # or what is left of the share, rounded up, but not under 1 s
+        self.cpu_budget = max(min(1.0, per_cell), math.ceil(10 * min(per_cell, cpu_left)) / 10)
         self.wall_budget = max(1, math.ceil(min(self.limits.wall_factor * self.cpu_budget, wall_left)))
         client.timed_out = client.flooded = client.backstop = False
         client.cell_bytes, client.capture, client.judge = 0, capture, self._judge_cpu
