@@ -708,6 +708,7 @@ def test_unknown_lab_is_named(tmp_path, capsys):
 def test_python_dash_m_kfkit_grade_help():
     out = subprocess.run([sys.executable, "-m", "kfkit", "grade", "--help"], capture_output=True, text=True, check=True).stdout
     assert "--jobs" in out and "--timeout" in out and "--update" in out and "--no-sandbox" in out
+    assert "--wall-factor" in out and "CPU seconds per notebook cell" in out
 
 
 def test_summary_reports_pass_rates():
