@@ -67,9 +67,8 @@ def add_parser(sub):
     p.add_argument("--jobs", type=number(int, 0), default=os.cpu_count() or 1,
                    help="submissions graded in parallel (default: one per core, %(default)s)")
     p.add_argument("--timeout", type=number(float, 0.0, unit="s"), default=CELL_TIMEOUT,
-                   help="CPU seconds per notebook cell and per checkpoint call, counted in CPU time (user + system, "
-                        "all the kernel's processes), not wall time, so a busy machine fails nobody "
-                        "(default: %(default)g)")
+                   help="CPU seconds per notebook cell and per checkpoint call (user + system, all the kernel's "
+                        "processes; not wall time, so a busy machine fails nobody) (default: %(default)g)")
     p.add_argument("--total-timeout", type=number(float, 0.0, unit="s"), default=TOTAL_TIMEOUT,
                    help="CPU seconds for one whole submission, cells and checkpoint calls; part is kept for the "
                         "calls (default: %(default)g)")
