@@ -9,7 +9,7 @@ import numpy as np
 
 from kfkit import calibration, datasets, sim
 from kfkit.capture import sphere_coverage
-from kfkit.checkpoints.lab02 import gyro_bias_truth, noise_truth, six_face_truth
+from kfkit.labs.lab02 import gyro_bias_truth, noise_truth, six_face_truth
 from kfkit.checkpoints.lab03 import heading_errors, random_ellipsoid
 from kfkit.frames import G, mount_matrix
 from kfkit.unit_errors import NUCLEO_UNIT
