@@ -32,11 +32,16 @@ def test_the_solution_loads_the_exercise_guard_right_after_matplotlib(name):
 
 @pytest.mark.parametrize("name", LABS)
 def test_the_questions_are_one_section_at_the_end_each_naming_its_section(name):
+    """One "## N. Questions" section, the lab's last: its first cell asks (each question naming its section), code
+    cells may follow for a question to compute (an exercise with its checkpoint), and the model answers, one per
+    question, close the section."""
     cells = read("solutions", name).cells
     with_questions = [i for i, c in enumerate(cells) if c.cell_type == "markdown" and "Questions" in c.source]
-    assert with_questions == [len(cells) - 1], "one Questions section, the lab's last cell"
-    text = cells[-1].source
-    assert re.match(r"## \d+\. Questions\n", text)
+    assert len(with_questions) == 1, "one Questions section"
+    section = cells[with_questions[0]:]
+    assert not any(c.cell_type == "markdown" and c.source.startswith("#") for c in section[1:]), "the lab's last section"
+    assert re.match(r"## \d+\. Questions\n", section[0].source)
+    text = "\n".join(c.source for c in section if c.cell_type == "markdown")
     asked, answers = text.split("### BEGIN SOLUTION")
     questions = re.findall(r"^\d+\. (.*)", asked, flags=re.M)
     assert len(questions) >= 4 and all(q.startswith("*Section") for q in questions), questions

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from kfkit import datasets, filters, frames, metrics
-from kfkit.checkpoints.lab01 import REAL_MAX_PITCH, REAL_RECORDING, real_excerpt
+from kfkit.labs.lab01 import REAL_MAX_PITCH, REAL_RECORDING, real_excerpt
 from test_checkpoints_every import solution_namespace
 
 
