@@ -10,7 +10,7 @@ import re
 import numpy as np
 import pytest
 from scipy import constants
-from scipy.optimize import least_squares
+from scipy.optimize import brentq, least_squares
 from scipy.spatial.transform import Rotation
 
 from kfkit import calibration as C
@@ -68,6 +68,12 @@ def kfkit_run_sideslip(params, r_std=(0.003, 0.05), model=V.linear_model, **s): 
     return estimate_sideslip(**s, params=params, gyro_noise=r_std[0], accel_noise=r_std[1], model=model).beta
 
 
+def q_by_search(tau, dt, r):
+    """The q whose steady-state roll filter has Δt/K∞ = tau, found by bisection on log q (not by the closed form)."""
+    log_q = brentq(lambda lq: np.log(dt / filters.roll_kf_steady_state(10.0**lq, r)[1] / tau), -30.0, 5.0, xtol=1e-15)
+    return 10.0**log_q
+
+
 RIGHT = {
     "00.checksum": loop_xor,
     "00.board_time": unwrap,
@@ -76,6 +82,8 @@ RIGHT = {
     "01.kf_update": filters.roll_kf_update,
     "01.run_kf": reference_run_kf,
     "01.kf_beats_sensors": reference_run_kf,
+    "01.fuse_gaussians": lambda mu_prior, var_prior, z, r: filters.roll_kf_update(mu_prior, var_prior, z, r)[:2],
+    "01.q_for_time_constant": q_by_search,
     "02.gyro_bias": C.gyro_bias, "02.noise_std": C.noise_std, "02.accel_bias": C.accel_bias,
     "02.six_face": C.accel_six_face, "02.six_face_recording": C.accel_six_face, "02.gyro_bias_recording": C.gyro_bias,
     "02.noise_recording": C.noise_std,
