@@ -1,7 +1,7 @@
 """The package's shape (issue 16): imports only point down, modules stay small and uniquely named.
 
 An import graph of kfkit from its source (``ast``), counting imports inside functions too (a deferred
-import that dodges a cycle is still a cycle), checked against the rules in DESIGN.md / the README map:
+import that dodges a cycle is still a cycle), checked against the rules in docs/design.md:
 no import cycle, no module over 600 lines, no two modules with one name, the capture layer depends on
 nothing above it, and the leaves (``paths``, ``frames``) import nothing from kfkit. The walker is
 tested on a small package of its own first, so a rule that cannot fail would show.

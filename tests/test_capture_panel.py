@@ -283,7 +283,7 @@ def test_lab03_and_lab04_magnetometer_and_attitude_on_the_recordings(recorded, t
 
 def test_lab03_alignment_and_headings_on_the_recordings(recorded):
     """Lab 03 on the panel's recordings, calibrated by labs 02/03 from the recorded rest, faces and rotations:
-    the turns show the IIS2MDC's 180° about y (DESIGN.md), the headings come out as the prompts asked."""
+    the turns show the IIS2MDC's 180° about y (docs/design.md), the headings come out as the prompts asked."""
     _, recs = recorded
     still, faces, rot, turns, heads = (recs["nucleo-iks02a1", name] for name in LAB_DATASETS["nucleo-iks02a1"])
     cal = calibration.calibrate(still, faces, rot)

@@ -1,6 +1,6 @@
 """Capture: a board on a serial port or a phone running phyphox, recorded into the kit's format.
 
-- :mod:`.protocol`       ``parse_line`` and the line encoders (protocol v1, DESIGN.md)
+- :mod:`.protocol`       ``parse_line`` and the line encoders (protocol v1, docs/design.md)
 - :mod:`.errors`         the capture errors (``CaptureError`` and its family, a phone's ``PhoneError`` ones)
 - :mod:`.ports`          ``find_boards`` (USB VID:PID), ``check_port`` (the forms a port takes, ``NAMED_PORTS``) and
                          ``open_port`` (a serial port, or ``phyphox://``)

@@ -46,7 +46,7 @@ from jupyter_client.manager import AsyncKernelManager
 from nbclient import NotebookClient
 from nbclient.exceptions import CellTimeoutError, DeadKernelError
 
-from ..exercise_guard import _assigned_names
+from ..exercise_guard import assigned_names
 from . import CELL_TIMEOUT, TOTAL_TIMEOUT
 from . import resources
 from . import sandbox as sb
@@ -394,7 +394,7 @@ class KernelRun:
     def _note_unmade(self, index: int, function: str):
         """The names cell ``index`` would have made, missing because ``function`` timed out."""
         try:
-            made = _assigned_names(ast.parse(self.sources[index]))
+            made = assigned_names(ast.parse(self.sources[index]).body)
         except SyntaxError:
             return
         for name in made:
