@@ -50,8 +50,9 @@ def test_half_done_hand_out_prints_what_the_solution_printed_and_skips_only_what
     left, nb = partly
     assert left == {"tune", "estimate_tilt", "q_for_time_constant"}
     solution = nbformat.read(SOLUTION, as_version=4)
+    # the student's "My prediction" cells aside, the hand-out has the solution's cells
     nb = nbformat.from_dict(dict(nb, cells=[c for c in nb.cells if MY_PREDICTION_TAG not in c.metadata.get("tags", [])]))
-    assert [c.cell_type for c in nb.cells] == [c.cell_type for c in solution.cells]  # the student's prediction cells aside
+    assert [c.cell_type for c in nb.cells] == [c.cell_type for c in solution.cells]
     notes = skip_notes(nb)
     not_attempted = [i for i, c in enumerate(nb.cells) if c.cell_type == "code" and "not attempted yet" in printed(c)]
     assert [re.findall(r"05\.\w+", nb.cells[i].source) for i in not_attempted] == [["05.tune"], ["05.final"], ["05.time_constant"]]

@@ -156,8 +156,11 @@ def test_section12_3_what_tuning_adds_on_turns_about_one_axis_is_the_left_out_ra
     _, w, dt, (roll, _), _, _, gates, (c_roll, _) = recipe(one, rest)
     r, q0 = float(np.var(roll[rest])), (np.std(w[rest, 0]) * dt) ** 2
     ratios = np.arange(0.0, 3.1, 0.5)  # log₁₀(q_θ / N²Δt)
-    cost = {into: np.array([moving_rmse_deg(one, oracle_run(w[:, 0], roll, gates[1], c_roll, dt, 10 ** a * q0, r, into)[:, 0], 0)
-                            for a in ratios]) for into in ("none", "model")}
+    def cost_of(into):
+        return np.array([moving_rmse_deg(one, oracle_run(w[:, 0], roll, gates[1], c_roll, dt, 10 ** a * q0, r, into)[:, 0], 0)
+                         for a in ratios])
+
+    cost = {into: cost_of(into) for into in ("none", "model")}
     assert 1.5 <= ratios[cost["none"].argmin()] <= 2.5 and cost["none"].min() < 0.75 * cost["none"][0], cost["none"]
     assert ratios[cost["model"].argmin()] <= 0.5 and cost["model"][0] < 1.1 * cost["model"].min(), cost["model"]
     assert cost["model"][0] < 0.6 * cost["none"].min()
