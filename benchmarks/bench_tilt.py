@@ -21,7 +21,7 @@ from filterpy.kalman import KalmanFilter as FilterpyKF
 from kfkit import datasets
 from kfkit.labs import lab05
 from kfkit.paths import KIT_ROOT
-from kfkit.filters import TiltBiasKF, tilt
+from kfkit.filters import TiltBiasKF, TiltBiasKFSettings, tilt
 from timing import best_of
 
 C_SOURCE = KIT_ROOT / "firmware" / "tilt_kf" / "tilt_kf.c"
@@ -93,6 +93,8 @@ def accuracy():
     print("| --- | --- | --- | --- | --- | --- |")
     rows = [("accelerometer only (six-face corrected)", None, None)]
     rows += [("KF, q0, skip gate", "skip", {n: (q0, 1e-4 * q0) for n in axes})]
+    shipped = TiltBiasKFSettings()  # = tiltKfDefaultSettings: lab 02's N²Δt and K²Δt
+    rows += [("KF, shipped defaults (lab 02's N²Δt, K²Δt), skip gate", "skip", {n: (shipped.q_angle, shipped.q_bias) for n in axes})]
     rows += [(f"KF, tuned on the holds, gate = {g}", g, tuned) for g in ("none", "skip", "inflate")]
     for label, gate, q in rows:
         cells, errs = [], []
