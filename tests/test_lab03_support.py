@@ -84,8 +84,6 @@ def test_the_simulated_phone_tumbling_is_read_back_from_its_export_with_its_trut
     assert np.linalg.norm(rec.meta["sim"]["mag_hard_iron"]) > 0.5  # what the OS left, which section 7 fits
 
 
-def test_real_headings_and_a_board_without_a_magnetometer_are_refused_with_what_to_do():
-    with pytest.raises(ValueError, match="BROAD has no headings protocol; leave it None"):
-        lab03.load("real", "03_headings")
+def test_a_board_without_a_magnetometer_is_refused_with_what_to_do():  # "real" headings: test_real_lab03
     with pytest.raises(ValueError, match="has no magnetometer; lab 03 needs the Nucleo"):
         lab03.load(None, "05_stationary")
