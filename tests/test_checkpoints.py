@@ -9,7 +9,7 @@ import re
 
 import numpy as np
 import pytest
-from scipy import constants
+from scipy import constants, optimize
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
@@ -68,6 +68,20 @@ def kfkit_run_sideslip(params, r_std=(0.003, 0.05), model=V.linear_model, **s): 
     return estimate_sideslip(**s, params=params, gyro_noise=r_std[0], accel_noise=r_std[1], model=model).beta
 
 
+def hard_iron_budget_by_search(field_ned, max_error_deg):
+    """The largest |h| whose worst level heading error, over h's direction on a fine grid, is max_error_deg: a search,
+    not lab 03's B_h·sin ε."""
+    north, east = field_ned[0], field_ned[1]
+    turn = np.linspace(0.0, 2 * np.pi, 200_001)
+
+    def worst_deg(length):
+        err = np.arctan2(east + length * np.sin(turn), north + length * np.cos(turn)) - np.arctan2(east, north)
+        return np.degrees(np.max(np.abs(frames.wrap_angle(err))))
+
+    return optimize.brentq(lambda length: worst_deg(length) - max_error_deg, 0.0, 0.999 * np.hypot(north, east),
+                           xtol=1e-12)
+
+
 RIGHT = {
     "00.checksum": loop_xor,
     "00.board_time": unwrap,
@@ -90,6 +104,7 @@ RIGHT = {
     "03.real_magnet": C.fit_mag_calibration,
     "03.flat_heading": frames.mag_heading,
     "03.tilt_heading": frames.tilt_compensated_heading,
+    "03.hard_iron_budget": hard_iron_budget_by_search,
     "04.euler_rates": frames.body_rates_to_euler_rates,
     "04.predict": filters.euler_ekf_predict,
     "04.measurement": filters.attitude_measurement,
