@@ -1,8 +1,9 @@
 """Lab 03's support (magnetometer alignment, calibration and heading): what its notebook calls beyond the library.
 
 The data source (bundled, BROAD's real IMU, a student's board or phone), the gyro's bias and the local field per
-source, the turns about each axis and the angles they turn, the headings protocol's rests and prompted headings, the
-magnet window of BROAD trial 34 and the simulated phone's tumbling. The student's exercises stay in the notebook.
+source, the turns about each axis and the angles they turn, section 3's 3-D field panel, the headings protocol's
+rests and prompted headings, the magnet window of BROAD trial 34 and the simulated phone's tumbling. The student's
+exercises stay in the notebook.
 """
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from scipy.ndimage import median_filter, uniform_filter1d
 from .. import calibration, datasets, frames, phone_sim, sim
 from ..capture.guided import HEADINGS_DEG
 from ..io import Recording
-from ..plots import windows_where
+from ..plots import COLORS, windows_where
 from ..readers import load_any, load_phyphox
 
 REAL = "01_broad_slow_rotation"  # "real": BROAD trial 02, a hand-turned IMU with motion-capture truth (section 8)
@@ -82,6 +83,24 @@ def found_turns(rec, gyr, share=0.9, min_rate=0.3, smooth_s=0.5) -> Recording:
         start, end = max(windows_where(rec.t, about), key=lambda w: w[1] - w[0])
         found.append({"label": f"turn_{axis}", "start": float(start), "end": float(end)})
     return Recording({**rec.meta, "phases": rec.phases + found}, rec.data, rec.path)
+
+
+def field_panel(ax, data, title, colour, centre, shape, lim):
+    """One 3-D panel of section 3's figure: readings (N, 3) µT as points of ``COLORS[colour]``, the surface
+    centre + shape·u over unit vectors u as a wireframe (an ellipsoid; a sphere when shape = r·I), and the line from
+    the origin to its centre (the hard iron), on axes of ±lim µT."""
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 25), np.linspace(0, np.pi, 13))
+    unit = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], axis=-1)
+    ax.scatter(*data[::3].T, s=2, color=COLORS[colour], depthshade=False)
+    ax.plot_wireframe(*np.moveaxis(np.asarray(centre) + unit @ np.asarray(shape).T, -1, 0), color=COLORS["truth"],
+                      lw=0.3, alpha=0.5)
+    ax.plot(*np.column_stack([np.zeros(3), centre]), color=COLORS["truth"], lw=2, marker="o", ms=4,
+            label="origin → centre (the hard iron h)")
+    ticks = [-50, 0, 50]
+    ax.set(xlim=(-lim, lim), ylim=(-lim, lim), zlim=(-lim, lim), xticks=ticks, yticks=ticks, zticks=ticks,
+           xlabel="m_x (µT)", ylabel="m_y (µT)", zlabel="m_z (µT)", box_aspect=(1, 1, 1))
+    ax.set_title(title, fontsize=10)
+    ax.view_init(elev=20, azim=-60)
 
 
 def rests(rec, label):
