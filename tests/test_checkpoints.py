@@ -74,6 +74,20 @@ def q_by_search(tau, dt, r):
     return 10.0**log_q
 
 
+def hard_iron_budget_by_search(field_ned, max_error_deg):
+    """The largest |h| whose worst level heading error, over h's direction on a fine grid, is max_error_deg: a search,
+    not lab 03's B_h·sin ε."""
+    north, east = field_ned[0], field_ned[1]
+    turn = np.linspace(0.0, 2 * np.pi, 200_001)
+
+    def worst_deg(length):
+        err = np.arctan2(east + length * np.sin(turn), north + length * np.cos(turn)) - np.arctan2(east, north)
+        return np.degrees(np.max(np.abs(frames.wrap_angle(err))))
+
+    return brentq(lambda length: worst_deg(length) - max_error_deg, 0.0, 0.999 * np.hypot(north, east),
+                           xtol=1e-12)
+
+
 RIGHT = {
     "00.checksum": loop_xor,
     "00.board_time": unwrap,
@@ -98,6 +112,7 @@ RIGHT = {
     "03.real_magnet": C.fit_mag_calibration,
     "03.flat_heading": frames.mag_heading,
     "03.tilt_heading": frames.tilt_compensated_heading,
+    "03.hard_iron_budget": hard_iron_budget_by_search,
     "04.euler_rates": frames.body_rates_to_euler_rates,
     "04.predict": filters.euler_ekf_predict,
     "04.measurement": filters.attitude_measurement,

@@ -11,6 +11,7 @@ from test_checkpoints_every import solution_namespace
 
 from kfkit import calibration, datasets
 from kfkit.checkpoints import get, lab03, run_checkpoint
+from kfkit.labs import lab03 as lab03_support
 from kfkit.io import Recording
 from waiting import HANG_GUARD_S
 
@@ -31,7 +32,7 @@ def with_magnet(rec, start, end, h_body):
 
 def test_an_undisturbed_trial_has_no_magnet():
     rec = datasets.load("01_broad_slow_rotation")   # BROAD trial 02: no magnet anywhere
-    mask, B, sigma = lab03.magnet_window(rec)
+    mask, B, sigma = lab03_support.magnet_window(rec)
     assert not mask.any()
     assert 40 < B < 50 and 0.3 < sigma < 1.0       # µT: the lab's field and the sensor's noise at rest
 
@@ -42,9 +43,9 @@ def test_the_magnet_window_is_where_a_magnet_was_added(h_body):
     board turns, where |m| crosses B) is found to within the running median's half width. (A magnet whose field
     changes |m| at rest by less than 5σ is seen only once the board turns: |m| is all the detector looks at.)"""
     rec = with_magnet(datasets.load("01_broad_slow_rotation"), 30.0, 70.0, np.array(h_body))
-    mask, _, _ = lab03.magnet_window(rec)
+    mask, _, _ = lab03_support.magnet_window(rec)
     start, end = rec.t[mask][[0, -1]]
-    assert abs(start - 30.0) <= lab03.MAGNET_SMOOTH_S / 2 and abs(end - 70.0) <= lab03.MAGNET_SMOOTH_S / 2
+    assert abs(start - 30.0) <= lab03_support.MAGNET_SMOOTH_S / 2 and abs(end - 70.0) <= lab03_support.MAGNET_SMOOTH_S / 2
 
 
 def test_trial_34s_magnet_goes_on_at_rest_and_off_before_the_motions_end():
@@ -52,7 +53,7 @@ def test_trial_34s_magnet_goes_on_at_rest_and_off_before_the_motions_end():
     (the gyro still reads a board at rest) and off well before it ends; the rests before and after read the
     plain field, the rest with the magnet tens of σ below it."""
     rec = datasets.load(lab03.REAL_MAGNET)
-    mask, B, sigma = lab03.magnet_window(rec)
+    mask, B, sigma = lab03_support.magnet_window(rec)
     on_at, off_at = rec.t[mask][[0, -1]]
     (move_from, move_to), = [(p["start"], p["end"]) for p in rec.phases if p["label"] == "movement"]
     assert on_at < move_from and move_to - off_at > 30.0
@@ -109,7 +110,7 @@ def test_a_wrong_shape_is_named():
 
 
 def test_real_headings_are_refused_with_what_to_do():
-    load = solution_namespace("03")["load"]
+    load = lab03_support.load
     with pytest.raises(ValueError, match="BROAD has no headings protocol; leave it None"):
         load("real", "03_headings")
 

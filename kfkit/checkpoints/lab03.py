@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import median_filter
 
 from .. import calibration, datasets
 from ..frames import (MAG_FIELD_LONDON, accel_tilt, declination, euler_to_dcm, mag_heading, random_dcm,
                       tilt_compensated_heading, wrap_angle)
+from ..labs.lab03 import magnet_window
 from ..metrics import angle_error, rmse
 from ..sensors import iis2mdc_mag
 from . import Case, Checkpoint, compare, fmt, fmt_pair, matches, register, structural
@@ -222,28 +222,7 @@ def _judge_heading_recording(case, got):
 # --- the real recording: BROAD trial 34, a magnet attached to the IMU -------------------------------------
 
 REAL_MAGNET = "03_broad_attached_magnet"
-MAGNET_SIGMAS = 5.0     # the magnet is on where |m| (smoothed) is this many noise σ from the rests' field
-MAGNET_SMOOTH_S = 0.5   # s: the running median of |m| that is judged, so single noisy samples do not count
 REAL_BAR_FACTOR = 2.0   # the calibrated heading error allowed, × the same IMU's error with the magnet off
-
-
-def magnet_window(rec):
-    """Where a magnet sits on the board, from |m| alone, and the field without it.
-
-    B (µT) is the median |m| over the ``rest`` phases, σ its noise there (1.4826·MAD, robust to a few seconds
-    with the magnet); the magnet is on from the first to the last sample where the running median of |m| over
-    :data:`MAGNET_SMOOTH_S` lies more than :data:`MAGNET_SIGMAS`·σ from B (in between, the magnet's field can
-    add to the Earth's to about B, so the samples between count too). Returns (mask (N,), B, σ)."""
-    norm = np.linalg.norm(rec.body("mag"), axis=1)
-    rest = norm[rec.phase("rest")]
-    B = float(np.median(rest))
-    sigma = float(1.4826 * np.median(np.abs(rest - B)))
-    width = max(1, int(round(MAGNET_SMOOTH_S * rec.rate_hz))) | 1
-    off = np.flatnonzero(np.abs(median_filter(norm, size=width, mode="nearest") - B) > MAGNET_SIGMAS * sigma)
-    mask = np.zeros(len(rec), dtype=bool)
-    if off.size:
-        mask[off[0]:off[-1] + 1] = True
-    return mask, B, sigma
 
 
 def true_tilt_heading_error(mag, truth):
@@ -285,6 +264,46 @@ def _judge_real_magnet(case, got):
             f"allowed {np.degrees(allowed):.1f}°: your hard iron h = {fmt(h)} µT is not the magnet's")
 
 
+# --- questions: the hard iron a heading budget allows ------------------------------------------------------
+
+def _budget_cases(rng):
+    """Fields of any strength, dip and declination (|D| 5–25°, so B_N alone is not B_h) and heading budgets of 5–30°
+    (so tan ε is not sin ε): the answer is B_h·sin ε."""
+    cases = []
+    for _ in range(8):
+        B_h, dip = rng.uniform(5.0, 35.0), rng.uniform(np.radians(-75), np.radians(75))
+        decl = rng.choice([-1, 1]) * rng.uniform(np.radians(5), np.radians(25))
+        field = np.array([B_h * np.cos(decl), B_h * np.sin(decl), B_h * np.tan(dip)])
+        eps = rng.uniform(5.0, 30.0)
+        cases.append(Case({"field_ned": field, "max_error_deg": eps}, B_h * np.sin(np.radians(eps)),
+                          f"field {fmt(field)} µT (N, E, D), at most {eps:.1f}°"))
+    return cases
+
+
+def _judge_budget(case, got):
+    """Within 1e-6 relative of B_h·sin ε; names the total field, B_N alone, tan for sin and degrees as radians."""
+    try:
+        g = float(got)
+    except (TypeError, ValueError):
+        return f"expected one number (µT), got {type(got).__name__}"
+    want = case.expected
+    if np.isclose(g, want, rtol=1e-6):
+        return None
+    text = f"expected {want:.4f} µT, got {g:.4f}"
+    field, eps = case.args["field_ned"], np.radians(case.args["max_error_deg"])
+    B_h = np.hypot(field[0], field[1])
+    slips = {"only the horizontal field B_h = √(B_N² + B_E²) turns the heading, not the whole field |B|":
+             np.linalg.norm(field) * np.sin(eps),
+             "B_h = √(B_N² + B_E²): the east component is part of the horizontal field too": abs(field[0]) * np.sin(eps),
+             "the worst hard iron is perpendicular to the field it leaves, not to the true field: sin ε, not tan ε":
+             B_h * np.tan(eps),
+             "the budget is in degrees: convert it to radians before the sine": B_h * np.sin(case.args["max_error_deg"])}
+    for why, value in slips.items():
+        if np.isclose(g, value, rtol=1e-6):
+            return f"{text} — {why}"
+    return text
+
+
 register(
     Checkpoint("03.counts_to_ut", "counts_to_ut", _counts_cases, _judge_counts, points=1,
                hint="the IIS2MDC gives 1.5 mG per count; convert gauss to µT."),
@@ -306,4 +325,7 @@ register(
                what="bundled real recording",
                hint="h is the fitted ellipsoid's centre in µT (undo the centring and scaling); the mean of the readings "
                     "is that centre only when the tumbling covers the sphere evenly, which a real one never does."),
+    Checkpoint("03.hard_iron_budget", "hard_iron_budget_ut", _budget_cases, _judge_budget, points=1,
+               hint="draw the horizontal field B_h and a hard iron h of fixed length in every direction: the reading "
+                    "B_h + h turns furthest from B_h when h is perpendicular to the reading, not to B_h."),
 )
