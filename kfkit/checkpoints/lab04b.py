@@ -12,7 +12,7 @@ import numpy as np
 
 from ..frames import (cross_matrix, quat_conjugate, quat_multiply, quat_rotate, quat_to_dcm, quat_to_rotvec,
                       rotvec_to_quat)
-from ..labs.lab04b import (UP_N, accel_jacobian, error_state_fd, mekf_predict, mekf_reset, mekf_update, measurement,
+from ..labs.lab04b import (UP_N, error_state_fd, mekf_predict, mekf_reset, mekf_update, measurement,
                            process_noise, quat_exp)
 from . import Case, Checkpoint, compare, fmt, register, structural
 

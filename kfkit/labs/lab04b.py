@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..checkpoints.lab04 import real_inputs
-from ..filters.attitude_run import tilt_heading
+from .. import datasets
+from ..calibration import gyro_bias
+from ..filters.attitude_run import learn_field, tilt_heading
 from ..frames import (G, cross_matrix, enu_to_ned_quat, euler_to_quat, quat_conjugate, quat_multiply, quat_rotate,
                       quat_to_dcm, rotvec_to_quat)
 from ..metrics import attitude_rmse
@@ -99,13 +100,17 @@ def error_state_fd(h, q, eps=1e-6):
                      / (2 * eps) for e in np.eye(3)], axis=-1)
 
 
-def broad(name, moving_end=True):
-    """A bundled BROAD excerpt as lab 04 prepares it (gyro bias of the first rest removed, field learned, truth
-    quaternions, movement mask), cut where its movement ends (BROAD counts nothing after it) unless told otherwise:
-    (recording, gyr, acc, mag, field_n, q_true, moving)."""
-    rec, gyr, acc, mag, field, q_true, moving = real_inputs(name)
-    end = np.flatnonzero(moving)[-1] + 1 if moving_end else len(gyr)
-    return rec, gyr[:end], acc[:end], mag[:end], field, q_true[:end], moving[:end]
+def broad(name):
+    """A bundled BROAD excerpt as lab 04 prepares it, cut where its movement ends (BROAD counts nothing after it):
+    (recording, gyr rad/s less the first rest's mean (lab 02's bias), acc m/s², mag µT, field_n µT NED learned from
+    the first samples (magnetic north, as the truth's), truth quaternions body → NED (NaN where the markers were not
+    seen), the movement mask)."""
+    rec = datasets.load(name)
+    end = np.flatnonzero(rec.phase("movement"))[-1] + 1
+    first_rest = rec.phase("rest") & (rec.t < rec.phases[0]["end"])
+    gyr, acc, mag = (rec.body(s)[:end] for s in ("gyr", "acc", "mag"))
+    gyr = gyr - gyro_bias(rec.body("gyr")[first_rest])
+    return rec, gyr, acc, mag, learn_field(acc, mag), euler_to_quat(rec.truth()[:end]), rec.phase("movement")[:end]
 
 
 def initial_state(acc, mag, field_n):
