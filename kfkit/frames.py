@@ -205,6 +205,17 @@ def quat_to_rotvec(q):
     return scale * q[..., 1:]
 
 
+def cross_matrix(v):
+    """[v×] (…, 3, 3): the matrix with [v×]·u = v × u, of vectors v (…, 3). R(I + [δθ×]) is R turned by the small
+    rotation δθ in its own (body) frame, (I + [δθ×])R the same turn in the outer (navigation) frame."""
+    v = np.asarray(v, dtype=float)
+    _require_last_axis(v, 3, "cross_matrix", "a vector")
+    M = np.zeros(v.shape + (3,))
+    M[..., 0, 1], M[..., 0, 2], M[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    M[..., 1, 0], M[..., 2, 0], M[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return M
+
+
 def quat_slerp(q0, q1, fraction):
     """Spherical linear interpolation q0 ⊗ exp(fraction · log(q0* ⊗ q1)) between unit quaternions (…, 4)
     w-x-y-z, ``fraction`` (…) in [0, 1]: the shortest turn from q0 (0) to q1 (1) at constant rate. Computed with

@@ -40,10 +40,15 @@ def solution_namespace(nn, mutate=None):
     return ns
 
 
+def lab_of(name):
+    """The lab a checkpoint belongs to: '04b' for '04b.quat_exp'."""
+    return name.split(".")[0]
+
+
 @functools.lru_cache(maxsize=None)
 def reference(name):
     """The solution notebook's function that checkpoint ``name`` judges."""
-    return solution_namespace(name[:2])[get(name).function]
+    return solution_namespace(lab_of(name))[get(name).function]
 
 
 def all_checkpoints():
@@ -59,7 +64,7 @@ def is_heavy(name):
 @pytest.mark.slow
 def test_every_lab_registers_checkpoints_and_each_has_a_model_answer():
     names = all_checkpoints()
-    assert {n[:2] for n in names} == {lab[3:] for lab in LABS}
+    assert {lab_of(n) for n in names} == {lab[3:] for lab in LABS}
     for name in names:
         assert callable(reference(name)), name
 
@@ -212,6 +217,27 @@ MISTAKES = [  # (checkpoint, (function, text of the model answer, mistaken text)
     ("04.update", ("ekf_update", "x_new[2] = frames.wrap_angle(x_new[2])", ""), "not wrapped", 100),
     ("04.update", ("ekf_update", "if np.isnan(z[3:]).any() else slice(0, 6)", "if False else slice(0, 6)"), "NaN", 20),
     ("04.ekf_rmse", ("run_ekf", "if accel_gate is not None and", "if False and"), "accel_gate", 2),
+    ("04b.quat_exp", ("quat_exp", "np.concatenate([[np.cos(theta / 2)], np.sin(theta / 2) * rotvec / theta])",
+                      "np.concatenate([np.sin(theta / 2) * rotvec / theta, [np.cos(theta / 2)]])"), "scalar is last", 20),
+    ("04b.quat_exp", ("quat_exp", "np.concatenate([[np.cos(theta / 2)], np.sin(theta / 2) * rotvec / theta])", "np.concatenate([[1.0], rotvec / 2])"),
+     "not a unit quaternion", 20),
+    ("04b.quat_exp", ("quat_exp", "0.5 * (np.asarray(omega_prev) + np.asarray(omega)) * dt", "np.asarray(omega) * dt"),
+     "use the midpoint rate", 20),
+    ("04b.mekf_predict", ("mekf_predict", "frames.quat_multiply(q, dq)", "frames.quat_multiply(dq, q)"), "δq ⊗ q", 20),
+    ("04b.mekf_predict", ("mekf_predict", "F[:3, 3:] = -np.eye(3) * dt", ""), "the bias is left out of F", 20),
+    ("04b.mekf_predict", ("mekf_predict", "F[:3, :3] = frames.quat_to_dcm(dq).T\n    F[:3, 3:] = -np.eye(3) * dt",
+                          "F[:3, 3:] = -frames.quat_to_dcm(q) * dt"), "global (NED) frame", 20),
+    ("04b.accel_jacobian", ("accel_jacobian", "frames.cross_matrix(f_b)", "frames.quat_to_dcm(q).T @ frames.cross_matrix(UP_N)"),
+     "global (NED) frame", 20),
+    ("04b.accel_jacobian", ("accel_jacobian", "frames.cross_matrix(f_b)", "-frames.cross_matrix(f_b)"), "sign is flipped", 20),
+    ("04b.mekf_reset", ("mekf_reset", "frames.quat_multiply(q, dq / np.linalg.norm(dq))",
+                        "frames.quat_multiply(dq / np.linalg.norm(dq), q)"), "δq ⊗ q", 20),
+    ("04b.mekf_reset", ("mekf_reset", "dq / np.linalg.norm(dq)", "dq"), "not a unit quaternion", 20),
+    ("04b.mekf_reset", ("mekf_reset", "J @ P @ J.T", "P"), "not turned by the reset", 20),
+    ("04b.mekf_update", ("mekf_update", "return mekf_reset(q, b, (np.eye(6) - K @ H) @ P, K @ y)",
+                         "return q, b, (np.eye(6) - K @ H) @ P"), "(the reset)", 20),
+    ("04b.mekf_update", ("accel_jacobian", "frames.cross_matrix(f_b)", "frames.quat_to_dcm(q).T @ frames.cross_matrix(UP_N)"),
+     "expected", 20),
     ("05.to_body", ("to_body", "* flip\n    w_b", "\n    w_b"), "expected", 20),
     ("05.to_body", ("to_body", "np.radians(np.asarray(gyr_counts) / 131.0)", "np.asarray(gyr_counts) / 131.0"),
      "in degrees", 20),
@@ -239,7 +265,7 @@ MISTAKES = [  # (checkpoint, (function, text of the model answer, mistaken text)
 @pytest.mark.slow
 @pytest.mark.parametrize("name, mutate, words, seeds", MISTAKES, ids=[f"{m[0]}:{m[1][2][:30]}" for m in MISTAKES])
 def test_each_classic_mistake_fails_on_every_seed_and_is_named(name, mutate, words, seeds):
-    mistaken = solution_namespace(name[:2], mutate)[get(name).function]
+    mistaken = solution_namespace(lab_of(name), mutate)[get(name).function]
     for seed in range(seeds):
         result = run_checkpoint(get(name), mistaken, seed)
         assert not result.ok and result.points == 0, (seed, result.message)

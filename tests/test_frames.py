@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from kfkit.frames import (G, Q_NED_ENU, R_NED_ENU, accel_tilt, body_rates_to_euler_rates, dcm_slerp, dcm_to_euler,
+from kfkit.frames import (G, Q_NED_ENU, R_NED_ENU, accel_tilt, body_rates_to_euler_rates, cross_matrix, dcm_slerp, dcm_to_euler,
                           dcm_to_quat, enu_to_ned, enu_to_ned_quat, euler_rates_to_body_rates, euler_to_dcm, euler_to_quat,
                           mount_matrix, quat_conjugate, quat_multiply, quat_rotate, quat_slerp, quat_to_dcm, quat_to_euler,
                           quat_to_rotvec, random_dcm, rotvec_to_quat, wrap_angle)
@@ -442,3 +442,16 @@ def test_true_heading_with_large_declinations(D_deg, dip_deg):
     np.testing.assert_allclose(wrap_angle(tilt_compensated_heading(m_b, roll, pitch, D) - yaw), 0.0, atol=1e-9)
     level = _field_in_body(yaw, 0 * yaw, 0 * yaw, field_n=field_n)
     np.testing.assert_allclose(wrap_angle(mag_heading(level, declination=D) - yaw), 0.0, atol=1e-9)
+
+
+def test_cross_matrix_is_the_cross_product_and_the_small_body_rotation():
+    """[v×]u = v × u (NumPy's cross as the oracle), for one vector and a stack; and R(I + [δθ×]) is scipy's
+    R·exp(δθ) to first order (the body-frame turn the MEKF's error is)."""
+    rng = np.random.default_rng(3)
+    v, u = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    assert np.allclose(np.einsum("nij,nj->ni", cross_matrix(v), u), np.cross(v, u))
+    assert np.allclose(cross_matrix(v[0]) @ u[0], np.cross(v[0], u[0]))
+    R, d = Rotation.random(random_state=4), 1e-6 * rng.normal(size=3)
+    assert np.allclose(R.as_matrix() @ (np.eye(3) + cross_matrix(d)), (R * Rotation.from_rotvec(d)).as_matrix(), atol=1e-11)
+    with pytest.raises(ValueError, match="cross_matrix"):
+        cross_matrix([1.0, 2.0])

@@ -11,7 +11,7 @@ import pytest
 
 from kfkit.paths import KIT_ROOT
 
-SOLUTIONS = sorted((KIT_ROOT / "solutions").glob("[0-9][0-9]_*.ipynb"))
+SOLUTIONS = sorted((KIT_ROOT / "solutions").glob("[0-9][0-9]*_*.ipynb"))
 
 
 def draws_a_figure(cell):
