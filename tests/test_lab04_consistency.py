@@ -89,3 +89,20 @@ def test_rest_is_found_without_labels_where_the_simulation_rested(phone):
     rest = lab04.rest_and_motion(gyr, acc, rec.rate_hz)["at rest"]
     assert not np.any(rest & ~rec.phase("stationary"))  # never in a labelled motion
     assert rest.sum() > 0.5 * rec.phase("stationary").sum()
+
+
+@pytest.mark.slow
+def test_on_broad_06_the_discretisation_is_the_main_cause_and_its_samples_want_the_end_of_step_rate():
+    # section 14: 5 substeps take the lab's filter from 18.33° to 7.12° on 06 whole; fed ω_k it scores 15.86°
+    from kfkit.frames import euler_to_quat
+    rec, gyr, acc, mag, field, q_true, moving = lab04.to_movement_end("04_broad_fast_rotation")
+    lab, substeps = (metrics.attitude_rmse(euler_to_quat(lab04.ablation_run(v, gyr, acc, mag, rec.rate_hz, field)),
+                                           q_true, moving)["total"] for v in lab04.ABLATION[:2])
+    assert lab > 2.0 * substeps
+
+    def kfkit_total(rates):
+        run = filters.FastEulerAttitudeEKF(rate_hz=rec.rate_hz, field_n=field, accel_gate=1.0, gyro_noise=np.radians(0.3),
+                                           accel_noise=0.3, mag_noise=1.0).run(rates, acc, mag)
+        return metrics.attitude_rmse(euler_to_quat(run.euler), q_true, moving)["total"]
+    assert kfkit_total(gyr) < kfkit_total(lab04.midpoint_rates(gyr))
+    assert kfkit_total(lab04.midpoint_rates(gyr)) == pytest.approx(lab, rel=1e-3)  # the ablation's first row is the lab's
