@@ -9,13 +9,14 @@ import numpy as np
 
 from kfkit import calibration, datasets, sim
 from kfkit.capture import sphere_coverage
-from kfkit.checkpoints.lab02 import gyro_bias_truth, noise_truth, six_face_truth
+from kfkit.labs.lab02 import gyro_bias_truth, noise_truth, six_face_truth
 from kfkit.checkpoints.lab03 import heading_errors, random_ellipsoid
 from kfkit.frames import G, mount_matrix
 from kfkit.unit_errors import NUCLEO_UNIT
 from timing import best_of
 
 DEG = np.pi / 180
+K_FIT_SPREAD = 0.2  # relative standard deviation of K fitted on a 40-minute rest (200 simulated rests: tests/test_lab02_q.py)
 
 
 def allan_table():
@@ -77,6 +78,10 @@ def bundled_table():
         err = calibration.noise_std(still.body(sensor)[:n]) - sigma
         print(f"| {sensor} noise σ per sample at 12.5 Hz (first 2 min) | {worst(err) * k:.4f} {unit} "
               f"({worst(err / sigma) * 100:.1f} %) | {worst(err / u):.1f} |")
+    K = still.meta["sim"]["gyro_bias_rw"]
+    k_fit = calibration.allan_noise_fit(*calibration.allan_deviation(gyr, still.rate_hz))[2]
+    print(f"| gyro rate random walk K (Allan fit, 40 min; true {K * 1e6:.1f} µrad/s/√s) | {worst(k_fit - K) * 1e6:.2f} µrad/s/√s "
+          f"({worst(k_fit / K - 1) * 100:.0f} %) | {worst(k_fit / K - 1) / K_FIT_SPREAD:.1f} |")
     b, s_, u_b, u_s = six_face_truth(faces_rec)
     b_hat, s_hat = calibration.accel_six_face({f: faces_rec.body("acc")[faces_rec.phase(f)] for f in calibration.FACES})
     print(f"| accel bias, six faces | {worst(b_hat - b) / G * 1e3:.3f} mg | {worst((b_hat - b) / u_b):.1f} |")

@@ -201,8 +201,8 @@ def label_rests(rec, min_s=REST_MIN_S, trim_s=REST_TRIM_S, max_tilt=FACE_MAX_TIL
 def allan_deviation(x, rate_hz, taus=None):
     """Overlapping Allan deviation of a rate signal (IEEE Std 952-1997, Annex C).
 
-    x (N,) or (N, k) samples at ``rate_hz``; taus cluster times (s), by default ~10 per decade from
-    one sample to a fifth of the record (longer τ have too few clusters to trust). With N samples,
+    x (N,) or (N, k) samples at ``rate_hz``; taus cluster times (s), by default :func:`allan_taus` (~10 per decade
+    from one sample to a fifth of the record). With N samples,
     the angle θ_j = Σ_{i<j} x_i / rate_hz for j = 0 … N (θ_0 = 0: N + 1 angles) and m samples per
     cluster (τ = m / rate_hz), summing every one of the N − 2m + 1 overlapping clusters:
 
@@ -215,8 +215,7 @@ def allan_deviation(x, rate_hz, taus=None):
     if not rate_hz > 0:
         raise CalibrationError(f"rate_hz must be positive, got {rate_hz}")
     if taus is None:
-        decades = np.log10(n / 5)
-        m = np.unique(np.round(np.logspace(0, decades, int(10 * decades) + 1)).astype(int))
+        m = np.round(allan_taus(n, rate_hz) * rate_hz).astype(int)
     else:
         m = np.unique(np.round(np.asarray(taus, dtype=float) * rate_hz).astype(int))
         if m.min() < 1 or 2 * m.max() >= n:
@@ -230,6 +229,13 @@ def allan_deviation(x, rate_hz, taus=None):
         adev[j] = np.sqrt(np.sum(d**2, axis=0) / (2 * tau**2 * (len(theta) - 2 * mj)))
     taus_out = m / rate_hz
     return taus_out, (adev[:, 0] if np.ndim(x) == 1 else adev)
+
+
+def allan_taus(n, rate_hz):
+    """The cluster times :func:`allan_deviation` uses by default (s): about 10 per decade, whole samples, from one
+    sample to a fifth of a record of ``n`` samples (longer τ have too few clusters to trust)."""
+    decades = np.log10(n / 5)
+    return np.unique(np.round(np.logspace(0, decades, int(10 * decades) + 1))) / rate_hz
 
 
 def angle_random_walk(taus, adev):

@@ -103,9 +103,17 @@ def oversized(mods: dict) -> list:
                   if (n := len(path.read_text(encoding="utf-8").splitlines())) > MAX_LINES)
 
 
+#: a lab's support and its checkpoints share the lab's name by design (docs/design.md: kfkit.labs.labNN, kfkit.checkpoints.labNN)
+PAIRED_BY_LAB = ("labs", "checkpoints")
+
+
 def duplicate_names(mods: dict) -> list:
-    """Module file names (not packages' __init__) used by more than one module."""
-    counts = Counter(name.rpartition(".")[2] for name, path in mods.items() if path.name != "__init__.py")
+    """Module file names (not packages' __init__) used by more than one module, apart from a lab's pair."""
+    def lab_pair(name):
+        package, _, base = name.rpartition(".")
+        return package.rpartition(".")[2] in PAIRED_BY_LAB and base.startswith("lab")
+
+    counts = Counter(name.rpartition(".")[2] for name, path in mods.items() if path.name != "__init__.py" and not lab_pair(name))
     return sorted(base for base, n in counts.items() if n > 1)
 
 

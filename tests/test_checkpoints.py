@@ -9,7 +9,8 @@ import re
 
 import numpy as np
 import pytest
-from scipy.optimize import least_squares
+from scipy import constants
+from scipy.optimize import brentq, least_squares
 from scipy.spatial.transform import Rotation
 
 from kfkit import calibration as C
@@ -74,8 +75,19 @@ def coast_by_library_q(sigma0, sigma, gyro_noise, rate_hz):
     return (sigma ** 2 - sigma0 ** 2) / q_yaw / rate_hz
 
 
+def van_loan_angle_bias(N, K, dt):
+    """Q of [angle, bias] by the general Van Loan matrix exponential (lab 06's discretize), not lab 02's closed form."""
+    return discrete.discretize([[0.0, -1.0], [0.0, 0.0]], np.zeros(2), dt, np.diag([N**2, K**2]))[2]
+
+
 def kfkit_run_sideslip(params, r_std=(0.003, 0.05), model=V.linear_model, **s):  # run_sideslip's signature
     return estimate_sideslip(**s, params=params, gyro_noise=r_std[0], accel_noise=r_std[1], model=model).beta
+
+
+def q_by_search(tau, dt, r):
+    """The q whose steady-state roll filter has Δt/K∞ = tau, found by bisection on log q (not by the closed form)."""
+    log_q = brentq(lambda lq: np.log(dt / filters.roll_kf_steady_state(10.0**lq, r)[1] / tau), -30.0, 5.0, xtol=1e-15)
+    return 10.0**log_q
 
 
 RIGHT = {
@@ -86,11 +98,16 @@ RIGHT = {
     "01.kf_update": filters.roll_kf_update,
     "01.run_kf": reference_run_kf,
     "01.kf_beats_sensors": reference_run_kf,
+    "01.fuse_gaussians": lambda mu_prior, var_prior, z, r: filters.roll_kf_update(mu_prior, var_prior, z, r)[:2],
+    "01.q_for_time_constant": q_by_search,
     "02.gyro_bias": C.gyro_bias, "02.noise_std": C.noise_std, "02.accel_bias": C.accel_bias,
     "02.six_face": C.accel_six_face, "02.six_face_recording": C.accel_six_face, "02.gyro_bias_recording": C.gyro_bias,
     "02.noise_recording": C.noise_std,
     "02.allan_deviation": lambda x, rate_hz, taus: C.allan_deviation(x, rate_hz, taus)[1],
     "02.sigma_at_rate": C.noise_at_rate,
+    "02.q_from_noise_density": lambda N, K, dt: van_loan_angle_bias(N, K, dt),
+    "02.q_from_datasheet": lambda arw, bias_instability, rrw, dt: van_loan_angle_bias(
+        arw * constants.degree / np.sqrt(constants.hour), rrw * constants.degree / constants.hour / np.sqrt(constants.hour), dt),
     "03.counts_to_ut": lambda counts: counts * 0.15,
     "03.alignment": lambda turns: np.diag([np.sign(np.sum(g * m)) for g, m in (turns[a] for a in "xyz")]),
     "03.mag_calibration": C.fit_mag_calibration, "03.heading_error": C.fit_mag_calibration,
@@ -269,7 +286,7 @@ def test_mag_calibration_checkpoint_judges_against_the_true_ellipsoid():
 
 @pytest.mark.slow
 def test_bundled_recording_checks_reject_estimates_a_few_uncertainties_off():
-    from kfkit.checkpoints.lab02 import gyro_bias_truth, noise_truth, six_face_truth
+    from kfkit.labs.lab02 import gyro_bias_truth, noise_truth, six_face_truth
     rec = datasets.load("02_six_faces")
     _, _, u_b, u_s = six_face_truth(rec)
     assert run_checkpoint(get("02.six_face_recording"), C.accel_six_face).ok

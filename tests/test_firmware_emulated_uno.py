@@ -28,7 +28,7 @@ import arduino_host
 from kfkit import datasets
 from kfkit.capture import CaptureError, Recorder, Sample, parse_line
 from kfkit.capture import emulated_uno as E
-from kfkit.checkpoints import lab05
+from kfkit.labs import lab05
 from kfkit.cli import main
 from kfkit.filters import TiltAttitude, TiltBiasKF, TiltBiasKFSettings, tilt
 from kfkit.io import Recording, load_recording
@@ -226,7 +226,10 @@ def test_the_tilt_sketch_filter_equals_python_over_a_whole_recording(toolchain, 
     bias_error = np.abs(board[running, :, 1] - python[running, :, 1])
     print(f"on-board filter vs Python over {running.sum()} samples: angle ≤ {angle_error.max():.2e} rad, "
           f"bias ≤ {bias_error.max():.2e} rad/s")
-    assert angle_error.max() < 1e-5 and bias_error.max() < 2e-6  # float32 (avr-libc) against float64: 3e-7 measured
+    # float32 (avr-libc) against float64: with the shipped tuning (the gyro's own noise) 4.5e-6 rad and 9.5e-6 rad/s at
+    # most, in the first seconds while the bias state's variance is still large; 1.1e-6 rad and 2.7e-7 rad/s from 12 s on
+    assert angle_error.max() < 1e-5 and bias_error.max() < 2e-5
+    assert angle_error[1000:].max() < 2e-6 and bias_error[1000:].max() < 1e-6
     assert np.abs(python[running, 1, 0]).max() > 1.5  # the recording does reach 90°: not a test of zeros
     # the gates were exercised: updates and coasting on both axes
     assert {0, 1} <= set(roll["updated"][running]) and {0, 1} <= set(pitch["updated"][running])

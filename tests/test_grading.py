@@ -46,7 +46,8 @@ from lab01_notebooks import LAB, SOLUTION, add, append, edit, minimal, read
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
 # lab 01's points as the lab's author set them in kfkit/checkpoints/lab01.py
-POINTS = {"01.accel_roll": 1, "01.kf_predict": 1, "01.kf_update": 2, "01.run_kf": 2, "01.kf_beats_sensors": 2}
+POINTS = {"01.accel_roll": 1, "01.fuse_gaussians": 2, "01.kf_predict": 1, "01.kf_update": 2, "01.run_kf": 2,
+          "01.kf_beats_sensors": 2, "01.q_for_time_constant": 2}
 TIMEOUT = 4  # s of CPU per cell / call in these tests (the grader's warm-up has loaded the heavy modules)
 BACKSTOP = int(TIMEOUT * runner.WALL_FACTOR)  # s of wall time after which a cell that computes nothing is stopped
 SEEDS_PER_SOLUTION = 1  # fresh seeds each solution is graded on, in one kernel (lab 01: one per CLI submission)

@@ -65,7 +65,8 @@ def test_update_prints_the_whole_class_summary(tmp_path, monkeypatch):
     assert "the whole gradebook (3 submissions)" in text
     line = next(s for s in text.splitlines() if s.startswith("01.kf_update"))
     assert "1/3" in line and "33 %" in line
-    assert "total: mean 2.67 / 8" in text  # (0 + 8 + 0) / 3
+    total = sum(cp.points for cp in CHECKPOINTS)
+    assert f"total: mean {total / 3:.2f} / {total}" in text  # (0 + all + 0) / 3
     assert (tmp_path / "g_feedback" / "subs" / "bob.md").exists()
 
 

@@ -154,7 +154,7 @@ def test_a_class_on_a_real_hub(hub, browser):
     with open(gradebook, newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
     score = {s: sum(float(r["points"]) for r in rows if r["submission"] == f"submissions/{s}.ipynb") for s in hub.students}
-    assert score == {alice: 8, bob: 7, carol: 0}, score
+    assert score == {alice: 12, bob: 11, carol: 0}, score
     assert next(r for r in rows if r["submission"] == f"submissions/{bob}.ipynb"
                 and r["checkpoint"] == "01.accel_roll")["message"].count("swapped") == 1
     assert all(r["message"].startswith("not attempted") for r in rows if r["submission"] == f"submissions/{carol}.ipynb")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from kfkit import datasets, filters, frames, metrics
-from kfkit.checkpoints.lab01 import REAL_MAX_PITCH, REAL_RECORDING, real_excerpt
+from kfkit.labs.lab01 import REAL_MAX_PITCH, REAL_RECORDING, real_excerpt
 from test_checkpoints_every import solution_namespace
 
 
@@ -57,15 +57,19 @@ def test_the_euler_roll_rate_explains_the_motion_capture_better_than_the_roll_ra
 
 
 def test_on_the_real_imu_the_lab_01_filter_beats_each_sensor_alone(excerpt):
-    """Section 10's claim, with the lab's recipe (bias, x0, r, q from the first rest) and kfkit's filter, and
-    filterpy's KalmanFilter run on the same inputs as the oracle for the estimates."""
+    """Section 10's claim, with the lab's recipe (bias, x0 and r from the first rest, q = N²Δt with N the Allan
+    deviation at τ = 1 s of the IMU's rest lab 02 reads, here by allantools) and kfkit's filter, and filterpy's
+    KalmanFilter run on the same inputs as the oracle for the estimates."""
     from filterpy.kalman import KalmanFilter
+    allantools = pytest.importorskip("allantools")
 
     rest, moving, dt = excerpt.phase("rest"), excerpt.phase("movement"), 1.0 / excerpt.rate_hz
     gyr, acc, truth = excerpt.body("gyr")[:, 0], excerpt.body("acc"), excerpt["true_roll"]
     gyro = gyr - gyr[rest].mean()
     z = np.unwrap(np.arctan2(-acc[:, 1], -acc[:, 2]))
-    x0, r, q = z[rest].mean(), z[rest].var(), gyro[rest].var() * dt**2
+    lab02_rest = datasets.load("02_broad_rest")
+    N = allantools.oadev(lab02_rest.body("gyr")[:, 0], rate=lab02_rest.rate_hz, data_type="freq", taus=np.array([1.0]))[1][0]
+    x0, r, q = z[rest].mean(), z[rest].var(), N**2 * dt
     ours = filters.roll_kf(gyro, z, dt, q, r, x0, P0=r).x
 
     kf = KalmanFilter(dim_x=1, dim_z=1, dim_u=1)

@@ -166,8 +166,9 @@ def test_sketch_attitude_matches_the_python_twin(sketch_output):
     python = [twin.step(row[:3], row[3:]) for row in counts]
     expected = np.degrees(np.array([p for p in python if p is not None]))
     assert att.shape == expected.shape
-    # the sketch prints two decimals; float32 vs float64 adds < 1e-4°
-    assert np.max(np.abs(att - expected)) <= 0.0051
+    # the sketch prints two decimals; float32 vs float64 adds < 1e-3° (in the first seconds, while the bias state's
+    # variance is still large: 3.5e-4° measured with the shipped tuning)
+    assert np.max(np.abs(att - expected)) <= 0.006
 
 
 def test_sketch_measures_the_bias_again_after_a_stop_and_start(sketch_exe):
