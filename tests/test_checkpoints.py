@@ -54,9 +54,25 @@ def central_differences(h, x, eps=1e-6):
 
 
 def reference_run_ekf(gyr, acc, mag, rate_hz, gyro_noise, accel_noise, mag_noise, field_n, accel_gate=None):
+    """kfkit's Euler EKF, each step fed the mean rate over it: the trapezoid of the samples at its two ends."""
+    gyr = np.asarray(gyr, dtype=float)
+    mean_rate = np.vstack([gyr[:1], (gyr[:-1] + gyr[1:]) / 2])
     run = FastEulerAttitudeEKF(rate_hz=rate_hz, gyro_noise=gyro_noise, accel_noise=accel_noise, mag_noise=mag_noise,
-                               field_n=field_n, accel_gate=accel_gate).run(gyr, acc, mag)
+                               field_n=field_n, accel_gate=accel_gate).run(mean_rate, acc, mag)
     return run.euler, run.P, run.nis
+
+
+def nis_per_row_by_loop(y, S, rows, samples):
+    """The mean of y_rᵀ S_rr⁻¹ y_r / len(rows) over the chosen samples whose rows hold a number, one solve each."""
+    values = [y[k, rows] @ np.linalg.solve(S[k][np.ix_(rows, rows)], y[k, rows]) / len(rows)
+              for k in np.flatnonzero(samples) if not np.isnan(y[k, rows]).any()]
+    return float(np.mean(values))
+
+
+def coast_by_library_q(sigma0, sigma, gyro_noise, rate_hz):
+    """Seconds until a still, level board's yaw variance, growing by the library's Q_ψψ each step, reaches σ²."""
+    q_yaw = filters.euler_process_noise(np.zeros(3), gyro_noise, 1.0 / rate_hz)[2, 2]
+    return (sigma ** 2 - sigma0 ** 2) / q_yaw / rate_hz
 
 
 def van_loan_angle_bias(N, K, dt):
@@ -170,6 +186,8 @@ RIGHT = {
     "04b.accel_jacobian": lambda q: scipy_error_jacobian(q, [0.0, 0.0, -g]),
     "04b.mekf_reset": scipy_mekf_reset,
     "04b.mekf_update": scipy_mekf_update,
+    "04.nis_per_row": nis_per_row_by_loop,
+    "04.coast_seconds": coast_by_library_q,
     "06.bicycle_model": V.linear_model,
     "06.discretize": discrete.discretize,
     "06.kf_step": sideslip_step,
@@ -412,6 +430,18 @@ def test_a_coarse_forward_difference_fails():
     assert result.status == "failed"
 
 
+@pytest.mark.parametrize("eps", [1e-5, 1e-6, 1e-7, 1e-8])
+def test_a_forward_difference_fails_at_every_step_and_is_named(eps):
+    # issue 26 §7: the old linear cases passed any forward difference; on a quadratic h a central one is exact
+    def forward(h, x):
+        x = np.asarray(x, float)
+        return np.column_stack([(np.asarray(h(x + e)) - np.asarray(h(x))) / eps for e in np.eye(len(x)) * eps])
+
+    for seed in range(3):
+        result = run_checkpoint(get("04.numerical_jacobian"), forward, seed=seed)
+        assert result.status == "failed" and "a one-sided difference" in result.message, result.message
+
+
 def test_update_that_ignores_missing_magnetometer_samples_fails():
     def always_six(x, P, z, R, field_n):
         H = filters.attitude_jacobian(x, field_n)
@@ -438,7 +468,7 @@ def test_gyro_only_filter_fails_the_rmse_limits():
         return x, None, None
 
     result = run_checkpoint(get("04.ekf_rmse"), gyro_only)
-    assert result.status == "failed" and result.message.startswith("❌ 04.ekf_rmse: 2/3")
+    assert result.status == "failed" and result.message.startswith("❌ 04.ekf_rmse: 2/5")  # bundled and gated pass
     assert "extra gyro bias" in result.message and "roll RMSE" in result.message and "(limit 3°)" in result.message
     assert "are the accelerometer and magnetometer updates applied?" in result.message
 

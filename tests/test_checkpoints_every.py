@@ -238,6 +238,24 @@ MISTAKES = [  # (checkpoint, (function, text of the model answer, mistaken text)
                          "return q, b, (np.eye(6) - K @ H) @ P"), "(the reset)", 20),
     ("04b.mekf_update", ("accel_jacobian", "frames.cross_matrix(f_b)", "frames.quat_to_dcm(q).T @ frames.cross_matrix(UP_N)"),
      "expected", 20),
+    ("04.ekf_rmse", ("run_ekf", "np.concatenate([acc[k], mag[k]])", "np.concatenate([acc[k], mag[k] if k < 2 else np.nan * mag[k]])"),
+     "every new magnetometer sample must be used", 2),  # issue 26 §7: only the first magnetometer sample
+    ("04.ekf_rmse", ("run_ekf", "omega = gyr[0] if k == 0 else 0.5 * (gyr[k - 1] + gyr[k])", "omega = gyr[k]"),
+     "½(ω_{k−1} + ω_k)", 2),  # issue 25 §1: the sample at the step's end
+    ("04.numerical_jacobian", ("numerical_jacobian", "(np.asarray(h(x + step)) - np.asarray(h(x - step))) / (2 * eps)",
+                               "(np.asarray(h(x + step)) - np.asarray(h(x))) / eps"), "a one-sided difference", 20),
+    ("04.numerical_jacobian", ("numerical_jacobian", "(np.asarray(h(x + step)) - np.asarray(h(x - step))) / (2 * eps)",
+                               "(np.asarray(h(x)) - np.asarray(h(x - step))) / eps"), "a one-sided difference", 20),
+    ("04.nis_per_row", ("nis_per_row", ".mean() / len(rows)", ".mean()"), "not divided by the number of rows", 20),
+    ("04.nis_per_row", ("nis_per_row", "return metrics.nis(y_r, S_r).mean() / len(rows)",
+                        "return np.mean(np.sum(y_r**2 / np.diagonal(S_r, axis1=1, axis2=2), axis=1)) / len(rows)"),
+     "only the diagonal of S", 20),
+    ("04.nis_per_row", ("nis_per_row", "used = samples & ~np.isnan", "used = ~np.isnan"), "not only those in `samples`", 20),
+    ("04.coast_seconds", ("coast_seconds", "/ (gyro_noise * dt) ** 2 * dt", "/ (gyro_noise * dt) ** 2"),
+     "that is the number of steps", 20),
+    ("04.coast_seconds", ("coast_seconds", "(sigma**2 - sigma0**2)", "(sigma**2)"), "the start σ0 is left out", 20),
+    ("04.coast_seconds", ("coast_seconds", "(sigma**2 - sigma0**2) / (gyro_noise * dt) ** 2 * dt",
+                          "(sigma - sigma0) / (gyro_noise * dt) * dt"), "the variances that add", 20),
     ("05.to_body", ("to_body", "* flip\n    w_b", "\n    w_b"), "expected", 20),
     ("05.to_body", ("to_body", "np.radians(np.asarray(gyr_counts) / 131.0)", "np.asarray(gyr_counts) / 131.0"),
      "in degrees", 20),
@@ -332,5 +350,5 @@ def test_a_whole_run_answer_of_the_wrong_kind_is_named_not_crashed_on(judge, ans
     """04.ekf_rmse and 04.real_ekf judge run_ekf's (x, P, nis): a wrong type or shape says what was expected."""
     from kfkit.checkpoints import Case, lab04
     truth = np.zeros((5, 3))
-    expected = (truth, lab04.RMSE_LIMITS) if judge == "_judge_rmse" else (np.tile([1.0, 0, 0, 0], (5, 1)), None, 0.0, 0.0)
+    expected = (truth, lab04.RMSE_LIMITS, "") if judge == "_judge_rmse" else (np.tile([1.0, 0, 0, 0], (5, 1)), None, 0.0, 0.0)
     assert words in getattr(lab04, judge)(Case({}, expected), answer)
