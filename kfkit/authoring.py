@@ -9,7 +9,11 @@ Markers (the ones nbgrader uses), each on a line of its own:
 
 * code cells: the lines from ``### BEGIN SOLUTION`` to ``### END SOLUTION``
   (inclusive) become ``# YOUR CODE HERE`` and ``raise NotImplementedError()``,
-  indented like the BEGIN line. A cell may hold several blocks.
+  indented like the BEGIN line. A cell may hold several blocks. Each block must
+  be a statement of its function's body, or of the cell (not inside an if, a
+  loop, a try or a with), with no ``return`` before it: that is how the exercise
+  guard tells a stub from a finished function (:func:`is_stub`), and a block it
+  would not recognise is refused.
 * markdown cells: the same markers around a model answer; the block becomes
   ``YOUR ANSWER HERE``.
 * cells tagged ``solution-only`` (instructor notes, checks of the model
@@ -32,6 +36,7 @@ whoever regenerates them.
 
 from __future__ import annotations
 
+import ast
 import copy
 import re
 from pathlib import Path
@@ -41,6 +46,7 @@ import nbformat
 BEGIN = "### BEGIN SOLUTION"
 END = "### END SOLUTION"
 CODE_STUB = ["# YOUR CODE HERE", "raise NotImplementedError()"]
+_STUB_STATEMENT = ast.dump(ast.parse(CODE_STUB[-1]).body[0])  # the statement, whatever its indentation
 ANSWER_STUB = ["YOUR ANSWER HERE"]
 SOLUTION_ONLY_TAG = "solution-only"
 RUN_STATE_KEYS = ("execution", "collapsed", "scrolled")
@@ -78,7 +84,9 @@ def strip_solutions(nb: nbformat.NotebookNode, name: str | None = None) -> nbfor
             cell.metadata.setdefault("jupyter", {})["source_hidden"] = True
         stub = {"code": CODE_STUB, "markdown": ANSWER_STUB}.get(cell.cell_type)
         if stub:
-            cell.source = _replace_blocks(cell.source, stub, f"{where}cell index {index}")
+            cell.source, stubs = _replace_blocks(cell.source, stub, f"{where}cell index {index}")
+            if cell.cell_type == "code":
+                _check_stubs_recognised(cell.source, stubs, f"{where}cell index {index}")
         if cell.cell_type == "code":
             cell.source = _without_test_markers(cell.source)
             cell.outputs = []
@@ -94,9 +102,53 @@ def strip_solutions(nb: nbformat.NotebookNode, name: str | None = None) -> nbfor
     return lab
 
 
-def _replace_blocks(source: str, stub: list[str], where: str) -> str:
-    """Replace every BEGIN..END block in ``source`` by ``stub`` at the BEGIN line's indentation."""
+def is_stub(body: list[ast.stmt]) -> bool:
+    """True when ``body``, a function's statements or a cell's, is an exercise make-labs left to the student: the
+    statement it writes, ``raise NotImplementedError()``, is one of ``body``'s own statements (not inside an if, a
+    loop, a try or a with) and nothing before it can return or yield. Calling such a function raises it whatever the
+    input. A finished function never is one: one that raises NotImplementedError for some input, catches it, or keeps
+    the stub after its ``return`` can return."""
+    for statement in body:
+        if ast.dump(statement) == _STUB_STATEMENT:
+            return True
+        if any(isinstance(n, (ast.Return, ast.Yield, ast.YieldFrom)) for n in _same_scope(statement)):
+            return False
+    return False
+
+
+def _same_scope(node: ast.AST):
+    """``node`` and what it holds, not the bodies of the functions, lambdas and classes it defines."""
+    stack = [node]
+    while stack:
+        n = stack.pop()
+        yield n
+        stack.extend(c for c in ast.iter_child_nodes(n)
+                     if not isinstance(c, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)))
+
+
+def _check_stubs_recognised(source: str, stub_lines: list[int], where: str) -> None:
+    """Refuse a stub (its ``raise`` on one of ``stub_lines``, 1-based) that :func:`is_stub` would not recognise in
+    the lab's cell ``source``: the exercise guard would let the cells that need it run, and Run All would stop."""
+    python = "\n".join("" if line.lstrip().startswith(("%", "!")) else line for line in source.split("\n"))
+    try:
+        tree = ast.parse(python)
+    except SyntaxError:  # not Python (a %%bash cell …): no function in it for the guard to judge
+        return
+    bodies = [tree.body] + [n.body for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))]
+    recognised = {statement.lineno for body in bodies if is_stub(body) for statement in body}
+    for line in stub_lines:
+        if line not in recognised:
+            raise AuthoringError(
+                f"{where}, line {line}: the exercise guard would not take this for a stub: put the "
+                f"'{BEGIN}' block straight in the function's body (or the cell's), not inside an if, a loop, a try "
+                "or a with, and with no return before it")
+
+
+def _replace_blocks(source: str, stub: list[str], where: str) -> tuple[str, list[int]]:
+    """Replace every BEGIN..END block in ``source`` by ``stub`` at the BEGIN line's indentation; → (the new source,
+    the line numbers (1-based) of each stub's last line)."""
     out: list[str] = []
+    stub_lines: list[int] = []
     begin_line = None  # 1-based line number of the open BEGIN marker
     for number, line in enumerate(source.split("\n"), start=1):
         if BEGIN in line:
@@ -107,6 +159,7 @@ def _replace_blocks(source: str, stub: list[str], where: str) -> str:
             begin_line = number
             indent = line[: len(line) - len(line.lstrip())]
             out.extend(indent + stub_line for stub_line in stub)
+            stub_lines.append(len(out))
         elif END in line:
             if begin_line is None:
                 raise AuthoringError(f"{where}, line {number}: '{END}' without '{BEGIN}'")
@@ -115,7 +168,7 @@ def _replace_blocks(source: str, stub: list[str], where: str) -> str:
             out.append(line)
     if begin_line is not None:
         raise AuthoringError(f"{where}, line {begin_line}: '{BEGIN}' without '{END}'")
-    return "\n".join(out)
+    return "\n".join(out), stub_lines
 
 
 def _lab_wording(source: str, where: str) -> str:

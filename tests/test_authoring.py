@@ -15,11 +15,12 @@ def predict(x, dt):
     ### END SOLUTION
 
 def rms(values):
+    values = list(values)
+    ### BEGIN SOLUTION
     if values:
-        ### BEGIN SOLUTION
         return math.sqrt(sum(v * v for v in values) / len(values))
-        ### END SOLUTION
     return 0.0
+    ### END SOLUTION
 """
 
 
@@ -82,15 +83,33 @@ def test_solution_notebook_is_not_modified():
 def test_indented_blocks_compile_and_raise():
     source = strip_solutions(solution_notebook()).cells[1].source
     assert "    # YOUR CODE HERE\n    raise NotImplementedError()\n" in source
-    assert "        # YOUR CODE HERE\n        raise NotImplementedError()\n    return 0.0" in source
+    assert "    values = list(values)\n    # YOUR CODE HERE\n    raise NotImplementedError()" in source
     assert "sqrt" not in source and "pos + vel" not in source
     namespace = {}
     exec(compile(source, "lab-cell", "exec"), namespace)
     with pytest.raises(NotImplementedError):
         namespace["predict"]((0.0, 1.0), 0.1)
-    with pytest.raises(NotImplementedError):
-        namespace["rms"]([1.0])
-    assert namespace["rms"]([]) == 0.0
+    for values in ([1.0], []):
+        with pytest.raises(NotImplementedError):
+            namespace["rms"](values)
+
+
+@pytest.mark.parametrize("function, line", [
+    ("def rms(values):\n    if values:\n        ### BEGIN SOLUTION\n        return 1.0\n        ### END SOLUTION\n"
+     "    return 0.0", 4),
+    ("def rms(values):\n    try:\n        ### BEGIN SOLUTION\n        return 1.0\n        ### END SOLUTION\n"
+     "    except ValueError:\n        return 0.0", 4),
+    ("def rms(values):\n    if not values:\n        return 0.0\n    ### BEGIN SOLUTION\n    return 1.0\n"
+     "    ### END SOLUTION", 5),
+    ("for k in range(3):\n    ### BEGIN SOLUTION\n    print(k)\n    ### END SOLUTION", 3),
+])
+def test_a_block_the_exercise_guard_would_not_take_for_a_stub_is_refused(function, line):
+    """Inside an if or a try, or after a return, the stub left in the lab raises only for some input: the guard
+    (which must never skip a finished function that raises NotImplementedError for some input) would let the
+    cells that call it run, and Run All would stop there."""
+    nb = new_notebook(cells=[new_markdown_cell("intro"), new_code_cell("%matplotlib inline\n" + function)])
+    with pytest.raises(AuthoringError, match=rf"solutions/01_x\.ipynb: cell index 1, line {line + 1}: .*guard"):
+        strip_solutions(nb, name="solutions/01_x.ipynb")
 
 
 def test_markdown_answer_replaced():

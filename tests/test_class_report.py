@@ -129,7 +129,7 @@ class InProcessRun:
 
     def call(self, function, cases_args, checkpoint=""):
         if function in self.hangs:  # what KernelRun.call does for a call past its timeout
-            self.stopped[function] = runner.Stopped(function, 4, 30.0, 0, checkpoint)
+            self.stopped[function] = runner.Stopped(function, 4, "timed out after 30 s", 0, checkpoint)
             raise TimeoutError("timed out after 30 s")
         nonce, out = wire.new_nonce(), io.StringIO()
         with contextlib.redirect_stdout(out):

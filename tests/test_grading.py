@@ -41,49 +41,19 @@ from kfkit.checkpoints import LABS
 from kfkit.cli import main
 from kfkit.paths import KIT_ROOT
 from kfkit.grading import _kernel_side, core, runner, sandbox, wire
+from lab01_notebooks import LAB, SOLUTION, add, append, edit, minimal, read
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
-SOLUTION = KIT_ROOT / "solutions" / "01_roll_kf_1d.ipynb"
-LAB = KIT_ROOT / "labs" / "01_roll_kf_1d.ipynb"
 # lab 01's points as the lab's author set them in kfkit/checkpoints/lab01.py
 POINTS = {"01.accel_roll": 1, "01.kf_predict": 1, "01.kf_update": 2, "01.run_kf": 2, "01.kf_beats_sensors": 2}
-TIMEOUT = 4  # s per cell / call in these tests (the grader's warm-up has loaded the heavy modules)
+TIMEOUT = 4  # s of CPU per cell / call in these tests (the grader's warm-up has loaded the heavy modules)
+BACKSTOP = int(TIMEOUT * runner.WALL_FACTOR)  # s of wall time after which a cell that computes nothing is stopped
 SEEDS_PER_SOLUTION = 1  # fresh seeds each solution is graded on, in one kernel (lab 01: one per CLI submission)
 KIT_FILE = KIT_ROOT / "kfkit" / "checkpoints" / "lab01.py"
 SITE = Path(sysconfig.get_paths()["purelib"])
-# wall-clock limits for honest notebooks: only safety nets, so that a busy machine fails nobody (lab 04's
-# Monte Carlo cell takes ~30 s of wall time with two other processes on the two cores); CPU time stays limited
+# limits for honest notebooks far above what they need, as safety nets (lab 04's Monte Carlo cell is the longest)
 GENEROUS = core.Limits(cell_timeout=300, total_timeout=1200)
-
-
-def read(path):
-    return nbformat.read(path, as_version=4)
-
-
-def minimal():
-    """Lab 01 reduced to its imports and the cells defining its exercise functions (solved)."""
-    cells = [c for c in read(SOLUTION).cells if c.cell_type == "code"]
-    keep = [cells[0]] + [c for c in cells if "### BEGIN SOLUTION" in c.source and "def " in c.source]
-    return nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(c.source) for c in keep])
-
-
-def edit(nb, old, new):
-    hits = [c for c in nb.cells if old in c.source]
-    assert hits, f"{old!r} not in the notebook"
-    for c in hits:
-        c.source = c.source.replace(old, new)
-    return nb
-
-
-def add(nb, source, at=1):
-    nb.cells.insert(at, nbformat.v4.new_code_cell(source))
-    return nb
-
-
-def append(nb, *sources):
-    nb.cells += [nbformat.v4.new_code_cell(source) for source in sources]
-    return nb
 
 
 #: the cells after a looping kf_update: its check (the one timeout), then a call of it, a use of what that call
@@ -343,9 +313,13 @@ def test_wrong_answer_loses_only_its_points_with_expected_vs_got(graded):
 
 
 def test_infinite_loop_scores_zero_timed_out_and_the_rest_is_graded(graded):
+    """accel_roll loops (busy: stopped after its CPU time), and a cell of the student's sleeps in a loop (stopped by
+    the wall-clock backstop, using next to no CPU)."""
     assert points(graded, "loop") == {**POINTS, "01.accel_roll": 0}
-    assert f"timed out after {TIMEOUT} s" in message(graded, "loop", "01.accel_roll")
-    assert f"timed out after {TIMEOUT} s (interrupted)" in feedback(graded, "loop")  # the student's own loop cell
+    assert message(graded, "loop", "01.accel_roll") == f"accel_roll timed out after {TIMEOUT} s on the grader's cases"
+    sleeper = next(line for line in feedback(graded, "loop").splitlines() if "the cell `import time`" in line)
+    assert "did not finish: used " in sleeper and f" s of CPU in {BACKSTOP} s (interrupted)" in sleeper, sleeper
+    assert float(sleeper.split("used ")[1].split(" s of CPU")[0]) < TIMEOUT
 
 
 def test_a_loop_is_paid_for_once_and_what_follows_from_it_is_not_a_fault(graded):
@@ -387,9 +361,12 @@ def test_functions_stopped_in_the_notebook_are_put_back_even_unheard_of(every_la
 
 
 def test_loop_ignoring_interrupts_restarts_the_kernel_and_grading_goes_on(graded):
+    """accel_roll ignores SIGINT and sleeps in a loop: the backstop stops it, the kernel is restarted."""
     assert points(graded, "stubborn") == {**POINTS, "01.accel_roll": 0}
-    msg = message(graded, "stubborn", "01.accel_roll")
-    assert "timed out" in msg and "ignored the interrupt" in msg
+    row = graded["subs"]["stubborn"]["01.accel_roll"]
+    assert row["status"] == "timed out" and row["message"].startswith("calling accel_roll on the grader's cases: "
+                                                                      "did not finish: used "), row
+    assert row["message"].endswith(f" s of CPU in {BACKSTOP} s and ignored the interrupt"), row
 
 
 def test_killed_kernel_and_sys_exit(graded):
@@ -512,10 +489,10 @@ def _restore_unheard_stops(box):
 
 def _grade_every_other_lab(tmp_path_factory, box):
     """Lab 01 is the CLI run's; the others: each solution on a fresh seed, each hand-out once."""
-    slow = tmp_path_factory.mktemp("slow") / "slow.ipynb"  # kf_predict hangs, and so do three cells at the end
-    nb = edit(minimal(), "return x + omega * dt, P + q", "import time\n    while True:\n        time.sleep(0.1)")
+    slow = tmp_path_factory.mktemp("slow") / "slow.ipynb"  # kf_predict loops, and so do three cells at the end
+    nb = edit(minimal(), "return x + omega * dt, P + q", "while True:\n        pass")
     for _ in range(3):
-        add(nb, "import time\ntime.sleep(30)", at=len(nb.cells))
+        add(nb, "while True:  # a loop of the notebook's own\n    pass", at=len(nb.cells))
     nbformat.write(nb, slow)
     seeds = [secrets.randbits(63) for _ in range(SEEDS_PER_SOLUTION)]
     labs = sorted((name[3:] for name in LABS if name != "lab01"), key=lambda lab: lab != "04")  # longest first
@@ -571,16 +548,24 @@ def test_every_handed_out_lab_scores_zero_not_attempted(every_lab, lab):
 
 
 def test_hanging_cells_and_functions_leave_time_to_grade_the_others(every_lab):
-    """3 s per cell, 12 s in all: the hanging cells get the notebook's share (12 s less what is
-    kept for 5 calls), kf_predict's calls time out, and kf_update is graded all the same."""
+    """3 s of CPU per cell, 12 s in all: the looping cells get the notebook's share (12 s less the 6 kept for the
+    5 calls): the first is interrupted after 3 s, the second after what is left of the share, the third is not run;
+    kf_predict's call times out, kf_update is graded all the same, and run_kf, which calls kf_predict, fails at
+    once."""
     grade = every_lab["slow"]
     rows = {r.checkpoint: r for r in grade.rows}
     assert rows["01.accel_roll"].points == 1 and rows["01.kf_update"].points == 2, grade.rows
-    assert rows["01.kf_predict"].status == "timed out" and "timed out after 3 s" in rows["01.kf_predict"].message
-    for name in ("01.run_kf", "01.kf_beats_sensors"):  # run_kf calls kf_predict; then the 12 s are over
+    assert rows["01.kf_predict"].status == "timed out"
+    assert rows["01.kf_predict"].message == "kf_predict timed out after 3 s on the grader's cases"
+    for name in ("01.run_kf", "01.kf_beats_sensors"):
         assert rows[name].points == 0 and rows[name].status == "timed out", rows[name]
-    assert any("not run" in note for note in grade.notes), grade.notes
-    assert grade.seconds < 12 + 60  # the total, and a kernel start on a busy machine
+        assert rows[name].message.startswith("run_kf calls kf_predict, which timed out after 3 s"), rows[name]
+    loops = [note for note in grade.notes if note.startswith("the cell `while True:  # a loop of the notebook's own`")]
+    assert len(loops) == 3, grade.notes
+    assert loops[0].endswith(": timed out after 3 s (interrupted)"), loops
+    share_left = float(loops[1].split("timed out after ")[1].split(" s (interrupted)")[0])
+    assert 1 <= share_left < 3, loops  # 6 s less the first cell's 3 and the cells before it; never below 1 s
+    assert ": not run: the notebook had used its share of the total time" in loops[2], loops
 
 
 # ------------------------------------------------------------------ the sandbox itself (no kernel)
@@ -725,6 +710,7 @@ def test_unknown_lab_is_named(tmp_path, capsys):
 def test_python_dash_m_kfkit_grade_help():
     out = subprocess.run([sys.executable, "-m", "kfkit", "grade", "--help"], capture_output=True, text=True, check=True).stdout
     assert "--jobs" in out and "--timeout" in out and "--update" in out and "--no-sandbox" in out
+    assert "--wall-factor" in out and "CPU seconds per notebook cell" in out
 
 
 def test_summary_reports_pass_rates():

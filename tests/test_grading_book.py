@@ -185,3 +185,18 @@ def test_feedback_shows_what_students_wrote_as_text():
     for shown in [name, *(r.message for r in rows), *grade.notes]:
         assert visible_controls(shown) in text, shown
     assert "\u202e" not in text and "\x1b" not in text
+
+
+def test_a_function_the_exercise_guard_set_aside_is_not_attempted_and_says_why():
+    """In the kernel the guard's stand-in raises StaleDefinition; the grader reads its class name from the JSON report
+    and scores it as not attempted, with the guard's reason, not as a crash."""
+    from kfkit.checkpoints import get
+
+    cp = get("01.kf_update")
+    cases = cp.cases(__import__("numpy").random.default_rng(0))
+    why = "the cell that defines kf_update was skipped, as a cell that needs run_kf (not written yet)"
+    row = core.judge(cp, cases, {"results": [{"raised": "StaleDefinition", "message": why}]}, None)
+    assert row.status == Status.NOT_ATTEMPTED and row.points == 0
+    assert "stale" in row.message and "run_kf" in row.message
+    plain = core.judge(cp, cases, {"results": [{"raised": "NotImplementedError", "message": ""}]}, None)
+    assert plain.status == Status.NOT_ATTEMPTED and "still raises NotImplementedError" in plain.message

@@ -7,8 +7,9 @@ file system holding only what the kernel needs, read-only, no network; no sandbo
 with memory and CPU time limited for all its processes together (:mod:`kfkit.grading.resources`):
 
 1. run the student's code cells top to bottom (cell tags and metadata dropped, so nothing is
-   skipped or excused; errors do not stop the run), with a per-cell and a total timeout and an
-   output cap (see :mod:`kfkit.grading.runner`);
+   skipped or excused; errors do not stop the run), with a per-cell and a total timeout counted in
+   CPU seconds, each with a wall-clock backstop ``--wall-factor`` times as long, and an output cap
+   (see :mod:`kfkit.grading.runner`);
 2. for each checkpoint of the lab (``kfkit.checkpoints.labNN``), draw fresh cases in the
    grader's process (a new seed per submission, written in the feedback), send only their
    inputs to the kernel (pickled), call the student's function there, and receive only its outputs,
@@ -28,8 +29,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-CELL_TIMEOUT = 30.0  # s per notebook cell and per checkpoint call
-TOTAL_TIMEOUT = 300.0  # s for one whole submission
+CELL_TIMEOUT = 30.0  # s of CPU time per notebook cell and per checkpoint call
+TOTAL_TIMEOUT = 300.0  # s of CPU time for one whole submission
+WALL_FACTOR = 10.0  # each timeout's wall-clock backstop, as a multiple of it (for code that waits, computing nothing)
 _PUBLIC = ("grade", "grade_submission", "grade_checkpoints", "lab_checkpoints", "find_submissions", "read_code_cells",
            "read_notebook", "read_gradebook", "summary", "Limits", "Row", "SubmissionGrade", "NotANotebook", "NoSandbox")
 
@@ -65,13 +67,20 @@ def add_parser(sub):
     p.add_argument("--jobs", type=number(int, 0), default=os.cpu_count() or 1,
                    help="submissions graded in parallel (default: one per core, %(default)s)")
     p.add_argument("--timeout", type=number(float, 0.0, unit="s"), default=CELL_TIMEOUT,
-                   help="seconds per notebook cell and per checkpoint call (default: %(default)g)")
+                   help="CPU seconds per notebook cell and per checkpoint call (user + system, all the kernel's "
+                        "processes; not wall time, so a busy machine fails nobody) (default: %(default)g)")
     p.add_argument("--total-timeout", type=number(float, 0.0, unit="s"), default=TOTAL_TIMEOUT,
-                   help="seconds for one whole submission (default: %(default)g)")
+                   help="CPU seconds for one whole submission, cells and checkpoint calls; part is kept for the "
+                        "calls (default: %(default)g)")
+    p.add_argument("--wall-factor", type=number(float, 1.0, include_low=True), default=WALL_FACTOR, metavar="K",
+                   help="wall-clock backstop for code that waits without computing (sleep in a loop, a deadlock): a "
+                        "cell or call is stopped after K times --timeout seconds of wall time, a submission after K "
+                        "times --total-timeout (default: %(default)g; 1 is the old rule, judging by wall time)")
     p.add_argument("--max-memory", type=number(float, 0.0, unit="GB"), default=4.0, metavar="GB",
                    help="memory all of one submission's processes may hold at once (default: %(default)g GB)")
     p.add_argument("--max-cpu", type=number(float, 0.0, unit="s"), default=None, metavar="S",
-                   help="CPU seconds one submission may use, all processes (default: --total-timeout)")
+                   help="hard limit: CPU seconds after which all of one submission's processes are killed, "
+                        "even those an interrupt does not stop (default: --total-timeout)")
     p.add_argument("--feedback", type=Path, default=None,
                    help="folder for the per-submission Markdown feedback (default: <out stem>_feedback/)")
     p.add_argument("--seed", type=number(int, 0, include_low=True), default=None, help="fix the random cases (to reproduce a grade)")

@@ -130,6 +130,10 @@ def _short(message: str, name: str) -> str:
 def _student_exception(type_name: str, message: str) -> Exception:
     if type_name == "NotImplementedError":
         return NotImplementedError(message)
+    if type_name == "StaleDefinition":  # the exercise guard set the function aside: its new cell was skipped
+        stale = NotImplementedError(message)
+        stale.stale_definition = True
+        return stale
     name = type_name if type_name.isidentifier() else "Exception"
     return type(name, (Exception,), {})(message)
 
@@ -174,8 +178,9 @@ def judge(cp: cps.Checkpoint, cases: list, report: dict, defining_note: str | No
         return Row(cp.name, 0, cp.points, Status.ERROR,
                    f"the grader could not judge the output ({type(exc).__name__}: {str(exc)[:200]})")
     if result.status == Status.NOT_ATTEMPTED:
-        return Row(cp.name, 0, cp.points, Status.NOT_ATTEMPTED,
-                   f"not attempted ({cp.function} still raises NotImplementedError)")
+        stale = " — ".join(result.message.split(": stale: ", 1)[1:])
+        return Row(cp.name, 0, cp.points, Status.NOT_ATTEMPTED, f"not attempted (stale: {clip(stale, MAX_MESSAGE)})"
+                   if stale else f"not attempted ({cp.function} still raises NotImplementedError)")
     return Row(cp.name, result.points, cp.points, result.status, _short(result.message, cp.name))
 
 
@@ -201,8 +206,8 @@ def grade_checkpoints(run: KernelRun, sources: list[str], checkpoints: list, see
     for i, cp in enumerate(checkpoints):
         earlier = run.stopped.get(cp.function)
         if earlier is not None and earlier.checkpoint:  # a loop is paid for once (see runner.py)
-            yield Row(cp.name, 0, cp.points, Status.TIMED_OUT, f"not called again: {cp.function} timed out after "
-                      f"{earlier.seconds:g} s on the grader's cases for {earlier.checkpoint}")
+            yield Row(cp.name, 0, cp.points, Status.TIMED_OUT, f"not called again: {cp.function} {earlier.why} "
+                      f"on the grader's cases for {earlier.checkpoint}")
             continue
         try:
             cases = cp.cases(np.random.default_rng([i, seed]))
@@ -235,8 +240,8 @@ def _timed_out_inside(cp: cps.Checkpoint, report: dict, stopped: dict) -> Row | 
     if inner is None or not inner.checkpoint:
         return None
     return Row(cp.name, 0, cp.points, Status.TIMED_OUT,
-               f"{cp.function} calls {inner.name}, which timed out after {inner.seconds:g} s on the grader's cases for "
-               f"{inner.checkpoint}: not run again")
+               f"{cp.function} calls {inner.name}, which {inner.why} on the grader's cases for {inner.checkpoint}: "
+               "not run again")
 
 
 def _fill(grade: SubmissionGrade, checkpoints: list, status: Status, message: str):
@@ -449,7 +454,8 @@ def cli(args) -> int:
             print(f"kfkit grade: {w}", file=sys.stderr)
         print("kfkit grade: no notebooks to grade", file=sys.stderr)
         return 1
-    limits = Limits(cell_timeout=args.timeout, total_timeout=args.total_timeout, memory=int(args.max_memory * (1 << 30)),
+    limits = Limits(cell_timeout=args.timeout, total_timeout=args.total_timeout, wall_factor=args.wall_factor,
+                    memory=int(args.max_memory * (1 << 30)),
                     cpu_time=args.max_cpu if args.max_cpu is not None else args.total_timeout)
     try:
         grades, text = grade(args.submissions, args.lab, args.out, jobs=args.jobs, limits=limits,

@@ -14,7 +14,8 @@ Two ways to measure, one :class:`Watchdog` that stops the submission when over:
   children's: every process of the PID namespace is reaped inside the tree, so nothing is lost).
   Between two samples a process can still grow, up to the kernel's per-process ``RLIMIT_AS``.
 
-CPU time is seconds of CPU, not wall time, so a busy machine does not make anyone fail.
+CPU time is seconds of CPU, not wall time, so a busy machine does not make anyone fail; the runner times each
+cell and each grader's call by the same count (:attr:`Watchdog.cpu_used`, see :mod:`kfkit.grading.runner`).
 """
 from __future__ import annotations
 
