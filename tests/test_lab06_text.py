@@ -131,7 +131,7 @@ def test_the_log_shows_its_friction_in_sustained_corners_not_in_single_samples()
     hardly move it; and the car holds over 1 g in many separate corners (a spike cannot)."""
     t, ay = track().t, track()["ay"]
     peaks = {w: vehicle.peak_friction(t, ay, w) for w in (0.01, 0.1, 0.5, 2.0)}
-    assert peaks[0.01] > 1.65 and 1.05 < peaks[0.1] < 1.15
+    assert peaks[0.01] > 1.65 and 1.05 < peaks[0.1] < 1.15 and 1.07 < peaks[0.5] < 1.10  # µ = 1.082 shipped
     assert abs(peaks[0.5] - peaks[2.0]) < 0.04 and peaks[0.5] == vehicle.peak_friction(t, ay)
     above = np.abs(np.convolve(ay, np.ones(50) / 50, mode="same")) > G
     assert np.count_nonzero(np.diff(above.astype(int)) == 1) >= 10
@@ -150,12 +150,12 @@ def test_the_linear_kf_loses_to_the_open_loop_model_and_the_ekf_beats_both():
 
 @pytest.mark.slow
 def test_a_friction_too_low_costs_far_more_than_one_too_high():
-    """Section 12's sweep: 0.9 costs over twice what 1.3 does; the log's µ is within 0.01° of the best of its
-    neighbourhood, and the one-sample 1.7 drifts toward the linear KF."""
+    """Section 12's sweep: 0.9 costs over twice what 1.3 does, µ = 1 (8 % low) a quarter more than the log's µ; the
+    log's µ is within 0.01° of the best of its neighbourhood, and the one-sample 1.7 drifts toward the linear KF."""
     mu = vehicle.peak_friction(track().t, track()["ay"])
     car = lab06.published_car(track(), mu)
     err = {m: track_rmse(lab06.published_car(track(), m)) for m in (0.9, 1.0, 1.05, 1.1, 1.3, 1.7)}
-    assert err[0.9] > 2 * err[1.3] and err[1.0] > track_rmse(car)
+    assert err[0.9] > 2 * err[1.3] and err[1.0] > 1.15 * track_rmse(car)  # the undeclared µ = 1: 0.397° vs 0.318°
     assert track_rmse(car) < min(err.values()) + 0.01 and err[1.7] > err[1.3]
 
 
@@ -170,3 +170,4 @@ def test_trusting_both_the_sensor_and_the_tyre_curve_diverges_either_alone_costs
     both = estimate_sideslip(*lab06.signals(track()), car, accel_noise=0.05, stiffness_std=0.0).beta
     off = np.abs(np.degrees(both - track()["true_beta"])) > 3.0
     assert 15.0 < track().t[np.argmax(off)] < 25.0 and off[track().t > 60.0].all()
+    assert lab06.beta_rmse_deg(both, track()["true_beta"]) > 1000.0  # "RMSE over a thousand degrees"
