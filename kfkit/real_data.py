@@ -177,14 +177,16 @@ def _racetrack(source: Path) -> Recording:
     meta = {
         "rate_hz": 100.0,
         "source": "race track (real car)",
-        "description": "a real car on a race track, 275 s: speed 16–61 m/s, lateral acceleration up to 1.7 g, "
-                       "sideslip measured by the vehicle's reference instrumentation",
+        "description": "a real car on a race track, 275 s: speed 16–61 m/s, lateral acceleration up to 1.1 g "
+                       "(half a second's mean; single samples of the vibrating body reach 1.7 g), sideslip measured by "
+                       "the vehicle's reference instrumentation",
         "axes": "ISO 8855 (x forward, y left, z up)",
         "units": {"t": "s", "delta": "rad (road wheel)", "yaw_rate": "rad/s", "ay": "m/s^2 (at the CG)", "vx": "m/s",
                   "true_beta": "rad (measured)", "true_vy": "m/s (measured, at the CG)"},
-        # the parameters its authors published with their estimators (C_f, C_r chosen for their linear model, not measured)
+        # the parameters its authors published with their estimators (C_f, C_r chosen for their linear model, not
+        # measured); no friction coefficient was published: vehicle.peak_friction gives the one the log shows
         "vehicle": {"m": 982.0, "Iz": round(982.0 / 12.0 * (1.7 ** 2 + 4.09 ** 2), 1), "a": 1.33, "b": 1.07,
-                    "Cf": 70_000.0, "Cr": 120_000.0, "mu": 1.0},
+                    "Cf": 70_000.0, "Cr": 120_000.0},
         "log_time_offset_s": t0,
         "license": RACETRACK_CITATION,
         "changes": f"the first half of the log (t = {t0:g}–{t0 + data['t'][-1]:g} s), time from 0; columns renamed to the "

@@ -202,6 +202,26 @@ def axle_tyres(params: BicycleParams):
             MagicFormula.for_axle(params.Cr, params.m * G * params.a / L, params.mu))
 
 
+def peak_friction(t, ay, window_s: float = 0.5) -> float:
+    """The friction a drive shows without its sideslip: µ ≥ max |ā_y| / g, ā_y the lateral acceleration (m/s²)
+    averaged over ``window_s`` seconds (a centred moving mean, at the median sample interval of ``t``, s).
+
+    Each axle's force is at most µ F_z and the static loads add up to m g, so m |a_y| ≤ µ m g: the tyres made at
+    least the grip the car measured. On a drive at the limit (a race track) the bound is µ itself; on a gentle drive
+    it says only that µ is above it. The mean keeps a corner's sustained force and averages out the body's vibration
+    (white noise of σ per sample shrinks by √(samples in the window)), which a single sample's peak would count.
+    """
+    t, ay = np.asarray(t, dtype=float), np.asarray(ay, dtype=float)
+    if not np.all(np.isfinite(ay)):
+        k = int(np.argmax(~np.isfinite(ay)))
+        raise ValueError(f"peak_friction: ay[{k}] is {ay[k]}: drop or interpolate non-finite samples first")
+    n = max(1, int(round(window_s / float(np.median(np.diff(t))))))
+    if len(ay) < n:
+        raise ValueError(f"peak_friction: the drive ({len(ay)} samples) is shorter than the {window_s:g} s window "
+                         f"({n} samples)")
+    return float(np.max(np.abs(np.convolve(ay, np.ones(n) / n, mode="valid"))) / G)
+
+
 MIN_TRUTH_SPEED = 0.5  # m/s: slip angles atan(v/Vx) are meaningless at a standstill
 
 

@@ -276,7 +276,36 @@ MISTAKES = [  # (checkpoint, (function, text of the model answer, mistaken text)
     ("06.slalom_rmse", ("discretize", "E = expm(M * dt)", "E = np.eye(n + p) + M * dt"), "leans on its model", 1),
     ("06.slalom_rmse", ("bicycle_model", "[(b * Cr - a * Cf) / Iz,", "[(b * Cr - a * Cf) / (Iz * vx),"),
      "leans on its model", 1),
-    ("06.slalom_rmse", ("run_sideslip", "delta[k - 1] if k else delta[0]", "delta[k]"), "leans on its model", 1),
+    ("06.kf_step", ("kf_step", "Bd[:, 0] * delta_prev", "Bd[:, 0] * delta"), "δ_{k−1}", 20),
+    ("06.slalom_rmse", ("kf_step", "Bd[:, 0] * delta_prev", "Bd[:, 0] * delta"), "leans on its model", 1),
+    ("06.tyre_force", ("tyre_force", "front.force(delta - beta - params.a * r / vx), rear.force(-beta + params.b * r / vx)",
+                       "params.Cf * (delta - beta - params.a * r / vx), params.Cr * (-beta + params.b * r / vx)"),
+     "linear tyres", 20),
+    ("06.tyre_force", ("tyre_force", "front.force(delta - beta - params.a * r / vx), rear.force(-beta + params.b * r / vx)",
+                       "front.force(beta + params.a * r / vx - delta), rear.force(beta - params.b * r / vx)"), "wrong sign", 20),
+    ("06.tyre_force", ("tyre_force", "front.force(delta - beta - params.a * r / vx), rear.force(-beta + params.b * r / vx)",
+                       "rear.force(-beta + params.b * r / vx), front.force(delta - beta - params.a * r / vx)"),
+     "front and rear are swapped", 20),
+    ("06.tyre_force", ("tyre_force", "front.force(delta - beta - params.a * r / vx), rear.force(-beta + params.b * r / vx)",
+                       "rear.force(delta - beta - params.a * r / vx), front.force(-beta + params.b * r / vx)"),
+     "its own curve", 20),
+    ("06.tyre_force", ("tyre_force", "G * params.b / L, params.mu)\n    rear = vehicle.MagicFormula.for_axle(params.Cr, "
+                       "params.m * G * params.a / L", "G * params.a / L, params.mu)\n    rear = vehicle.MagicFormula."
+                       "for_axle(params.Cr, params.m * G * params.b / L"), "loads are swapped", 20),
+    ("06.tyre_force", ("tyre_force", "/ L, params.mu)", "/ L, 1.0)"), "params.mu is missing", 20),
+    ("06.tyre_jacobian", ("tyre_jacobian", "kf, kr = front.slope(delta - beta - a * r / vx), rear.slope(-beta + b * r / vx)",
+                          "kf, kr = params.Cf, params.Cr"), "local slope", 20),
+    ("06.tyre_jacobian", ("tyre_jacobian", "kf, kr = front.slope(", "kr, kf = front.slope("), "slopes are swapped", 20),
+    ("06.tyre_jacobian", ("tyre_jacobian", "    return J, H",  # J by forward differences with a 1e-3 rad step
+                          "    f = lambda v: lab06.tyre_rates(params, tyre_force(params, v, delta, vx), v[1], vx)[0]\n"
+                          "    J = np.column_stack([(f(x + e) - f(x)) / 1e-3 for e in 1e-3 * np.eye(2)])\n    return J, H"),
+     "finite difference", 20),
+    ("06.banked_road", ("banked_road", "-rear / params.Cr", "-side * params.b / (params.a + params.b) / params.Cf"),
+     "front axle", 20),
+    ("06.banked_road", ("banked_road", "return G * np.sin(bank),", "return -G * np.sin(bank),"), "low side", 20),
+    ("06.banked_road", ("banked_road", "-rear / params.Cr", "0.0"), "β = 0", 20),
+    ("06.banked_road", ("banked_road", "-rear / params.Cr", "rear / params.Cr"), "wrong sign", 20),
+    ("06.banked_road", ("banked_road", "-rear / params.Cr", "np.degrees(-rear / params.Cr)"), "in degrees", 20),
 ]
 
 

@@ -182,6 +182,7 @@ def test_racetrack_keeps_the_log_values_and_the_published_parameters():
     meta = rec.meta["vehicle"]
     assert (meta["m"], meta["a"], meta["b"], meta["Cf"], meta["Cr"]) == (982.0, 1.33, 1.07, 70_000.0, 120_000.0)
     assert abs(meta["Iz"] - 982.0 / 12 * (1.7 ** 2 + 4.09 ** 2)) < 0.1
+    assert "mu" not in meta  # none was published: lab 06 reads the friction from the log (vehicle.peak_friction)
     assert np.allclose(np.diff(rec.t), 0.01, atol=1e-6)
     beta_from_v = np.arctan2(rec["true_vy"], rec["vx"])  # β ≈ v_y / v_x: the log's two measurements agree
     assert np.sqrt(np.mean((beta_from_v - rec["true_beta"]) ** 2)) < np.radians(0.2)

@@ -4,15 +4,18 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import cont2discrete
 
-from .. import datasets
-from ..filters.sideslip import sideslip_step
-from ..filters.sideslip_estimate import estimate_sideslip
-from ..metrics import rmse
+from dataclasses import replace
+
 from ..discrete import discretize
-from ..vehicle import BicycleParams, linear_model, miscopied_linear_model
+from ..filters.sideslip import sideslip_step
+from ..filters.sideslip_ekf import SideslipEKF
+from ..filters.sideslip_estimate import estimate_sideslip
+from ..frames import G
+from ..labs.lab06 import SLALOM, banked_straight, bundled_inputs
+from ..metrics import rmse
+from ..vehicle import BicycleParams, MagicFormula, linear_model, miscopied_linear_model
 from . import Case, Checkpoint, compare, register
 
-SLALOM = "06_slalom_20kmh"
 RMSE_LIMIT_DEG = 0.5
 # At 80 km/h β peaks at 0.37°, so 0.5° would pass β = 0 (0.21°) and the copied models; the bar there is 0.1°
 FAST_SLALOM, FAST_LIMIT_DEG = "06_slalom_80kmh", 0.1
@@ -131,13 +134,9 @@ def _judge_step(case, got):
         return problem
     if y.shape == (2,) and np.allclose(y, a["z"] - a["C"] @ x_prior, rtol=1e-7):
         return problem + " — the innovation misses the D-term: a_y responds to δ directly (z − C x⁻ − D δ)"
+    if y.shape == (2,) and np.allclose(y, sideslip_step(**dict(a, delta_prev=a["delta"]))[2], rtol=1e-7):
+        return problem + " — the prediction uses this sample's δ: the steering held over the last interval is δ_{k−1}"
     return problem
-
-
-def bundled_inputs(name=SLALOM):
-    """A lab 06 bundled drive (default the slalom at 20 km/h): (t, delta, yaw_rate, ay, vx) and the true β."""
-    rec = datasets.load(name)
-    return {k: rec[k] for k in ("t", "delta", "yaw_rate", "ay", "vx")}, rec["true_beta"]
 
 
 def _slalom_cases(rng):
@@ -170,6 +169,173 @@ def _judge_slalom(case, got):
     return None
 
 
+# --- section 12: the saturating tyres ---------------------------------------------------------------------------
+# Friction far enough from 1 that a model without µ (µ = 1) misses the force by over 10 % wherever a tyre saturates
+FRICTION_RANGES = ((0.5, 0.85), (1.2, 1.6))
+# front and rear differ in stiffness and load, so a swap of the two shows in every case
+SPORTS_CAR = BicycleParams(m=1300.0, Iz=2000.0, a=1.2, b=1.4, Cf=90_000.0, Cr=130_000.0)
+
+
+def random_tyre_state(rng, params: BicycleParams):
+    """(x, δ, V_x) of a car cornering at up to 1.3 µ g: slip angles from the linear range to past the tyres' peak."""
+    vx = float(rng.uniform(8.0, 60.0))
+    r = float(rng.uniform(-1.3, 1.3)) * params.mu * G / vx
+    beta = float(rng.uniform(-0.08, 0.08))
+    alpha_f = float(rng.uniform(-0.15, 0.15))
+    return np.array([beta, r]), beta + params.a * r / vx + alpha_f, vx
+
+
+def _tyre_cases(rng):
+    """A sports car on low and racing friction in a hard corner, then random cars, friction and states."""
+    cases = []
+    for mu, x, delta, vx in [(0.7, np.array([0.03, 0.35]), 0.12, 25.0), (1.4, np.array([-0.05, -0.4]), -0.14, 30.0)]:
+        cases.append(Case({"params": replace(SPORTS_CAR, mu=mu), "x": x, "delta": delta, "vx": vx}, None,
+                          f"a sports car (m = {SPORTS_CAR.m:g} kg, a = {SPORTS_CAR.a} m, b = {SPORTS_CAR.b} m, "
+                          f"Cf = {SPORTS_CAR.Cf:g}, Cr = {SPORTS_CAR.Cr:g} N/rad) with mu = {mu} in a hard corner"))
+    for _ in range(10):
+        low, high = FRICTION_RANGES[int(rng.integers(2))]
+        params = replace(random_car(rng), mu=float(rng.uniform(low, high)))
+        x, delta, vx = random_tyre_state(rng, params)
+        cases.append(Case({"params": params, "x": x, "delta": delta, "vx": vx}, None))
+    for case in cases:
+        a = case.args
+        ff, fr, kf, kr = SideslipEKF(0.01, a["params"]).axle_forces(*a["x"], a["delta"], a["vx"])
+        case.expected = (ff, fr)
+        case.label = case.label or (f"tyre_force(params=BicycleParams(m={a['params'].m:.0f}, a={a['params'].a:.2f}, "
+                                    f"b={a['params'].b:.2f}, Cf={a['params'].Cf:.0f}, Cr={a['params'].Cr:.0f}, "
+                                    f"mu={a['params'].mu:.2f}, …), x={np.round(a['x'], 4).tolist()}, "
+                                    f"delta={a['delta']:.4f}, vx={a['vx']:.1f})")
+    return cases
+
+
+def _slips(params, x, delta, vx):
+    return delta - x[0] - params.a * x[1] / vx, -x[0] + params.b * x[1] / vx
+
+
+def _curves(params, front_load_share, mu):
+    """Front and rear magic formulas with the front axle carrying ``front_load_share`` of m g, peak ``mu`` F_z."""
+    weight = params.m * G
+    return (MagicFormula.for_axle(params.Cf, weight * front_load_share, mu),
+            MagicFormula.for_axle(params.Cr, weight * (1.0 - front_load_share), mu))
+
+
+def _tyre_force_mistakes(params, x, delta, vx):
+    """What each classic mistake of tyre_force returns: [(its name, (F_f, F_r))]."""
+    af, ar = _slips(params, x, delta, vx)
+    share = params.b / params.wheelbase
+    front, rear = _curves(params, share, params.mu)
+    return [
+        ("these are the linear tyres C·α: the force must follow the saturating magic formula, which levels off at "
+         "µ F_z", (params.Cf * af, params.Cr * ar)),
+        ("both forces have the wrong sign: the slip angle is where the wheel points minus where it moves "
+         "(α_f = δ − β − a r/V_x)", (-front.force(af), -rear.force(ar))),
+        ("front and rear are swapped", (rear.force(ar), front.force(af))),
+        ("the static loads are swapped: the CG sits a from the front axle, so the front carries m g·b/L",
+         tuple(c.force(a) for c, a in zip(_curves(params, 1.0 - share, params.mu), (af, ar)))),
+        ("each axle needs its own curve (the front's C_f and load with α_f, the rear's with α_r)",
+         (rear.force(af), front.force(ar))),
+        ("the peak is µ F_z: params.mu is missing", tuple(c.force(a) for c, a in zip(_curves(params, share, 1.0), (af, ar)))),
+    ]
+
+
+def _judge_tyre_force(case, got):
+    problem = compare(case.expected, tuple(got) if isinstance(got, list) else got, rtol=1e-6, atol=1e-6)
+    if problem is None:
+        return None
+    try:
+        values = np.asarray(got, dtype=float).reshape(2)
+    except (TypeError, ValueError):
+        return problem
+    for name, forces in _tyre_force_mistakes(**case.args):
+        if np.allclose(values, forces, rtol=1e-6, atol=1e-6):
+            return f"{problem} — {name}"
+    return problem
+
+
+def reference_jacobian(params, x, delta, vx):
+    """(J, H) of kfkit's SideslipEKF at the state: J = ∂[β̇, ṙ]/∂[β, r], H = ∂[r, a_y]/∂[β, r]."""
+    ekf = SideslipEKF(0.01, params)
+    _, _, kf, kr = ekf.axle_forces(*x, delta, vx)
+    return _jacobian_with_slopes(ekf, kf, kr, vx)
+
+
+def _jacobian_with_slopes(ekf, kf, kr, vx):
+    J, (c21, c22) = ekf.jacobian(kf, kr, vx)
+    return J, np.array([[0.0, 1.0], [c21, c22]])
+
+
+def _tyre_jacobian_cases(rng):
+    cases = []
+    for case in _tyre_cases(rng):
+        a = case.args
+        cases.append(Case(a, reference_jacobian(**a), case.label.replace("tyre_force(", "tyre_jacobian(")))
+    return cases
+
+
+def _judge_tyre_jacobian(case, got):
+    shapes = _shape_problem(("J", "H"), case.expected, got)
+    if shapes:
+        return shapes
+    scale = max(np.abs(case.expected[0]).max(), np.abs(case.expected[1]).max())
+    problem = compare(case.expected, tuple(got) if isinstance(got, list) else got, rtol=1e-6, atol=1e-9 * scale)
+    if problem is None:
+        return None
+    try:
+        J, H = (np.asarray(g, dtype=float) for g in got)
+    except (TypeError, ValueError):
+        return problem
+    a = case.args
+    ekf = SideslipEKF(0.01, a["params"])
+    _, _, kf, kr = ekf.axle_forces(*a["x"], a["delta"], a["vx"])
+    p = a["params"]
+    for name, (kf_used, kr_used) in [
+            ("this is the linear model's A and C: in the EKF each axle's stiffness is the local slope dF/dα at the "
+             "state's slip angle, not C_f, C_r", (p.Cf, p.Cr)),
+            ("the front and rear slopes are swapped", (kr, kf))]:
+        if all(np.allclose(g, e, rtol=1e-6) for g, e in zip((J, H), _jacobian_with_slopes(ekf, kf_used, kr_used, a["vx"]))):
+            return f"{problem} — {name}"
+    worst = max(np.abs(g - e).max() for g, e in zip((J, H), case.expected)) / scale
+    if worst < 0.05:
+        return (f"{problem} — close to the derivative but {worst:.1e} of the largest entry off: a finite difference? "
+                "Its error grows with the step; use the tyre curve's slope")
+    return problem
+
+
+# --- the questions -------------------------------------------------------------------------------------------------
+def _bank_cases(rng):
+    cases = [Case({"params": BicycleParams(), "bank": float(np.radians(3.0))}, None, "the default car on a 3° bank")]
+    for _ in range(7):
+        params, bank = random_car(rng), float(np.radians(rng.uniform(1.0, 8.0)))
+        cases.append(Case({"params": params, "bank": bank}, None,
+                          f"banked_road(params=BicycleParams(m={params.m:.0f}, a={params.a:.2f}, b={params.b:.2f}, "
+                          f"Cf={params.Cf:.0f}, Cr={params.Cr:.0f}, …), bank={bank:.4f})"))
+    for case in cases:
+        case.expected = banked_straight(**case.args)
+    return cases
+
+
+def _judge_bank(case, got):
+    problem = compare(case.expected, tuple(got) if isinstance(got, list) else got, rtol=5e-3, atol=1e-9)
+    if problem is None:
+        return None
+    try:
+        ay, beta = (float(g) for g in got)
+    except (TypeError, ValueError):
+        return problem
+    p, (ay_ok, beta_ok) = case.args["params"], case.expected
+    side = p.m * G * np.sin(case.args["bank"])
+    if np.isclose(ay, -ay_ok, rtol=5e-3):
+        return f"{problem} — a_y points to the low side: the accelerometer reads the road's push, tilted with the car"
+    if beta == 0.0:
+        return f"{problem} — β = 0: the tyres must push the car up the slope, and a tyre pushes only when it slips"
+    if np.isclose(beta, -beta_ok, rtol=5e-3):
+        return f"{problem} — β has the wrong sign: the rear tyre must slip the way that pushes the car toward the high side"
+    if np.isclose(beta, -side * p.b / p.wheelbase / p.Cf, rtol=5e-3):
+        return (f"{problem} — that is the front axle's slip: on a straight the rear slip is α_r = −β, and the rear axle "
+                "carries its share of the side force (the moments about the CG balance)")
+    return problem
+
+
 register(
     Checkpoint("06.bicycle_model", "bicycle_model", _model_cases, _judge_model, points=2,
                hint="sum the two axle forces for m·V_x(β̇ + r) and their moments for I_z·ṙ, with α_f = δ − β − a r/V_x and "
@@ -183,4 +349,13 @@ register(
     Checkpoint("06.slalom_rmse", "run_sideslip", _slalom_cases, _judge_slalom, points=2, what="bundled slaloms",
                hint="if the three checks above pass, look at which steering sample goes into the prediction, at "
                     "the speed used for each step's model, and at how r_std reaches R."),
+    Checkpoint("06.tyre_force", "tyre_force", _tyre_cases, _judge_tyre_force, points=2,
+               hint="slip angle = where the wheel points − where it moves; each axle has its own curve: initial slope "
+                    "its cornering stiffness, peak the friction times the load it carries."),
+    Checkpoint("06.tyre_jacobian", "tyre_jacobian", _tyre_jacobian_cases, _judge_tyre_jacobian, points=2,
+               hint="J and H have the shape of the linear model's A and C; what plays the role of C_f and C_r when "
+                    "the curve bends? Check yours against central differences of the model."),
+    Checkpoint("06.banked_road", "banked_road", _bank_cases, _judge_bank, points=1,
+               hint="balance the side forces and their moments about the CG on a straight (r = 0), then read each "
+                    "axle's slip angle off its linear tyre."),
 )

@@ -9,7 +9,7 @@ feed-through D: a_y responds to δ at once, through the front tyre force::
     predict   x⁻ = Ad x + Bd δ_{k−1}          P⁻ = Ad P Adᵀ + Qd
     update    y = z − (C x⁻ + D δ_k)          S = C P⁻ Cᵀ + R,  K = P⁻ Cᵀ S⁻¹
               x = x⁻ + K y                    P = (I − K C) P⁻ (I − K C)ᵀ + K R Kᵀ   (Joseph form; the
-              2-state loop is written out on floats with the equal P⁻ − K S Kᵀ, 4× faster)
+              2-state loop is written out on floats with the equal P⁻ − K S Kᵀ)
 
 Process noise (continuous white noise, tuning knobs): ``q_beta`` on β̇ (rad²/s) for lateral
 force model errors (cornering stiffness, bank, tyre nonlinearity), ``q_r`` on ṙ (rad²/s³) for
@@ -309,14 +309,13 @@ def _run_drive(kf, d, resume) -> SideslipRun:
 @lru_cache(maxsize=1)
 def _blas_controller():
     """BLAS thread control: the filter loop runs with one BLAS thread. scipy's expm on these 2×2–6×6
-    matrices wakes OpenBLAS's thread pool, which on a busy 2-core machine costs more than the work
-    itself: measured 140–330 µs per expm with the default 2 threads vs 16–40 µs with 1 (a 5–15× slowdown),
-    and 3–8× on a whole run with the bias state (the benchmark's "BLAS threads" table repeats this)."""
+    matrices wakes OpenBLAS's thread pool, which on a busy machine costs more than the work itself
+    (``benchmarks/bench_sideslip.py``'s "BLAS threads" table measures both ways)."""
     return ThreadpoolController()
 
 
 def _step2(x, P, delta_prev, z, delta, m, R):
-    """:func:`sideslip_step` for x = [β, r] written out on floats (4× faster than 2×2 NumPy calls) →
+    """:func:`sideslip_step` for x = [β, r] written out on floats (no 2×2 NumPy calls: the benchmark's speed table) →
     (x⁻, P⁻, x, P, y, S).
 
     C = [[0, 1], [c21, c22]], D = [0, d2] as the bicycle model has them; P⁺ = P⁻ − K S Kᵀ, which equals
