@@ -7,6 +7,7 @@ from kfkit.frames import (G, Q_NED_ENU, R_NED_ENU, accel_tilt, body_rates_to_eul
                           dcm_to_quat, enu_to_ned, enu_to_ned_quat, euler_rates_to_body_rates, euler_to_dcm, euler_to_quat,
                           mount_matrix, quat_conjugate, quat_multiply, quat_rotate, quat_slerp, quat_to_dcm, quat_to_euler,
                           quat_to_rotvec, random_dcm, rotvec_to_quat, wrap_angle)
+from kfkit.frames import quat_multiply_f, quat_normalise_f, quat_to_dcm_f, rotvec_to_quat_f, wrap_angle_f
 
 HALF_PI = np.pi / 2
 
@@ -455,3 +456,45 @@ def test_cross_matrix_is_the_cross_product_and_the_small_body_rotation():
     assert np.allclose(R.as_matrix() @ (np.eye(3) + cross_matrix(d)), (R * Rotation.from_rotvec(d)).as_matrix(), atol=1e-11)
     with pytest.raises(ValueError, match="cross_matrix"):
         cross_matrix([1.0, 2.0])
+
+
+# --- float-only helpers for hot loops --------------------------------------------------------
+
+
+
+def test_quat_multiply_f_chains_rotations_like_scipy():
+    rots = random_rotations(60, seed=41)
+    p, q = rots[:-1], rots[1:]
+    for a, b in zip(p, q):
+        got = quat_multiply_f(tuple(scipy_quat(a).tolist()), tuple(scipy_quat(b).tolist()))
+        assert isinstance(got, tuple) and all(type(v) is float for v in got)
+        want = scipy_quat(a * b)  # q and −q are the same rotation
+        np.testing.assert_allclose(np.array(got) * np.sign(np.dot(got, want)), want, atol=1e-12)
+
+
+def test_quat_to_dcm_f_matches_scipy():
+    for rot in random_rotations(60, seed=42):
+        np.testing.assert_allclose(np.reshape(quat_to_dcm_f(tuple(scipy_quat(rot).tolist())), (3, 3)), rot.as_matrix(), atol=1e-12)
+
+
+def test_rotvec_to_quat_f_is_the_exact_exponential():
+    rng = np.random.default_rng(43)
+    vectors = np.concatenate([rng.normal(0.0, 1.5, (60, 3)), [[np.pi, 0.0, 0.0], [0.0, 0.0, 3.0 * np.pi]],
+                              [[1e-9, -2e-9, 3e-10], [0.0, 0.0, 0.0], [1e-7, 0.0, 0.0]]])
+    for v in vectors:
+        got = np.array(rotvec_to_quat_f(*v.tolist()))
+        want = Rotation.from_rotvec(v).as_quat()[[3, 0, 1, 2]]  # the same turn, not reduced to w ≥ 0
+        np.testing.assert_allclose(got * np.sign(got @ want), want, atol=1e-15)
+        assert abs(np.linalg.norm(got) - 1.0) < 1e-15
+
+
+def test_quat_normalise_f():
+    q = quat_normalise_f((2.0, 0.0, -1.0, 2.0))
+    np.testing.assert_allclose(q, np.array([2.0, 0.0, -1.0, 2.0]) / 3.0, atol=1e-16)
+
+
+@pytest.mark.parametrize("a", [0.0, 1.0, -1.0, np.pi, -np.pi, 3 * np.pi, -3 * np.pi, 7.5, -7.5, 1e3, -np.pi + 1e-12])
+def test_wrap_angle_f_agrees_with_wrap_angle(a):
+    got = wrap_angle_f(float(a))
+    assert type(got) is float and -np.pi < got <= np.pi
+    assert got == pytest.approx(wrap_angle(a), abs=1e-12)

@@ -8,11 +8,10 @@ import math
 
 import numpy as np
 
-from ..frames import G
+from ..frames import G, wrap_angle_f
 from .attitude_run import AttitudeRun
 from .euler_ekf import EulerAttitudeEKF, attitude_jacobian, jacobian_rows
 
-TWO_PI = 2.0 * math.pi
 
 
 class FastEulerAttitudeEKF(EulerAttitudeEKF):
@@ -75,8 +74,7 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
         phi += (p + u * tt) * dt
         theta += v * dt
         psi += u * ic * dt
-        if psi > pi or psi <= -pi:
-            psi = pi - (pi - psi) % TWO_PI
+        psi = wrap_angle_f(psi)
         # M = F P (rows), then P⁻ = M Fᵀ (symmetric, upper triangle)
         a0, a1, a2 = f00 * p00 + f01 * p01, f00 * p01 + f01 * p11, f00 * p02 + f01 * p12
         b0, b1, b2 = f10 * p00 + p01, f10 * p01 + p11, f10 * p02 + p12
@@ -135,8 +133,7 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
         phi += d0
         theta += d1
         psi += d2
-        if psi > pi or psi <= -pi:
-            psi = pi - (pi - psi) % TWO_PI
+        psi = wrap_angle_f(psi)
         ys[k] = [r_[0] for r_ in rows]
         nis[k] = s_nis
         xs[k] = (phi, theta, psi)

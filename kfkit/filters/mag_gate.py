@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 
-TWO_PI = 2.0 * math.pi
+from ..frames import wrap_angle_f
+
 
 
 class MagGate:
@@ -72,7 +73,7 @@ class MagGate:
             a = 1.0 - math.exp(-dt_m / self.recovery)
             m = self.mean
             d = y - m[0]
-            m[0] += a * (math.pi - (math.pi - d) % TWO_PI)  # wrapped
+            m[0] += a * wrap_angle_f(d)
             m[1] = (1.0 - a) ** 2 * m[1] + a * a * self.r_psi
             m[2] += a * (norm - m[2])
             m[3] += a * (dip - m[3])

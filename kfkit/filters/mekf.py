@@ -10,12 +10,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..frames import G, MAG_FIELD_LONDON, euler_to_quat, quat_to_dcm
+from ..frames import (G, MAG_FIELD_LONDON, euler_to_quat, quat_multiply_f, quat_normalise_f, quat_to_dcm,
+                      quat_to_dcm_f, rotvec_to_quat_f, wrap_angle_f)
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, learn_field, tilt_heading
 from .linear import Step, configure, require_positive
 from .mag_gate import MagGate
-
-TWO_PI = 2.0 * math.pi
 
 
 @dataclass(frozen=True)
@@ -252,25 +251,14 @@ class MultiplicativeEKF:
         wx -= bx
         wy -= by
         wz -= bz
-        ax_, ay_, az_ = wx * dt, wy * dt, wz * dt
-        ang = math.sqrt(ax_ * ax_ + ay_ * ay_ + az_ * az_)
-        if ang > 1e-12:
-            s_ = math.sin(0.5 * ang) / ang
-            dw, dx, dy, dz = math.cos(0.5 * ang), ax_ * s_, ay_ * s_, az_ * s_
-        else:
-            dw, dx, dy, dz = 1.0, 0.5 * ax_, 0.5 * ay_, 0.5 * az_
-        s.q = _product(s.q, dw, dx, dy, dz)
-        s.strapdown = _product(s.strapdown, dw, dx, dy, dz)
-        F = self._F  # rotation matrix of the conjugate of (dw, dx, dy, dz)
-        F[0, 0] = 1 - 2 * (dy * dy + dz * dz)
-        F[0, 1] = 2 * (dx * dy + dw * dz)
-        F[0, 2] = 2 * (dx * dz - dw * dy)
-        F[1, 0] = 2 * (dx * dy - dw * dz)
-        F[1, 1] = 1 - 2 * (dx * dx + dz * dz)
-        F[1, 2] = 2 * (dy * dz + dw * dx)
-        F[2, 0] = 2 * (dx * dz + dw * dy)
-        F[2, 1] = 2 * (dy * dz - dw * dx)
-        F[2, 2] = 1 - 2 * (dx * dx + dy * dy)
+        dq = rotvec_to_quat_f(wx * dt, wy * dt, wz * dt)
+        s.q = quat_multiply_f(s.q, dq)
+        s.strapdown = quat_multiply_f(s.strapdown, dq)
+        F = self._F  # the rotation matrix of dq's conjugate: R(dq)ᵀ
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_dcm_f(dq)
+        F[0, 0], F[0, 1], F[0, 2] = r00, r10, r20
+        F[1, 0], F[1, 1], F[1, 2] = r01, r11, r21
+        F[2, 0], F[2, 1], F[2, 2] = r02, r12, r22
         s.P = F @ s.P @ F.T + self.coefficients.Qd
 
     def _stabilised_accel(self, fx, fy, fz):
@@ -279,12 +267,8 @@ class MultiplicativeEKF:
         lpf, s = self.coefficients.lpf, self.state
         if lpf >= 1.0:
             return fx, fy, fz
-        iw, ix, iy, iz = s.strapdown
-        n_ = 1.0 / math.sqrt(iw * iw + ix * ix + iy * iy + iz * iz)
-        iw, ix, iy, iz = s.strapdown = (iw * n_, ix * n_, iy * n_, iz * n_)
-        c00, c01, c02 = 1 - 2 * (iy * iy + iz * iz), 2 * (ix * iy - iw * iz), 2 * (ix * iz + iw * iy)
-        c10, c11, c12 = 2 * (ix * iy + iw * iz), 1 - 2 * (ix * ix + iz * iz), 2 * (iy * iz - iw * ix)
-        c20, c21, c22 = 2 * (ix * iz - iw * iy), 2 * (iy * iz + iw * ix), 1 - 2 * (ix * ix + iy * iy)
+        s.strapdown = quat_normalise_f(s.strapdown)
+        c00, c01, c02, c10, c11, c12, c20, c21, c22 = quat_to_dcm_f(s.strapdown)
         fbx, fby, fbz = s.f_I
         fbx += lpf * (c00 * fx + c01 * fy + c02 * fz - fbx)
         fby += lpf * (c10 * fx + c11 * fy + c12 * fz - fby)
@@ -296,8 +280,7 @@ class MultiplicativeEKF:
         """y = f̄_b − v_b with v_b = Rᵀ(−g_n) = −g·(third row of R), H = [[v_b]×, 0], R = σ_a² I (gated:
         × accel_gate_factor); Joseph-form update, then the reset. Returns (y, S, gated)."""
         s, c = self.state, self.coefficients
-        qw, qx, qy, qz = s.q
-        r20, r21, r22 = 2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)
+        r20, r21, r22 = quat_to_dcm_f(s.q)[6:]
         vx, vy, vz = -G * r20, -G * r21, -G * r22
         gated = abs(math.sqrt(fx * fx + fy * fy + fz * fz) - G) > c.gate
         ra = c.ra_gated if gated else c.ra
@@ -320,17 +303,12 @@ class MultiplicativeEKF:
         """ψ_m of the tilt-compensated field R·m_b, y = wrap(ψ_ref − ψ_m), H = [third row of R, 0]; if the
         gate passes the sample, the scalar update and the reset. Returns (y, S), or None if gated out."""
         s, c = self.state, self.coefficients
-        qw, qx, qy, qz = s.q
-        r00, r01, r02 = 1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)
-        r10, r11, r12 = 2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)
-        r20, r21, r22 = 2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_dcm_f(s.q)
         n_n = r00 * mx + r01 * my + r02 * mz
         n_e = r10 * mx + r11 * my + r12 * mz
         n_d = r20 * mx + r21 * my + r22 * mz
         hm = math.hypot(n_n, n_e)
-        y = c.psi_ref - math.atan2(n_e, n_n)
-        if y > math.pi or y <= -math.pi:
-            y = math.pi - (math.pi - y) % TWO_PI
+        y = wrap_angle_f(c.psi_ref - math.atan2(n_e, n_n))
         Hm = self._Hm
         Hm[0], Hm[1], Hm[2] = r20, r21, r22
         PH = s.P @ Hm
@@ -350,12 +328,8 @@ class MultiplicativeEKF:
         s = self.state
         ex, ey, ez, dbx, dby, dbz = dx.tolist()
         ex, ey, ez = 0.5 * ex, 0.5 * ey, 0.5 * ez
-        qw, qx, qy, qz = s.q
-        qw, qx, qy, qz = (qw - qx * ex - qy * ey - qz * ez, qx + qw * ex + qy * ez - qz * ey,
-                          qy + qw * ey - qx * ez + qz * ex, qz + qw * ez + qx * ey - qy * ex)
-        n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
         bx, by, bz = s.bias
-        s.q, s.bias = (qw * n, qx * n, qy * n, qz * n), (bx + dbx, by + dby, bz + dbz)
+        s.q, s.bias = quat_normalise_f(quat_multiply_f(s.q, (1.0, ex, ey, ez))), (bx + dbx, by + dby, bz + dbz)
 
     # ---- a recording ---------------------------------------------------------------------------
     def run(self, gyr, acc, mag=None) -> AttitudeRun:
@@ -380,10 +354,3 @@ class MultiplicativeEKF:
         P_att_n = R @ Ps[:, :3, :3] @ np.swapaxes(R, 1, 2)  # attitude error covariance in NED
         return AttitudeRun(x, P_att_n, y, S, nis=nis, accel_gated=gated, mag_used=used, mag_gated=rejected,
                            method=self.method)
-
-
-def _product(q, dw, dx, dy, dz):
-    """Hamilton product q ⊗ d of (w, x, y, z) tuples, written out on floats."""
-    qw, qx, qy, qz = q
-    return (qw * dw - qx * dx - qy * dy - qz * dz, qw * dx + qx * dw + qy * dz - qz * dy,
-            qw * dy - qx * dz + qy * dw + qz * dx, qw * dz + qx * dy - qy * dx + qz * dw)
