@@ -1,7 +1,7 @@
 """Attitude filters: accuracy (BROAD total / heading / inclination RMSE) and speed vs peers, one run.
 
-    python benchmarks/bench_attitude.py            # bundled simulations, bundled BROAD excerpts, full BROAD trials if present
-    python benchmarks/bench_attitude.py --quick    # skip the full BROAD trials (the bundled excerpts always run)
+    python benchmarks/bench_attitude.py           # bundled simulations and BROAD excerpts, full BROAD trials if present
+    python benchmarks/bench_attitude.py --quick   # skip the full BROAD trials (the bundled excerpts always run)
 
 Filters: kfkit's euler-ekf and mekf (defaults), ahrs 0.4.0's EKF and Madgwick, imufusion 1.3.3
 (x-io Fusion) and VQF 2.1.2 (the best published filter on BROAD; offline=False, i.e. causal),
@@ -65,14 +65,28 @@ import numpy as np
 
 from kfkit import datasets
 from kfkit.filters import EulerAttitudeEKF, estimate_attitude
-from kfkit.filters.registry import methods
 from kfkit.filters.attitude_run import learn_field, tilt_heading
-from kfkit.filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement,
-                                     euler_kinematics_jacobian, euler_process_noise)
-from kfkit.frames import (G, body_rates_to_euler_rates, declination, enu_to_ned_quat, euler_to_quat, quat_conjugate,
-                          quat_multiply, quat_to_dcm, wrap_angle)
-from kfkit.readers import load_broad
+from kfkit.filters.euler_ekf import (
+    EulerAttitudeEKFSettings,
+    attitude_jacobian,
+    attitude_measurement,
+    euler_kinematics_jacobian,
+    euler_process_noise,
+)
+from kfkit.filters.registry import methods
+from kfkit.frames import (
+    G,
+    body_rates_to_euler_rates,
+    declination,
+    enu_to_ned_quat,
+    euler_to_quat,
+    quat_conjugate,
+    quat_multiply,
+    quat_to_dcm,
+    wrap_angle,
+)
 from kfkit.metrics import attitude_rmse
+from kfkit.readers import load_broad
 
 BROAD_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"
 SIMULATIONS = ("04_attitude_tour", "04_gimbal_lock", "04_mag_disturbance")

@@ -4,16 +4,17 @@ on the bundled recordings vs the simulation's true values, and how long a magnet
     python benchmarks/bench_calibration.py
 """
 import time
+from functools import partial
 
 import numpy as np
+from timing import best_of
 
 from kfkit import calibration, datasets, sim
 from kfkit.capture import sphere_coverage
-from kfkit.labs.lab02 import gyro_bias_truth, noise_truth, six_face_truth
 from kfkit.checkpoints.lab03 import heading_errors, random_ellipsoid
 from kfkit.frames import G, mount_matrix
+from kfkit.labs.lab02 import gyro_bias_truth, noise_truth, six_face_truth
 from kfkit.unit_errors import NUCLEO_UNIT
-from timing import best_of
 
 DEG = np.pi / 180
 K_FIT_SPREAD = 0.2  # relative standard deviation of K fitted on a 40-minute rest (200 simulated rests: tests/test_lab02_q.py)
@@ -31,18 +32,19 @@ def allan_table():
         x = rng.normal(0, 1e-3, n) + np.cumsum(rng.normal(0, 1e-6, n))
         taus, _ = calibration.allan_deviation(x, rate)
         _, ours = calibration.allan_deviation(x, rate, taus)
-        t_k = best_of(lambda: calibration.allan_deviation(x, rate, taus), repeats=3)
+        t_k = best_of(partial(calibration.allan_deviation, x, rate, taus), repeats=3)
         if allantools is None:
             print(f"| {label} | {len(taus)} | {t_k * 1e3:.1f} ms | not installed | | |")
             continue
         _, theirs, _, _ = allantools.oadev(x, rate=rate, data_type="freq", taus=taus)
-        t_a = best_of(lambda: allantools.oadev(x, rate=rate, data_type="freq", taus=taus), repeats=3)
+        t_a = best_of(partial(allantools.oadev, x, rate=rate, data_type="freq", taus=taus), repeats=3)
         diff = np.max(np.abs(ours / theirs - 1))
         print(f"| {label} | {len(taus)} | {t_k * 1e3:.1f} ms | {t_a * 1e3:.1f} ms | {t_a / t_k:.1f}× | {diff:.1e} |")
 
 
 def ellipsoid_table():
-    print("\n| readings | noise (µT) | fit time | hard-iron error (µT, RMS) | soft-iron error (max) | calibrated-norm σ (µT) |")
+    print("\n| readings | noise (µT) | fit time | hard-iron error (µT, RMS) | soft-iron error (max) "
+          "| calibrated-norm σ (µT) |")
     print("| --- | --- | --- | --- | --- | --- |")
     for n, noise in ((300, 0.3), (3000, 0.3), (3000, 1.0)):
         rng = np.random.default_rng(1)
@@ -80,7 +82,8 @@ def bundled_table():
               f"({worst(err / sigma) * 100:.1f} %) | {worst(err / u):.1f} |")
     K = still.meta["sim"]["gyro_bias_rw"]
     k_fit = calibration.allan_noise_fit(*calibration.allan_deviation(gyr, still.rate_hz))[2]
-    print(f"| gyro rate random walk K (Allan fit, 40 min; true {K * 1e6:.1f} µrad/s/√s) | {worst(k_fit - K) * 1e6:.2f} µrad/s/√s "
+    print(f"| gyro rate random walk K (Allan fit, 40 min; true {K * 1e6:.1f} µrad/s/√s) "
+          f"| {worst(k_fit - K) * 1e6:.2f} µrad/s/√s "
           f"({worst(k_fit / K - 1) * 100:.0f} %) | {worst(k_fit / K - 1) / K_FIT_SPREAD:.1f} |")
     b, s_, u_b, u_s = six_face_truth(faces_rec)
     b_hat, s_hat = calibration.accel_six_face({f: faces_rec.body("acc")[faces_rec.phase(f)] for f in calibration.FACES})

@@ -132,7 +132,8 @@ def main():
     print(f"| {made:,} | {stats.samples:,} | {lost} | {stats.bad_lines} | {stats.dropped} | {stats.rate_hz:.1f} Hz | "
           f"{draws} | {1e3 * polls.mean():.0f} ms / {1e3 * polls.max():.0f} ms |")
     print(f"\nbudget 0 lost lines: {'met' if lost == 0 and stats.dropped == 0 else 'NOT met'}")
-    print(f"(machine load average during the run: {', '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores)")
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(f"(machine load average during the run: {load} on {os.cpu_count()} cores)")
 
 
 if __name__ == "__main__":

@@ -15,8 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from kfkit.paths import KIT_ROOT
 from kfkit.grading import core, resources, sandbox
+from kfkit.paths import KIT_ROOT
 
 
 def main():
@@ -35,7 +35,8 @@ def main():
         print(f"{args.copies} copies of solutions/01_roll_kf_1d.ipynb; {os.cpu_count()} cores; "
               f"load average {os.getloadavg()[0]:.1f}; isolation: {box.describe(full=False)}; memory and CPU "
               f"limits: {resources.Cgroup.kind if parent else resources.ProcessTree.kind + ' (' + why + ')'}\n")
-        print("| --jobs | wall (s) | s per submission | mean time in a worker (s) | speed-up | all full marks | load after |")
+        print("| --jobs | wall (s) | s per submission | mean time in a worker (s) | speed-up | all full marks "
+              "| load after |")
         print("| --- | --- | --- | --- | --- | --- | --- |")
         first = None
         for jobs in args.jobs:

@@ -21,14 +21,15 @@ import statistics
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from pathlib import Path
 
 import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-import hub as hubkit  # noqa: E402  (tests/hub.py: the same hub the test runs)
+import hub as hubkit  # tests/hub.py: the same hub the test runs
 
-from kfkit.paths import KIT_ROOT  # noqa: E402
+from kfkit.paths import KIT_ROOT
 
 
 def first_cells() -> str:
@@ -88,7 +89,7 @@ def main():
         with hubkit.Hub(students=n, prefix="kfb") as hub:
             start = time.monotonic()
             with ThreadPoolExecutor(n) as pool:
-                waits = sorted(pool.map(lambda s: serve(hub, s, start, code), hub.students))
+                waits = sorted(pool.map(partial(serve, hub, start=start, code=code), hub.students))
             memory = [pss_mb(s) for s in hub.students]
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)

@@ -15,19 +15,19 @@ Budget (DESIGN): a 60 s, 100 Hz drive within 200 ms, so tuning feels live.
 """
 import contextlib
 import time
+from functools import partial
+from pathlib import Path
 from unittest import mock
 
 import numpy as np
 from filterpy.kalman import KalmanFilter as FilterpyKF
 from threadpoolctl import threadpool_limits
-
-from pathlib import Path
+from timing import best_of
 
 from kfkit import datasets, discrete, vehicle
 from kfkit.filters import compare_estimators, estimate_sideslip, sideslip
-from kfkit.readers import load_vehicle_csv
 from kfkit.metrics import rmse
-from timing import best_of
+from kfkit.readers import load_vehicle_csv
 
 SIGNALS = ("t", "delta", "yaw_rate", "ay", "vx")
 DRIVES = {"slalom 20 km/h": "06_slalom_20kmh", "slalom 80 km/h": "06_slalom_80kmh", "lane change 60 km/h": "06_lane_change"}
@@ -60,16 +60,18 @@ def speed_table():
         ours = estimate_sideslip(*sig, CAR, model=vehicle.linear_model).beta
         theirs = filterpy_sideslip(*sig)
         agree = np.max(np.abs(ours - theirs))
-        t_ours = best_of(lambda: estimate_sideslip(*sig, CAR, model=vehicle.linear_model), clock=time.process_time)
-        t_bias = best_of(lambda: estimate_sideslip(*sig, CAR, model=vehicle.linear_model, bias_ay=True), clock=time.process_time)
+        t_ours = best_of(partial(estimate_sideslip, *sig, CAR, model=vehicle.linear_model), clock=time.process_time)
+        t_bias = best_of(partial(estimate_sideslip, *sig, CAR, model=vehicle.linear_model, bias_ay=True),
+                         clock=time.process_time)
         with threadpool_limits(1, user_api="blas"):
-            t_fp = best_of(lambda: filterpy_sideslip(*sig), clock=time.process_time)
+            t_fp = best_of(partial(filterpy_sideslip, *sig), clock=time.process_time)
         n = len(rec)
         rows.append((label, n, n / t_ours, n / t_bias, n / t_fp, t_fp / t_ours, agree))
     print(f"{'drive':22s} {'samples':>8s} {'kfkit steps/s':>14s} {'+bias state':>12s} {'filterpy steps/s':>17s} "
           f"{'ratio':>6s} {'max |Δβ| (rad)':>15s} {'60 s @ 100 Hz':>14s}")
     for label, n, ours, bias, fp, ratio, agree in rows:
-        print(f"{label:22s} {n:8d} {ours:14.0f} {bias:12.0f} {fp:17.0f} {ratio:6.2f} {agree:15.1e} {6000 / ours * 1e3:11.0f} ms")
+        print(f"{label:22s} {n:8d} {ours:14.0f} {bias:12.0f} {fp:17.0f} {ratio:6.2f} {agree:15.1e} "
+              f"{6000 / ours * 1e3:11.0f} ms")
 
 
 class _NoLimit:
@@ -94,7 +96,8 @@ def blas_table(repeats=7):
                     walls.append(time.perf_counter() - w)
                     cpus.append(time.process_time() - c)
             name = ("+bias state, " if bias else "") + label
-            print(f"{name:38s} {1e3 * min(walls):8.1f} ms {1e3 * np.median(walls):10.1f} ms {1e3 * np.median(cpus):9.1f} ms")
+            print(f"{name:38s} {1e3 * min(walls):8.1f} ms {1e3 * np.median(walls):10.1f} ms "
+                  f"{1e3 * np.median(cpus):9.1f} ms")
 
 
 def rmse_table():

@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 from filterpy.kalman import KalmanFilter as FilterpyKF
+from timing import best_of
 
 from kfkit import datasets
 from kfkit.checkpoints import lab05
-from kfkit.paths import KIT_ROOT
 from kfkit.filters import TiltBiasKF, tilt
-from timing import best_of
+from kfkit.paths import KIT_ROOT
 
 C_SOURCE = KIT_ROOT / "firmware" / "tilt_kf" / "tilt_kf.c"
 HOST_HARNESS = r"""
@@ -89,10 +89,11 @@ def accuracy():
     bias = lab05.true_gyro_bias(rec)
     tuned = {name: lab05.tune_reference(*axes[name], dt, r, q0) for name in axes}
     print(f"Lab 05 on 05_tilt_protocol (36 s, 100 Hz); r = {r:.2e} rad², q0 = (σ_ω·Δt)² = {q0:.2e} rad²\n")
-    print("| estimate | roll RMSE, holds | pitch RMSE, holds | roll RMSE, whole | pitch RMSE, whole | bias error at 36 s (roll, pitch) |")
+    print("| estimate | roll RMSE, holds | pitch RMSE, holds | roll RMSE, whole | pitch RMSE, whole "
+          "| bias error at 36 s (roll, pitch) |")
     print("| --- | --- | --- | --- | --- | --- |")
     rows = [("accelerometer only (six-face corrected)", None, None)]
-    rows += [("KF, q0, skip gate", "skip", {n: (q0, 1e-4 * q0) for n in axes})]
+    rows += [("KF, q0, skip gate", "skip", dict.fromkeys(axes, (q0, 1e-4 * q0)))]
     rows += [(f"KF, tuned on the holds, gate = {g}", g, tuned) for g in ("none", "skip", "inflate")]
     for label, gate, q in rows:
         cells, errs = [], []
@@ -190,7 +191,8 @@ def speed():
         per_sample = 2 * us["update"] + us["roll"] + us["pitch"] + us["static"]
         print(f"\nATmega328P at 16 MHz (simavr): TiltKfUpdate {us['update']:.0f} µs ({cycles['update']} cycles), "
               f"coasting {us['coast']:.0f} µs, accelerometer roll {us['roll']:.0f} µs, pitch {us['pitch']:.0f} µs, "
-              f"static test {us['static']:.0f} µs: the sketch's filter work per sample ≈ {per_sample / 1000:.2f} ms of its 10 ms.")
+              f"static test {us['static']:.0f} µs: the sketch's filter work per sample ≈ {per_sample / 1000:.2f} ms "
+              f"of its 10 ms.")
 
 
 if __name__ == "__main__":

@@ -55,7 +55,8 @@ NBVAL_MARKER = "# NBVAL_"
 PREDICT_TAG, REVEAL_TAG, MY_PREDICTION_TAG = "predict", "reveal", "my-prediction"
 MY_PREDICTION = ("**My prediction:** *(write it here before you run the cells below; the explanation after them is "
                  "folded: click its bar to open it once you have compared)*")
-#: the first line of a folded explanation: JupyterLab's fold bar previews a cell's first line, which must not be the answer
+#: the first line of a folded explanation: JupyterLab's fold bar previews a cell's first line, which must not be the
+#: answer
 REVEAL_LEAD = "**Explanation** *(folded: open it after you have run the cells above and compared with your prediction)*"
 RUN_NUMBER = re.compile(r"<!--\s*run:\s*(.*?)\s*-->(.*?)<!--\s*/run\s*-->", re.S)
 

@@ -14,7 +14,8 @@ of the bundled simulations). :func:`calibration_for` picks the one that belongs 
 bundled default for the bundled recordings, the student's own for theirs.
 
 **A phone** (board ``"phone-phyphox"``) comes calibrated by its OS, and the kit's default for it is the
-identity, with the noise σ of the phone's sensor model (:func:`kfkit.sensors.phone_board`) (``data/calibration_phone-phyphox.json``):
+identity, with the noise σ of the phone's sensor model (:func:`kfkit.sensors.phone_board`)
+(``data/calibration_phone-phyphox.json``):
 
 - gyro bias 0: Android's ``TYPE_GYROSCOPE``, which phyphox reads, "MUST be calibrated and compensated while
   in use" (Android CDD §7.3.4; AOSP "Sensor types": base sensors carry bias and temperature compensation,
@@ -38,7 +39,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import nnls
 
-from .frames import G, MAG_FIELD_LONDON
+from .frames import MAG_FIELD_LONDON, G
 from .paths import bundled_calibration_path, data_dir, user_calibration_path
 from .sensors import board as get_board
 
@@ -320,17 +321,19 @@ def fit_mag_calibration(mag, field_norm=None, min_samples=50, min_spread=MIN_MAG
     if sigma[0] < MIN_MAG_COVERAGE * B:
         still = sigma[-1] < MIN_MAG_COVERAGE * B
         raise CalibrationError(
-            f"mag: the rotations cover too little of the sphere: the readings spread only {sigma[0]:.2g} µT along their narrowest direction (and {sigma[-1]:.2g} µT along "
+            f"mag: the rotations cover too little of the sphere: the readings spread only {sigma[0]:.2g} µT along "
+            f"their narrowest direction (and {sigma[-1]:.2g} µT along "
             f"the widest), under {MIN_MAG_COVERAGE:.0%} of the {B:.3g} µT field: "
             + ("the board hardly turned (this is sensor noise around one reading). " if still else
                "the board turned about one axis only, so the field was never seen along that axis. ")
-            + "Record again, turning the board slowly through every orientation — figure eights, on its side and upside "
-              "down — for about a minute (and pass field_norm= your local field if it is far from London's)")
+            + "Record again, turning the board slowly through every orientation — figure eights, on its side and "
+              "upside down — for about a minute (and pass field_norm= your local field if it is far from London's)")
     if spread[0] < min_spread * spread[-1]:
         raise CalibrationError(
-            f"mag: the rotations cover too little of the sphere (smallest/largest spread {spread[0] / spread[-1]:.3f} < "
-            f"{min_spread}): a hard/soft-iron fit needs the field seen from all directions. Record again, turning the "
-            f"board slowly through every orientation — figure eights, on its side and upside down — for about a minute")
+            f"mag: the rotations cover too little of the sphere (smallest/largest spread "
+            f"{spread[0] / spread[-1]:.3f} < {min_spread}): a hard/soft-iron fit needs the field seen from all "
+            f"directions. Record again, turning the board slowly through every orientation — figure eights, on its "
+            f"side and upside down — for about a minute")
     u = (m - centre) / scale
     x, y, z = u.T
     design = np.column_stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, x, y, z, np.ones_like(x)])
@@ -431,7 +434,7 @@ class Calibration:
         return json.dumps(asdict(self), indent=1, ensure_ascii=False) + "\n"
 
     @classmethod
-    def from_json(cls, text: str, where="calibration") -> "Calibration":
+    def from_json(cls, text: str, where="calibration") -> Calibration:
         """A calibration file's text. Stricter than the constructor: every field but ``source`` must be
         there (no default stands in for a measurement) and the board must be one the kit knows. A noise σ
         of 0 means "not measured" (a board without magnetometer, a lab that saved before measuring it); a file from
@@ -442,7 +445,7 @@ class Calibration:
             raise CalibrationError(f"{where}: not valid JSON ({e.msg}, line {e.lineno})") from None
         if not isinstance(d, dict):
             raise CalibrationError(f"{where}: expected a JSON object of calibration fields")
-        unknown = sorted(set(d) - {f for f in cls.__dataclass_fields__})
+        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
         if unknown:
             raise CalibrationError(f"{where}: unknown fields {', '.join(unknown)}")
         missing = [f for f in cls.__dataclass_fields__ if f not in d and f not in ("source", "gyro_bias_walk")]
@@ -471,7 +474,7 @@ class Calibration:
         return path
 
     @classmethod
-    def load(cls, path) -> "Calibration":
+    def load(cls, path) -> Calibration:
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"no calibration file at {path}")

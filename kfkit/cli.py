@@ -305,7 +305,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("capture", help="record from a board (protocol v1) into a recording file")
     p.add_argument("--port", type=_port, default="auto", help="device path, pyserial URL (loop://, socket://, "
-                   "hwgrep://), 'auto', 'virtual', 'emulated-uno' (the Uno firmware on simavr), or phyphox://HOST:PORT for a phone running phyphox with remote access "
+                   "hwgrep://), 'auto', 'virtual', 'emulated-uno' (the Uno firmware on simavr), or phyphox://HOST:PORT "
+                   "for a phone running phyphox with remote access "
                    "(default: %(default)s)")
     p.add_argument("--seconds", type=SECONDS, default=None,
                    help=f"board time to record, s (default: {DEFAULT_SECONDS:g}, or the protocol's length)")
@@ -332,7 +333,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fast", action="store_true", help="the virtual board runs faster than real time (with --headless)")
     p.set_defaults(run=_demo)
 
-    from .grading import add_parser as add_grade_parser, add_report_parser
+    from .grading import add_parser as add_grade_parser
+    from .grading import add_report_parser
 
     add_grade_parser(sub)
     add_report_parser(sub)

@@ -8,21 +8,23 @@ The data folder is ``data/`` beside the ``kfkit`` package; ``KFKIT_DATA`` overri
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from . import real_data, sim, vehicle
-from .frames import G
 from .calibration import Calibration, calibrate
+from .frames import G
 from .io import Recording, load_recording, load_vehicle, recording_text, vehicle_text
 from .paths import data_dir
 from .phone_sim import simple_experiment_files, simulate_phone
 from .readers.phyphox_export import load_phyphox
 from .sensors import phone_board
 from .unit_errors import MPU6050_ACCEL_BIAS, MPU6050_ACCEL_SCALE, MPU6050_GYRO_BIAS, NUCLEO_UNIT
+
 
 def _roll_sine() -> Recording:
     """Lab 01: a Nucleo + X-NUCLEO-IKS02A1 rolled by hand, ±30° at 0.1 Hz, 104 Hz, 60 s."""
@@ -311,5 +313,6 @@ def _first_difference(old: str, new: str) -> str:
         if a != b:
             col = next((j for j, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
             lo = max(0, col - 30)
-            return f"first at line {i}, column {col + 1}: shipped …{a[lo:col + 30]!r}…, regenerated …{b[lo:col + 30]!r}…"
+            return (f"first at line {i}, column {col + 1}: shipped …{a[lo:col + 30]!r}…, "
+                    f"regenerated …{b[lo:col + 30]!r}…")
     return f"line counts differ ({len(old.splitlines())} shipped, {len(new.splitlines())} regenerated)"

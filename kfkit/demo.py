@@ -250,7 +250,8 @@ def run_tilt_demo(port, seconds=None, headless=False, fps=30.0, baud=115200, fas
         else:
             _window(game, stream, 1.0 / fps, seconds)
         out(f"$ATT lines {stream.counts['ATT']}, samples {stream.counts['samples']}, bad lines {stream.counts['bad']}; "
-            f"{game.time:.1f} s driven, distance {game.distance:.0f} m, score {game.score:.0f}, off road {game.off_road_s:.1f} s"
+            f"{game.time:.1f} s driven, distance {game.distance:.0f} m, score {game.score:.0f}, "
+            f"off road {game.off_road_s:.1f} s"
             + (f"; {stream.error}" if stream.error else ""))
     return game
 

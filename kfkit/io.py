@@ -58,7 +58,8 @@ OPTIONAL_INT_COLUMNS = frozenset({"mx", "my", "mz"})  # empty cell = no new samp
 SENSOR_COLUMNS = {"acc": ("ax", "ay", "az"), "gyr": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
 TRUTH_COLUMNS = ("true_roll", "true_pitch", "true_yaw")
 BOM = "\ufeff"
-#: the largest count magnitude: integers up to 2^53 are exact as int64 and as float64 (counts() and NaN-able mag columns)
+#: the largest count magnitude: integers up to 2^53 are exact as int64 and as float64 (counts() and NaN-able mag
+#: columns)
 MAX_COUNT = 2**53
 SEQ_MODULO = 2**16  # ``seq`` is the board's 16-bit sample counter: 0 … 65535
 #: the longest number text read: every writer of the kit's formats writes far shorter ones (a count ≤ 2^53 has 17
@@ -190,7 +191,7 @@ class Recording:
             mask |= (self.t >= w["start"]) & (self.t < w["end"])
         return mask
 
-    def head(self, seconds: float) -> "Recording":
+    def head(self, seconds: float) -> Recording:
         """The first ``seconds`` of the recording (a new Recording sharing metadata)."""
         keep = self.t < self.t[0] + seconds
         return Recording(dict(self.meta), {k: v[keep] for k, v in self.data.items()}, self.path)
@@ -247,8 +248,8 @@ def save_recording(rec: Recording, path) -> Path:
 
 def parse_header(path, line: str, kind: str = "recording", hint: str = "", needs_rate: bool = True) -> dict:
     """The metadata of a kit file's first line ``# kfkit-<kind> v1 {json}``: a JSON object with valid ``phases`` and
-    (``needs_rate``) a positive finite ``rate_hz``. A file of another kind or version, or bad JSON, is a RecordingError on line 1
-    (``hint``: what to do instead, for a file that is not the kit's at all)."""
+    (``needs_rate``) a positive finite ``rate_hz``. A file of another kind or version, or bad JSON, is a RecordingError
+    on line 1 (``hint``: what to do instead, for a file that is not the kit's at all)."""
     expected = magic(kind)
     if not line.startswith(f"# kfkit-{kind} "):
         shown = line[:60].rstrip("\n")
@@ -380,7 +381,7 @@ def load_recording(path) -> Recording:
     return Recording(meta, data, path)
 
 
-# --- the kit's vehicle recording format (and the row reader students' CSVs share) ----------------------------------------------
+# --- the kit's vehicle recording format (and the row reader students' CSVs share) ---------------------------------
 
 VEHICLE_MAGIC = magic("vehicle")
 VEHICLE_COLUMNS = ("t", "delta", "yaw_rate", "ay", "vx")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .frames import G, MAG_FIELD_LONDON, dcm_slerp, dcm_to_euler, dcm_to_quat, euler_to_dcm
+from .frames import MAG_FIELD_LONDON, G, dcm_slerp, dcm_to_euler, dcm_to_quat, euler_to_dcm
 from .io import format_header
 from .sensors import DEFAULT_PHONE_MOUNT, PHONE_LSB, PHONE_MAG, phone_board, phone_mount
 from .sim import Motion, simulate_imu
@@ -95,7 +95,7 @@ def simulate_phone(motion, seed=0, rates=None, jitter_s=TIMESTAMP_JITTER, unit=N
 TRUTH_FILE, TRUTH_KIND = "kfkit_truth.csv", "truth"
 
 
-# --- an export as phyphox writes it (the bundled phone recording, tests) ----------------------------------------------------------------------
+# --- an export as phyphox writes it (the bundled phone recording, tests) ------------------------------------------
 
 def format_number(value: float, decimal: str = ".") -> str:
     """A number as phyphox's CSV export writes it: ten significant digits, ``9.806650000E0``."""

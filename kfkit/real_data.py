@@ -34,17 +34,17 @@ What the conversion changes, and why:
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import scipy.signal
 
 from .frames import dcm_to_quat, quat_slerp, quat_to_dcm, quat_to_euler
 from .io import Recording, load_recording, load_vehicle, recording_text, vehicle_text
-from .paths import KIT_ROOT, data_dir
+from .paths import KIT_ROOT
 from .readers.broad import load_broad
 from .readers.vehicle_csv import load_vehicle_csv
 
@@ -182,13 +182,14 @@ def _racetrack(source: Path) -> Recording:
         "axes": "ISO 8855 (x forward, y left, z up)",
         "units": {"t": "s", "delta": "rad (road wheel)", "yaw_rate": "rad/s", "ay": "m/s^2 (at the CG)", "vx": "m/s",
                   "true_beta": "rad (measured)", "true_vy": "m/s (measured, at the CG)"},
-        # the parameters its authors published with their estimators (C_f, C_r chosen for their linear model, not measured)
+        # the parameters its authors published with their estimators (C_f, C_r chosen for their linear model, not
+        # measured)
         "vehicle": {"m": 982.0, "Iz": round(982.0 / 12.0 * (1.7 ** 2 + 4.09 ** 2), 1), "a": 1.33, "b": 1.07,
                     "Cf": 70_000.0, "Cr": 120_000.0, "mu": 1.0},
         "log_time_offset_s": t0,
         "license": RACETRACK_CITATION,
-        "changes": f"the first half of the log (t = {t0:g}–{t0 + data['t'][-1]:g} s), time from 0; columns renamed to the "
-                   "kit's (t_s→t, steer_road_wheel_rad→delta, yaw_rate_rad_s→yaw_rate, ay_cg_m_s2→ay, vx_m_s→vx, "
+        "changes": f"the first half of the log (t = {t0:g}–{t0 + data['t'][-1]:g} s), time from 0; columns renamed "
+                   "to the kit's (t_s→t, steer_road_wheel_rad→delta, yaw_rate_rad_s→yaw_rate, ay_cg_m_s2→ay, vx_m_s→vx, "
                    "beta_true_rad→true_beta, vy_m_s→true_vy); values unchanged (100 Hz, SI)",
     }
     return Recording(meta, data)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frames import G, MOUNT_Z_UP, mount_matrix
+from .frames import MOUNT_Z_UP, G, mount_matrix
 
 DEG = np.pi / 180.0
 MG = 1e-3 * G  # one milli-g in m/s²

@@ -16,9 +16,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .frames import G, MAG_FIELD_LONDON, dcm_to_euler, euler_rates_to_body_rates, euler_to_dcm, mount_matrix
+from .frames import MAG_FIELD_LONDON, G, dcm_to_euler, euler_rates_to_body_rates, euler_to_dcm, mount_matrix
 from .io import Recording
-from .sensors import SensorSpec, board as get_board
+from .sensors import SensorSpec
+from .sensors import board as get_board
 
 
 @dataclass

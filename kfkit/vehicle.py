@@ -1,5 +1,6 @@
 """Single-track (bicycle) vehicle models (made discrete by :func:`kfkit.discrete.discretize`) and simulated
-drives; their files are :mod:`kfkit.io`'s vehicle format (``# kfkit-vehicle v1``; a CSV of your own: :mod:`kfkit.readers.vehicle_csv`).
+drives; their files are :mod:`kfkit.io`'s vehicle format (``# kfkit-vehicle v1``; a CSV of your own:
+:mod:`kfkit.readers.vehicle_csv`).
 
 Axes and signs follow ISO 8855: x forward, y left, z up; steering δ > 0 turns left, yaw rate
 r > 0 is a left turn, lateral acceleration a_y > 0 points left. (The IMU labs use FRD: an IMU
@@ -75,7 +76,7 @@ class BicycleParams:
         """K = m/L·(b/Cf − a/Cr), rad per m/s² (> 0: understeer); steady state δ = L/R + K·a_y."""
         return self.m / self.wheelbase * (self.b / self.Cf - self.a / self.Cr)
 
-    def scaled(self, cornering: float = 1.0) -> "BicycleParams":
+    def scaled(self, cornering: float = 1.0) -> BicycleParams:
         """The same car with both cornering stiffnesses multiplied by ``cornering`` (e.g. 0.8)."""
         return replace(self, Cf=self.Cf * cornering, Cr=self.Cr * cornering)
 

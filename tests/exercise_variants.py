@@ -135,7 +135,8 @@ WAYS = {
         f"def labelled_{fn.name}(label):\n    def decorate(f):\n        f.label = label\n        return f\n"
         f"    return decorate\n\n@labelled_{fn.name}('exercise')\n{_src(fn)}"),
     "closure_factory": lambda fn: (
-        f"def make_{fn.name}():\n{textwrap.indent(_src(fn), '    ')}\n    return {fn.name}\n\n{fn.name} = make_{fn.name}()"),
+        f"def make_{fn.name}():\n{textwrap.indent(_src(fn), '    ')}\n    return {fn.name}\n\n"
+        f"{fn.name} = make_{fn.name}()"),
     "nonlocal_counter": lambda fn: (
         f"def counted_{fn.name}(f):\n    calls = 0\n    def wrapper(*args, **kwargs):\n        nonlocal calls\n"
         f"        calls += 1\n        return f(*args, **kwargs)\n    return wrapper\n\n{_impl(fn)}\n\n"
@@ -144,7 +145,8 @@ WAYS = {
         f"class Exercise_{fn.name}:\n    @staticmethod\n{textwrap.indent(_src(fn), '    ')}\n\n"
         f"{fn.name} = Exercise_{fn.name}.{fn.name}"),
     "bound_method": lambda fn: (
-        f"class Solver_{fn.name}:\n    def solve(self, *args, **kwargs):\n        return impl_{fn.name}(*args, **kwargs)\n\n"
+        f"class Solver_{fn.name}:\n    def solve(self, *args, **kwargs):\n"
+        f"        return impl_{fn.name}(*args, **kwargs)\n\n"
         f"{_impl(fn)}\n\n{fn.name} = Solver_{fn.name}().solve"),
     "classmethod": lambda fn: (
         f"class Tools_{fn.name}:\n    @classmethod\n    def run(cls, *args, **kwargs):\n"
@@ -154,7 +156,8 @@ WAYS = {
         f"{_impl(fn)}\n\nclass Callable_{fn.name}:\n    def __call__(self, *args, **kwargs):\n"
         f"        return impl_{fn.name}(*args, **kwargs)\n\n{fn.name} = Callable_{fn.name}()"),
     "dataclass_holder": lambda fn: (
-        f"import dataclasses\n\n{_impl(fn)}\n\n@dataclasses.dataclass\nclass Holder_{fn.name}:\n    function: object\n\n"
+        f"import dataclasses\n\n{_impl(fn)}\n\n@dataclasses.dataclass\n"
+        f"class Holder_{fn.name}:\n    function: object\n\n"
         f"{fn.name} = Holder_{fn.name}(impl_{fn.name}).function"),
     "lambda_alias": lambda fn: f"{_impl(fn)}\n\n{fn.name} = lambda *args, **kwargs: impl_{fn.name}(*args, **kwargs)",
     "partial": lambda fn: f"import functools\n\n{_impl(fn)}\n\n{fn.name} = functools.partial(impl_{fn.name})",

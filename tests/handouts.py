@@ -5,9 +5,9 @@ import re
 
 import nbformat
 from nbclient import NotebookClient
+from waiting import HANG_GUARD_S
 
 from kfkit.paths import KIT_ROOT
-from waiting import HANG_GUARD_S
 
 #: the exercise guard's note in a skipped cell, and the stubs it names
 NOTE = re.compile(r"⏭  skipped: (.*)\. Run this cell again when that is done\.")

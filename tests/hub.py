@@ -109,7 +109,7 @@ class Hub:
         self.work = self.instructor / "labs"  # the instructor's clone of the student repository
         self.port, self.token = free_port(), secrets.token_hex(32)
         self.url = f"http://127.0.0.1:{self.port}"
-        self.proc, self.users_made, self.log = None, [], None
+        self.proc, self.users_made = None, []
 
     # -------------------------------------------------------------------------------- setup
     def __enter__(self):
@@ -128,10 +128,11 @@ class Hub:
         self._labs_repo()
         self._users()
         self._config()
-        self.log = open(self.instructor / "jupyterhub.log", "w")
-        self.proc = subprocess.Popen([sys.executable, "-m", "jupyterhub", "-f", str(self.instructor / "config.py")],
-                                     cwd=self.instructor, stdout=self.log, stderr=subprocess.STDOUT,
-                                     env={**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"})
+        with open(self.instructor / "jupyterhub.log", "w") as log:  # the hub writes to its own copy of the file
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "jupyterhub", "-f", str(self.instructor / "config.py")],
+                cwd=self.instructor, stdout=log, stderr=subprocess.STDOUT,
+                env={**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"})
         self._wait(self._answers, "the hub did not answer")  # it adds allowed_users itself
 
     def _kit_without_solutions(self):
@@ -187,7 +188,8 @@ class Hub:
                  'if [ -z "${KFKIT_OUTER_NS:-}" ]; then',
                  '    KFKIT_OUTER_NS=$(readlink /proc/self/ns/mnt) exec unshare --mount --propagation private -- "$0" "$@"',
                  "fi",
-                 '[ "$(readlink /proc/self/ns/mnt)" != "$KFKIT_OUTER_NS" ] || { echo "not in a new mount namespace" >&2; exit 1; }']
+                 '[ "$(readlink /proc/self/ns/mnt)" != "$KFKIT_OUTER_NS" ] || '
+                 '{ echo "not in a new mount namespace" >&2; exit 1; }']
         for i, path in enumerate(kept):
             (stage / str(i)).mkdir(parents=True)
             lines.append(f"mount --bind '{path}' '{stage / str(i)}'")
@@ -200,9 +202,10 @@ class Hub:
         wrapper.chmod(0o700)
         (self.instructor / "image_spawner.py").write_text(SPAWNER)
         settings = self.root / "lab-settings"  # every cell in the DOM, no news: as tests/browser/ sets it
-        for rel, text in {"@jupyterlab/notebook-extension/tracker.jupyterlab-settings": '{"windowingMode": "none"}',
-                          "@jupyterlab/apputils-extension/notification.jupyterlab-settings":
-                              '{"fetchNews": "false", "checkForUpdates": false}'}.items():
+        tracker = "@jupyterlab/notebook-extension/tracker.jupyterlab-settings"
+        news = "@jupyterlab/apputils-extension/notification.jupyterlab-settings"
+        for rel, text in {tracker: '{"windowingMode": "none"}',
+                          news: '{"fetchNews": "false", "checkForUpdates": false}'}.items():
             (settings / rel).parent.mkdir(parents=True, exist_ok=True)
             (settings / rel).write_text(text)
         for d in [settings, *settings.rglob("*")]:
@@ -389,6 +392,4 @@ c.JupyterHub.cleanup_servers = True
         for name in self.users_made:
             subprocess.run(["pkill", "-KILL", "-u", name], capture_output=True)  # only that user's processes
             subprocess.run(["userdel", name], capture_output=True)
-        if self.log:
-            self.log.close()
         shutil.rmtree(self.root, ignore_errors=True)

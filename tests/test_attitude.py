@@ -1,19 +1,37 @@
-"""kfkit's attitude filters (euler_ekf, euler_ekf_fast, mekf, attitude) against independent oracles: scipy Rotation, finite differences,
-filterpy's ExtendedKalmanFilter, chi-square bounds over Monte Carlo runs."""
+"""kfkit's attitude filters (euler_ekf, euler_ekf_fast, mekf, attitude) against independent oracles: scipy Rotation,
+finite differences, filterpy's ExtendedKalmanFilter, chi-square bounds over Monte Carlo runs."""
 import numpy as np
 import pytest
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from kfkit.frames import (G, MAG_FIELD_LONDON, body_rates_to_euler_rates, euler_rates_to_body_rates, euler_to_quat, quat_to_dcm, quat_to_euler,
-                          wrap_angle)
-from kfkit.filters import (EulerAttitudeEKF, attitude_jacobian, attitude_measurement, estimate_attitude, euler_ekf_predict,
-                           euler_ekf_update, euler_process_noise)
-from kfkit.filters import FastEulerAttitudeEKF, MekfSettings, MultiplicativeEKF, Step
+from kfkit.filters import (
+    EulerAttitudeEKF,
+    FastEulerAttitudeEKF,
+    MekfSettings,
+    MultiplicativeEKF,
+    Step,
+    attitude_jacobian,
+    attitude_measurement,
+    estimate_attitude,
+    euler_ekf_predict,
+    euler_ekf_update,
+    euler_process_noise,
+)
 from kfkit.filters.attitude_run import learn_field, tilt_heading
 from kfkit.filters.euler_ekf import EulerAttitudeEKFSettings, euler_kinematics_jacobian, euler_rate_matrix
 from kfkit.filters.mag_gate import MagGate
+from kfkit.frames import (
+    MAG_FIELD_LONDON,
+    G,
+    body_rates_to_euler_rates,
+    euler_rates_to_body_rates,
+    euler_to_quat,
+    quat_to_dcm,
+    quat_to_euler,
+    wrap_angle,
+)
 from kfkit.metrics import attitude_errors, chi2_bounds, nees
 
 FIELD = np.array(MAG_FIELD_LONDON)

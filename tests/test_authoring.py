@@ -95,8 +95,8 @@ def test_indented_blocks_compile_and_raise():
 
 
 @pytest.mark.parametrize("function, line", [
-    ("def rms(values):\n    if values:\n        ### BEGIN SOLUTION\n        return 1.0\n        ### END SOLUTION\n"
-     "    return 0.0", 4),
+    ("def rms(values):\n    if values:\n        ### BEGIN SOLUTION\n        return 1.0\n"
+     "        ### END SOLUTION\n    return 0.0", 4),
     ("def rms(values):\n    try:\n        ### BEGIN SOLUTION\n        return 1.0\n        ### END SOLUTION\n"
      "    except ValueError:\n        return 0.0", 4),
     ("def rms(values):\n    if not values:\n        return 0.0\n    ### BEGIN SOLUTION\n    return 1.0\n"

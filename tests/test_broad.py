@@ -11,8 +11,8 @@ from scipy.spatial.transform import Rotation
 from kfkit.filters import estimate_attitude
 from kfkit.frames import G, enu_to_ned_quat, quat_to_dcm
 from kfkit.io import RecordingError
-from kfkit.readers import load_broad
 from kfkit.metrics import attitude_errors
+from kfkit.readers import load_broad
 
 BROAD_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"
 REAL_TRIALS = sorted(glob.glob(str(BROAD_DIR / "*.mat")))

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from kfkit import calibration as C
 from kfkit import datasets, sim
 from kfkit.checkpoints.lab03 import random_ellipsoid
-from kfkit.frames import G, MAG_FIELD_LONDON, mount_matrix
+from kfkit.frames import MAG_FIELD_LONDON, G, mount_matrix
 from kfkit.io import load_recording, save_recording
 
 B_LONDON = np.linalg.norm(MAG_FIELD_LONDON)
@@ -198,7 +198,8 @@ def test_allan_read_outs_on_synthesised_white_and_flicker_noise():
 @pytest.mark.parametrize("seed", range(4))
 def test_allan_noise_fit_reads_white_noise_and_the_bias_random_walk(seed):
     """The simulator's gyro: white noise N plus a bias that walks with K (its steps' σ = K/√rate), one hour at 50 Hz.
-    The walk shows on the curve's last two decades only, so K is read to ±30 % (the estimate's own scatter), N to 2 %."""
+    The walk shows on the curve's last two decades only, so K is read to ±30 % (the estimate's own scatter), N to
+    2 %."""
     rng = np.random.default_rng(seed)
     rate, N, K = 50.0, 5e-3, 2e-4
     n = int(3600 * rate)

@@ -5,16 +5,23 @@ import re
 
 import numpy as np
 import pytest
-
-from kfkit import calibration as C
-from kfkit import datasets, sim
-from kfkit.frames import G, MAG_FIELD_LONDON, accel_tilt, declination, mount_matrix, tilt_compensated_heading, wrap_angle
-from kfkit.io import load_recording
-from kfkit.paths import KIT_ROOT
-
 import unit_truth
 from test_calibration import PHONE, phone_export
 from waiting import HANG_GUARD_S
+
+from kfkit import calibration as C
+from kfkit import datasets, sim
+from kfkit.frames import (
+    MAG_FIELD_LONDON,
+    G,
+    accel_tilt,
+    declination,
+    mount_matrix,
+    tilt_compensated_heading,
+    wrap_angle,
+)
+from kfkit.io import load_recording
+from kfkit.paths import KIT_ROOT
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
@@ -31,8 +38,10 @@ def lab00_recordings(tmp_path_factory):
     from kfkit import capture
     from kfkit.capture.guided import protocol_motion
     folder = tmp_path_factory.mktemp("my_recordings")
-    record = lambda name, out, quick: capture.record_protocol(name, "virtual", folder / out, quick=quick, fast=True,
-                                                              seed=4, prompt=None)
+
+    def record(name, out, quick):
+        return capture.record_protocol(name, "virtual", folder / out, quick=quick, fast=True, seed=4, prompt=None)
+
     recs = {name: record(name, f"{name}.csv", True)
             for name in ("stationary", "six-faces", "mag-rotations", "axis-turns", "headings")}
     recs["mag-rotations full"] = record("mag-rotations", "mag-rotations-full.csv", False)

@@ -7,8 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import serial.tools.list_ports
-
 import unit_truth
+
 from kfkit import calibration, capture, filters, frames, metrics
 from kfkit.frames import euler_to_quat
 from kfkit.io import load_recording

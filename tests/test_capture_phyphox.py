@@ -19,8 +19,13 @@ import serial.tools.list_ports
 
 from kfkit import frames
 from kfkit.capture import Recorder, capture
-from kfkit.capture.errors import (PhoneError, PhoneExperimentError, PhoneStoppedError, PhoneUnreachableError,
-                                 RemoteAccessOffError)
+from kfkit.capture.errors import (
+    PhoneError,
+    PhoneExperimentError,
+    PhoneStoppedError,
+    PhoneUnreachableError,
+    RemoteAccessOffError,
+)
 from kfkit.capture.phyphox_http import PhyphoxClient, parse_url
 from kfkit.capture.virtual_phone import VirtualPhone, format_number
 from kfkit.cli import main
@@ -206,23 +211,22 @@ def test_without_a_magnetometer_it_records_gyro_and_accelerometer():
 
 
 def test_phyphox_refusing_to_start():
-    with VirtualPhone(faults={"refuse_start": True}) as vp:
-        with pytest.raises(PhoneExperimentError, match="refused to start"):
-            Recorder(vp.url).start()
+    with VirtualPhone(faults={"refuse_start": True}) as vp, pytest.raises(PhoneExperimentError, match="refused to start"):
+        Recorder(vp.url).start()
 
 
 def test_a_phone_that_pauses_mid_capture_keeps_what_arrived(tmp_path):
-    with VirtualPhone(step_s=0.8, faults={"pause_at": 4.0}) as vp:
-        with pytest.raises(PhoneStoppedError, match="stopped measuring"):
-            capture(vp.url, seconds=30.0, out=tmp_path / "paused.csv")
+    with (VirtualPhone(step_s=0.8, faults={"pause_at": 4.0}) as vp,
+          pytest.raises(PhoneStoppedError, match="stopped measuring")):
+        capture(vp.url, seconds=30.0, out=tmp_path / "paused.csv")
     rec = load_recording(tmp_path / "paused.csv")
     assert 3.5 < rec.t[-1] < 4.0 and rec.meta["capture"]["stats"]["samples"] == len(rec)
 
 
 def test_a_phone_that_stops_answering_mid_capture_keeps_what_arrived(tmp_path):
-    with VirtualPhone(step_s=0.4, faults={"hang_after": 15}) as vp:
-        with pytest.raises(PhoneUnreachableError, match="no answer"):
-            capture(vp.url + "?timeout=5", seconds=60.0, out=tmp_path / "lost.csv")  # 5 s: a busy machine answers
+    with (VirtualPhone(step_s=0.4, faults={"hang_after": 15}) as vp,
+          pytest.raises(PhoneUnreachableError, match="no answer")):
+        capture(vp.url + "?timeout=5", seconds=60.0, out=tmp_path / "lost.csv")  # 5 s: a busy machine answers
     rec = load_recording(tmp_path / "lost.csv")
     assert len(rec) > 100 and rec.meta["capture"]["stats"]["samples"] == len(rec)
 

@@ -12,14 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-import kfkit.capture as C
-from kfkit.capture import ports as ports_module
 import unit_truth
 from allan_oracle import allan_curves, loglog_slope, model_adev, outside_chi2_interval
+
+import kfkit.capture as C
 from kfkit import sim
+from kfkit.capture import ports as ports_module
 from kfkit.cli import main
-from kfkit.frames import G, MAG_FIELD_LONDON
+from kfkit.frames import MAG_FIELD_LONDON, G
 from kfkit.io import load_recording, recording_text
 from kfkit.unit_errors import BIAS_RANDOM_WALK
 
@@ -226,7 +226,7 @@ def test_streamed_file_is_flushed_while_recording(tmp_path):
         rec.stop()
     rows = streamed.split("\n")[2:-1]
     assert running and len(rows) >= 100  # on disk while the 600 s capture was still running
-    assert rows == [line for line in recording_text(received).split("\n")[2:len(rows) + 2]]
+    assert rows == recording_text(received).split("\n")[2:len(rows) + 2]
 
 
 def test_board_that_stops_sending_mid_capture(tmp_path):
@@ -322,11 +322,10 @@ def test_auto_and_hwgrep_find_the_board_by_its_usb_id(monkeypatch, port):
 
 
 def test_second_recorder_on_the_same_port_is_busy():
-    with C.VirtualBoard(rate_hz=RATE, realtime=False) as vb:
-        with C.Recorder(vb.port, seconds=0.01) as first:
-            with pytest.raises(C.PortBusyError, match="busy"):
-                C.Recorder(vb.port).start()
-            first.wait(5)
+    with C.VirtualBoard(rate_hz=RATE, realtime=False) as vb, C.Recorder(vb.port, seconds=0.01) as first:
+        with pytest.raises(C.PortBusyError, match="busy"):
+            C.Recorder(vb.port).start()
+        first.wait(5)
 
 
 def test_commands_h_and_s():

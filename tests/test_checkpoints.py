@@ -147,7 +147,7 @@ def test_not_attempted_is_said_for_every_checkpoint(name):
 
 def test_lab00_judges_name_a_sum_a_hex_text_and_an_unwrapped_clock():
     assert not run_checkpoint(get("00.checksum"), lambda body: sum(body) % 256, seed=1).ok
-    hex_text = run_checkpoint(get("00.checksum"), lambda body: "%02X" % loop_xor(body), seed=1)
+    hex_text = run_checkpoint(get("00.checksum"), lambda body: f"{loop_xor(body):02X}", seed=1)
     assert "not its hex text" in hex_text.message
     naive = run_checkpoint(get("00.board_time"), lambda t_us: (np.asarray(t_us) - t_us[0]) / 1e6, seed=1)
     assert not naive.ok and "t_us went" in naive.message
@@ -258,11 +258,22 @@ def _geometric_fit(mag):
 def test_mag_calibration_checkpoint_judges_against_the_true_ellipsoid():
     cp = get("03.mag_calibration")
     assert run_checkpoint(cp, _geometric_fit, seed=3).ok
-    cholesky = lambda mag: (lambda h, S: (h, np.linalg.cholesky(S.T @ S).T))(*C.fit_mag_calibration(mag))
+
+    def cholesky(mag):
+        h, S = C.fit_mag_calibration(mag)
+        return h, np.linalg.cholesky(S.T @ S).T
+
     assert "not symmetric" in run_checkpoint(cp, cholesky, seed=3).message
-    unscaled = lambda mag: (lambda h, S: (h, S / B_LONDON))(*C.fit_mag_calibration(mag))
+
+    def unscaled(mag):
+        h, S = C.fit_mag_calibration(mag)
+        return h, S / B_LONDON
+
     assert "scale S by B" in run_checkpoint(cp, unscaled, seed=3).message
-    centre_only = lambda mag: (mag.mean(axis=0), np.eye(3))
+
+    def centre_only(mag):
+        return mag.mean(axis=0), np.eye(3)
+
     assert "off by" in run_checkpoint(cp, centre_only, seed=3).message
 
 
@@ -272,9 +283,17 @@ def test_bundled_recording_checks_reject_estimates_a_few_uncertainties_off():
     rec = datasets.load("02_six_faces")
     _, _, u_b, u_s = six_face_truth(rec)
     assert run_checkpoint(get("02.six_face_recording"), C.accel_six_face).ok
-    off = lambda faces: (lambda b, s: (b + 6 * u_b, s))(*C.accel_six_face(faces))
+
+    def off(faces):
+        b, s = C.accel_six_face(faces)
+        return b + 6 * u_b, s
+
     assert "standard uncertainties away" in run_checkpoint(get("02.six_face_recording"), off).message
-    off_scale = lambda faces: (lambda b, s: (b, s + 6 * u_s))(*C.accel_six_face(faces))
+
+    def off_scale(faces):
+        b, s = C.accel_six_face(faces)
+        return b, s + 6 * u_s
+
     assert not run_checkpoint(get("02.six_face_recording"), off_scale).ok
     still = datasets.load("02_stationary")
     _, u_g = gyro_bias_truth(still)
@@ -462,17 +481,20 @@ def test_every_checkpoint_gives_the_hint_of_the_failures_kind_not_its_own(name):
     cp = get(name)
     drawn = cp.cases(np.random.default_rng(0))
     cp = dataclasses.replace(cp, cases=lambda rng: drawn)  # drawn once: some build a filter's whole run
-    for student, words in KINDS.items():
-        result = run_checkpoint(cp, student)
-        assert not result.ok and words in result.message and cp.hint not in result.message, (student.__name__, result)
 
+    def as_the_grader_runs(student):
         def in_the_kernel(**kwargs):
             try:
                 return student(**kwargs)
             except Exception as e:  # as the grader sees it: a class of that name, that message
                 raise _student_exception(type(e).__name__, str(e)) from None
 
-        assert words in run_checkpoint(cp, in_the_kernel).message, student.__name__
+        return in_the_kernel
+
+    for student, words in KINDS.items():
+        result = run_checkpoint(cp, student)
+        assert not result.ok and words in result.message and cp.hint not in result.message, (student.__name__, result)
+        assert words in run_checkpoint(cp, as_the_grader_runs(student)).message, student.__name__
 
 
 def test_wrong_numbers_keep_the_checkpoints_own_hint_and_a_wrong_form_says_the_expected_one():

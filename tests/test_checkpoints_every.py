@@ -2,6 +2,7 @@
 they pass on many seeds; NaN or inf in an answer never scores; each classic mistake (a small edit of the
 model answer) fails on every seed, with a message that names it."""
 import ast
+import contextlib
 import dataclasses
 import functools
 from pathlib import Path
@@ -32,15 +33,13 @@ def solution_namespace(nn, mutate=None):
             if mutate and isinstance(node, ast.FunctionDef) and node.name == mutate[0]:
                 assert mutate[1] in text, f"{mutate[1]!r} is not in {node.name} of {path.name}"
                 text, mutated = text.replace(mutate[1], mutate[2]), True
-            try:
+            with contextlib.suppress(NameError, AttributeError):  # a helper whose default needs the notebook's data
                 exec(compile(text, str(path), "exec"), ns)
-            except (NameError, AttributeError):  # a helper whose default needs the notebook's data: not an exercise
-                pass
     assert mutate is None or mutated, f"no function {mutate[0]} in {path.name}"
     return ns
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def reference(name):
     """The solution notebook's function that checkpoint ``name`` judges."""
     return solution_namespace(name[:2])[get(name).function]
@@ -93,7 +92,7 @@ def _poison(value, how, state):
     return a if a.ndim else float(a)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _reference_outputs(name):
     cp = get(name)
     cases = cp.cases(np.random.default_rng(0))

@@ -25,13 +25,12 @@ from pathlib import Path
 import nbformat
 import numpy as np
 import pytest
+from browser.conftest import ARTIFACTS, browser  # noqa: F401 (a fixture)
+from waiting import HANG_GUARD_S
 
 from kfkit.checkpoints import Status, lab01
 from kfkit.cli import main
 from kfkit.grading import core, gradebook, report, runner, sandbox, wire
-
-from browser.conftest import ARTIFACTS, browser  # noqa: F401 (a fixture)
-from waiting import HANG_GUARD_S
 
 CHECKPOINTS = core.lab_checkpoints("01")
 BOX = sandbox.Sandbox("root", True, ["/x"])
@@ -316,7 +315,7 @@ def test_a_hand_edited_gradebook_is_refused_with_file_and_line(tmp_path, capsys,
                     + row_line("bob", "01.kf_update", points, max_points, status, "ok"), encoding="utf-8")
     assert main(["report", str(path)]) == 2
     err = capsys.readouterr().err
-    assert f"marks.csv, line 3: " in err and why in err, err
+    assert "marks.csv, line 3: " in err and why in err, err
     assert not path.with_name("marks_report.html").exists()
 
 
@@ -411,7 +410,7 @@ def test_long_tokens_wrap_in_a_browser(tmp_path, browser_page):
 
 # ------------------------------------------------------------------ the browser: tests/browser/'s (Debian's Chromium)
 @pytest.fixture(scope="module")
-def browser_page(browser):
+def browser_page(browser):  # noqa: F811  (the browser fixture imported from tests/browser/conftest.py)
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     context = browser.new_context(viewport={"width": 1200, "height": 900})
     yield context.new_page()

@@ -4,9 +4,9 @@ import ast
 
 import nbformat
 import pytest
+from exercise_variants import exercise_cells, python
 from IPython.core.interactiveshell import InteractiveShell
 
-from exercise_variants import exercise_cells, python
 from kfkit.authoring import is_stub
 from kfkit.paths import KIT_ROOT
 
@@ -144,9 +144,11 @@ def test_a_function_defined_here_is_judged_by_the_names_it_reads_not_its_paramet
     # the very statement make-labs writes, but only for that input
     "def accel_roll(ay, az):\n    if np.ndim(ay) > 1:\n        raise NotImplementedError()\n"
     "    return np.arctan2(ay, az)\n",
-    "def accel_roll(ay, az):\n    if np.ndim(ay) <= 1:\n        return np.arctan2(ay, az)\n    raise NotImplementedError()\n",
+    "def accel_roll(ay, az):\n    if np.ndim(ay) <= 1:\n        return np.arctan2(ay, az)\n"
+    "    raise NotImplementedError()\n",
     # catches it
-    "def accel_roll(ay, az):\n    try:\n        return np.arctan2(ay, az)\n    except NotImplementedError:\n        return 0.0\n",
+    "def accel_roll(ay, az):\n    try:\n        return np.arctan2(ay, az)\n    except NotImplementedError:\n"
+    "        return 0.0\n",
     # the stub left below the answer, never reached
     "def accel_roll(ay, az):\n    '''Roll.'''\n    return np.arctan2(ay, az)\n"
     "    # YOUR CODE HERE\n    raise NotImplementedError()\n",
@@ -169,7 +171,8 @@ def test_a_finished_function_that_mentions_not_implemented_error_is_not_a_stub(s
 
 def test_a_finished_kf_update_that_catches_not_implemented_error_is_not_a_stub(shell):
     shell(STUB.format(name="kf_update"))
-    shell("def kf_update(x, P, z, r):\n    try:\n        K = P / (P + r)\n    except NotImplementedError:\n        raise\n"
+    shell("def kf_update(x, P, z, r):\n    try:\n        K = P / (P + r)\n    except NotImplementedError:\n"
+          "        raise\n"
           "    return x + K * (z - x), (1 - K) * P\n")
     result, out = shell("print(kf_update(0.0, 1.0, 2.0, 1.0))")
     assert result.success and out.strip() == "(1.0, 0.5)"
@@ -177,9 +180,12 @@ def test_a_finished_kf_update_that_catches_not_implemented_error_is_not_a_stub(s
 
 @pytest.mark.parametrize("stub", [
     STUB.format(name="accel_roll"),
-    "def accel_roll(x):\n    '''Roll (rad).'''\n    x = float(x)\n    # YOUR CODE HERE\n    raise NotImplementedError()\n",
-    "def accel_roll(x):\n    if x < 0:\n        raise ValueError('x < 0')\n    # YOUR CODE HERE\n    raise NotImplementedError()\n",
-    "import functools\ndef logged(f):\n    @functools.wraps(f)\n    def wrapper(*a):\n        return f(*a)\n    return wrapper\n"
+    "def accel_roll(x):\n    '''Roll (rad).'''\n    x = float(x)\n    # YOUR CODE HERE\n"
+    "    raise NotImplementedError()\n",
+    "def accel_roll(x):\n    if x < 0:\n        raise ValueError('x < 0')\n    # YOUR CODE HERE\n"
+    "    raise NotImplementedError()\n",
+    "import functools\ndef logged(f):\n    @functools.wraps(f)\n    def wrapper(*a):\n        return f(*a)\n"
+    "    return wrapper\n"
     "@logged\n" + STUB.format(name="accel_roll"),
     "def logged(f):\n    def wrapper(*a):\n        return f(*a)\n    return wrapper\n@logged\n" + STUB.format(name="accel_roll"),
 ])

@@ -19,9 +19,9 @@ import cloudpickle
 import nbformat
 import numpy as np
 import pytest
+from exercise_variants import exercise_cells, variants
 from nbclient import NotebookClient
 
-from exercise_variants import exercise_cells, variants
 from kfkit import checkpoints as cps
 from kfkit.paths import KIT_ROOT
 

@@ -23,7 +23,7 @@ from kfkit import datasets
 from kfkit.filters import KalmanFilter
 from kfkit.filters.contract import Filter, FilterRun, Step, TunedFilter
 from kfkit.filters.registry import FILTERS
-from kfkit.frames import G, MAG_FIELD_LONDON
+from kfkit.frames import MAG_FIELD_LONDON, G
 
 FIELD = np.array(MAG_FIELD_LONDON)
 MEKF_PENDING = pytest.mark.xfail(strict=True, reason="MEKF conforms on merge of branch mekf")

@@ -8,13 +8,13 @@ import re
 
 import numpy as np
 import pytest
+from test_filter_contract import CASES
 
 from kfkit.filters.contract import check_settings
 from kfkit.filters.mag_gate import MagGate
 from kfkit.filters.mekf import MekfSettings
 from kfkit.filters.registry import FILTERS
 from kfkit.frames import MAG_FIELD_LONDON
-from test_filter_contract import CASES
 
 MEKF_PENDING = pytest.mark.xfail(strict=True, reason="MEKF conforms on merge of branch mekf")
 

@@ -4,7 +4,16 @@ import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 from scipy.linalg import solve_discrete_are
 
-from kfkit.filters import KalmanFilter, RollKF, RollKFSettings, Step, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
+from kfkit.filters import (
+    KalmanFilter,
+    RollKF,
+    RollKFSettings,
+    Step,
+    roll_kf,
+    roll_kf_predict,
+    roll_kf_steady_state,
+    roll_kf_update,
+)
 
 
 def random_stable_system(rng, n, m, with_input):

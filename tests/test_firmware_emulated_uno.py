@@ -20,11 +20,11 @@ import sys
 import time
 from dataclasses import dataclass
 
+import arduino_host
 import numpy as np
 import pytest
 import serial
 
-import arduino_host
 from kfkit import datasets
 from kfkit.capture import CaptureError, Recorder, Sample, parse_line
 from kfkit.capture import emulated_uno as E
@@ -98,7 +98,8 @@ def counts(rec) -> np.ndarray:
 
 
 def capture_cli(port, seconds, out, timeout=300):
-    """``kfkit capture --port <port> --seconds <seconds> --out <out> --json`` as a student runs it: (exit code, JSON)."""
+    """``kfkit capture --port <port> --seconds <seconds> --out <out> --json`` as a student runs it:
+    (exit code, JSON)."""
     done = subprocess.run([sys.executable, "-m", "kfkit", "capture", "--port", str(port), "--seconds", str(seconds),
                            "--out", str(out), "--json"], capture_output=True, text=True, timeout=timeout)
     return done.returncode, json.loads(done.stdout)
@@ -170,14 +171,14 @@ def test_a_reader_that_falls_behind_loses_nothing(toolchain, frames, tmp_path):
     cycle count), rather than drop bytes. The reader here reads nothing until the emulator sleeps in that wait (the
     only place it sleeps once running), then everything: every line arrives whole, on the board's unbroken clock."""
     log = tmp_path / "emulator.log"
-    with E.EmulatedUno("mpu6050_logger", frames, loop=False, log=log) as uno:
-        with serial.Serial(uno.port, 115200, timeout=0.2) as port:
-            port.write(b"h")
-            wait_until(lambda: port.in_waiting > 0, "the first bytes")
-            wait_until(lambda: process_state(uno.process.pid) == "S", "the emulator to block on the full pty")
-            received = b""
-            while received.count(b"\n") < 600:
-                received += port.read(4096)
+    with (E.EmulatedUno("mpu6050_logger", frames, loop=False, log=log) as uno,
+          serial.Serial(uno.port, 115200, timeout=0.2) as port):
+        port.write(b"h")
+        wait_until(lambda: port.in_waiting > 0, "the first bytes")
+        wait_until(lambda: process_state(uno.process.pid) == "S", "the emulator to block on the full pty")
+        received = b""
+        while received.count(b"\n") < 600:
+            received += port.read(4096)
     events = read_log(log)
     items = [parse_line(line) for line in received.splitlines()[:600]]
     samples = [item for item in items if isinstance(item, Sample)]

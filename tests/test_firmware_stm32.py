@@ -22,9 +22,9 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import arduino_host
 import pytest
 
-import arduino_host
 from kfkit.paths import KIT_ROOT
 
 SKETCH = arduino_host.FIRMWARE / "nucleo_iks02a1_logger" / "nucleo_iks02a1_logger.ino"
@@ -127,7 +127,7 @@ SPI_H = r"""
 inline void digitalWrite(uint32_t, uint32_t) {}
 class SPISettings { public: SPISettings(uint32_t, uint8_t, uint8_t) {} };
 class SPIClass { public: void beginTransaction(SPISettings) {} uint8_t transfer(uint8_t v) { return v; } void endTransaction() {} };
-"""  # what ST's headers use of the SPI library (their SPI paths are not the kit's, but their inline code must compile)
+"""  # noqa: E501  (C++ as C++) what ST's headers use of the SPI library (their paths are not the kit's, but their inline code must compile)
 
 
 def declarations(stand_in: str, cls: str):

@@ -3,10 +3,32 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from kfkit.frames import (G, Q_NED_ENU, R_NED_ENU, accel_tilt, body_rates_to_euler_rates, dcm_slerp, dcm_to_euler,
-                          dcm_to_quat, enu_to_ned, enu_to_ned_quat, euler_rates_to_body_rates, euler_to_dcm, euler_to_quat,
-                          mount_matrix, quat_conjugate, quat_multiply, quat_rotate, quat_slerp, quat_to_dcm, quat_to_euler,
-                          quat_to_rotvec, random_dcm, rotvec_to_quat, wrap_angle)
+from kfkit.frames import (
+    Q_NED_ENU,
+    R_NED_ENU,
+    G,
+    accel_tilt,
+    body_rates_to_euler_rates,
+    dcm_slerp,
+    dcm_to_euler,
+    dcm_to_quat,
+    enu_to_ned,
+    enu_to_ned_quat,
+    euler_rates_to_body_rates,
+    euler_to_dcm,
+    euler_to_quat,
+    mount_matrix,
+    quat_conjugate,
+    quat_multiply,
+    quat_rotate,
+    quat_slerp,
+    quat_to_dcm,
+    quat_to_euler,
+    quat_to_rotvec,
+    random_dcm,
+    rotvec_to_quat,
+    wrap_angle,
+)
 
 HALF_PI = np.pi / 2
 

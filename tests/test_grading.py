@@ -36,12 +36,12 @@ import numpy as np
 import psutil
 import pytest
 import zmq
+from lab01_notebooks import LAB, SOLUTION, add, append, edit, minimal, read
 
 from kfkit.checkpoints import LABS
 from kfkit.cli import main
-from kfkit.paths import KIT_ROOT
 from kfkit.grading import _kernel_side, core, runner, sandbox, wire
-from lab01_notebooks import LAB, SOLUTION, add, append, edit, minimal, read
+from kfkit.paths import KIT_ROOT
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
@@ -241,16 +241,17 @@ def grading_runs(instructor, tmp_path_factory):
     out = instructor / "gradebook.csv"
     cmd = [sys.executable, "-m", "kfkit", "grade", "--lab", "01", "--out", str(out), "--jobs", "2",
            "--timeout", str(TIMEOUT), "--total-timeout", "120", "submissions", "empty"]
-    logs = [open(tmp_path_factory.mktemp("cli") / name, "w+") for name in ("stdout", "stderr")]
+    logs = tmp_path_factory.mktemp("cli")
     try:
-        cli = subprocess.Popen(cmd + ([] if isolated else ["--no-sandbox"]), cwd=instructor, stdout=logs[0],
-                               stderr=logs[1], text=True, env={**os.environ, "TMPDIR": str(scratch)})
+        with open(logs / "stdout", "w") as stdout, open(logs / "stderr", "w") as stderr:  # the grader writes its copies
+            cli = subprocess.Popen(cmd + ([] if isolated else ["--no-sandbox"]), cwd=instructor, stdout=stdout,
+                                   stderr=stderr, text=True, env={**os.environ, "TMPDIR": str(scratch)})
         others = _grade_every_other_lab(tmp_path_factory, box) if isolated else None
         cli.wait(timeout=900)
         damage = canaries.damage()
     finally:
         canaries.remove()
-    stdout, stderr = (f.seek(0) or f.read() for f in logs)
+    stdout, stderr = ((logs / name).read_text() for name in ("stdout", "stderr"))
     rows, by_sub = graded_rows(out) if out.exists() else ([], {})
     yield {"isolated": isolated, "damage": damage, "scratch": scratch, "code": cli.returncode, "stdout": stdout,
            "stderr": stderr, "rows": rows, "subs": by_sub, "dir": instructor, "out": out}, others
@@ -580,7 +581,8 @@ def attempt(name, act):
         res[name] = "done"
     except OSError as exc:
         res[name] = errno.errorcode.get(exc.errno, str(exc.errno))
-attempt("append kit module", lambda: open(os.path.join(kit, "kfkit", "checkpoints", "lab01.py"), "a").write("#kfkit-attack"))
+attempt("append kit module",
+        lambda: open(os.path.join(kit, "kfkit", "checkpoints", "lab01.py"), "a").write("#kfkit-attack"))
 attempt("new kit file", lambda: open(os.path.join(kit, "kfkit", "planted.py"), "w"))
 attempt("chmod kit module", lambda: os.chmod(os.path.join(kit, "kfkit", "checkpoints", "lab01.py"), 0o777))
 attempt("rename kit module", lambda: os.rename(os.path.join(kit, "kfkit", "checkpoints", "lab01.py"),
@@ -807,10 +809,10 @@ def test_killing_the_grader_kills_its_kernels(tmp_path):
     """A grader that dies (SIGKILL, OOM) takes its kernels with it: none is left running."""
     scratch = Path(tempfile.mkdtemp(prefix="kg-", dir="/tmp"))
     nbformat.write(add(minimal(), "import time\nwhile True:\n    time.sleep(0.1)", at=-1), tmp_path / "loop.ipynb")
-    grader = subprocess.Popen([sys.executable, "-m", "kfkit", "grade", "--lab", "01", "--jobs", "1", "--timeout", "60",
-                               "--out", str(tmp_path / "g.csv"), str(tmp_path / "loop.ipynb")],
-                              env={**os.environ, "TMPDIR": str(scratch)}, stdout=subprocess.DEVNULL,
-                              stderr=open(tmp_path / "grader.log", "w"))
+    with open(tmp_path / "grader.log", "w") as log:  # the grader writes to its own copy of the file
+        grader = subprocess.Popen([sys.executable, "-m", "kfkit", "grade", "--lab", "01", "--jobs", "1", "--timeout",
+                                   "60", "--out", str(tmp_path / "g.csv"), str(tmp_path / "loop.ipynb")],
+                                  env={**os.environ, "TMPDIR": str(scratch)}, stdout=subprocess.DEVNULL, stderr=log)
     try:
         for _ in range(360):
             if any("ipykernel_launcher" in " ".join(p.cmdline()) for p in grader_kernels(str(scratch))):

@@ -8,9 +8,9 @@ import nbformat
 import pytest
 
 from kfkit.checkpoints import Status
-from kfkit.paths import KIT_ROOT
 from kfkit.grading import core, sandbox
 from kfkit.grading.quoting import visible_controls
+from kfkit.paths import KIT_ROOT
 
 CHECKPOINTS = core.lab_checkpoints("01")
 BOX = sandbox.Sandbox("root", True, ["/x"])

@@ -2,9 +2,9 @@
 is reachable (no kernel needed: small programs run exactly the way kernels are launched).
 
 The walk test reads the whole readable file system from inside (less what is compiled or compressed, told by
-its first bytes: no plain source text to find there) and fails on any solution text, any git repository and any socket file but
-the box's own; a control run of the same walker over
-a planted folder outside the sandbox proves it finds each of those.
+its first bytes: no plain source text to find there) and fails on any solution text, any git repository and any socket
+file but the box's own; a control run of the same walker over a planted folder outside the sandbox proves it finds each
+of those.
 """
 import json
 import os
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from kfkit.paths import KIT_ROOT
 from kfkit.grading import sandbox
+from kfkit.paths import KIT_ROOT
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
@@ -142,7 +142,8 @@ def test_nothing_readable_inside_holds_a_solution_a_repository_or_a_host_socket(
     t0 = time.monotonic()
     found = run_inside(box, WALK, args)
     wall = time.monotonic() - t0
-    print(f"\nwalk ({mode}): {found['files']} files ({found['compiled']} compiled or compressed), {found['bytes'] / 1e6:.0f} MB read, {found['big']} binary "
+    print(f"\nwalk ({mode}): {found['files']} files ({found['compiled']} compiled or compressed), "
+          f"{found['bytes'] / 1e6:.0f} MB read, {found['big']} binary "
           f"files over {BIG >> 20} MB skipped ({len(found['big_text'])} text ones searched), {found['unreadable']} "
           f"unreadable; {found['wall']:.1f} s wall, "
           f"{found['cpu']:.1f} s CPU inside; {wall:.1f} s with the sandbox's start")
@@ -190,7 +191,7 @@ def test_git_and_other_copies_of_the_kit_and_pips_cache_are_not_there(mode, tmp_
     kit_inside = {"kfkit", "data"} | {Path(p).relative_to(KIT_ROOT).parts[0] for p in sandbox.visible_paths()
                                       if sandbox.inside(p, str(KIT_ROOT))}
     assert set(res["kit"]) == kit_inside
-    assert res["exists"] == {p: False for p in paths}
+    assert res["exists"] == dict.fromkeys(paths, False)
     assert set(res["root"]) <= sandbox.root_entries(sandbox.visible_paths(), "/tmp")
     assert res["pty"]
 
@@ -236,7 +237,7 @@ def test_host_unix_sockets_are_unreachable(mode, tmp_path):
         targets["abstract"] = "@" + tag
         control = json.loads(subprocess.run([sys.executable, "-c", CONNECT, json.dumps({"targets": targets})],
                                             capture_output=True, text=True, check=True).stdout)
-        assert control == {name: "connected" for name in targets}  # the listeners are real
+        assert control == dict.fromkeys(targets, "connected")  # the listeners are real
         for s in listeners:  # take the control's connections
             s.settimeout(5)
             s.accept()[0].close()

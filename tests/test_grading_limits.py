@@ -17,10 +17,10 @@ import time
 import nbformat
 import psutil
 import pytest
-
-from kfkit.grading import core, resources, runner, sandbox
 from lab01_notebooks import edit, minimal
 from waiting import HANG_GUARD_S
+
+from kfkit.grading import core, resources, runner, sandbox
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
@@ -265,9 +265,9 @@ def test_a_busy_machine_fails_nobody_where_the_wall_clock_judge_did(tmp_path, bo
     graders = []
     try:
         for rule, extra in (("cpu", []), ("wall", ["--wall-factor", "1"])):
-            graders.append(subprocess.Popen(command + ["--out", str(tmp_path / f"{rule}.csv"), *extra, str(subs)],
-                                            preexec_fn=pin, stdout=subprocess.DEVNULL,
-                                            stderr=open(tmp_path / f"{rule}.log", "w")))
+            with open(tmp_path / f"{rule}.log", "w") as log:  # the grader writes to its own copy of the file
+                graders.append(subprocess.Popen(command + ["--out", str(tmp_path / f"{rule}.csv"), *extra, str(subs)],
+                                                preexec_fn=pin, stdout=subprocess.DEVNULL, stderr=log))
         for grader in graders:
             grader.wait(timeout=HANG_GUARD_S)
     finally:

@@ -15,11 +15,11 @@ import threading
 
 import nbformat
 import pytest
+from waiting import HANG_GUARD_S
 
 from kfkit.checkpoints import Status
 from kfkit.grading import core, gradebook, sandbox
 from kfkit.paths import KIT_ROOT
-from waiting import HANG_GUARD_S
 
 SOLUTION = KIT_ROOT / "solutions" / "01_roll_kf_1d.ipynb"
 CHECKPOINTS = core.lab_checkpoints("01")

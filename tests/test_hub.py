@@ -15,11 +15,11 @@ import subprocess
 import sys
 import urllib.parse
 
-import pytest
-
 import hub as hubkit
-from waiting import HANG_GUARD_MS, wait_until
+import pytest
 from browser.conftest import browser  # noqa: F401 (a fixture)
+from waiting import HANG_GUARD_MS, wait_until
+
 from kfkit.paths import KIT_ROOT
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
@@ -53,7 +53,8 @@ def source(cell) -> str:
 
 def answers(wrong_roll=False) -> dict[int, str]:
     """Hand-out cell index → the code a student fills in: the solution's function bodies (the nbgrader markers
-    dropped), matched by the functions each stub cell defines; with ``wrong_roll`` accel_roll swaps atan2's arguments."""
+    dropped), matched by the functions each stub cell defines; with ``wrong_roll`` accel_roll swaps atan2's
+    arguments."""
     defines = lambda text: tuple(re.findall(r"^def (\w+)\(", text, re.M))  # noqa: E731
     solution = json.loads((KIT_ROOT / "solutions" / LAB).read_text(encoding="utf-8"))
     by_functions = {defines(source(c)): source(c) for c in solution["cells"] if c["cell_type"] == "code"}
@@ -77,10 +78,15 @@ def append_to_first_markdown(text):
     return edit
 
 
-def test_a_class_on_a_real_hub(hub, browser):
+def test_a_class_on_a_real_hub(hub, browser):  # noqa: F811  (the browser fixture imported from browser/conftest.py)
     """The whole term in one run; each step's assertion says which step failed."""
-    from browser.test_labs_in_browser import (_check_slider_moves_figure, canvas_png, error_outputs, run_all,
-                                              unexecuted_cells)
+    from browser.test_labs_in_browser import (
+        _check_slider_moves_figure,
+        canvas_png,
+        error_outputs,
+        run_all,
+        unexecuted_cells,
+    )
 
     alice, bob, carol = hub.students
     home = {s: hub.homes / s / "kfkit-labs" for s in hub.students}

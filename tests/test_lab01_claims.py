@@ -127,7 +127,7 @@ def test_the_bias_wanders_from_0_30_to_0_21_deg_per_s_with_mean_0_25():
 
 
 # --- section 11: the bias's error, measured (issue 25 item 6) --------------------------------------------------------
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _bundled():
     """The bundled recording through the lab's sections 3–8 (raw gyro, the best q of section 7's sweep)."""
     rec = datasets.load("01_roll_sine")
@@ -175,7 +175,7 @@ def test_four_times_q_with_four_times_r_gives_the_same_estimates_sample_for_samp
     np.testing.assert_allclose(four, one, rtol=0, atol=1e-12)
 
 
-# --- question 5: ‖f‖ − g and the sideways shakes -----------------------------------------------------------------------
+# --- question 5: ‖f‖ − g and the sideways shakes -------------------------------------------------------------------
 def test_norm_minus_g_hardly_sees_the_sideways_shakes_that_tilt_the_accelerometer_roll_by_12_deg():
     b = _bundled()
     rec = b["rec"]
@@ -183,7 +183,10 @@ def test_norm_minus_g_hardly_sees_the_sideways_shakes_that_tilt_the_acceleromete
     shakes = np.any([(t >= t0) & (t < t1) for t0, t1 in lab01.SHAKES], axis=0)
     others = (t >= SIM_REST) & ~shakes
     excess = np.abs(np.linalg.norm(rec.body("acc"), axis=1) - frames.G)
-    rms = lambda x: np.sqrt(np.mean(x**2))
+
+    def rms(x):
+        return np.sqrt(np.mean(x**2))
+
     assert rms(excess[shakes]) == pytest.approx(0.46, abs=0.005) and rms(excess[others]) == pytest.approx(0.31, abs=0.005)
     assert np.sqrt(frames.G**2 + 3.0**2) - frames.G == pytest.approx(0.45, abs=0.005)
     assert np.degrees(np.arctan(3.0 / frames.G)) == pytest.approx(17.0, abs=0.05)
@@ -192,11 +195,15 @@ def test_norm_minus_g_hardly_sees_the_sideways_shakes_that_tilt_the_acceleromete
     assert np.mean(excess[others] > 0.33) == pytest.approx(0.29, abs=0.005)
 
 
-# --- section 10: the simulation against the real IMU (issue 25 item 5) ---------------------------------------------------
+# --- section 10: the simulation against the real IMU (issue 25 item 5) ---------------------------------------------
 @pytest.fixture(scope="module")
 def side_by_side():
-    accel_roll = lambda ay, az: np.arctan2(-ay, -az)
-    run_kf = lambda *args, **kw: (filters.roll_kf(*args, **kw).x,)     # the recipe reads x only
+    def accel_roll(ay, az):
+        return np.arctan2(-ay, -az)
+
+    def run_kf(*args, **kw):
+        return (filters.roll_kf(*args, **kw).x,)  # the recipe reads x only
+
     sim_rec, real = datasets.load("01_roll_sine"), lab01.real_excerpt()
     cases = {"sim": (sim_rec, sim_rec.t < SIM_REST, sim_rec.t >= SIM_REST),
              "real": (real, real.phase("rest"), real.phase("movement"))}
@@ -230,9 +237,11 @@ def test_the_real_filters_short_time_constant_comes_from_r_not_from_q(side_by_si
 
 @pytest.mark.slow
 def test_the_simulated_shakes_are_sideways_and_the_real_accelerometer_roll_is_the_better_one(side_by_side):
-    rms = lambda x: np.sqrt(np.nanmean(np.square(x)))
+    def rms(x):
+        return np.sqrt(np.nanmean(np.square(x)))
+
     got = {}
-    for name, (rec, rest, moving, run) in side_by_side.items():
+    for name, (rec, _rest, moving, run) in side_by_side.items():
         got[name] = (rms(np.linalg.norm(rec.body("acc")[moving], axis=1) - frames.G),
                      rms(lab01.across_gravity(rec)[moving]),
                      metrics.angle_rmse_deg(run.estimates["accel only"][0][moving], rec["true_roll"][moving]))

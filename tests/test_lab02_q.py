@@ -4,13 +4,13 @@ noise model), and the calibration it saves for labs 04 and 05 carrying the gyro'
 import numpy as np
 import pytest
 from scipy import constants
+from test_checkpoints_every import solution_namespace
 
 from kfkit import calibration as C
 from kfkit import datasets, discrete, sim
 from kfkit.io import save_recording
 from kfkit.labs import lab02
 from kfkit.unit_errors import NUCLEO_UNIT
-from test_checkpoints_every import solution_namespace
 
 ANGLE_BIAS_A = [[0.0, -1.0], [0.0, 0.0]]  # θ̇ = ω_m − b − n_g, ḃ = n_b
 

@@ -7,11 +7,11 @@ import re
 
 import nbformat
 import pytest
-from nbclient import NotebookClient
-
 from handouts import printed
-from kfkit.paths import KIT_ROOT
+from nbclient import NotebookClient
 from waiting import HANG_GUARD_S
+
+from kfkit.paths import KIT_ROOT
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 

@@ -6,11 +6,10 @@ import re
 
 import numpy as np
 import pytest
-
-from kfkit import sim
-from kfkit import phone_sim
-from kfkit.phone_sim import simulate_phone
 from test_calibration_labs import run_solution_on
+
+from kfkit import phone_sim, sim
+from kfkit.phone_sim import simulate_phone
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 

@@ -7,11 +7,11 @@ from pathlib import Path
 import nbformat
 import numpy as np
 import pytest
+from test_checkpoints_every import solution_namespace
 
 from kfkit.checkpoints import get, run_checkpoint
 from kfkit.checkpoints.lab04 import REAL_MOVING_SECONDS, real_inputs, truth_error_at_rest
 from kfkit.frames import euler_to_dcm
-from test_checkpoints_every import solution_namespace
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 

@@ -8,8 +8,8 @@ import re
 
 import nbformat
 import pytest
-
 from handouts import NEEDS, NOTE, execute, half_done, printed, stubs
+
 from kfkit.paths import KIT_ROOT
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml

@@ -5,14 +5,13 @@ magic formula's own definition (slope B·C·D at 0, peak D = μ F_z) for what fr
 """
 import numpy as np
 import pytest
+from handouts import execute, half_done, printed
 from scipy.spatial.transform import Rotation
 
-from handouts import execute, half_done, printed
 from kfkit import vehicle
 from kfkit.filters import estimate_sideslip
 from kfkit.frames import G
 from kfkit.paths import KIT_ROOT
-from waiting import HANG_GUARD_S
 
 BANK = np.radians(3.0)
 CAR = vehicle.BicycleParams()
@@ -92,7 +91,7 @@ def test_half_done_the_hand_out_runs_what_the_written_exercise_allows_and_names_
 def test_a_check_on_given_code_that_calls_an_unwritten_exercise_names_the_exercise():
     """06.slalom_rmse checks run_sideslip, which the lab gives complete: "fill in run_sideslip" would send the
     student to the wrong cell; the note names the stub it reached. A stub checked itself is named as before."""
-    from kfkit.checkpoints import run_checkpoint, get
+    from kfkit.checkpoints import get, run_checkpoint
 
     def bicycle_model(params, vx):
         raise NotImplementedError()

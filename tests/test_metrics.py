@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from kfkit.filters import KalmanFilter, roll_kf
 from kfkit import metrics
+from kfkit.filters import KalmanFilter, roll_kf
 from kfkit.metrics import angle_error, chi2_bounds, fraction_inside, nees, nis, rmse
 
 

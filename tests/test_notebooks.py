@@ -1,4 +1,5 @@
-"""The notebooks as CI sees them: every hand-out in labs/ runs to its end unfilled; labs/ are current (data/: test_datasets).
+"""The notebooks as CI sees them: every hand-out in labs/ runs to its end unfilled; labs/ are current
+(data/: test_datasets).
 
 Each hand-out runs once per session (:func:`ran`); the tests of one lab's hand-out that read that run live here too,
 so they share it. nbval validates solutions/ separately (pytest collects solutions/*.ipynb with --nbval-lax).
@@ -10,8 +11,8 @@ import functools
 
 import nbformat
 import pytest
-
 from handouts import NEEDS, NOTE, execute, printed, stubs
+
 from kfkit.authoring import make_labs
 from kfkit.paths import KIT_ROOT
 

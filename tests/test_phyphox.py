@@ -17,11 +17,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from kfkit import datasets, frames, io, metrics, readers
+from kfkit import datasets, frames, io, metrics, phone_sim, readers
 from kfkit.clocks import OneClock, SampleCounter
 from kfkit.filters import estimate_attitude
 from kfkit.io import RecordingError
-from kfkit import phone_sim
 from kfkit.phone_sim import simulate_phone
 from kfkit.readers import phyphox_export
 from kfkit.sensors import PHONE_LSB, PHONE_MOUNTS, SENSORS
@@ -300,7 +299,7 @@ def test_streaming_the_merge_in_pieces_gives_the_file_result(tour_samples):
     live = OneClock()
     rng = np.random.default_rng(0)
     cut = np.sort(rng.uniform(tour_samples["gyr"][0][0], tour_samples["gyr"][0][-1], 40))
-    pieces, start = [], {k: 0 for k in tour_samples}
+    pieces, start = [], dict.fromkeys(tour_samples, 0)
     for c in np.append(cut, np.inf):  # a poll: every sensor's samples up to time c
         for k, (t, v) in tour_samples.items():
             stop = int(np.searchsorted(t, c, side="right"))
@@ -543,8 +542,9 @@ def test_consistency_figure_and_tuning_panel_work_without_truth():
 @pytest.mark.slow
 def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
     """A student's own phyphox export of lab 01's experiment (rest, then rolls by hand): no truth, no labels."""
-    from kfkit import sim
     from test_calibration_labs import run_solution_on
+
+    from kfkit import sim
 
     motion = sim.sine_roll(duration=40.0, rate_hz=400.0, amplitude=np.radians(30.0), freq_hz=0.1, still=5.0,
                            vibration_rms=0.3, seed=21)

@@ -4,20 +4,21 @@ import matplotlib
 
 matplotlib.use("Agg")
 
-import matplotlib.colors as mcolors  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-from scipy.spatial.transform import Rotation  # noqa: E402
-from scipy.stats import chi2  # noqa: E402
+import matplotlib.colors as mcolors
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
-from kfkit import plots  # noqa: E402
+from kfkit import plots
 
 PALETTE = {mcolors.to_hex(c) for c in plots.COLORS.values()}
 
 
 @pytest.fixture
 def attitude():
-    """A yaw that crosses ±180°, roll and pitch swinging; two noisy estimates; a covariance; a magnetometer at half rate."""
+    """A yaw that crosses ±180°, roll and pitch swinging; two noisy estimates; a covariance; a magnetometer at half
+    rate."""
     rng = np.random.default_rng(5)
     t = np.arange(400) / 50.0
     truth = np.column_stack([0.3 * np.sin(t), 0.2 * np.cos(0.7 * t), np.angle(np.exp(1j * (2.8 + 0.2 * t)))])

@@ -3,12 +3,14 @@ import matplotlib
 
 matplotlib.use("Agg")
 
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-from waiting import HANG_GUARD_S  # noqa: E402
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from waiting import HANG_GUARD_S
 
-from kfkit import filters, plots, widgets  # noqa: E402
-from kfkit.metrics import rmse  # noqa: E402
+from kfkit import filters, plots, sim, widgets
+from kfkit.io import Recording
+from kfkit.metrics import rmse
 
 
 @pytest.fixture
@@ -53,11 +55,6 @@ def test_tuning_panel_reruns_and_redraws(signals):
 
 
 # --- live 3-D attitude view (lab 04) --------------------------------------------------------
-
-from scipy.spatial.transform import Rotation  # noqa: E402
-
-from kfkit import sim  # noqa: E402
-from kfkit.io import Recording  # noqa: E402
 
 
 def enu_from_ned(v):
@@ -265,12 +262,11 @@ def test_live_view_timer_runs_clean_and_stops_when_the_capture_ends(tmp_path, mo
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
     angles = np.radians([12.0, -8.0, 40.0])
     board = capture.VirtualBoard(motion=sim.stationary(30.0, 104.0, *angles), seed=2)  # real time: many ticks
-    with caplog.at_level(logging.ERROR):
-        with capture.Recorder(board, seconds=1.5) as recorder:
-            view = widgets.AttitudeView.live(recorder, estimator=widgets.LiveAttitude("mekf", calibration="auto"),
-                                             interval_ms=50, start=False)
-            ticks = run_timer_on_tornado(view.timer, stop_when=lambda: False)
-            assert recorder.done.is_set()
+    with caplog.at_level(logging.ERROR), capture.Recorder(board, seconds=1.5) as recorder:
+        view = widgets.AttitudeView.live(recorder, estimator=widgets.LiveAttitude("mekf", calibration="auto"),
+                                         interval_ms=50, start=False)
+        ticks = run_timer_on_tornado(view.timer, stop_when=lambda: False)
+        assert recorder.done.is_set()
     assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text  # not one traceback
     assert view.timer._timer is None and ticks >= 3  # it ticked while recording, then stopped by itself
     assert view.timer.callbacks == [(view.poll, (), {})]  # and poll was never dropped for returning 0

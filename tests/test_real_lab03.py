@@ -8,11 +8,11 @@ import pytest
 from nbclient import NotebookClient
 from scipy.spatial.transform import Rotation
 from test_checkpoints_every import solution_namespace
+from waiting import HANG_GUARD_S
 
 from kfkit import calibration, datasets
 from kfkit.checkpoints import get, lab03, run_checkpoint
 from kfkit.io import Recording
-from waiting import HANG_GUARD_S
 
 SOLUTION = Path(__file__).resolve().parents[1] / "solutions" / "03_mag_alignment_heading.ipynb"
 

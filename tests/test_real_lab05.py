@@ -5,6 +5,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from test_checkpoints_every import solution_namespace
+from waiting import HANG_GUARD_S
 
 from kfkit import datasets, filters, metrics
 from kfkit.checkpoints import lab05
@@ -12,8 +14,6 @@ from kfkit.frames import G, accel_tilt, wrap_angle
 from kfkit.io import Recording
 from kfkit.paths import KIT_ROOT
 from kfkit.real_data import PASS_HZ, STOP_HZ
-from test_checkpoints_every import solution_namespace
-from waiting import HANG_GUARD_S
 
 
 @pytest.fixture(scope="module")

@@ -2,10 +2,10 @@
 states, and what lab 02's section 8 reads off the real rest, each against an oracle outside the lab's code."""
 import numpy as np
 import pytest
+from test_checkpoints_every import solution_namespace
 
 from kfkit import datasets, filters, frames, metrics
 from kfkit.labs.lab01 import REAL_MAX_PITCH, REAL_RECORDING, real_excerpt
-from test_checkpoints_every import solution_namespace
 
 
 @pytest.fixture(scope="module")

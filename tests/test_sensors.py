@@ -1,12 +1,23 @@
 """kfkit.sensors: datasheet arithmetic (done here, independently), counts ↔ SI, boards."""
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from kfkit import sensors
-from kfkit.sensors import (BOARDS, MPU6050_GY521, NUCLEO_IKS02A1, board, counts_to_si, iis2mdc_mag,
-                           ism330dhcx_accel, ism330dhcx_gyro, mpu6050_accel, mpu6050_gyro)
+from kfkit.sensors import (
+    BOARDS,
+    MPU6050_GY521,
+    NUCLEO_IKS02A1,
+    board,
+    counts_to_si,
+    iis2mdc_mag,
+    ism330dhcx_accel,
+    ism330dhcx_gyro,
+    mpu6050_accel,
+    mpu6050_gyro,
+)
 
 g = 9.80665
 deg = math.pi / 180
@@ -127,5 +138,5 @@ def test_unknown_board_names_known_boards():
 
 
 def test_specs_are_frozen():
-    with pytest.raises(Exception):
+    with pytest.raises(dataclasses.FrozenInstanceError):
         sensors.iis2mdc_mag().sensitivity = 1.0

@@ -11,8 +11,16 @@ from filterpy.kalman import KalmanFilter as FilterpyKF
 
 from kfkit import datasets, discrete
 from kfkit import vehicle as V
-from kfkit.filters import (SideslipKF, SideslipKFSettings, SideslipRun, Step, copied_kinematic_kf, estimate_sideslip,
-                           kinematic_sideslip, sideslip_step)
+from kfkit.filters import (
+    SideslipKF,
+    SideslipKFSettings,
+    SideslipRun,
+    Step,
+    copied_kinematic_kf,
+    estimate_sideslip,
+    kinematic_sideslip,
+    sideslip_step,
+)
 from kfkit.metrics import chi2_bounds, nees, rmse
 
 CAR = V.BicycleParams()

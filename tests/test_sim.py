@@ -456,6 +456,7 @@ def test_six_faces_labels_the_axis_that_reads_plus_g():
 
 def test_calibration_motions_rates_match_their_attitudes():
     from scipy.spatial.transform import Rotation
+
     from kfkit.sim import axis_turns, heading_steps, mag_rotations, six_faces
     for m in (six_faces(), mag_rotations(duration=30.0), axis_turns(), heading_steps()):
         R = Rotation.from_euler("ZYX", m.euler[:, ::-1])
@@ -465,6 +466,7 @@ def test_calibration_motions_rates_match_their_attitudes():
 
 def test_mag_rotations_cover_the_sphere_and_axis_turns_label_each_axis():
     from scipy.spatial.transform import Rotation
+
     from kfkit.sim import axis_turns, mag_rotations
     m = mag_rotations()
     u = Rotation.from_euler("ZYX", m.euler[:, ::-1]).inv().apply([19.5, 0.3, 45.0])

@@ -8,15 +8,15 @@ import ctypes
 import shutil
 import subprocess
 
+import arduino_host
 import numpy as np
 import pytest
 
-import arduino_host
 from kfkit import datasets
 from kfkit.capture.emulated_uno import UNO_FLASH, UNO_RAM
-from kfkit.paths import KIT_ROOT
 from kfkit.filters import TiltBiasKF, accel_static_ok, tilt
 from kfkit.frames import G, accel_tilt
+from kfkit.paths import KIT_ROOT
 
 SOURCE = KIT_ROOT / "firmware" / "tilt_kf" / "tilt_kf.c"
 TOLERANCE = tilt.DEFAULT_EPS / G  # static gate |‖f‖ − g|, in units of g (C); × G in m/s² (Python)

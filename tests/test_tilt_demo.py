@@ -11,7 +11,6 @@ from kfkit.capture import Message, VirtualBoard, encode_message, parse_line
 from kfkit.cli import main
 from kfkit.demo import RaceGame, controls, driving_motion, road_center
 
-
 # --- $ATT lines ---------------------------------------------------------------------------------
 
 def test_att_line_round_trip_and_checksum():
@@ -135,22 +134,23 @@ def test_stream_says_why_there_are_no_att_lines(monkeypatch):
     import kfkit.demo as demo
 
     monkeypatch.setattr(demo, "NO_ATTITUDE_S", 1.0)
-    with VirtualBoard(board="mpu6050", realtime=False) as board:  # raw samples, no attitude=True
-        with pytest.raises(demo.DemoError, match=f"{board.port} sends samples but no \\$ATT lines: flash firmware/mpu6050_tilt_kf"):
-            demo.run_tilt_demo(board.port, seconds=5.0, headless=True)
-    with VirtualBoard(board="mpu6050", faults={"silent": True}) as board:
-        with pytest.raises(demo.DemoError, match=f"nothing received from {board.port}"):
-            demo.run_tilt_demo(board.port, seconds=5.0, headless=True)
+    with (VirtualBoard(board="mpu6050", realtime=False) as board,  # raw samples, no attitude=True
+          pytest.raises(demo.DemoError,
+                        match=f"{board.port} sends samples but no \\$ATT lines: flash firmware/mpu6050_tilt_kf")):
+        demo.run_tilt_demo(board.port, seconds=5.0, headless=True)
+    with (VirtualBoard(board="mpu6050", faults={"silent": True}) as board,
+          pytest.raises(demo.DemoError, match=f"nothing received from {board.port}")):
+        demo.run_tilt_demo(board.port, seconds=5.0, headless=True)
 
 
 def test_unplugged_board_is_named():
     import kfkit.demo as demo
 
     motion = driving_motion()
-    with VirtualBoard(board="mpu6050", motion=motion, attitude=True, realtime=False, loop=False,
-                      faults={"disconnect": 700}) as board:
-        with pytest.raises(demo.DemoError, match=f"{board.port} stopped sending .*: board unplugged\\?"):
-            demo.run_tilt_demo(board.port, seconds=30.0, headless=True)
+    with (VirtualBoard(board="mpu6050", motion=motion, attitude=True, realtime=False, loop=False,
+                       faults={"disconnect": 700}) as board,
+          pytest.raises(demo.DemoError, match=f"{board.port} stopped sending .*: board unplugged\\?")):
+        demo.run_tilt_demo(board.port, seconds=30.0, headless=True)
 
 
 # --- the command ----------------------------------------------------------------------------------------

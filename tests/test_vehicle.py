@@ -177,7 +177,8 @@ def test_zoh_matches_scipy_cont2discrete():
 
 @pytest.mark.slow
 def test_van_loan_matches_numerical_integration():
-    """Qd = ∫₀^dt e^{As} Qc e^{Aᵀs} ds by adaptive quadrature (scipy quad_vec), not by another matrix exponential trick."""
+    """Qd = ∫₀^dt e^{As} Qc e^{Aᵀs} ds by adaptive quadrature (scipy quad_vec), not by another matrix exponential
+    trick."""
     rng = np.random.default_rng(4)
     for vx, dt, bias in [(3.0, 0.01, False), (22.0, 0.02, False), (40.0, 0.1, False), (8.0, 0.01, True)]:
         A, B, *_ = V.linear_model(random_params(rng), vx)
@@ -185,7 +186,7 @@ def test_van_loan_matches_numerical_integration():
             A, B = with_bias_state(A, B)
         Qc = np.diag(rng.uniform(1e-5, 1e-2, len(A)))
         _, _, Qd = discrete.discretize(A, B, dt, Qc)
-        ref, _ = quad_vec(lambda s: expm(A * s) @ Qc @ expm(A * s).T, 0.0, dt, epsabs=1e-16, epsrel=1e-11)
+        ref, _ = quad_vec(lambda s, A=A, Qc=Qc: expm(A * s) @ Qc @ expm(A * s).T, 0.0, dt, epsabs=1e-16, epsrel=1e-11)
         np.testing.assert_allclose(Qd, ref, rtol=1e-8, atol=1e-18)
         assert np.all(np.linalg.eigvalsh(Qd) > 0)
         np.testing.assert_array_equal(Qd, Qd.T)

@@ -229,7 +229,7 @@ class EmulatedUno:
         self.process = None
         self._work = None
 
-    def start(self) -> "EmulatedUno":
+    def start(self) -> EmulatedUno:
         program = emulator_program()
         self.image = sketch_image(self.sketch)
         self._work = tempfile.TemporaryDirectory(prefix="kfkit-emulated-uno-")

@@ -26,6 +26,7 @@ Options ride on the address: ``phyphox://HOST:PORT?mount=upright&poll=0.2`` (mou
 """
 from __future__ import annotations
 
+import contextlib
 import errno
 import http.client
 import json
@@ -42,8 +43,14 @@ import numpy as np
 from ..clocks import OneClock, SampleCounter
 from ..readers.phyphox_export import KINDS, SOURCES
 from ..sensors import DEFAULT_PHONE_MOUNT, PHONE_BOARD, phone_counts, phone_mount, phone_sensor_metadata
-from .errors import (PhoneError, PhoneExperimentError, PhoneStoppedError, PhoneUnreachableError, PortAddressError,
-                     RemoteAccessOffError)
+from .errors import (
+    PhoneError,
+    PhoneExperimentError,
+    PhoneStoppedError,
+    PhoneUnreachableError,
+    PortAddressError,
+    RemoteAccessOffError,
+)
 from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_sample
 
 SCHEME = "phyphox://"
@@ -117,7 +124,7 @@ class PhyphoxClient:
             raise PhoneError(f"{self.base}{path} answered HTTP {e.code} ({detail.strip() or e.reason}){hint}") from None
         except urllib.error.URLError as e:
             raise self._connection_error(e.reason) from None
-        except (TimeoutError, socket.timeout) as e:
+        except TimeoutError as e:
             raise self._connection_error(e) from None
         except (ConnectionError, http.client.HTTPException) as e:
             raise PhoneError(f"{self.base} closed the connection ({e.__class__.__name__}: {e}): is the phone still on "
@@ -144,7 +151,8 @@ class PhyphoxClient:
             return PhoneUnreachableError(
                 f"no answer from {where} within {self.timeout:g} s: the phone is not reachable. Is this computer on "
                 f"the same Wi-Fi as the phone (guest and campus networks often keep devices apart)? Is the phone's "
-                f"screen on with phyphox in front (a phone in standby stops serving)? Is the address the one phyphox shows?")
+                f"screen on with phyphox in front (a phone in standby stops serving)? Is the address the one phyphox "
+                f"shows?")
         return PhoneUnreachableError(f"cannot reach {where}: {reason}")
 
     def config(self) -> dict:
@@ -260,8 +268,8 @@ class PhyphoxPort:
                     got = ", ".join(f"{KINDS[k]} until {v:.2f} s" for k, v in self._threshold.items() if v is not None)
                     raise PhoneStoppedError(
                         f"phyphox on {host}:{port} is measuring {self.title!r} but sent no gyroscope + accelerometer "
-                        f"rows in {start_s:g} s (phone data: {got or 'none'}): is the phone's screen on with phyphox in "
-                        f"front, and are its sensors available on this phone?")
+                        f"rows in {start_s:g} s (phone data: {got or 'none'}): is the phone's screen on with phyphox "
+                        f"in front, and are its sensors available on this phone?")
                 time.sleep(self.poll_s)
                 self._poll()
         except BaseException:
@@ -382,10 +390,8 @@ class PhyphoxPort:
             return
         self._closed = True
         if self._started:
-            try:
+            with contextlib.suppress(PhoneError):  # the phone is gone: nothing to stop
                 self.client.stop()
-            except PhoneError:
-                pass  # the phone is gone: nothing to stop
 
     def header_metadata(self, header) -> dict:
         """The recording's metadata: phone counts, the mounting, and what phyphox said about itself.

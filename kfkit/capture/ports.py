@@ -6,8 +6,8 @@ import importlib.util
 import os
 import re
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 from urllib.parse import urlsplit
 
 from .errors import CaptureError, PortAddressError, PortBusyError, PortNotFoundError, PortPermissionError

@@ -137,7 +137,7 @@ class Recorder:
         self._mag_index = None
 
     # -- life cycle --------------------------------------------------------------------------------
-    def start(self) -> "Recorder":
+    def start(self) -> Recorder:
         if self._thread is not None:
             raise CaptureError("this Recorder has already been started; make a new one for a new capture")
         port = self.port
@@ -354,7 +354,7 @@ class Recorder:
             self._mag_cols = [self.columns.index(f) for f in ("mx", "my", "mz") if f in self.columns]
             if self.out is not None:
                 self.out.parent.mkdir(parents=True, exist_ok=True)
-                self._file = open(self.out, "w", encoding="utf-8", newline="\n")
+                self._file = open(self.out, "w", encoding="utf-8", newline="\n")  # noqa: SIM115  (open for the capture; _finish_file closes it)
                 self._file.write(format_header(self._file_meta(), self.columns))
         elif header.fields != self.header.fields or header.board != self.header.board:
             self._fail(CaptureError, f"{self.device}: the board header changed mid-capture, from "
@@ -388,7 +388,8 @@ class Recorder:
     # -- results ------------------------------------------------------------------------------------------
     def clock_rate_hz(self) -> float:
         """The sample rate of the board's own clock over the whole capture so far, Hz (NaN before two samples):
-        :meth:`Timeline.clock_rate_hz`. A board's header states a nominal rate; a phone's is a guess from its first rows."""
+        :meth:`Timeline.clock_rate_hz`. A board's header states a nominal rate; a phone's is a guess from its first
+        rows."""
         return self.timeline.clock_rate_hz() if self.timeline is not None else float("nan")
 
     def _file_meta(self, final=False) -> dict:

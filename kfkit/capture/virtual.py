@@ -34,6 +34,7 @@ a list of positions or a probability per sample, drawn from ``seed``):
 """
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import inspect
 import os
@@ -47,11 +48,11 @@ import tty
 import numpy as np
 
 from .. import sim
+from ..filters.tilt import TiltAttitude
 from ..frames import G
 from ..sensors import BOARDS
 from ..sensors import board as get_board
 from ..unit_errors import BOARD_UNITS, resolve_unit
-from ..filters.tilt import TiltAttitude
 from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_message, encode_sample
 
 FAULT_KINDS = ("corrupt", "drop", "truncate", "reset", "disconnect", "stall", "garbage", "silent")
@@ -171,7 +172,7 @@ class VirtualBoard:
         self.port = None
 
     # -- life cycle ------------------------------------------------------------------------------
-    def start(self) -> "VirtualBoard":
+    def start(self) -> VirtualBoard:
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no echo, no line editing: bytes pass unchanged
         os.set_blocking(self._master, False)
@@ -192,10 +193,8 @@ class VirtualBoard:
             fd = getattr(self, name)
             if fd is not None:
                 setattr(self, name, None)
-                try:
+                with contextlib.suppress(OSError):
                     os.close(fd)
-                except OSError:
-                    pass
 
     def __enter__(self):
         return self.start() if self._thread is None else self

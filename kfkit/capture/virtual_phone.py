@@ -18,9 +18,9 @@ and accelerometer's bias random walks (:data:`kfkit.unit_errors.PHONE_UNIT`) run
 sensor, as a real phone's biases do.
 While measuring, its experiment clock runs at ``speed`` × real time, or (``step_s``) moves on by
 ``step_s`` seconds at each ``/get``, so that the phone runs exactly as fast as it is polled whatever
-the machine's load (tests); the buffers hold every sample up to it. Faults for tests: ``refuse_start`` (start answers false), ``pause_at`` (the phone
-pauses itself at that experiment time, s), ``hang_after`` (after that many ``/get`` requests it
-stops answering, as a phone that left the network).
+the machine's load (tests); the buffers hold every sample up to it. Faults for tests: ``refuse_start`` (start
+answers false), ``pause_at`` (the phone pauses itself at that experiment time, s), ``hang_after`` (after that many
+``/get`` requests it stops answering, as a phone that left the network).
 
     python -m kfkit.capture.virtual_phone [--experiment simple] [--speed 1]
 
@@ -303,7 +303,7 @@ class VirtualPhone:
         """What to record from: ``phyphox://127.0.0.1:PORT``."""
         return f"phyphox://{self.address}"
 
-    def start(self) -> "VirtualPhone":
+    def start(self) -> VirtualPhone:
         phone_ = self
 
         class Handler(BaseHTTPRequestHandler):

@@ -21,11 +21,11 @@ import pkgutil
 import re
 import textwrap
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
-
 
 
 @dataclass
@@ -335,7 +335,8 @@ def run_checkpoint(cp: Checkpoint, answer: Callable, seed=None) -> CheckResult:
                 return CheckResult(cp.name, Status.NOT_ATTEMPTED, 0, total, 0, cp.points, f"⏳ {head}stale: {exc}")
             stub = traceback.extract_tb(exc.__traceback__)[-1].name   # where it was raised: a given function may call a stub
             what = cp.function if stub in (cp.function, getattr(answer, "__name__", None)) else f"{cp.function} calls {stub}, which"
-            msg = f"⏳ {head}not attempted yet ({what} still raises NotImplementedError: fill it in, run its cell, then this one)"
+            msg = (f"⏳ {head}not attempted yet ({what} still raises NotImplementedError: fill it in, run its cell, "
+                   f"then this one)")
             return CheckResult(cp.name, Status.NOT_ATTEMPTED, 0, total, 0, cp.points, msg)
         except Exception as exc:  # the student's code failed: report it, never crash the notebook
             where = f"on {case.label}, " if case.label else ""

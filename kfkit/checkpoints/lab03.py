@@ -5,8 +5,16 @@ import numpy as np
 from scipy.ndimage import median_filter
 
 from .. import calibration, datasets
-from ..frames import (MAG_FIELD_LONDON, accel_tilt, declination, euler_to_dcm, mag_heading, random_dcm,
-                      tilt_compensated_heading, wrap_angle)
+from ..frames import (
+    MAG_FIELD_LONDON,
+    accel_tilt,
+    declination,
+    euler_to_dcm,
+    mag_heading,
+    random_dcm,
+    tilt_compensated_heading,
+    wrap_angle,
+)
 from ..metrics import angle_error, rmse
 from ..sensors import iis2mdc_mag
 from . import Case, Checkpoint, compare, fmt, fmt_pair, matches, register, structural
@@ -109,7 +117,8 @@ def _judge_ellipsoid(case, got):
         if _like(S, np.linalg.inv(S_true)) and not _like(S, S_true):
             return ("S is the inverse of the correction: it holds the ellipsoid's radii (A^−½); the correction that "
                     "maps the ellipsoid onto a sphere is B·A^½ (√w, not 1/√w, from eigh)")
-        return f"the hard iron is right but calibrated norms average {np.mean(norms):.2f} µT, not B = {B:.2f}: scale S by B"
+        return (f"the hard iron is right but calibrated norms average {np.mean(norms):.2f} µT, not B = {B:.2f}: "
+                f"scale S by B")
     worst = np.abs(S - S_true).max()
     if worst > SOFT_IRON_TOL:
         return f"largest |S − W⁻¹| = {worst:.4f} (allowed {SOFT_IRON_TOL:g}); expected S ≈ {fmt(S_true)}"

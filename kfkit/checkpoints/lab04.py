@@ -11,9 +11,15 @@ import numpy as np
 
 from .. import datasets
 from ..calibration import Calibration, calibration_for, gyro_bias
-from ..filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement, euler_ekf_predict,
-                                 euler_ekf_update, euler_process_noise)
 from ..filters.attitude_run import learn_field
+from ..filters.euler_ekf import (
+    EulerAttitudeEKFSettings,
+    attitude_jacobian,
+    attitude_measurement,
+    euler_ekf_predict,
+    euler_ekf_update,
+    euler_process_noise,
+)
 from ..filters.euler_ekf_fast import FastEulerAttitudeEKF
 from ..frames import MAG_FIELD_LONDON, body_rates_to_euler_rates, euler_to_dcm, euler_to_quat, wrap_angle
 from ..metrics import angle_error, attitude_rmse, rmse
@@ -179,7 +185,7 @@ def _numerical_jacobian_cases(rng):
         A, b = rng.normal(0.0, 3.0, (4, 3)), rng.normal(0.0, 1.0, 4)
         x = rng.normal(0.0, 1.0, 3)
         cases.append(Case({"h": (lambda v, A=A, b=b: A @ v + b), "x": x}, A, f"a linear h(x) = A x + b (4×3, case {i + 1})"))
-    for i in range(8):
+    for _ in range(8):
         x, m = _random_state(rng), _random_field(rng)
         cases.append(Case({"h": (lambda v, m=m: attitude_measurement(v, m)), "x": x}, attitude_jacobian(x, m),
                           f"kfkit's attitude h(x) at x = {fmt(x)}"))

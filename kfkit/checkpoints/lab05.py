@@ -212,7 +212,8 @@ def _judge_run(case, got):
 # --- tuning and the whole pipeline ------------------------------------------------------------------
 
 def pipeline_inputs(tilt=None, still=None, faces=None):
-    """kfkit's reference pipeline up to the filter: per axis (gyro rate, accel angle, static_ok, known angle), dt, r, q0."""
+    """kfkit's reference pipeline up to the filter: per axis (gyro rate, accel angle, static_ok, known angle), dt, r,
+    q0."""
     if tilt is None:
         tilt, still, faces = bundled()
     bias, scale = calibration.accel_six_face({f: faces.body("acc")[faces.phase(f)] for f in calibration.FACES})
@@ -284,7 +285,8 @@ def _judge_tune(case, got):
                        a["reference"])
     if rmse > 1.1 * case.expected["best"]:
         return (f"static-window RMSE {np.degrees(rmse):.3f}° with q_angle = {q_angle:.2e}, q_bias = {q_bias:.2e}; "
-                f"kfkit's tuning reaches {np.degrees(case.expected['best']):.3f}° (from {np.degrees(case.expected['start']):.3f}° at q0)")
+                f"kfkit's tuning reaches {np.degrees(case.expected['best']):.3f}° "
+                f"(from {np.degrees(case.expected['start']):.3f}° at q0)")
     return None
 
 
@@ -305,7 +307,8 @@ def _judge_final(case, got):
         return "expected four arrays (roll, pitch, roll_bias, pitch_bias)"
     n = len(case.args["tilt"])
     if any(a.shape != (n,) for a in (roll, pitch, roll_bias, pitch_bias)):
-        return f"expected four arrays of {n} samples, got shapes {', '.join(str(a.shape) for a in (roll, pitch, roll_bias, pitch_bias))}"
+        shapes = ", ".join(str(a.shape) for a in (roll, pitch, roll_bias, pitch_bias))
+        return f"expected four arrays of {n} samples, got shapes {shapes}"
     problems = []
     for name, est, ref in (("roll", roll, case.expected["ref"][0]), ("pitch", pitch, case.expected["ref"][1])):
         err = static_rmse(est, ref)
@@ -314,7 +317,8 @@ def _judge_final(case, got):
     nose_up = case.expected["nose_up"]
     err = np.sqrt(np.mean(wrap_angle(roll[nose_up] - case.expected["true_roll"][nose_up]) ** 2))
     if not err < NOSE_UP_LIMIT:
-        problems.append(f"roll RMSE {np.degrees(err):.1f}° while the board points nose-up (limit {np.degrees(NOSE_UP_LIMIT):.0f}°): "
+        problems.append(f"roll RMSE {np.degrees(err):.1f}° while the board points nose-up "
+                        f"(limit {np.degrees(NOSE_UP_LIMIT):.0f}°): "
                         "there f_y and f_z are only noise, so the accelerometer roll must not update the filter")
     settled = case.expected["settled"]
     for name, est, true in (("roll", roll_bias, case.expected["bias"][0]), ("pitch", pitch_bias, case.expected["bias"][1])):

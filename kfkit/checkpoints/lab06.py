@@ -5,10 +5,10 @@ import numpy as np
 from scipy.signal import cont2discrete
 
 from .. import datasets
+from ..discrete import discretize
 from ..filters.sideslip import sideslip_step
 from ..filters.sideslip_estimate import estimate_sideslip
 from ..metrics import rmse
-from ..discrete import discretize
 from ..vehicle import BicycleParams, linear_model, miscopied_linear_model
 from . import Case, Checkpoint, compare, register
 

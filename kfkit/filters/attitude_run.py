@@ -13,8 +13,17 @@ from functools import cached_property
 
 import numpy as np
 
-from ..frames import (G, MAG_FIELD_LONDON, accel_tilt, declination, euler_to_dcm, euler_to_quat, quat_to_dcm,
-                      quat_to_euler, tilt_compensated_heading)
+from ..frames import (
+    MAG_FIELD_LONDON,
+    G,
+    accel_tilt,
+    declination,
+    euler_to_dcm,
+    euler_to_quat,
+    quat_to_dcm,
+    quat_to_euler,
+    tilt_compensated_heading,
+)
 from .contract import FilterRun
 
 

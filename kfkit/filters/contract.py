@@ -105,7 +105,8 @@ class TunedFilter(Filter, Protocol):
 
     dt        sample period, s (or ``rate_hz``, Hz, where a recording gives a rate; not both)
     settings  a frozen ``<Filter>Settings`` dataclass, every field with meaning, unit and default in its docstring's
-              table; keyword ``changes`` apply on top (``RollKF(0.01, r=1e-4)`` = ``RollKF(0.01, RollKFSettings(r=1e-4))``)
+              table; keyword ``changes`` apply on top
+              (``RollKF(0.01, r=1e-4)`` = ``RollKF(0.01, RollKFSettings(r=1e-4))``)
     """
 
     dt: float

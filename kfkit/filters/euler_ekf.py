@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..frames import G, MAG_FIELD_LONDON, body_rates_to_euler_rates, euler_to_dcm, wrap_angle
+from ..frames import MAG_FIELD_LONDON, G, body_rates_to_euler_rates, euler_to_dcm, wrap_angle
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, tilt_heading
 from .contract import State, Step, check_settings, configure, sample_period, shaped
 

@@ -7,8 +7,8 @@ Textbook names throughout (x, P, F, B, H, Q, R; y innovation, S its covariance, 
               x = x⁻ + K y   P = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ     (Joseph form)
 
 ``step(z_k, u_k)`` does ``predict(u_k)`` then ``update(z_k)`` and ``run`` does a step for every
-sample k, so x0, P0 describe the state one step before the first sample. A measurement that is NaN is skipped (no update:
-the filter coasts on its prediction), which is how gating and missing samples are handled.
+sample k, so x0, P0 describe the state one step before the first sample. A measurement that is NaN is skipped
+(no update: the filter coasts on its prediction), which is how gating and missing samples are handled.
 """
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..frames import G, MAG_FIELD_LONDON, euler_to_quat, quat_to_dcm
+from ..frames import MAG_FIELD_LONDON, G, euler_to_quat, quat_to_dcm
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, learn_field, tilt_heading
 from .linear import Step, configure, require_positive
 from .mag_gate import MagGate

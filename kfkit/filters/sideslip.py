@@ -288,7 +288,8 @@ def _start(kf, x0, P0):
 
 
 def _run_drive(kf, d, resume) -> SideslipRun:
-    """``kf.step`` (either sideslip filter) over the checked drive ``d``, with one BLAS thread → :class:`SideslipRun`."""
+    """``kf.step`` (either sideslip filter) over the checked drive ``d``, with one BLAS thread →
+    :class:`SideslipRun`."""
     if not resume:
         kf.reset()
     t_prev = kf.state.t_prev

@@ -205,8 +205,9 @@ class TiltAttitude:
     filters start from; then for every sample: counts → body frame (SI) with the board's
     sensitivities and mounting, six-face correction f = (f_raw − accel_bias) / accel_scale (body frame),
     accelerometer roll and pitch, the static gate |‖f‖ − g| < eps, one :class:`TiltBiasKF` per axis
-    (``settings``, a :class:`TiltBiasKFSettings`) fed with the body rates p (roll) and q (pitch). Each axis is treated on its own, which holds for
-    turns about one axis at a time (θ̇ = q only while φ = 0). Roll is not updated while
+    (``settings``, a :class:`TiltBiasKFSettings`) fed with the body rates p (roll) and q (pitch). Each axis is
+    treated on its own, which holds for turns about one axis at a time (θ̇ = q only while φ = 0). Roll is not
+    updated while
     √(f_y² + f_z²) < roll_min·g: near pitch ±90° the accelerometer roll is the angle of noise.
     """
 

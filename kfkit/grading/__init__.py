@@ -57,7 +57,8 @@ def _cli(args) -> int:
 
 
 def add_parser(sub):
-    """The ``grade`` subcommand of ``kfkit`` (see cli.py); its numbers are checked at the door (:mod:`kfkit.cli_options`)."""
+    """The ``grade`` subcommand of ``kfkit`` (see cli.py); its numbers are checked at the door
+    (:mod:`kfkit.cli_options`)."""
     from ..cli_options import number
 
     p = sub.add_parser("grade", help="grade submitted notebooks in isolated kernels into a gradebook (instructors)")

@@ -197,7 +197,8 @@ def drop_privileges(spec):
             fail("could not change uid")
     else:  # root of a user namespace: keep uid 0 there, but without any capability
         prctl(PR_SET_SECUREBITS, SECBITS_LOCKED_NOROOT)
-        last = int(open("/proc/sys/kernel/cap_last_cap").read())
+        with open("/proc/sys/kernel/cap_last_cap") as f:
+            last = int(f.read())
         for cap in range(last + 1):
             prctl(PR_CAPBSET_DROP, cap)
         libc.prctl(PR_CAP_AMBIENT, 4, 0, 0, 0)  # PR_CAP_AMBIENT_CLEAR_ALL

@@ -19,10 +19,18 @@ from .. import checkpoints as cps
 from ..checkpoints import Status
 from . import sandbox as sb
 from . import wire
-from .gradebook import (COLUMNS, Row, SubmissionGrade, default_feedback_dir, feedback_names,  # noqa: F401 (public)
-                        merge_grades, read_gradebook, write_gradebook)
+from .gradebook import (  # noqa: F401 (public)
+    COLUMNS,
+    Row,
+    SubmissionGrade,
+    default_feedback_dir,
+    feedback_names,
+    merge_grades,
+    read_gradebook,
+    write_gradebook,
+)
 from .quoting import clip, md_code, visible_controls
-from .runner import KernelLost, KernelRun, Limits, OutOfTime, StoppedByLimit  # noqa: F401 (Limits is public)
+from .runner import KernelLost, KernelRun, Limits, OutOfTime, StoppedByLimit
 from .submissions import Refused, Submission, TooLarge, find_submissions, read_submission
 
 MAX_NOTEBOOK_BYTES = 50 << 20

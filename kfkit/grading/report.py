@@ -305,7 +305,8 @@ def _students(grades, names, feedback) -> str:
 def _feedback(grades, feedback) -> str:
     """Each feedback file as text (its Markdown not rendered), so the page needs no folder beside it."""
     parts = [f'<section class="feedback" id="feedback-{k}"><h3>{_text(g.submission, NAME_CHARS)}</h3>'
-             f"<pre>{html.escape(clip(visible_controls(feedback[g.submission], lines=True), FEEDBACK_CHARS))}</pre></section>"
+             f"<pre>{html.escape(clip(visible_controls(feedback[g.submission], lines=True), FEEDBACK_CHARS))}</pre>"
+             "</section>"
              for k, g in enumerate(grades) if g.submission in feedback]
     return "\n".join(parts) or "<p>No feedback file was found beside the gradebook.</p>"
 

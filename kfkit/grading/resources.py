@@ -19,6 +19,7 @@ cell and each grader's call by the same count (:attr:`Watchdog.cpu_used`, see :m
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import threading
@@ -81,10 +82,8 @@ class ProcessTree:
 
     def kill(self):
         for p in self.processes():
-            try:
+            with contextlib.suppress(psutil.Error):
                 p.send_signal(signal.SIGKILL)
-            except psutil.Error:
-                pass
 
     def close(self):
         pass

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import ast
 import asyncio
+import contextlib
 import ctypes
 import json
 import logging
@@ -53,10 +54,8 @@ from nbclient import NotebookClient
 from nbclient.exceptions import CellTimeoutError, DeadKernelError
 
 from ..exercise_guard import assigned_names
-from . import CELL_TIMEOUT, TOTAL_TIMEOUT, WALL_FACTOR
-from . import resources
+from . import CELL_TIMEOUT, TOTAL_TIMEOUT, WALL_FACTOR, resources, wire
 from . import sandbox as sb
-from . import wire
 
 MAX_RESTARTS = 3
 WARM_UP_TIMEOUT = 120.0  # s for the kernel's first imports, not charged to the student's first cell
@@ -263,7 +262,7 @@ class KernelRun:
                               allow_errors=True, record_timing=False, shutdown_kernel="immediate",
                               startup_timeout=60, iopub_timeout=IOPUB_TIMEOUT, raise_on_iopub_timeout=True)
         self.client.timeout_func = self._cell_timeout
-        self.log = open(self.box / "kernel.log", "wb")
+        self.log = open(self.box / "kernel.log", "wb")  # noqa: SIM115  (the kernel's stdout for its life; _stop closes it)
         cwd = self.box / "home" if self.sandbox.mode == "none" else Path("/")
         try:
             self.client.km = km
@@ -293,10 +292,8 @@ class KernelRun:
 
     def _stop(self):
         if self.client is not None and self.client.km is not None:
-            try:
+            with contextlib.suppress(Exception):  # already dead: nothing left to stop
                 self.client._cleanup_kernel()
-            except Exception:  # already dead: nothing left to stop
-                pass
         self.client = None
         if self.watchdog is not None:
             self.watchdog.stop()

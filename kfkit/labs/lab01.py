@@ -57,7 +57,8 @@ def roll_gyro_density(rec) -> tuple[float, str]:
     measures it. A board or a phone: the calibration :func:`kfkit.calibration.calibration_for` picks (the one lab 02
     saved for your board, else the kit's bundled one, lab 02's analysis of the board's bundled rest), σ/√f_s of its
     white noise. The real IMU (BROAD's Myon, which has no calibration file): its Allan deviation at τ = 1 s over the
-    rest lab 02's section 8 reads (:data:`REAL_REST`, at the IMU's native rate: a density does not depend on the rate)."""
+    rest lab 02's section 8 reads (:data:`REAL_REST`, at the IMU's native rate: a density does not depend on the
+    rate)."""
     if rec.meta.get("board") == REAL_BOARD:
         rest = datasets.load(REAL_REST)
         taus, adev = calibration.allan_deviation(rest.body("gyr")[:, 0], rest.rate_hz)
@@ -75,7 +76,7 @@ def gaussian(x, mean, var):
 
 def fusion_figure(prior, measurement, posterior, title="Prior × measurement = posterior"):
     """The three densities of section 4's fusion, each (mean (rad), variance (rad²)), drawn in degrees."""
-    (m0, v0), (mz, vz), (m1, v1) = prior, measurement, posterior
+    (m0, v0), (mz, vz) = prior, measurement
     spread = 4.0 * np.sqrt(max(v0, vz))
     x = np.linspace(min(m0, mz) - spread, max(m0, mz) + spread, 600)
     deg = np.degrees(1.0)
@@ -166,8 +167,8 @@ def side_by_side(cases: dict) -> None:
         row(label, each(value), fmt)
     print("RMSE while moving (°)")
     for est in runs[0].estimates:
-        row(f"  {est}", each(lambda rec, rest, mov, run: metrics.angle_rmse_deg(run.estimates[est][0][mov],
-                                                                                 rec["true_roll"][mov])), "14.2f")
+        row(f"  {est}", each(lambda rec, rest, mov, run, est=est: metrics.angle_rmse_deg(run.estimates[est][0][mov],
+                                                                                          rec["true_roll"][mov])), "14.2f")
     row("q = N²Δt (rad²)", [run.q_N for run in runs], "14.1e")
     row("best q (rad²)", [run.q_best for run in runs], "14.1e")
     row("  best q / (N²Δt)", [run.q_best / run.q_N for run in runs], "14.0f")

@@ -42,6 +42,7 @@ Simulated exports made by the kit add ``kfkit_truth.csv`` (the true attitude at 
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import warnings
@@ -56,7 +57,16 @@ from ..clocks import OneClock, SampleCounter
 from ..frames import dcm_to_euler, quat_to_dcm
 from ..io import BOM, Recording, RecordingError, parse_count, parse_header, parse_number, shown
 from ..phone_sim import TRUTH_FILE, TRUTH_KIND
-from ..sensors import (DEFAULT_PHONE_MOUNT, PHONE_BOARD, PHONE_LSB, PHONE_MAX_COUNTS, SI_UNITS, phone_counts, phone_mount, phone_sensor_metadata)
+from ..sensors import (
+    DEFAULT_PHONE_MOUNT,
+    PHONE_BOARD,
+    PHONE_LSB,
+    PHONE_MAX_COUNTS,
+    SI_UNITS,
+    phone_counts,
+    phone_mount,
+    phone_sensor_metadata,
+)
 
 SEPARATORS = (",", "\t", ";")
 #: sensor kinds phyphox exports, as named in its file format (``<sensor type="…">``)
@@ -357,7 +367,8 @@ def _missing_message(tables, needed):
                 f"record with phyphox's 'Acceleration with g' experiment, or tick 'Accelerometer' (not 'Linear "
                 f"Acceleration') in a simple experiment.")
     else:
-        msg += f" phyphox's single-sensor experiments ({EXPERIMENT_FOR[needed]}, …) export one sensor each; {SIMPLE_EXPERIMENT_HINT}."
+        msg += (f" phyphox's single-sensor experiments ({EXPERIMENT_FOR[needed]}, …) export one sensor each; "
+                f"{SIMPLE_EXPERIMENT_HINT}.")
     return msg
 
 
@@ -367,10 +378,8 @@ def _sensor_meta(kind, device):
     android = {"acc": "accelerometer", "gyr": "gyroscope", "mag": "magnetic_field"}[kind]
     chip = device.get(f"{android} Name") or None
     full_scale = None
-    try:
+    with contextlib.suppress(KeyError, ValueError):
         full_scale = float(device[f"{android} Range"])
-    except (KeyError, ValueError):
-        pass
     return phone_sensor_metadata(kind, chip, full_scale)
 
 

@@ -14,8 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..frames import G
-from ..io import Recording, RecordingError
-from ..io import VEHICLE_COLUMNS, VEHICLE_TRUTH, csv_rows, read_csv_rows, read_lines
+from ..io import VEHICLE_COLUMNS, VEHICLE_TRUTH, Recording, RecordingError, csv_rows, read_csv_rows, read_lines
 from ..vehicle import KMH
 
 #: unit name → factor to SI, per kind of quantity (the options of :func:`load_vehicle_csv`)

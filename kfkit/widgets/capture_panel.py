@@ -8,13 +8,20 @@ import ipywidgets as W
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..capture import (PROTOCOLS, CaptureError, Recorder, dataset_name, find_boards, protocol_motion, protocol_steps,
-                       sphere_coverage)
-from ..capture.guided import protocol_capture_options, step_at
 from .. import sensors
+from ..capture import (
+    PROTOCOLS,
+    CaptureError,
+    Recorder,
+    dataset_name,
+    find_boards,
+    protocol_motion,
+    protocol_steps,
+    sphere_coverage,
+)
+from ..capture.guided import protocol_capture_options, step_at
 from ..plots import COLORS
 from .canvas import interactive_canvas
-
 
 _LIVE_SENSORS = (("acc", "accelerometer (m/s²)", 1.0), ("gyr", "gyro (°/s)", 180.0 / np.pi), ("mag", "magnetometer (µT)", 1.0))
 _AXIS_COLORS = (COLORS["accel"], COLORS["band"], COLORS["kf"])  # x, y, z (Okabe–Ito)

@@ -116,7 +116,7 @@ def run_and_check_rendering(page, jupyter_lab, name):
         canvas = figures.nth(i).locator("canvas").first
         canvas.scroll_into_view_if_needed()
         # a busy machine draws late, not never: wait for the drawing (a blank canvas forever is the failure)
-        wait_until(lambda: canvas_png(canvas).std() > 5, f"{name}: ipympl figure {i} to be drawn (it stays blank)",
+        wait_until(lambda canvas=canvas: canvas_png(canvas).std() > 5, f"{name}: ipympl figure {i} to be drawn (it stays blank)",
                    poll_s=500, sleep=page.wait_for_timeout)
 
 
