@@ -98,12 +98,15 @@ def linear_model(params: BicycleParams, vx: float):
     """
     vx = _check_speed(vx)
     m, Iz, a, b, Cf, Cr = params.m, params.Iz, params.a, params.b, params.Cf, params.Cr
+    # the matrices as the equations write them, one row a line
+    # fmt: off
     A = np.array([[-(Cf + Cr) / (m * vx), (b * Cr - a * Cf) / (m * vx ** 2) - 1.0],
                   [(b * Cr - a * Cf) / Iz, -(a * a * Cf + b * b * Cr) / (Iz * vx)]])
     B = np.array([[Cf / (m * vx)], [a * Cf / Iz]])
     C = np.array([[0.0, 1.0],
                   [-(Cf + Cr) / m, (b * Cr - a * Cf) / (m * vx)]])
     D = np.array([[0.0], [Cf / m]])
+    # fmt: on
     return A, B, C, D
 
 
