@@ -67,10 +67,14 @@ def main():
     theirs = best_of(lambda: filterpy_scalar(gyro, z, dt, 1e-7, 1e-3))
     rows.append(("lab 01 roll KF, 60 s at 104 Hz", len(z), ours, theirs))
 
-    print(f"{'problem':42s} {'steps':>6s} {'kfkit ms':>9s} {'kfkit steps/s':>14s} {'filterpy ms':>12s} "
-          f"{'filterpy steps/s':>17s} {'speed-up':>9s}")
+    print(
+        f"{'problem':42s} {'steps':>6s} {'kfkit ms':>9s} {'kfkit steps/s':>14s} {'filterpy ms':>12s} "
+        f"{'filterpy steps/s':>17s} {'speed-up':>9s}"
+    )
     for name, steps, a, b in rows:
-        print(f"{name:42s} {steps:6d} {1e3 * a:9.1f} {steps / a:14,.0f} {1e3 * b:12.1f} {steps / b:17,.0f} {b / a:8.1f}×")
+        print(
+            f"{name:42s} {steps:6d} {1e3 * a:9.1f} {steps / a:14,.0f} {1e3 * b:12.1f} {steps / b:17,.0f} {b / a:8.1f}×"
+        )
 
 
 if __name__ == "__main__":

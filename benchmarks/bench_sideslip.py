@@ -13,6 +13,7 @@ Run it on a quiet machine and again with the cores busy (e.g. two `python -c "wh
 limit matters most when cores are contended, as on a 2-core CI runner or parallel grading.
 Budget (DESIGN): a 60 s, 100 Hz drive within 200 ms, so tuning feels live.
 """
+
 import contextlib
 import time
 from functools import partial
@@ -30,7 +31,11 @@ from kfkit.metrics import rmse
 from kfkit.readers import load_vehicle_csv
 
 SIGNALS = ("t", "delta", "yaw_rate", "ay", "vx")
-DRIVES = {"slalom 20 km/h": "06_slalom_20kmh", "slalom 80 km/h": "06_slalom_80kmh", "lane change 60 km/h": "06_lane_change"}
+DRIVES = {
+    "slalom 20 km/h": "06_slalom_20kmh",
+    "slalom 80 km/h": "06_slalom_80kmh",
+    "lane change 60 km/h": "06_lane_change",
+}
 CAR = vehicle.BicycleParams()
 
 
@@ -61,17 +66,22 @@ def speed_table():
         theirs = filterpy_sideslip(*sig)
         agree = np.max(np.abs(ours - theirs))
         t_ours = best_of(partial(estimate_sideslip, *sig, CAR, model=vehicle.linear_model), clock=time.process_time)
-        t_bias = best_of(partial(estimate_sideslip, *sig, CAR, model=vehicle.linear_model, bias_ay=True),
-                         clock=time.process_time)
+        t_bias = best_of(
+            partial(estimate_sideslip, *sig, CAR, model=vehicle.linear_model, bias_ay=True), clock=time.process_time
+        )
         with threadpool_limits(1, user_api="blas"):
             t_fp = best_of(partial(filterpy_sideslip, *sig), clock=time.process_time)
         n = len(rec)
         rows.append((label, n, n / t_ours, n / t_bias, n / t_fp, t_fp / t_ours, agree))
-    print(f"{'drive':22s} {'samples':>8s} {'kfkit steps/s':>14s} {'+bias state':>12s} {'filterpy steps/s':>17s} "
-          f"{'ratio':>6s} {'max |Δβ| (rad)':>15s} {'60 s @ 100 Hz':>14s}")
+    print(
+        f"{'drive':22s} {'samples':>8s} {'kfkit steps/s':>14s} {'+bias state':>12s} {'filterpy steps/s':>17s} "
+        f"{'ratio':>6s} {'max |Δβ| (rad)':>15s} {'60 s @ 100 Hz':>14s}"
+    )
     for label, n, ours, bias, fp, ratio, agree in rows:
-        print(f"{label:22s} {n:8d} {ours:14.0f} {bias:12.0f} {fp:17.0f} {ratio:6.2f} {agree:15.1e} "
-              f"{6000 / ours * 1e3:11.0f} ms")
+        print(
+            f"{label:22s} {n:8d} {ours:14.0f} {bias:12.0f} {fp:17.0f} {ratio:6.2f} {agree:15.1e} "
+            f"{6000 / ours * 1e3:11.0f} ms"
+        )
 
 
 class _NoLimit:
@@ -86,8 +96,10 @@ def blas_table(repeats=7):
     sig = [rec[c] for c in SIGNALS]
     print(f"\n{'BLAS threads (slalom 20 km/h)':38s} {'wall best':>10s} {'wall median':>12s} {'CPU median':>11s}")
     for bias in (False, True):
-        for label, patch in (("1 thread (threadpoolctl)", contextlib.nullcontext()),
-                             ("library default", mock.patch.object(sideslip, "_blas_controller", _NoLimit))):
+        for label, patch in (
+            ("1 thread (threadpoolctl)", contextlib.nullcontext()),
+            ("library default", mock.patch.object(sideslip, "_blas_controller", _NoLimit)),
+        ):
             walls, cpus = [], []
             with patch:
                 for _ in range(repeats):
@@ -96,8 +108,10 @@ def blas_table(repeats=7):
                     walls.append(time.perf_counter() - w)
                     cpus.append(time.process_time() - c)
             name = ("+bias state, " if bias else "") + label
-            print(f"{name:38s} {1e3 * min(walls):8.1f} ms {1e3 * np.median(walls):10.1f} ms "
-                  f"{1e3 * np.median(cpus):9.1f} ms")
+            print(
+                f"{name:38s} {1e3 * min(walls):8.1f} ms {1e3 * np.median(walls):10.1f} ms "
+                f"{1e3 * np.median(cpus):9.1f} ms"
+            )
 
 
 def rmse_table():
@@ -115,8 +129,14 @@ def rmse_table():
 
 
 SHARED_TRACK = Path(__file__).resolve().parents[2] / "shared/data/racetrack/racetrack_first_half.csv"
-TRACK_COLUMNS = {"t": "t_s", "delta": "steer_road_wheel_rad", "yaw_rate": "yaw_rate_rad_s", "ay": "ay_cg_m_s2",
-                 "vx": "vx_m_s", "true_beta": "beta_true_rad"}
+TRACK_COLUMNS = {
+    "t": "t_s",
+    "delta": "steer_road_wheel_rad",
+    "yaw_rate": "yaw_rate_rad_s",
+    "ay": "ay_cg_m_s2",
+    "vx": "vx_m_s",
+    "true_beta": "beta_true_rad",
+}
 
 
 def real_table():
@@ -126,8 +146,11 @@ def real_table():
     logs = {"bundled 06_racetrack": bundled}
     if SHARED_TRACK.exists():
         logs["shared first half"] = load_vehicle_csv(SHARED_TRACK, TRACK_COLUMNS)
-    estimators = {"open loop (linear, no a_y)": dict(model=vehicle.linear_model, accel_noise=1e6),
-                  "linear KF, defaults": dict(model=vehicle.linear_model), "EKF, saturating tyres (default)": {}}
+    estimators = {
+        "open loop (linear, no a_y)": dict(model=vehicle.linear_model, accel_noise=1e6),
+        "linear KF, defaults": dict(model=vehicle.linear_model),
+        "EKF, saturating tyres (default)": {},
+    }
     print(f"\n{'β RMSE (°), race track':32s}" + "".join(f"{name:>22s}" for name in logs) + f"{'CPU (s)':>9s}")
     for label, kwargs in estimators.items():
         row, cpu = [], 0.0
@@ -137,8 +160,10 @@ def real_table():
             cpu += time.process_time() - c
             row.append(np.degrees(rmse(beta[5:], rec["true_beta"][5:])))
         print(f"{label:32s}" + "".join(f"{v:22.3f}" for v in row) + f"{cpu:9.1f}")
-    print(f"{'true β (RMS)':32s}" + "".join(f"{np.degrees(rmse(0 * r['true_beta'][5:], r['true_beta'][5:])):22.3f}"
-                                               for r in logs.values()))
+    print(
+        f"{'true β (RMS)':32s}"
+        + "".join(f"{np.degrees(rmse(0 * r['true_beta'][5:], r['true_beta'][5:])):22.3f}" for r in logs.values())
+    )
 
 
 if __name__ == "__main__":

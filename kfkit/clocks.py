@@ -7,6 +7,7 @@ format's "no new sample"). :class:`SampleCounter` numbers the rows of such a tim
 numbers its samples (``seq``), so a gap in the timestamps shows as dropped samples and jitter does not.
 Both work on pieces (a live stream) and on a whole file alike.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -7,6 +7,7 @@
 is the same integral written out for the [angle, gyro bias] model of labs 01, 04 and 05, fed with the gyro noise
 lab 02 measures on its Allan curve (white-noise density N, rate random walk K).
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -3,6 +3,7 @@ test over all labs), and each lab's judges naming the classic mistakes in answer
 
 The solutions' own exercise functions as answers, NaN/inf answers and the catalogue of mutated model answers
 are in test_checkpoints_every.py; lab 05's answers are the notebook's (its pipeline: test_tilt.py)."""
+
 import dataclasses
 import math
 import re
@@ -25,6 +26,7 @@ B_LONDON = np.linalg.norm(frames.MAG_FIELD_LONDON)
 
 
 # --- kfkit's answers, lab by lab ---------------------------------------------------------------------------------
+
 
 def loop_xor(body):
     x = 0
@@ -54,8 +56,14 @@ def central_differences(h, x, eps=1e-6):
 
 
 def reference_run_ekf(gyr, acc, mag, rate_hz, gyro_noise, accel_noise, mag_noise, field_n, accel_gate=None):
-    run = FastEulerAttitudeEKF(rate_hz=rate_hz, gyro_noise=gyro_noise, accel_noise=accel_noise, mag_noise=mag_noise,
-                               field_n=field_n, accel_gate=accel_gate).run(gyr, acc, mag)
+    run = FastEulerAttitudeEKF(
+        rate_hz=rate_hz,
+        gyro_noise=gyro_noise,
+        accel_noise=accel_noise,
+        mag_noise=mag_noise,
+        field_n=field_n,
+        accel_gate=accel_gate,
+    ).run(gyr, acc, mag)
     return run.euler, run.P, run.nis
 
 
@@ -84,17 +92,25 @@ RIGHT = {
     "01.kf_beats_sensors": reference_run_kf,
     "01.fuse_gaussians": lambda mu_prior, var_prior, z, r: filters.roll_kf_update(mu_prior, var_prior, z, r)[:2],
     "01.q_for_time_constant": q_by_search,
-    "02.gyro_bias": C.gyro_bias, "02.noise_std": C.noise_std, "02.accel_bias": C.accel_bias,
-    "02.six_face": C.accel_six_face, "02.six_face_recording": C.accel_six_face, "02.gyro_bias_recording": C.gyro_bias,
+    "02.gyro_bias": C.gyro_bias,
+    "02.noise_std": C.noise_std,
+    "02.accel_bias": C.accel_bias,
+    "02.six_face": C.accel_six_face,
+    "02.six_face_recording": C.accel_six_face,
+    "02.gyro_bias_recording": C.gyro_bias,
     "02.noise_recording": C.noise_std,
     "02.allan_deviation": lambda x, rate_hz, taus: C.allan_deviation(x, rate_hz, taus)[1],
     "02.sigma_at_rate": C.noise_at_rate,
     "02.q_from_noise_density": lambda N, K, dt: van_loan_angle_bias(N, K, dt),
     "02.q_from_datasheet": lambda arw, bias_instability, rrw, dt: van_loan_angle_bias(
-        arw * constants.degree / np.sqrt(constants.hour), rrw * constants.degree / constants.hour / np.sqrt(constants.hour), dt),
+        arw * constants.degree / np.sqrt(constants.hour),
+        rrw * constants.degree / constants.hour / np.sqrt(constants.hour),
+        dt,
+    ),
     "03.counts_to_ut": lambda counts: counts * 0.15,
     "03.alignment": lambda turns: np.diag([np.sign(np.sum(g * m)) for g, m in (turns[a] for a in "xyz")]),
-    "03.mag_calibration": C.fit_mag_calibration, "03.heading_error": C.fit_mag_calibration,
+    "03.mag_calibration": C.fit_mag_calibration,
+    "03.heading_error": C.fit_mag_calibration,
     "03.real_magnet": C.fit_mag_calibration,
     "03.flat_heading": frames.mag_heading,
     "03.tilt_heading": frames.tilt_compensated_heading,
@@ -112,7 +128,11 @@ RIGHT = {
     "06.slalom_rmse": kfkit_run_sideslip,
 }
 SEEDS = {"00": (1,), "01": (0, 1, 2), "02": (0, 1), "03": (0, 1), "04": (0, 1), "06": (1,)}
-SEEDS_OF = {"04.ekf_rmse": (0,), "04.real_ekf": (0,), "06.slalom_rmse": (None,)}  # a whole filter over bundled recordings: one run
+SEEDS_OF = {
+    "04.ekf_rmse": (0,),
+    "04.real_ekf": (0,),
+    "06.slalom_rmse": (None,),
+}  # a whole filter over bundled recordings: one run
 WITHOUT_KFKIT_ANSWER = "05"  # lab 05's exercises are a pipeline of the notebook's own (test_checkpoints_every.py)
 
 
@@ -145,6 +165,7 @@ def test_not_attempted_is_said_for_every_checkpoint(name):
 
 # --- lab 00 ------------------------------------------------------------------------------------------------------
 
+
 def test_lab00_judges_name_a_sum_a_hex_text_and_an_unwrapped_clock():
     assert not run_checkpoint(get("00.checksum"), lambda body: sum(body) % 256, seed=1).ok
     hex_text = run_checkpoint(get("00.checksum"), lambda body: f"{loop_xor(body):02X}", seed=1)
@@ -155,6 +176,7 @@ def test_lab00_judges_name_a_sum_a_hex_text_and_an_unwrapped_clock():
 
 # --- lab 01 ------------------------------------------------------------------------------------------------------
 
+
 def test_atan2_off_by_pi_is_named():
     result = run_checkpoint(get("01.accel_roll"), lambda ay, az: np.arctan2(ay, az), seed=0)
     assert result.status == "failed" and "180° off" in result.message and "Hint:" in result.message
@@ -164,7 +186,9 @@ def test_atan2_off_by_pi_is_named():
 def test_predict_that_forgets_q_fails_with_expected_and_got():
     result = run_checkpoint(get("01.kf_predict"), lambda x, P, omega, dt, q: (x + omega * dt, P), seed=0)
     assert result.status == "failed"
-    assert "value 2 of 2: expected" in result.message and ", got " in result.message and "kf_predict(x=" in result.message
+    assert (
+        "value 2 of 2: expected" in result.message and ", got " in result.message and "kf_predict(x=" in result.message
+    )
 
 
 def test_update_returning_two_values_is_explained():
@@ -206,7 +230,9 @@ def test_compare_structure_and_tolerance():
     assert compare(1.0, "one").startswith("expected a number")
     assert compare(1.0, 1.1) is not None
 
+
 # --- labs 02 and 03 ----------------------------------------------------------------------------------------------
+
 
 def test_heading_checkpoint_catches_the_half_turn_atan2():
     def off_by_pi(m_b, roll, pitch, declination=0.0):  # atan2(m_y', −m_x'): both arguments negated
@@ -225,8 +251,11 @@ def test_alignment_checkpoint_against_scipy_rotation():
     # 180° about y negates x and z: the sign matrix the checkpoint expects for the IIS2MDC
     D = Rotation.from_euler("y", np.pi).as_matrix()
     np.testing.assert_allclose(D, np.diag([-1.0, 1.0, -1.0]), atol=1e-12)
-    result = run_checkpoint(get("03.alignment"), lambda turns: np.diag(
-        [np.sign(np.sum(g * m)) for g, m in (turns[a] for a in "xyz")]), seed=1)
+    result = run_checkpoint(
+        get("03.alignment"),
+        lambda turns: np.diag([np.sign(np.sum(g * m)) for g, m in (turns[a] for a in "xyz")]),
+        seed=1,
+    )
     assert result.ok, result.message
 
 
@@ -236,7 +265,9 @@ def test_uncalibrated_magnetometer_fails_the_heading_checkpoint():
 
 
 def test_allan_checkpoint_names_a_normalisation_factor():
-    result = run_checkpoint(get("02.allan_deviation"), lambda x, rate_hz, taus: 2 * C.allan_deviation(x, rate_hz, taus)[1])
+    result = run_checkpoint(
+        get("02.allan_deviation"), lambda x, rate_hz, taus: 2 * C.allan_deviation(x, rate_hz, taus)[1]
+    )
     assert "constant factor 2" in result.message
 
 
@@ -250,8 +281,9 @@ def _geometric_fit(mag):
         S[iu] = p[3:]
         return p[:3], S + np.triu(S, 1).T
 
-    fit = least_squares(lambda p: np.linalg.norm((mag - unpack(p)[0]) @ unpack(p)[1].T, axis=1) - B_LONDON,
-                        np.concatenate([h0, S0[iu]]))
+    fit = least_squares(
+        lambda p: np.linalg.norm((mag - unpack(p)[0]) @ unpack(p)[1].T, axis=1) - B_LONDON, np.concatenate([h0, S0[iu]])
+    )
     return unpack(fit.x)
 
 
@@ -280,6 +312,7 @@ def test_mag_calibration_checkpoint_judges_against_the_true_ellipsoid():
 @pytest.mark.slow
 def test_bundled_recording_checks_reject_estimates_a_few_uncertainties_off():
     from kfkit.labs.lab02 import gyro_bias_truth, noise_truth, six_face_truth
+
     rec = datasets.load("02_six_faces")
     _, _, u_b, u_s = six_face_truth(rec)
     assert run_checkpoint(get("02.six_face_recording"), C.accel_six_face).ok
@@ -306,9 +339,12 @@ def test_bundled_recording_checks_reject_estimates_a_few_uncertainties_off():
 
 # --- lab 04 ------------------------------------------------------------------------------------------------------
 
+
 def test_any_correct_jacobian_passes():
     """H by central differences of an h built on scipy's rotations, not on kfkit's."""
-    result = run_checkpoint(get("04.jacobian"), lambda x, field_n: central_differences(lambda v: h_scipy(v, field_n), x))
+    result = run_checkpoint(
+        get("04.jacobian"), lambda x, field_n: central_differences(lambda v: h_scipy(v, field_n), x)
+    )
     assert result.ok, result.message
 
 
@@ -339,7 +375,11 @@ def test_predict_that_forgets_F_fails_with_expected_and_got():
         return x_new, P + Q
 
     result = run_checkpoint(get("04.predict"), no_F, seed=1)
-    assert result.status == "failed" and "value 2 of 2: expected" in result.message and "first difference at index" in result.message
+    assert (
+        result.status == "failed"
+        and "value 2 of 2: expected" in result.message
+        and "first difference at index" in result.message
+    )
 
 
 def test_a_wrong_jacobian_column_is_named():
@@ -400,8 +440,9 @@ def test_gyro_only_filter_fails_the_rmse_limits():
 
 def test_a_filter_that_drops_the_magnetometer_fails_on_yaw():
     def no_mag(gyr, acc, mag, rate_hz, gyro_noise, accel_noise, mag_noise, field_n, accel_gate=None):
-        return reference_run_ekf(gyr, acc, np.full_like(mag, np.nan), rate_hz, gyro_noise, accel_noise, mag_noise,
-                                 field_n, accel_gate)
+        return reference_run_ekf(
+            gyr, acc, np.full_like(mag, np.nan), rate_hz, gyro_noise, accel_noise, mag_noise, field_n, accel_gate
+        )
 
     result = run_checkpoint(get("04.ekf_rmse"), no_mag)
     assert result.status == "failed" and "yaw RMSE" in result.message
@@ -411,7 +452,9 @@ def test_rmse_checkpoint_explains_a_wrong_shape():
     result = run_checkpoint(get("04.ekf_rmse"), lambda **kw: (np.zeros((10, 3)), None, None))
     assert "expected 6240 rows of [roll, pitch, yaw]" in result.message
 
+
 # --- lab 06 ------------------------------------------------------------------------------------------------------
+
 
 def test_lab06_judges_name_the_classic_mistakes():
     copied = run_checkpoint(get("06.bicycle_model"), V.miscopied_linear_model, seed=1)
@@ -428,7 +471,9 @@ def test_lab06_judges_name_the_classic_mistakes():
     assert not zero.ok and "0/3 bundled slaloms" in zero.message and "expected under 0.5°" in zero.message
 
     # the copied model stays under 0.5° at 20 km/h (β there is mostly kinematic) but not at 80 km/h
-    copied_run = run_checkpoint(get("06.slalom_rmse"), lambda **s: kfkit_run_sideslip(**s, model=V.miscopied_linear_model))
+    copied_run = run_checkpoint(
+        get("06.slalom_rmse"), lambda **s: kfkit_run_sideslip(**s, model=V.miscopied_linear_model)
+    )
     assert not copied_run.ok and "1/3" in copied_run.message and "80 km/h" in copied_run.message
     assert "expected under 0.1°" in copied_run.message
 
@@ -441,6 +486,7 @@ def test_lab06_judges_name_the_classic_mistakes():
 
 
 # --- the hint matches the kind of failure: the checkpoint's own only for wrong numbers ------------------------------
+
 
 def not_for_arrays(**kwargs):
     return math.atan2(np.ones(3), np.ones(3))  # math takes one number: a function written for scalars
@@ -504,16 +550,24 @@ def test_wrong_numbers_keep_the_checkpoints_own_hint_and_a_wrong_form_says_the_e
     assert "Hint: return a tuple of 4 numbers, as the exercise's docstring says" in update
     run_kf = run_checkpoint(get("01.run_kf"), lambda **kw: np.zeros((3, 2)), seed=0).message
     assert re.search(r"Hint: return a tuple of 4 arrays of shape \(\d+,\)", run_kf), run_kf
-    jacobian = run_checkpoint(get("04.jacobian"), lambda x, field_n: np.zeros((3, 6)), seed=0).message  # a judge's words
+    jacobian = run_checkpoint(
+        get("04.jacobian"), lambda x, field_n: np.zeros((3, 6)), seed=0
+    ).message  # a judge's words
     assert "got shape (3, 6)" in jacobian and "Hint: return an array of shape (6, 3)" in jacobian, jacobian
 
 
-@pytest.mark.parametrize("raised, words", [
-    (TypeError("f() got an unexpected keyword argument 'omega'"), "the check calls kf_predict(x, P, omega, dt, q) by these names"),
-    (NameError("name 'kf_gain' is not defined"), "a name kf_predict uses is not defined"),
-    (ValueError("math domain error"), "outside its domain"),
-    (KeyError("x"), "run kf_predict yourself on the input shown"),
-])
+@pytest.mark.parametrize(
+    "raised, words",
+    [
+        (
+            TypeError("f() got an unexpected keyword argument 'omega'"),
+            "the check calls kf_predict(x, P, omega, dt, q) by these names",
+        ),
+        (NameError("name 'kf_gain' is not defined"), "a name kf_predict uses is not defined"),
+        (ValueError("math domain error"), "outside its domain"),
+        (KeyError("x"), "run kf_predict yourself on the input shown"),
+    ],
+)
 def test_other_exception_kinds(raised, words):
     def student(**kwargs):
         raise raised

@@ -1,6 +1,7 @@
 """Every checkpoint of every lab, judged with the solutions' own exercise functions as the right answers:
 they pass on many seeds; NaN or inf in an answer never scores; each classic mistake (a small edit of the
 model answer) fails on every seed, with a message that names it."""
+
 import ast
 import contextlib
 import dataclasses
@@ -74,6 +75,7 @@ def test_the_model_answer_passes_on_many_seeds(name):
 
 # --- NaN and inf never score ----------------------------------------------------------------------------------
 
+
 def _poison(value, how, state):
     """``value`` with its numbers made non-finite: 'nan' / 'inf' all of them, 'nan_after_first' all but the first."""
     if isinstance(value, (tuple, list)):
@@ -123,7 +125,8 @@ def test_the_non_finite_message_counts_and_locates():
     x = np.zeros(24_000)
     x[1000:] = np.nan
     assert nonfinite_problem((x, 1.0), (np.zeros(24_000), 1.0)) == (
-        "output 1 of 2: 23,000 of 24,000 values are NaN (the first at index 1000): every value must be a finite number")
+        "output 1 of 2: 23,000 of 24,000 values are NaN (the first at index 1000): every value must be a finite number"
+    )
     assert "inf" in nonfinite_problem(np.array([[1.0, np.inf]]))
     assert nonfinite_problem(np.array([np.nan, 1.0]), np.array([np.nan, 2.0])) is None  # NaN where NaN is expected
     assert nonfinite_problem("2D") is None and nonfinite_problem(None) is None
@@ -133,26 +136,54 @@ def test_the_non_finite_message_counts_and_locates():
 
 MISTAKES = [  # (checkpoint, (function, text of the model answer, mistaken text), words in the message, seeds)
     ("00.board_time", ("board_time", "% 2**32", ""), "t_us went", 20),
-    ("00.board_time", ("board_time", "np.concatenate([[0.0], np.cumsum(steps) * 1e-6])", "np.cumsum(steps) * 1e-6"),
-     "shape mismatch", 20),
+    (
+        "00.board_time",
+        ("board_time", "np.concatenate([[0.0], np.cumsum(steps) * 1e-6])", "np.cumsum(steps) * 1e-6"),
+        "shape mismatch",
+        20,
+    ),
     ("01.accel_roll", ("accel_roll", "np.arctan2(-ay, -az)", "np.arctan2(ay, az)"), "exactly 180° off", 20),
     ("01.accel_roll", ("accel_roll", "np.arctan2(-ay, -az)", "np.arctan2(ay, -az)"), "the sign is flipped", 20),
     ("01.accel_roll", ("accel_roll", "np.arctan2(-ay, -az)", "np.arctan2(-az, -ay)"), "arguments are swapped", 20),
     ("01.accel_roll", ("accel_roll", "np.arctan2(-ay, -az)", "np.degrees(np.arctan2(-ay, -az))"), "in degrees", 20),
     ("01.kf_predict", ("kf_predict", "P + q", "P"), "expected", 20),
-    ("01.fuse_gaussians", ("fuse_gaussians", "var = 1.0 / (1.0 / var_prior + 1.0 / r)", "var = var_prior + r"),
-     "variances were added", 20),
-    ("01.fuse_gaussians", ("fuse_gaussians", "var * (mu_prior / var_prior + z / r)", "(mu_prior + z) / 2"),
-     "plain average", 20),
-    ("01.fuse_gaussians", ("fuse_gaussians", "var * (mu_prior / var_prior + z / r)", "var * (mu_prior / r + z / var_prior)"),
-     "weighted by its own variance", 20),
+    (
+        "01.fuse_gaussians",
+        ("fuse_gaussians", "var = 1.0 / (1.0 / var_prior + 1.0 / r)", "var = var_prior + r"),
+        "variances were added",
+        20,
+    ),
+    (
+        "01.fuse_gaussians",
+        ("fuse_gaussians", "var * (mu_prior / var_prior + z / r)", "(mu_prior + z) / 2"),
+        "plain average",
+        20,
+    ),
+    (
+        "01.fuse_gaussians",
+        ("fuse_gaussians", "var * (mu_prior / var_prior + z / r)", "var * (mu_prior / r + z / var_prior)"),
+        "weighted by its own variance",
+        20,
+    ),
     ("01.fuse_gaussians", ("fuse_gaussians", "z / r), var", "z / r), np.sqrt(var)"), "standard deviation", 20),
-    ("01.q_for_time_constant", ("q_for_time_constant", "return P_prior**2 / (P_prior + r)", "return r * K**2"),
-     "small-gain approximation", 20),
-    ("01.q_for_time_constant", ("q_for_time_constant", "return P_prior**2 / (P_prior + r)", "return P_prior"),
-     "steady prior variance", 20),
-    ("01.q_for_time_constant", ("q_for_time_constant", "return P_prior**2 / (P_prior + r)", "return K**2 / (1 - K)"),
-     "r is missing", 20),
+    (
+        "01.q_for_time_constant",
+        ("q_for_time_constant", "return P_prior**2 / (P_prior + r)", "return r * K**2"),
+        "small-gain approximation",
+        20,
+    ),
+    (
+        "01.q_for_time_constant",
+        ("q_for_time_constant", "return P_prior**2 / (P_prior + r)", "return P_prior"),
+        "steady prior variance",
+        20,
+    ),
+    (
+        "01.q_for_time_constant",
+        ("q_for_time_constant", "return P_prior**2 / (P_prior + r)", "return K**2 / (1 - K)"),
+        "r is missing",
+        20,
+    ),
     ("01.q_for_time_constant", ("q_for_time_constant", "K = dt / tau", "K = tau / dt"), "gain between 0 and 1", 20),
     ("01.run_kf", ("run_kf", "roll_acc[k], r)", "roll_acc[k - 1], r)"), "first differs at sample", 20),
     ("01.run_kf", ("run_kf", "xs[k], Ps[k] = x, P", "xs[k], Ps[k] = x, P0"), "P first differs at sample", 20),
@@ -160,43 +191,109 @@ MISTAKES = [  # (checkpoint, (function, text of the model answer, mistaken text)
     ("02.gyro_bias", ("gyro_bias", "np.mean(gyr, axis=0)", "np.std(gyr, axis=0)"), "spread (std)", 20),
     ("02.gyro_bias", ("gyro_bias", "np.mean(gyr, axis=0)", "np.mean(gyr)"), "all three axes together", 20),
     ("02.noise_std", ("noise_std", "ddof=1", "ddof=0"), "ddof=0", 20),
-    ("02.accel_bias", ("accel_bias", "np.mean(acc, axis=0) - np.asarray(expected)",
-                       "np.asarray(expected) - np.mean(acc, axis=0)"), "sign is flipped", 20),
+    (
+        "02.accel_bias",
+        ("accel_bias", "np.mean(acc, axis=0) - np.asarray(expected)", "np.asarray(expected) - np.mean(acc, axis=0)"),
+        "sign is flipped",
+        20,
+    ),
     ("02.accel_bias", ("accel_bias", " - np.asarray(expected)", ""), "gravity is still in it", 20),
     ("02.allan_deviation", ("allan_deviation", "/ rate_hz\n", "\n"), "θ is not divided by rate_hz", 20),
     ("02.allan_deviation", ("allan_deviation", "(2 * tau**2", "(tau**2"), "the 2 in 1/(2τ²…) is missing", 20),
     ("02.allan_deviation", ("allan_deviation", "(len(theta) - 2 * m)", "(len(theta))"), "changes with τ", 20),
     ("02.allan_deviation", ("allan_deviation", "np.sqrt(np.sum(d**2)", "0 * np.sqrt(np.sum(d**2)"), "every σ is 0", 20),
-    ("02.sigma_at_rate", ("sigma_at_rate", "np.sqrt(rate_to / rate_from)", "np.sqrt(rate_from / rate_to)"), "expected", 20),
+    (
+        "02.sigma_at_rate",
+        ("sigma_at_rate", "np.sqrt(rate_to / rate_from)", "np.sqrt(rate_from / rate_to)"),
+        "expected",
+        20,
+    ),
     ("02.q_from_noise_density", ("q_from_noise_density", "N**2 * dt + K**2 * dt**3 / 3", "N**2 * dt"), "K²·Δt³/3", 20),
     ("02.q_from_noise_density", ("q_from_noise_density", "cross = -K**2", "cross = K**2"), "wrong sign", 20),
-    ("02.q_from_noise_density", ("q_from_noise_density", "return np.array([[angle, cross], [cross, bias]])",
-                                 "return np.diag([N**2 * dt, K**2 * dt])"), "no cross term", 20),
+    (
+        "02.q_from_noise_density",
+        (
+            "q_from_noise_density",
+            "return np.array([[angle, cross], [cross, bias]])",
+            "return np.diag([N**2 * dt, K**2 * dt])",
+        ),
+        "no cross term",
+        20,
+    ),
     ("02.q_from_noise_density", ("q_from_noise_density", "N**2 * dt +", "(N * dt)**2 +"), "per-sample σ", 20),
     ("02.q_from_datasheet", ("q_from_datasheet", "N = arw * DEG / 60", "N = arw"), "used in °/√h", 20),
     ("02.q_from_datasheet", ("q_from_datasheet", "N = arw * DEG / 60", "N = arw * DEG / 3600"), "√h = 60 √s", 20),
-    ("02.q_from_datasheet", ("q_from_datasheet", "K = rrw * DEG / 3600 / 60", "K = bias_instability * DEG / 3600"),
-     "bias instability", 20),
-    ("02.q_from_datasheet", ("q_from_datasheet", "K = rrw * DEG / 3600 / 60", "K = bias_instability * DEG / 3600 / 60"),
-     "bias instability", 20),
-    ("02.q_from_datasheet", ("q_from_datasheet", "K = rrw * DEG / 3600 / 60", "K = rrw * DEG / 3600"), "not from /√h", 20),
-    ("02.gyro_bias_recording", ("gyro_bias", "np.mean(gyr, axis=0)", "np.mean(gyr[:100], axis=0)"), "use the whole rest", 1),
-    ("02.gyro_bias_recording", ("gyro_bias", "np.mean(gyr, axis=0)", "np.mean(gyr[-1000:], axis=0)"), "use the whole rest", 1),
+    (
+        "02.q_from_datasheet",
+        ("q_from_datasheet", "K = rrw * DEG / 3600 / 60", "K = bias_instability * DEG / 3600"),
+        "bias instability",
+        20,
+    ),
+    (
+        "02.q_from_datasheet",
+        ("q_from_datasheet", "K = rrw * DEG / 3600 / 60", "K = bias_instability * DEG / 3600 / 60"),
+        "bias instability",
+        20,
+    ),
+    (
+        "02.q_from_datasheet",
+        ("q_from_datasheet", "K = rrw * DEG / 3600 / 60", "K = rrw * DEG / 3600"),
+        "not from /√h",
+        20,
+    ),
+    (
+        "02.gyro_bias_recording",
+        ("gyro_bias", "np.mean(gyr, axis=0)", "np.mean(gyr[:100], axis=0)"),
+        "use the whole rest",
+        1,
+    ),
+    (
+        "02.gyro_bias_recording",
+        ("gyro_bias", "np.mean(gyr, axis=0)", "np.mean(gyr[-1000:], axis=0)"),
+        "use the whole rest",
+        1,
+    ),
     ("03.counts_to_ut", ("counts_to_ut", "* 100.0", ""), "1 gauss = 100 µT", 20),
-    ("03.alignment", ("alignment_from_turns", "np.sign(np.sum(g * m))", "np.round(np.sum(m) / np.sum(g))"), "expected", 100),
+    (
+        "03.alignment",
+        ("alignment_from_turns", "np.sign(np.sum(g * m))", "np.round(np.sum(m) / np.sum(g))"),
+        "expected",
+        100,
+    ),
     ("03.alignment", ("alignment_from_turns", "np.sign(np.sum(g * m))", "np.sign(np.sum(m))"), "expected", 100),
-    ("03.mag_calibration", ("mag_calibration", "(V * np.sqrt(w))", "(V / np.sqrt(w))"), "inverse of the correction", 10),
+    (
+        "03.mag_calibration",
+        ("mag_calibration", "(V * np.sqrt(w))", "(V / np.sqrt(w))"),
+        "inverse of the correction",
+        10,
+    ),
     ("03.mag_calibration", ("mag_calibration", "S = field_norm / scale *", "S = 1 / scale *"), "scale S by B", 10),
     ("03.flat_heading", ("flat_heading", "np.arctan2(-m_b[1], m_b[0])", "np.arctan2(m_b[1], m_b[0])"), "wrong way", 20),
     ("03.flat_heading", ("flat_heading", "np.arctan2(-m_b[1], m_b[0])", "np.arctan2(m_b[0], -m_b[1])"), "swapped", 20),
     ("03.tilt_heading", ("tilt_heading", "np.arctan2(-my_h, mx_h)", "np.arctan2(my_h, -mx_h)"), "exactly 180° off", 20),
-    ("03.tilt_heading", ("tilt_heading", "frames.wrap_angle(np.arctan2(-my_h, mx_h) + declination)",
-                         "np.arctan2(-my_h, mx_h) + declination"), "not wrapped", 100),
-    ("03.tilt_heading", ("tilt_heading", "mx, my, mz = m_b[..., 0], m_b[..., 1], m_b[..., 2]", "mx, my, mz = m_b"),
-     "(25, 3)", 20),
+    (
+        "03.tilt_heading",
+        (
+            "tilt_heading",
+            "frames.wrap_angle(np.arctan2(-my_h, mx_h) + declination)",
+            "np.arctan2(-my_h, mx_h) + declination",
+        ),
+        "not wrapped",
+        100,
+    ),
+    (
+        "03.tilt_heading",
+        ("tilt_heading", "mx, my, mz = m_b[..., 0], m_b[..., 1], m_b[..., 2]", "mx, my, mz = m_b"),
+        "(25, 3)",
+        20,
+    ),
     ("04.euler_rates", ("euler_rates", "u / np.cos(theta)])", "u / np.cos(phi)])"), "divided by cos φ", 20),
-    ("04.euler_rates", ("euler_rates", "return np.array([p + u * np.tan(theta)", "return np.array(omega_b)\n    ([p"),
-     "body rates p, q, r unchanged", 20),
+    (
+        "04.euler_rates",
+        ("euler_rates", "return np.array([p + u * np.tan(theta)", "return np.array(omega_b)\n    ([p"),
+        "body rates p, q, r unchanged",
+        20,
+    ),
     ("04.predict", ("ekf_predict", "x_new[2] = frames.wrap_angle(x_new[2])", ""), "not wrapped", 100),
     ("04.predict", ("ekf_predict", "F @ P @ F.T + Q", "F.T @ P @ F + Q"), "expected", 20),
     ("04.measurement", ("measurement", "frames.euler_to_dcm(x).T", "frames.euler_to_dcm(x)"), "expected", 20),
@@ -205,19 +302,32 @@ MISTAKES = [  # (checkpoint, (function, text of the model answer, mistaken text)
     ("04.update", ("ekf_update", "if np.isnan(z[3:]).any() else slice(0, 6)", "if False else slice(0, 6)"), "NaN", 20),
     ("04.ekf_rmse", ("run_ekf", "if accel_gate is not None and", "if False and"), "accel_gate", 2),
     ("05.to_body", ("to_body", "* flip\n    w_b", "\n    w_b"), "expected", 20),
-    ("05.to_body", ("to_body", "np.radians(np.asarray(gyr_counts) / 131.0)", "np.asarray(gyr_counts) / 131.0"),
-     "in degrees", 20),
+    (
+        "05.to_body",
+        ("to_body", "np.radians(np.asarray(gyr_counts) / 131.0)", "np.asarray(gyr_counts) / 131.0"),
+        "in degrees",
+        20,
+    ),
     ("05.gyro_bias", ("gyro_bias", "np.mean(gyr, axis=0)", "np.std(gyr, axis=0)"), "expected", 20),
     ("05.accel_tilt", ("accel_tilt", "np.arctan2(-f[:, 1], -f[:, 2])", "np.arctan2(f[:, 1], f[:, 2])"), "180° off", 20),
     ("05.accel_tilt", ("accel_tilt", "np.arctan2(f[:, 0],", "np.arctan2(-f[:, 0],"), "wrong sign", 20),
     ("05.run_kf", ("run_kf", "100.0 * r", "r"), "where static_ok is False", 20),
     ("05.final", ("estimate_tilt", "ok_t & (np.hypot(f_t[:, 1], f_t[:, 2]) >= 0.5 * G)", "ok_t"), "nose-up", 1),
-    ("06.bicycle_model", ("bicycle_model", "[(b * Cr - a * Cf) / Iz,", "[(b * Cr - a * Cf) / (Iz * vx),"), "A[1,0]", 20),
+    (
+        "06.bicycle_model",
+        ("bicycle_model", "[(b * Cr - a * Cf) / Iz,", "[(b * Cr - a * Cf) / (Iz * vx),"),
+        "A[1,0]",
+        20,
+    ),
     ("06.discretize", ("discretize", "E = expm(M * dt)", "E = np.eye(n + p) + M * dt"), "Euler", 20),
     ("06.kf_step", ("kf_step", "- D[:, 0] * delta", ""), "misses the D-term", 20),
     ("06.slalom_rmse", ("discretize", "E = expm(M * dt)", "E = np.eye(n + p) + M * dt"), "leans on its model", 1),
-    ("06.slalom_rmse", ("bicycle_model", "[(b * Cr - a * Cf) / Iz,", "[(b * Cr - a * Cf) / (Iz * vx),"),
-     "leans on its model", 1),
+    (
+        "06.slalom_rmse",
+        ("bicycle_model", "[(b * Cr - a * Cf) / Iz,", "[(b * Cr - a * Cf) / (Iz * vx),"),
+        "leans on its model",
+        1,
+    ),
     ("06.slalom_rmse", ("run_sideslip", "delta[k - 1] if k else delta[0]", "delta[k]"), "leans on its model", 1),
 ]
 
@@ -234,6 +344,7 @@ def test_each_classic_mistake_fails_on_every_seed_and_is_named(name, mutate, wor
 
 # --- messages show the difference -----------------------------------------------------------------------------
 
+
 def test_messages_show_enough_digits_no_numpy_reprs_and_the_first_differing_element():
     from kfkit.checkpoints import compare, fmt
 
@@ -241,7 +352,10 @@ def test_messages_show_enough_digits_no_numpy_reprs_and_the_first_differing_elem
     problem = compare(np.array([0.061188, 1.0, 2.0, 3.0, 4.0]), np.array([0.061188, 1.0, 2.0, 3.0, 4.0001]))
     assert "first difference at index 4: expected 4, got 4.0001" in problem
     assert compare(0.0611880, 0.0611881) == "expected 0.061188, got 0.0611881"
-    assert compare((1.0, np.zeros(3)), (1.0, np.zeros(4))) == "value 2 of 2: shape mismatch: expected shape (3,), got shape (4,)"
+    assert (
+        compare((1.0, np.zeros(3)), (1.0, np.zeros(4)))
+        == "value 2 of 2: shape mismatch: expected shape (3,), got shape (4,)"
+    )
     assert "np." not in compare(np.eye(3, dtype=int), np.zeros((3, 3), dtype=np.int64))
 
 
@@ -254,9 +368,11 @@ def test_printed_lines_never_break_a_number_or_a_word():
 
 # --- lab 02's Allan formula, as printed, passes its checkpoint -------------------------------------------------
 
+
 def printed_allan_formula():
     """The notebook's formula written out literally: N samples, θ_j = (1/f_s) Σ_{i<j} x_i for j = 0 … N, m = τ f_s,
     σ²(τ) = 1/(2τ²(N − 2m + 1)) Σ_{k=0}^{N−2m} (θ_{k+2m} − 2θ_{k+m} + θ_k)²."""
+
     def allan_deviation(x, rate_hz, taus):
         N = len(x)
         theta = [sum(x[:j]) / rate_hz for j in range(N + 1)]
@@ -266,13 +382,16 @@ def printed_allan_formula():
             total = sum((theta[k + 2 * m] - 2 * theta[k + m] + theta[k]) ** 2 for k in range(N - 2 * m + 1))
             out.append((total / (2 * tau**2 * (N - 2 * m + 1))) ** 0.5)
         return np.array(out)
+
     return allan_deviation
 
 
 def test_the_printed_allan_formula_is_the_checkpoints_and_allantools():
     allantools = pytest.importorskip("allantools")
     nb = nbformat.read(next(SOLUTIONS.glob("02_*.ipynb")), as_version=4)
-    text = next(c.source for c in nb.cells if c.cell_type == "markdown" and "Allan deviation" in c.source and "sum_" in c.source)
+    text = next(
+        c.source for c in nb.cells if c.cell_type == "markdown" and "Allan deviation" in c.source and "sum_" in c.source
+    )
     assert r"\frac{1}{2\tau^2 (N - 2m + 1)} \sum_{k=0}^{N-2m}" in text and "N$ samples" in text
     result = run_checkpoint(get("02.allan_deviation"), printed_allan_formula(), seed=0)
     assert result.ok, result.message
@@ -283,14 +402,20 @@ def test_the_printed_allan_formula_is_the_checkpoints_and_allantools():
 
 
 @pytest.mark.parametrize("judge", ["_judge_rmse", "_judge_real"])
-@pytest.mark.parametrize("answer, words", [
-    ("a string", "expected (x, P, nis) with x of shape (N, 3), got str"),
-    ((np.zeros((3, 5)), None, None), "expected 5 rows of [roll, pitch, yaw] (shape (5, 3)), got shape (3, 5)"),
-    (np.zeros(5), "got shape (5,)"),
-])
+@pytest.mark.parametrize(
+    "answer, words",
+    [
+        ("a string", "expected (x, P, nis) with x of shape (N, 3), got str"),
+        ((np.zeros((3, 5)), None, None), "expected 5 rows of [roll, pitch, yaw] (shape (5, 3)), got shape (3, 5)"),
+        (np.zeros(5), "got shape (5,)"),
+    ],
+)
 def test_a_whole_run_answer_of_the_wrong_kind_is_named_not_crashed_on(judge, answer, words):
     """04.ekf_rmse and 04.real_ekf judge run_ekf's (x, P, nis): a wrong type or shape says what was expected."""
     from kfkit.checkpoints import Case, lab04
+
     truth = np.zeros((5, 3))
-    expected = (truth, lab04.RMSE_LIMITS) if judge == "_judge_rmse" else (np.tile([1.0, 0, 0, 0], (5, 1)), None, 0.0, 0.0)
+    expected = (
+        (truth, lab04.RMSE_LIMITS) if judge == "_judge_rmse" else (np.tile([1.0, 0, 0, 0], (5, 1)), None, 0.0, 0.0)
+    )
     assert words in getattr(lab04, judge)(Case({}, expected), answer)

@@ -89,7 +89,10 @@ def test_a_line_that_is_no_exact_pin_names_file_and_line(healthy, monkeypatch, l
     monkeypatch.setattr(doctor, "ENVIRONMENT", env)
     text, ok = doctor.doctor_report()
     assert not ok
-    assert f"❌ cannot read the package list: {env}, line 3: expected an exact pin 'name==version' or '-e .', got {line!r}" in text
+    assert (
+        f"❌ cannot read the package list: {env}, line 3: expected an exact pin 'name==version' or '-e .', got {line!r}"
+        in text
+    )
 
 
 def test_another_version_is_advice_and_a_missing_one_must_be_fixed(healthy, monkeypatch):

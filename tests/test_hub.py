@@ -5,6 +5,7 @@ The hub, its users and the single-user environment (the kit without solutions/) 
 see its docstring. Three students: the first works in a real browser (Chromium, as in tests/browser/), the
 other two through the REST API with their own tokens. Skips with the reason where no hub can run here.
 """
+
 from __future__ import annotations
 
 import csv
@@ -75,6 +76,7 @@ def append_to_first_markdown(text):
     def edit(nb):
         cell = next(c for c in nb["cells"] if c["cell_type"] == "markdown")
         cell["source"] = source(cell) + text
+
     return edit
 
 
@@ -114,8 +116,10 @@ def test_a_class_on_a_real_hub(hub, browser):  # noqa: F811  (the browser fixtur
     # --- alice fills in the exercises in JupyterLab, runs everything, moves a slider, saves
     mine = answers()
     for i, code in mine.items():
-        page.evaluate("([i, code]) => window.jupyterapp.shell.currentWidget.content.widgets[i]"
-                      ".model.sharedModel.setSource(code)", [i, code])
+        page.evaluate(
+            "([i, code]) => window.jupyterapp.shell.currentWidget.content.widgets[i].model.sharedModel.setSource(code)",
+            [i, code],
+        )
     run_all(page)
     assert error_outputs(page) == [], "alice's lab 01 shows an error or stderr output"
     assert unexecuted_cells(page) == 0 and page.get_by_text("skipped:").count() == 0
@@ -154,45 +158,87 @@ def test_a_class_on_a_real_hub(hub, browser):  # noqa: F811  (the browser fixtur
     for s in hub.students:
         shutil.copy(home[s] / LAB, subs / f"{s}.ipynb")
     gradebook = hub.instructor / "gradebook.csv"
-    done = subprocess.run([sys.executable, "-m", "kfkit", "grade", "--lab", "01", "--out", str(gradebook), "--jobs", "2",
-                           "--report", str(subs)], cwd=hub.instructor, capture_output=True, text=True, timeout=600)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "kfkit",
+            "grade",
+            "--lab",
+            "01",
+            "--out",
+            str(gradebook),
+            "--jobs",
+            "2",
+            "--report",
+            str(subs),
+        ],
+        cwd=hub.instructor,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert done.returncode == 0, done.stdout + done.stderr
     with open(gradebook, newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
-    score = {s: sum(float(r["points"]) for r in rows if r["submission"] == f"submissions/{s}.ipynb") for s in hub.students}
+    score = {
+        s: sum(float(r["points"]) for r in rows if r["submission"] == f"submissions/{s}.ipynb") for s in hub.students
+    }
     assert score == {alice: 12, bob: 11, carol: 0}, score
-    assert next(r for r in rows if r["submission"] == f"submissions/{bob}.ipynb"
-                and r["checkpoint"] == "01.accel_roll")["message"].count("swapped") == 1
-    assert all(r["message"].startswith("not attempted") for r in rows if r["submission"] == f"submissions/{carol}.ipynb")
+    assert (
+        next(r for r in rows if r["submission"] == f"submissions/{bob}.ipynb" and r["checkpoint"] == "01.accel_roll")[
+            "message"
+        ].count("swapped")
+        == 1
+    )
+    assert all(
+        r["message"].startswith("not attempted") for r in rows if r["submission"] == f"submissions/{carol}.ipynb"
+    )
     report = (hub.instructor / "gradebook_report.html").read_text(encoding="utf-8")
     assert report.count('<tr class="student">') == 3
 
     # --- what bob's own kernel can reach: his notebook and the kit, not alice's home, solutions/ or the gradebook
-    probes = {"own notebook": home[bob] / LAB, "the kit's data": hub.kit / "data",
-              "alice's home": hub.homes / alice, "alice's notebook": home[alice] / LAB,
-              "solutions/": KIT_ROOT / "solutions", "a solution": KIT_ROOT / "solutions" / LAB,
-              "the gradebook": gradebook, "the submissions": subs}
-    code = ("import json, os\nout = {}\n"
-            f"for name, path in {json.dumps({k: str(v) for k, v in probes.items()})}.items():\n"
-            "    try:\n"
-            "        os.listdir(path) if os.path.isdir(path) else open(path, 'rb').read(1)\n"
-            "        out[name] = 'read'\n"
-            "    except OSError as exc:\n"
-            "        out[name] = type(exc).__name__\n"
-            "print(json.dumps(out))")
+    probes = {
+        "own notebook": home[bob] / LAB,
+        "the kit's data": hub.kit / "data",
+        "alice's home": hub.homes / alice,
+        "alice's notebook": home[alice] / LAB,
+        "solutions/": KIT_ROOT / "solutions",
+        "a solution": KIT_ROOT / "solutions" / LAB,
+        "the gradebook": gradebook,
+        "the submissions": subs,
+    }
+    code = (
+        "import json, os\nout = {}\n"
+        f"for name, path in {json.dumps({k: str(v) for k, v in probes.items()})}.items():\n"
+        "    try:\n"
+        "        os.listdir(path) if os.path.isdir(path) else open(path, 'rb').read(1)\n"
+        "        out[name] = 'read'\n"
+        "    except OSError as exc:\n"
+        "        out[name] = type(exc).__name__\n"
+        "print(json.dumps(out))"
+    )
     seen = json.loads(hub.run_code(bob, tokens[bob], code))
-    assert seen == {"own notebook": "read", "the kit's data": "read", "alice's home": "PermissionError",
-                    "alice's notebook": "PermissionError", "solutions/": "FileNotFoundError",
-                    "a solution": "FileNotFoundError", "the gradebook": "PermissionError",
-                    "the submissions": "PermissionError"}, seen
+    assert seen == {
+        "own notebook": "read",
+        "the kit's data": "read",
+        "alice's home": "PermissionError",
+        "alice's notebook": "PermissionError",
+        "solutions/": "FileNotFoundError",
+        "a solution": "FileNotFoundError",
+        "the gradebook": "PermissionError",
+        "the submissions": "PermissionError",
+    }, seen
     assert (KIT_ROOT / "solutions" / LAB).is_file()  # the control: there, for the instructor
 
 
 def _wait_for_kernel(page):
     page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=HANG_GUARD_MS)
-    page.wait_for_function("() => window.jupyterapp && window.jupyterapp.shell.currentWidget"
-                           " && window.jupyterapp.shell.currentWidget.sessionContext?.session?.kernel?.status === 'idle'",
-                           timeout=HANG_GUARD_MS)
+    page.wait_for_function(
+        "() => window.jupyterapp && window.jupyterapp.shell.currentWidget"
+        " && window.jupyterapp.shell.currentWidget.sessionContext?.session?.kernel?.status === 'idle'",
+        timeout=HANG_GUARD_MS,
+    )
 
 
 def _first_markdown(path) -> str:

@@ -2,6 +2,7 @@
 phyphox export (no truth, no labelled phases; the phone path and its calibration) and the bundled real recording.
 (The bundled phone recording's budget is held at kfkit level by tests/test_phyphox.py, and section 12 of every
 run prints the phone's RMSE, which the export run below checks.)"""
+
 import re
 
 import numpy as np

@@ -4,6 +4,7 @@
 Oracles: the hand-out's own stubs (every skip note must name one of them, the one the cell truly waits for) and the
 solution notebook's stored outputs, which nbval validates (every cell the half-done hand-out runs prints exactly them).
 """
+
 import re
 
 import nbformat
@@ -41,7 +42,9 @@ def test_every_skip_note_names_an_unwritten_function(partly):
     assert notes, "nothing was skipped in a hand-out with stubs: the guard is not loaded"
     for i, why in notes.items():
         named = NEEDS.findall(why)
-        assert named and set(named) <= left, f"cell {i}: the note names {named}, not one of the stubs {sorted(left)}: {why}"
+        assert named and set(named) <= left, (
+            f"cell {i}: the note names {named}, not one of the stubs {sorted(left)}: {why}"
+        )
 
 
 def test_half_done_hand_out_prints_what_the_solution_printed_and_skips_only_what_needs_tune(partly):
@@ -56,6 +59,7 @@ def test_half_done_hand_out_prints_what_the_solution_printed_and_skips_only_what
         if ran.cell_type == "code" and i not in notes and i not in not_attempted:
             assert printed(ran) == printed(stored), f"cell {i} printed something else than the solution"
     skipped_sources = " ".join(nb.cells[i].source for i in notes)
-    assert "rest_bias" not in skipped_sources and "left_out_rates(w_r" not in skipped_sources, \
+    assert "rest_bias" not in skipped_sources and "left_out_rates(w_r" not in skipped_sources, (
         "section 12's real IMU needs no tune: it must run"
+    )
     assert any("real (BROAD 04)" in printed(c) for c in nb.cells), "section 12's table needs no tune: it must print"

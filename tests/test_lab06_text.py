@@ -3,6 +3,7 @@
 Oracles: scipy's rotations for the accelerometer on a bank, a force balance for the banked straight, the
 magic formula's own definition (slope B·C·D at 0, peak D = μ F_z) for what friction changes.
 """
+
 import numpy as np
 import pytest
 from handouts import execute, half_done, printed
@@ -22,7 +23,7 @@ def test_the_accelerometer_on_a_bank_reads_toward_the_high_side():
     ISO signals take a_y = −f_y (y left): +g sin 3°, toward the high side, as the road's push tilted with the car."""
     R_nb = Rotation.from_euler("ZYX", [0.0, 0.0, BANK]).as_matrix()
     f_b = R_nb.T @ np.array([0.0, 0.0, -G])
-    assert f_b[1] == pytest.approx(-G * np.sin(BANK), rel=1e-12)      # FRD y points right: the reading is to the left
+    assert f_b[1] == pytest.approx(-G * np.sin(BANK), rel=1e-12)  # FRD y points right: the reading is to the left
     a_y_iso = -f_b[1]
     assert a_y_iso == pytest.approx(0.5132, abs=1e-4) and a_y_iso > 0  # ISO y left = the high side
 
@@ -54,7 +55,7 @@ def test_on_a_banked_straight_the_plain_filter_finds_the_real_sideslip_and_the_b
 def test_friction_sets_the_tyre_s_peak_not_its_cornering_stiffness(mu):
     """Ice (μ ≈ 0.1) leaves the initial slope C_α where it is and cuts the peak μ F_z, so the linear range (force
     within 5 % of C_α·α) shrinks by the same factor: ~4.8 m/s² of a_y on dry road, ~0.48 m/s² on ice."""
-    load = CAR.m * G * CAR.a / (CAR.a + CAR.b)            # rear axle, N
+    load = CAR.m * G * CAR.a / (CAR.a + CAR.b)  # rear axle, N
     tyre = vehicle.MagicFormula.for_axle(CAR.Cr, load, mu)
     h = 1e-7
     assert (tyre.force(h) - tyre.force(-h)) / (2 * h) == pytest.approx(CAR.Cr, rel=1e-6)

@@ -1,4 +1,5 @@
 """Metrics, and filter consistency on a simulated linear-Gaussian system (chi-square bounds)."""
+
 import numpy as np
 import pytest
 from scipy.stats import chi2

@@ -1,6 +1,7 @@
 """Lab 05 on the real recording (issue 17): the helpers it uses, the claims section 12 makes (checked with kfkit's
 own TiltBiasKF, an implementation independent of the notebook's loop), the notebook's section-12 functions against
 that oracle, and the whole notebook run with SOURCE = "real"."""
+
 from dataclasses import replace
 
 import numpy as np
@@ -67,8 +68,10 @@ def test_known_angles_of_a_real_recording_are_the_motion_capture_in_its_rests(re
 
 def test_known_angles_without_protocol_or_truth_say_what_is_missing():
     still = datasets.load("05_stationary")
-    rec = Recording(dict(still.meta, phases=[{"label": "rest", "start": 0.0, "end": 5.0}]),
-                    {k: v for k, v in still.data.items() if not k.startswith("true_")})
+    rec = Recording(
+        dict(still.meta, phases=[{"label": "rest", "start": 0.0, "end": 5.0}]),
+        {k: v for k, v in still.data.items() if not k.startswith("true_")},
+    )
     with pytest.raises(KeyError, match="no tilt-protocol phases"):
         lab05.known_angles(rec)
 
@@ -77,7 +80,7 @@ def coupled_run(w, z, ok, left_out, dt, q0, r):
     """kfkit's TiltBiasKF step by step with q_θ = q0 + (left_out·dt)² and the accelerometer angle taken nearest the
     prediction: section 12's filter, written independently of the notebook. Returns [angle, bias] (N, 2)."""
     kf = filters.TiltBiasKF(dt, q_angle=q0, q_bias=1e-4 * q0, r=r, accel_gating="skip")
-    kf.reset((z[0], 0.0), np.diag([r, 0.1 ** 2]))
+    kf.reset((z[0], 0.0), np.diag([r, 0.1**2]))
     out = np.empty((len(z), 2))
     for k in range(len(z)):
         kf.settings = replace(kf.settings, q_angle=q0 + (left_out[k] * dt) ** 2)
@@ -90,8 +93,10 @@ def coupled_run(w, z, ok, left_out, dt, q0, r):
 def left_out_oracle(w, roll, pitch):
     """φ̇ − p and θ̇ − q written out (ZYX Euler kinematics), |θ| ≤ 60° in tan θ."""
     tan_pitch = np.tan(np.clip(pitch, -np.radians(60), np.radians(60)))
-    return (tan_pitch * (w[:, 1] * np.sin(roll) + w[:, 2] * np.cos(roll)),
-            w[:, 1] * (np.cos(roll) - 1.0) - w[:, 2] * np.sin(roll))
+    return (
+        tan_pitch * (w[:, 1] * np.sin(roll) + w[:, 2] * np.cos(roll)),
+        w[:, 1] * (np.cos(roll) - 1.0) - w[:, 2] * np.sin(roll),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -101,14 +106,15 @@ def section12(real):
     first = in_windows(real, lab05.rest_windows(real)[:1])
     roll, pitch = accel_tilt(f)
     r = float(np.mean([np.var(a) for a in accel_tilt(f[first])]))
-    q0 = float(np.mean(np.var(w[first, :2], axis=0))) * dt ** 2
+    q0 = float(np.mean(np.var(w[first, :2], axis=0))) * dt**2
     ok = filters.accel_static_ok(f)
     gates = (ok & (np.hypot(f[:, 1], f[:, 2]) >= 0.5 * G), ok)
     left_out = left_out_oracle(w - np.mean(w[first], axis=0), roll, pitch)
     runs = {}
     for i, (name, z) in enumerate((("roll", roll), ("pitch", pitch))):
-        constant = filters.TiltBiasKF(dt, q_angle=q0, q_bias=1e-4 * q0, r=r, accel_gating="skip", x0=(z[0], 0.0),
-                                      P0=np.diag([r, 0.1 ** 2])).run(w[:, i], z, gates[i])
+        constant = filters.TiltBiasKF(
+            dt, q_angle=q0, q_bias=1e-4 * q0, r=r, accel_gating="skip", x0=(z[0], 0.0), P0=np.diag([r, 0.1**2])
+        ).run(w[:, i], z, gates[i])
         runs[name] = (constant.x, coupled_run(w[:, i], z, gates[i], left_out[i], dt, q0, r), z)
     return runs
 
@@ -163,11 +169,11 @@ def test_notebook_section12_functions_match_the_oracle(real, section12):
     window = slice(3000, 7000)  # the first rest's end and the first movement: a Python loop, so not all of it
     first = in_windows(real, lab05.rest_windows(real)[:1])
     r = float(np.mean([np.var(a) for a in accel_tilt(f[first])]))
-    q0 = float(np.mean(np.var(w[first, :2], axis=0))) * dt ** 2
+    q0 = float(np.mean(np.var(w[first, :2], axis=0))) * dt**2
     ok = filters.accel_static_ok(f)
     left = left_out_oracle(w - np.mean(w[first], axis=0), roll, pitch)[0]
     args = (w[window, 0], roll[window], ok[window], left[window], dt, q0, r)
-    got = ns["run_kf_moving"](*args, [roll[window][0], 0.0], np.diag([r, 0.1 ** 2]))
+    got = ns["run_kf_moving"](*args, [roll[window][0], 0.0], np.diag([r, 0.1**2]))
     np.testing.assert_allclose(got, coupled_run(*args), rtol=1e-9, atol=1e-12)
 
 
@@ -182,7 +188,13 @@ def test_lab05_runs_on_the_real_recording():
     nb = nbformat.read(path, as_version=4)
     source = next(c for c in nb.cells if c.cell_type == "code" and c.source.startswith('SOURCE = "bundled"'))
     source.source = source.source.replace('SOURCE = "bundled"', 'SOURCE = "real"', 1)
-    NotebookClient(nb, timeout=HANG_GUARD_S, startup_timeout=HANG_GUARD_S, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}).execute()
+    NotebookClient(
+        nb,
+        timeout=HANG_GUARD_S,
+        startup_timeout=HANG_GUARD_S,
+        kernel_name="python3",
+        resources={"metadata": {"path": str(path.parent)}},
+    ).execute()
     printed = ""
     for cell in nb.cells:
         for out in cell.get("outputs", []):

@@ -1,4 +1,5 @@
 """Lab 05's [angle, gyro bias] filter against filterpy, its gates, bias convergence, bad input; the tilt protocol."""
+
 import math
 
 import numpy as np
@@ -40,7 +41,8 @@ def test_ungated_filter_matches_filterpy(seed):
     q_angle, q_bias, r = 10 ** rng.uniform(-7, -3), 10 ** rng.uniform(-12, -6), 10 ** rng.uniform(-5, -1)
     x0, P0 = (0.1, -0.02), np.array([[0.03, 0.001], [0.001, 0.01]])
     run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, accel_gating="none", x0=x0, P0=P0).run(
-        w, z, rng.random(len(z)) > 0.5)
+        w, z, rng.random(len(z)) > 0.5
+    )
     oracle = filterpy_oracle(DT, q_angle, q_bias, r, x0, P0)
     for k in range(len(z)):
         oracle.predict(u=np.array([[w[k]]]))
@@ -58,8 +60,9 @@ def test_gates_match_filterpy_with_no_update_or_an_inflated_r(gate):
     w, z, ok = random_inputs(rng)
     q_angle, q_bias, r, inflation = 1e-5, 1e-9, 1e-3, 50.0
     x0, P0 = (0.0, 0.0), np.diag([r, 0.01])
-    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, accel_gating=gate, accel_inflation=inflation, x0=x0, P0=P0).run(
-        w, z, ok)
+    run = TiltBiasKF(
+        DT, q_angle=q_angle, q_bias=q_bias, r=r, accel_gating=gate, accel_inflation=inflation, x0=x0, P0=P0
+    ).run(w, z, ok)
     oracle = filterpy_oracle(DT, q_angle, q_bias, r, x0, P0)
     for k in range(len(z)):
         oracle.predict(u=np.array([[w[k]]]))
@@ -105,16 +108,23 @@ def test_keyword_changes_equal_a_settings_object():
     b = TiltBiasKF(DT, r=1e-4, accel_gating="none")
     c = TiltBiasKF(DT, TiltBiasKFSettings(r=1.0), r=1e-4, accel_gating="none")
     assert a.settings == b.settings == c.settings
-    with pytest.raises(TypeError, match="TiltBiasKF: unknown setting qangle; TiltBiasKFSettings has q_angle, q_bias, r, "
-                                        "accel_gating, accel_inflation"):
+    with pytest.raises(
+        TypeError,
+        match="TiltBiasKF: unknown setting qangle; TiltBiasKFSettings has q_angle, q_bias, r, "
+        "accel_gating, accel_inflation",
+    ):
         TiltBiasKF(DT, qangle=1e-6)
     with pytest.raises(TypeError, match="settings must be a TiltBiasKFSettings, got float"):
         TiltBiasKF(DT, 1e-6)  # the old positional q_angle names its mistake
 
 
 def test_inflated_update_moves_less_than_a_full_one():
-    full = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, accel_gating="inflate", x0=(0, 0)).step(0.0, 0.1, True).x[0]
-    weak = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, accel_gating="inflate", x0=(0, 0)).step(0.0, 0.1, False).x[0]
+    full = (
+        TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, accel_gating="inflate", x0=(0, 0)).step(0.0, 0.1, True).x[0]
+    )
+    weak = (
+        TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, accel_gating="inflate", x0=(0, 0)).step(0.0, 0.1, False).x[0]
+    )
     assert 0 < weak < full
 
 
@@ -122,8 +132,9 @@ def simulated_tilt(bias_b, seconds=40.0, seed=3):
     """A board at rest, tilted 20° in pitch, with a known constant gyro bias (body y, rad/s)."""
     motion = sim.stationary(seconds, 100.0, pitch=20 * deg)
     # MPU6050 mounting flips y and z: body y bias b ↔ sensor y bias −b
-    return sim.simulate_imu(motion, board="mpu6050", seed=seed, gyro_bias=[0.0, -bias_b, 0.0],
-                            accel_bias=[0.0, 0.0, 0.0], gyro_bias_rw=0.0)
+    return sim.simulate_imu(
+        motion, board="mpu6050", seed=seed, gyro_bias=[0.0, -bias_b, 0.0], accel_bias=[0.0, 0.0, 0.0], gyro_bias_rw=0.0
+    )
 
 
 @pytest.mark.parametrize("bias_deg", [-3.0, 1.5, 6.0])
@@ -131,7 +142,9 @@ def test_bias_converges_to_the_simulated_bias(bias_deg):
     rec = simulated_tilt(bias_deg * deg)
     _, pitch = accel_tilt(rec.body("acc"))
     sigma_w = 0.005 * deg * 10  # MPU6050 rate noise density × √100 Hz
-    run = TiltBiasKF(0.01, q_angle=(sigma_w * 0.01) ** 2 * 100, q_bias=1e-12, r=np.var(pitch)).run(rec.body("gyr")[:, 1], pitch)
+    run = TiltBiasKF(0.01, q_angle=(sigma_w * 0.01) ** 2 * 100, q_bias=1e-12, r=np.var(pitch)).run(
+        rec.body("gyr")[:, 1], pitch
+    )
     settled = rec.t > 30.0
     # within 2 % of the bias and the angle within 0.1° of the truth once settled
     np.testing.assert_allclose(run.bias[settled], bias_deg * deg, rtol=0.02)
@@ -152,10 +165,14 @@ def test_skip_gate_rejects_a_linear_acceleration():
     assert accel_static_ok(f)[inside].mean() > 0.5
     ok = accel_static_ok(f, eps=0.02 * g)
     assert not ok[inside].any() and ok[~inside].mean() > 0.99
-    runs = {gate: TiltBiasKF(0.01, q_angle=1e-6, q_bias=1e-10, r=1.6e-5, accel_gating=gate).run(rec.body("gyr")[:, 0], roll, ok)
-            for gate in ("none", "skip", "inflate")}
+    runs = {
+        gate: TiltBiasKF(0.01, q_angle=1e-6, q_bias=1e-10, r=1.6e-5, accel_gating=gate).run(
+            rec.body("gyr")[:, 0], roll, ok
+        )
+        for gate in ("none", "skip", "inflate")
+    }
     peak = {gate: np.max(np.abs(run.angle[inside])) for gate, run in runs.items()}
-    assert peak["none"] > 5 * deg          # the ungated filter follows the shove's false tilt (17°)
+    assert peak["none"] > 5 * deg  # the ungated filter follows the shove's false tilt (17°)
     assert peak["skip"] < 0.3 * deg
     assert peak["skip"] < peak["inflate"] < peak["none"]
 
@@ -180,14 +197,21 @@ def test_run_returns_a_tilt_run_with_named_views():
 
 # --- bad input ----------------------------------------------------------------------------
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"dt": 0.0}, "dt must be a positive"),
-    ({"q_angle": -1e-6}, "q_angle must be a positive"),
-    ({"q_bias": float("nan")}, "q_bias must be a number ≥ 0"),
-    ({"r": float("inf")}, "r must be a positive"),
-    ({"accel_gating": "sometimes"}, "TiltBiasKFSettings: accel_gating must be one of none, skip, inflate, got 'sometimes'"),
-    ({"x0": (0.0,)}, r"TiltBiasKF: x0 must have shape \(2,\), got \(1,\)"),
-])
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"dt": 0.0}, "dt must be a positive"),
+        ({"q_angle": -1e-6}, "q_angle must be a positive"),
+        ({"q_bias": float("nan")}, "q_bias must be a number ≥ 0"),
+        ({"r": float("inf")}, "r must be a positive"),
+        (
+            {"accel_gating": "sometimes"},
+            "TiltBiasKFSettings: accel_gating must be one of none, skip, inflate, got 'sometimes'",
+        ),
+        ({"x0": (0.0,)}, r"TiltBiasKF: x0 must have shape \(2,\), got \(1,\)"),
+    ],
+)
 def test_bad_settings_are_named(kwargs, match):
     args = {"dt": DT, "q_angle": 1e-5, "q_bias": 1e-9, "r": 1e-3, **kwargs}
     with pytest.raises(ValueError, match=match):
@@ -209,6 +233,7 @@ def test_bad_run_inputs_are_named():
 
 
 # --- the tilt protocol --------------------------------------------------------------------
+
 
 def test_tilt_protocol_phases_and_angles():
     m = sim.tilt_protocol(axes=("pitch", "roll"), hold=2.0, move=1.5, rate_hz=100.0, seed=0)
@@ -248,6 +273,7 @@ def test_bundled_tilt_recording_accel_agrees_with_the_labels():
 
 # --- steady state and consistency ---------------------------------------------------------
 
+
 def riccati(q_angle, q_bias, r):
     """scipy's DARE solution P⁻ = A (P⁻ − P⁻Hᵀ(HP⁻Hᵀ + R)⁻¹HP⁻) Aᵀ + Q, the steady gain, and the slowest error mode."""
     A, H = np.array([[1.0, -DT], [0.0, 1.0]]), np.array([[1.0, 0.0]])
@@ -276,7 +302,11 @@ def test_steady_state_covariance_solves_the_riccati_equation(q_angle, q_bias, r)
 def test_the_labs_tuning_keeps_the_riccati_fixed_point():
     """At the lab's q's the bias mode settles over minutes (|eig| = 1 − 10⁻⁴ per step), too slow to wait for:
     started on the DARE's solution, one filter step must map it onto itself."""
-    q_angle, q_bias, r = tilt.TiltBiasKFSettings().q_angle, tilt.TiltBiasKFSettings().q_bias, tilt.TiltBiasKFSettings().r
+    q_angle, q_bias, r = (
+        tilt.TiltBiasKFSettings().q_angle,
+        tilt.TiltBiasKFSettings().q_bias,
+        tilt.TiltBiasKFSettings().r,
+    )
     A, prior, gain, slowest = riccati(q_angle, q_bias, r)
     assert slowest > 0.9998
     posterior = prior - gain @ gain.T * (prior[0, 0] + r)
@@ -340,6 +370,7 @@ def test_nees_and_nis_catch_a_filter_with_the_wrong_r(r_factor):
 
 # --- the bundled recordings in the logger's format ------------------------------------------
 
+
 @pytest.mark.parametrize("name", ["05_tilt_protocol", "05_stationary", "05_six_faces"])
 def test_bundled_recordings_carry_the_loggers_columns(name):
     rec = datasets.load(name)
@@ -347,7 +378,9 @@ def test_bundled_recordings_carry_the_loggers_columns(name):
     counts = np.column_stack([rec.counts("acc"), rec.counts("gyr")])
     assert np.all(counts == np.round(counts)) and counts.min() >= -32768 and counts.max() <= 32767  # int16 counts
     assert rec["t_us"].dtype == np.int64 and np.all(np.diff(rec["t_us"]) == 10000)  # micros() at exactly 100 Hz
-    np.testing.assert_allclose(rec.t, (rec["t_us"] - rec["t_us"][0]) * 1e-6, rtol=0, atol=1e-9)  # t (s, 6 decimals) is t_us − t_us₀
+    np.testing.assert_allclose(
+        rec.t, (rec["t_us"] - rec["t_us"][0]) * 1e-6, rtol=0, atol=1e-9
+    )  # t (s, 6 decimals) is t_us − t_us₀
     np.testing.assert_array_equal(rec["seq"], np.arange(len(rec)) % 65536)
     # the norm in g from the raw counts at 16384 LSB/g, and the board's own static test at 0.05 g
     np.testing.assert_allclose(rec["acc_norm"], np.linalg.norm(rec.counts("acc"), axis=1) / 16384.0, atol=5e-7)
@@ -374,6 +407,7 @@ def test_six_face_set_has_every_face():
 
 
 # --- the final checkpoint discriminates ---------------------------------------------------------
+
 
 def reference_estimate(start_bias="zero", tuned=True):
     """kfkit's pipeline as an answer to 05.final, optionally with a known mistake."""

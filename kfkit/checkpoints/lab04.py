@@ -5,6 +5,7 @@ Jacobian is judged against central finite differences of kfkit's h(x), so any co
 ``04.real_ekf`` runs the student's filter on a real recording (BROAD trial 06, bundled): its bar is
 kfkit's result on the same samples plus the error of the optical truth itself, measured at rest.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -48,14 +49,20 @@ def _random_field(rng):
 
 def _random_cov(rng, n, scale):
     A = rng.normal(0.0, scale, (n, n))
-    return A @ A.T + np.eye(n) * scale ** 2
+    return A @ A.T + np.eye(n) * scale**2
 
 
 # --- 04.euler_rates ---------------------------------------------------------------------------
 
+
 def _euler_rates_cases(rng):
-    cases = [Case({"euler": np.array([0.3, 0.0, 0.0]), "omega_b": np.array([0.0, 0.0, 0.5])},
-                  body_rates_to_euler_rates([0.3, 0.0, 0.0], [0.0, 0.0, 0.5]), "euler_rates(φ = 17°, θ = 0, r = 0.5 rad/s)")]
+    cases = [
+        Case(
+            {"euler": np.array([0.3, 0.0, 0.0]), "omega_b": np.array([0.0, 0.0, 0.5])},
+            body_rates_to_euler_rates([0.3, 0.0, 0.0], [0.0, 0.0, 0.5]),
+            "euler_rates(φ = 17°, θ = 0, r = 0.5 rad/s)",
+        )
+    ]
     for _ in range(11):
         e, w = _random_state(rng), rng.normal(0.0, 1.0, 3)
         cases.append(Case({"euler": e, "omega_b": w}, body_rates_to_euler_rates(e, w)))
@@ -72,12 +79,17 @@ def _judge_euler_rates(case, got):
     if np.allclose(g, case.args["omega_b"]):
         return problem + " — these are the body rates p, q, r unchanged: Euler angle rates differ from them (φ̇ = p + …)"
     u = q * np.sin(phi) + r * np.cos(phi)
-    if np.allclose(g[:2], case.expected[:2]) and np.isclose(g[2], u / np.cos(phi)) and not np.isclose(np.cos(phi), np.cos(theta)):
+    if (
+        np.allclose(g[:2], case.expected[:2])
+        and np.isclose(g[2], u / np.cos(phi))
+        and not np.isclose(np.cos(phi), np.cos(theta))
+    ):
         return problem + " — ψ̇ looks divided by cos φ: the widely copied mistake"
     return problem
 
 
 # --- 04.predict -------------------------------------------------------------------------------
+
 
 def crossing_rate(x, psi_dot):
     """A body rate ω_b that turns the yaw at ``psi_dot`` (rad/s) at state x, with φ̇ = θ̇ = 0: the rate
@@ -125,9 +137,15 @@ def _unwrapped(x, want) -> str:
 
 # --- 04.measurement and 04.jacobian -------------------------------------------------------------
 
+
 def _measurement_cases(rng):
-    cases = [Case({"x": np.zeros(3), "field_n": np.array(MAG_FIELD_LONDON)},
-                  attitude_measurement(np.zeros(3), MAG_FIELD_LONDON), "measurement(level, facing north, London)")]
+    cases = [
+        Case(
+            {"x": np.zeros(3), "field_n": np.array(MAG_FIELD_LONDON)},
+            attitude_measurement(np.zeros(3), MAG_FIELD_LONDON),
+            "measurement(level, facing north, London)",
+        )
+    ]
     for _ in range(11):
         x, m = _random_state(rng), _random_field(rng)
         cases.append(Case({"x": x, "field_n": m}, attitude_measurement(x, m)))
@@ -169,26 +187,39 @@ def _judge_jacobian(case, got):
         return None
     where = []
     for j in np.flatnonzero(bad.any(axis=0)):
-        parts = [part for part, rows in (("accelerometer rows", slice(0, 3)), ("magnetometer rows", slice(3, 6)))
-                 if bad[rows, j].any()]
+        parts = [
+            part
+            for part, rows in (("accelerometer rows", slice(0, 3)), ("magnetometer rows", slice(3, 6)))
+            if bad[rows, j].any()
+        ]
         where.append(f"∂h/∂{'φθψ'[j]} ({', '.join(parts)})")
     first = int(np.flatnonzero(bad.any(axis=0))[0])
-    return (f"columns {'; '.join(where)} differ from finite differences of h: "
-            f"expected {fmt(fd[:, first])}, got {fmt(H[:, first])}")
+    return (
+        f"columns {'; '.join(where)} differ from finite differences of h: "
+        f"expected {fmt(fd[:, first])}, got {fmt(H[:, first])}"
+    )
 
 
 # --- 04.numerical_jacobian --------------------------------------------------------------------
+
 
 def _numerical_jacobian_cases(rng):
     cases = []
     for i in range(4):
         A, b = rng.normal(0.0, 3.0, (4, 3)), rng.normal(0.0, 1.0, 4)
         x = rng.normal(0.0, 1.0, 3)
-        cases.append(Case({"h": (lambda v, A=A, b=b: A @ v + b), "x": x}, A, f"a linear h(x) = A x + b (4×3, case {i + 1})"))
+        cases.append(
+            Case({"h": (lambda v, A=A, b=b: A @ v + b), "x": x}, A, f"a linear h(x) = A x + b (4×3, case {i + 1})")
+        )
     for _ in range(8):
         x, m = _random_state(rng), _random_field(rng)
-        cases.append(Case({"h": (lambda v, m=m: attitude_measurement(v, m)), "x": x}, attitude_jacobian(x, m),
-                          f"kfkit's attitude h(x) at x = {fmt(x)}"))
+        cases.append(
+            Case(
+                {"h": (lambda v, m=m: attitude_measurement(v, m)), "x": x},
+                attitude_jacobian(x, m),
+                f"kfkit's attitude h(x) at x = {fmt(x)}",
+            )
+        )
     return cases
 
 
@@ -200,6 +231,7 @@ def _judge_numerical_jacobian(case, got):
 
 
 # --- 04.update --------------------------------------------------------------------------------
+
 
 def _about_down(angle):
     """Rz(angle): a turn about the NED down axis."""
@@ -221,7 +253,7 @@ def _update_cases(rng):
         P = _random_cov(rng, 3, np.radians(rng.uniform(1.0, 5.0)))
         sa, sm = rng.uniform(0.05, 0.5), rng.uniform(0.3, 2.0)
         noise = rng.normal(0.0, 1.0, 6) * np.r_[[sa] * 3, [sm] * 3]
-        R = np.diag([sa ** 2] * 3 + [sm ** 2] * 3)
+        R = np.diag([sa**2] * 3 + [sm**2] * 3)
         if i < 2:
             z = attitude_measurement(x_true, m) + noise
             step = wrap_angle(euler_ekf_update(x, P, z, R, m)[0][2] - x[2])
@@ -231,8 +263,9 @@ def _update_cases(rng):
         if i % 3 == 2:
             z[3:] = np.nan  # no new magnetometer sample
         args = {"x": x, "P": P, "z": z, "R": R, "field_n": m}
-        label = (f"a{' magnetometer-less (NaN)' if i % 3 == 2 else ''} update at x = {fmt(x)}"
-                 + (" (the yaw crosses ±180°)" if i < 2 else ""))
+        label = f"a{' magnetometer-less (NaN)' if i % 3 == 2 else ''} update at x = {fmt(x)}" + (
+            " (the yaw crosses ±180°)" if i < 2 else ""
+        )
         cases.append(Case(args, euler_ekf_update(**args), label))
     return cases
 
@@ -248,6 +281,7 @@ def _judge_update(case, got):
 
 
 # --- 04.ekf_rmse ------------------------------------------------------------------------------
+
 
 def bundled_inputs():
     """Lab 04's inputs: the bundled recording corrected with the calibration that belongs to it, the
@@ -286,17 +320,33 @@ def accelerated(acc, truth, t, rng):
 def _rmse_cases(rng):
     rec, gyr, acc, mag = bundled_inputs()
     tuning = EulerAttitudeEKFSettings()  # the lab's defaults
-    args = {"gyr": gyr, "acc": acc, "mag": mag, "rate_hz": rec.rate_hz, "gyro_noise": tuning.gyro_noise,
-            "accel_noise": tuning.accel_noise, "mag_noise": tuning.mag_noise, "field_n": np.array(MAG_FIELD_LONDON)}
+    args = {
+        "gyr": gyr,
+        "acc": acc,
+        "mag": mag,
+        "rate_hz": rec.rate_hz,
+        "gyro_noise": tuning.gyro_noise,
+        "accel_noise": tuning.accel_noise,
+        "mag_noise": tuning.mag_noise,
+        "field_n": np.array(MAG_FIELD_LONDON),
+    }
     biased = dict(args, gyr=gyr + EXTRA_GYRO_BIAS)
     bias = ", ".join(f"{v:+.1f}" for v in np.degrees(EXTRA_GYRO_BIAS))
     pushed, _ = accelerated(acc, rec.truth(), rec.t, rng)
-    return [Case(args, (rec.truth(), RMSE_LIMITS), f"the bundled recording {RECORDING} (calibrated)"),
-            Case(biased, (rec.truth(), BIASED_RMSE_LIMITS),
-                 f"{RECORDING} with an extra gyro bias of ({bias}) °/s the filter does not know about"),
-            Case(dict(args, acc=pushed, accel_gate=ACCEL_GATE), (rec.truth(), RMSE_LIMITS),
-                 f"{RECORDING} with {BURSTS} bursts of {BURST_ACCEL:g} m/s² linear acceleration and accel_gate = "
-                 f"{ACCEL_GATE:g} m/s²")]
+    return [
+        Case(args, (rec.truth(), RMSE_LIMITS), f"the bundled recording {RECORDING} (calibrated)"),
+        Case(
+            biased,
+            (rec.truth(), BIASED_RMSE_LIMITS),
+            f"{RECORDING} with an extra gyro bias of ({bias}) °/s the filter does not know about",
+        ),
+        Case(
+            dict(args, acc=pushed, accel_gate=ACCEL_GATE),
+            (rec.truth(), RMSE_LIMITS),
+            f"{RECORDING} with {BURSTS} bursts of {BURST_ACCEL:g} m/s² linear acceleration and accel_gate = "
+            f"{ACCEL_GATE:g} m/s²",
+        ),
+    ]
 
 
 def _estimate(got, rows):
@@ -318,13 +368,18 @@ def _judge_rmse(case, got):
     if x is None:
         return problem
     err = rmse(angle_error(x, truth), 0.0)
-    over = [f"{name} RMSE {np.degrees(e):.2f}° (limit {np.degrees(lim):.0f}°)"
-            for name, e, lim in zip(ANGLES, err, limits) if not e < lim]
+    over = [
+        f"{name} RMSE {np.degrees(e):.2f}° (limit {np.degrees(lim):.0f}°)"
+        for name, e, lim in zip(ANGLES, err, limits)
+        if not e < lim
+    ]
     if over and limits is BIASED_RMSE_LIMITS:
         over.append("the gyro alone drifts like this: are the accelerometer and magnetometer updates applied?")
     if over and case.args.get("accel_gate") is not None:
-        over.append("the filter follows the accelerated specific force: where |‖f‖ − g| > accel_gate, is R's "
-                    "accelerometer block inflated?")
+        over.append(
+            "the filter follows the accelerated specific force: where |‖f‖ − g| > accel_gate, is R's "
+            "accelerometer block inflated?"
+        )
     return None if not over else "; ".join(over)
 
 
@@ -342,8 +397,12 @@ def rest_calibration(rec) -> Calibration:
     """A BROAD recording's calibration: the dataset comes calibrated by its authors, but its gyro keeps a
     bias, measured as in lab 02: the mean rate over the first rest (rad/s); nothing else is corrected."""
     first_rest = rec.phase("rest") & (rec.t < rec.phases[0]["end"])
-    return Calibration(board=rec.meta["board"], rate_hz=rec.rate_hz, gyro_bias=gyro_bias(rec.body("gyr")[first_rest]),
-                       source=f"{rec.meta['source']}: calibrated by its authors; gyro bias = mean of the first rest")
+    return Calibration(
+        board=rec.meta["board"],
+        rate_hz=rec.rate_hz,
+        gyro_bias=gyro_bias(rec.body("gyr")[first_rest]),
+        source=f"{rec.meta['source']}: calibrated by its authors; gyro bias = mean of the first rest",
+    )
 
 
 def movement_start(rec) -> float:
@@ -386,14 +445,29 @@ def _real_cases(rng):
     reference's only by what the truth cannot resolve."""
     rec, gyr, acc, mag, field_n, q_true, moving = real_inputs(moving_seconds=REAL_MOVING_SECONDS)
     tuning = EulerAttitudeEKFSettings()
-    args = {"gyr": gyr, "acc": acc, "mag": mag, "rate_hz": rec.rate_hz, "gyro_noise": tuning.gyro_noise,
-            "accel_noise": tuning.accel_noise, "mag_noise": tuning.mag_noise, "field_n": field_n,
-            "accel_gate": ACCEL_GATE}
-    reference = FastEulerAttitudeEKF(rate_hz=rec.rate_hz, settings=tuning, field_n=field_n, accel_gate=ACCEL_GATE).run(gyr, acc, mag)
+    args = {
+        "gyr": gyr,
+        "acc": acc,
+        "mag": mag,
+        "rate_hz": rec.rate_hz,
+        "gyro_noise": tuning.gyro_noise,
+        "accel_noise": tuning.accel_noise,
+        "mag_noise": tuning.mag_noise,
+        "field_n": field_n,
+        "accel_gate": ACCEL_GATE,
+    }
+    reference = FastEulerAttitudeEKF(rate_hz=rec.rate_hz, settings=tuning, field_n=field_n, accel_gate=ACCEL_GATE).run(
+        gyr, acc, mag
+    )
     ref_rmse = attitude_rmse(euler_to_quat(reference.euler), q_true, moving)["total"]
-    return [Case(args, (q_true, moving, ref_rmse, truth_error_at_rest(rec, acc, mag)),
-                 f"the real recording {REAL_RECORDING} (BROAD trial 06): its {movement_start(rec):.0f} s at rest and "
-                 f"the first {REAL_MOVING_SECONDS:g} s of movement")]
+    return [
+        Case(
+            args,
+            (q_true, moving, ref_rmse, truth_error_at_rest(rec, acc, mag)),
+            f"the real recording {REAL_RECORDING} (BROAD trial 06): its {movement_start(rec):.0f} s at rest and "
+            f"the first {REAL_MOVING_SECONDS:g} s of movement",
+        )
+    ]
 
 
 def _judge_real(case, got):
@@ -406,35 +480,88 @@ def _judge_real(case, got):
     limit = np.degrees(ref_rmse + truth_error)
     if errors["total"] <= limit:
         return None
-    return (f"total rotation error RMSE {errors['total']:.2f}° over the movement (heading {errors['heading']:.2f}°, "
-            f"inclination {errors['inclination']:.2f}°), limit {limit:.2f}° = kfkit's {np.degrees(ref_rmse):.2f}° + "
-            f"the truth's own {np.degrees(truth_error):.2f}°")
+    return (
+        f"total rotation error RMSE {errors['total']:.2f}° over the movement (heading {errors['heading']:.2f}°, "
+        f"inclination {errors['inclination']:.2f}°), limit {limit:.2f}° = kfkit's {np.degrees(ref_rmse):.2f}° + "
+        f"the truth's own {np.degrees(truth_error):.2f}°"
+    )
 
 
 register(
-    Checkpoint("04.euler_rates", "euler_rates", _euler_rates_cases, _judge_euler_rates, points=1,
-               hint="φ̇ = p + (q sin φ + r cos φ) tan θ, θ̇ = q cos φ − r sin φ, ψ̇ = (q sin φ + r cos φ)/cos θ: "
-                    "it is the pitch θ that makes Euler angles singular."),
-    Checkpoint("04.predict", "ekf_predict", _predict_cases, _judge_predict, points=2,
-               hint="x⁻ = x + f(x, ω)·dt with ψ wrapped to (−π, π]; P⁻ = F P Fᵀ + Q with F = I + dt·A and A the "
-                    "Jacobian ∂f/∂x given above (its third column is zero). Return (x, P)."),
-    Checkpoint("04.measurement", "measurement", _measurement_cases, matches(), points=1,
-               hint="h = [R_bn·(0, 0, −g); R_bn·m_n] with R_bn = R_nbᵀ and R_nb = Rz(ψ) Ry(θ) Rx(φ) "
-                    "(frames.euler_to_dcm); level and facing north it is [0, 0, −g, m_N, m_E, m_D]."),
-    Checkpoint("04.jacobian", "jacobian", _jacobian_cases, _judge_jacobian, points=2, what="random states",
-               hint="column j is ∂h/∂xⱼ; the accelerometer rows do not depend on ψ (gravity is vertical), and "
-                    "∂R_bn/∂ψ = (∂R_nb/∂ψ)ᵀ — compare your columns one by one with numerical_jacobian."),
-    Checkpoint("04.numerical_jacobian", "numerical_jacobian", _numerical_jacobian_cases, _judge_numerical_jacobian,
-               points=1, hint="column j is (h(x + ε eⱼ) − h(x − ε eⱼ)) / 2ε; with ε around 1e-6 both rounding "
-                              "and truncation errors stay below 1e-8."),
-    Checkpoint("04.update", "ekf_update", _update_cases, _judge_update,
-               points=2, hint="y = z − h(x), S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x + K y (ψ wrapped), P = (I − K H) P; "
-                              "with NaN in z[3:] keep only the first three rows of z, h, H and R. Return (x, P, y, S)."),
-    Checkpoint("04.ekf_rmse", "run_ekf", _rmse_cases, _judge_rmse, points=2, what="runs on the bundled recording",
-               hint="initialise from the first accelerometer and magnetometer samples, then predict with every gyro "
-                    "sample and update with every accelerometer sample, adding the magnetometer rows only when a new "
-                    "magnetometer sample arrived; if 04.predict and 04.update pass, look at dt, Q and R."),
-    Checkpoint("04.real_ekf", "run_ekf", _real_cases, _judge_real, points=1, what="runs on a bundled real recording",
-               hint="if 04.ekf_rmse passes, the real recording differs: every row has a magnetometer sample, the "
-                    "truth has gaps (NaN), the rotations are fast; run_ekf must take them as they come."),
+    Checkpoint(
+        "04.euler_rates",
+        "euler_rates",
+        _euler_rates_cases,
+        _judge_euler_rates,
+        points=1,
+        hint="φ̇ = p + (q sin φ + r cos φ) tan θ, θ̇ = q cos φ − r sin φ, ψ̇ = (q sin φ + r cos φ)/cos θ: "
+        "it is the pitch θ that makes Euler angles singular.",
+    ),
+    Checkpoint(
+        "04.predict",
+        "ekf_predict",
+        _predict_cases,
+        _judge_predict,
+        points=2,
+        hint="x⁻ = x + f(x, ω)·dt with ψ wrapped to (−π, π]; P⁻ = F P Fᵀ + Q with F = I + dt·A and A the "
+        "Jacobian ∂f/∂x given above (its third column is zero). Return (x, P).",
+    ),
+    Checkpoint(
+        "04.measurement",
+        "measurement",
+        _measurement_cases,
+        matches(),
+        points=1,
+        hint="h = [R_bn·(0, 0, −g); R_bn·m_n] with R_bn = R_nbᵀ and R_nb = Rz(ψ) Ry(θ) Rx(φ) "
+        "(frames.euler_to_dcm); level and facing north it is [0, 0, −g, m_N, m_E, m_D].",
+    ),
+    Checkpoint(
+        "04.jacobian",
+        "jacobian",
+        _jacobian_cases,
+        _judge_jacobian,
+        points=2,
+        what="random states",
+        hint="column j is ∂h/∂xⱼ; the accelerometer rows do not depend on ψ (gravity is vertical), and "
+        "∂R_bn/∂ψ = (∂R_nb/∂ψ)ᵀ — compare your columns one by one with numerical_jacobian.",
+    ),
+    Checkpoint(
+        "04.numerical_jacobian",
+        "numerical_jacobian",
+        _numerical_jacobian_cases,
+        _judge_numerical_jacobian,
+        points=1,
+        hint="column j is (h(x + ε eⱼ) − h(x − ε eⱼ)) / 2ε; with ε around 1e-6 both rounding "
+        "and truncation errors stay below 1e-8.",
+    ),
+    Checkpoint(
+        "04.update",
+        "ekf_update",
+        _update_cases,
+        _judge_update,
+        points=2,
+        hint="y = z − h(x), S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x + K y (ψ wrapped), P = (I − K H) P; "
+        "with NaN in z[3:] keep only the first three rows of z, h, H and R. Return (x, P, y, S).",
+    ),
+    Checkpoint(
+        "04.ekf_rmse",
+        "run_ekf",
+        _rmse_cases,
+        _judge_rmse,
+        points=2,
+        what="runs on the bundled recording",
+        hint="initialise from the first accelerometer and magnetometer samples, then predict with every gyro "
+        "sample and update with every accelerometer sample, adding the magnetometer rows only when a new "
+        "magnetometer sample arrived; if 04.predict and 04.update pass, look at dt, Q and R.",
+    ),
+    Checkpoint(
+        "04.real_ekf",
+        "run_ekf",
+        _real_cases,
+        _judge_real,
+        points=1,
+        what="runs on a bundled real recording",
+        hint="if 04.ekf_rmse passes, the real recording differs: every row has a magnetometer sample, the "
+        "truth has gaps (NaN), the rotations are fast; run_ekf must take them as they come.",
+    ),
 )

@@ -1,4 +1,5 @@
 """Checkpoints of lab 05 (two-state [angle, gyro bias] tilt filter on an MPU6050)."""
+
 from __future__ import annotations
 
 from functools import lru_cache
@@ -37,8 +38,11 @@ REAL = "05_broad_rotation_breaks"  # lab 05's real recording: rotations about al
 
 def rest_windows(rec, trim=REST_TRIM) -> list[tuple[float, float]]:
     """The (start, end) windows (s) of a recording's ``rest`` phases, ``trim`` s shorter at each end."""
-    return [(p["start"] + trim, p["end"] - trim) for p in rec.phases
-            if p["label"] == "rest" and p["end"] - p["start"] > 2 * trim]
+    return [
+        (p["start"] + trim, p["end"] - trim)
+        for p in rec.phases
+        if p["label"] == "rest" and p["end"] - p["start"] > 2 * trim
+    ]
 
 
 def known_angles(rec):
@@ -60,6 +64,7 @@ def true_gyro_bias(rec) -> np.ndarray:
 
 # --- conversion, bias, six-face correction ---------------------------------------------------
 
+
 def _to_body_cases(rng):
     cases = []
     for n in (1, 5, 20):
@@ -69,9 +74,14 @@ def _to_body_cases(rng):
         w = gyr * BOARD.gyro.sensitivity @ mount_matrix(BOARD.mount["gyr"]).T
         cases.append(Case({"acc_counts": acc, "gyr_counts": gyr}, (f, w), f"{n} random samples"))
     level = np.array([[0, 0, 16384]])
-    cases.insert(0, Case({"acc_counts": level, "gyr_counts": np.array([[131, 0, 0]])},
-                         (np.array([[0.0, 0.0, -G]]), np.array([[np.radians(1.0), 0.0, 0.0]])),
-                         "the board flat and still, turning at 1 °/s about x"))
+    cases.insert(
+        0,
+        Case(
+            {"acc_counts": level, "gyr_counts": np.array([[131, 0, 0]])},
+            (np.array([[0.0, 0.0, -G]]), np.array([[np.radians(1.0), 0.0, 0.0]])),
+            "the board flat and still, turning at 1 °/s about x",
+        ),
+    )
     return cases
 
 
@@ -87,15 +97,20 @@ def _gyro_bias_cases(rng):
 def _correct_cases(rng):
     cases = []
     for _ in range(6):
-        args = {"f": rng.normal(0.0, G, (int(rng.integers(1, 30)), 3)), "bias": rng.normal(0.0, 0.3, 3),
-                "scale": rng.uniform(0.95, 1.05, 3)}
+        args = {
+            "f": rng.normal(0.0, G, (int(rng.integers(1, 30)), 3)),
+            "bias": rng.normal(0.0, 0.3, 3),
+            "scale": rng.uniform(0.95, 1.05, 3),
+        }
         _, acc, _ = calibration.Calibration(board=BOARD.name, accel_bias=args["bias"], accel_scale=args["scale"]).apply(
-            (np.zeros_like(args["f"]), args["f"]))
+            (np.zeros_like(args["f"]), args["f"])
+        )
         cases.append(Case(args, acc))
     return cases
 
 
 # --- tilt and the static gate -------------------------------------------------------------------
+
 
 def _tilt_cases(rng):
     cases = []
@@ -146,6 +161,7 @@ def _judge_static(case, got):
 
 # --- the filter -----------------------------------------------------------------------------------
 
+
 def _random_state(rng):
     x = np.array([rng.uniform(-1.5, 1.5), rng.normal(0.0, 0.05)])
     L = np.array([[rng.uniform(0.01, 0.1), 0.0], [rng.normal(0.0, 0.005), rng.uniform(0.001, 0.01)]])
@@ -161,8 +177,14 @@ def _predict_cases(rng):
     cases = []
     for _ in range(10):
         x, P = _random_state(rng)
-        args = {"x": x, "P": P, "omega": rng.normal(0.0, 1.0), "dt": float(rng.choice([0.01, 0.005, 1 / 104])),
-                "q_angle": 10 ** rng.uniform(-8, -4), "q_bias": 10 ** rng.uniform(-14, -8)}
+        args = {
+            "x": x,
+            "P": P,
+            "omega": rng.normal(0.0, 1.0),
+            "dt": float(rng.choice([0.01, 0.005, 1 / 104])),
+            "q_angle": 10 ** rng.uniform(-8, -4),
+            "q_bias": 10 ** rng.uniform(-14, -8),
+        }
         cases.append(Case(args, kf_predict_reference(**args)))
     return cases
 
@@ -187,11 +209,28 @@ def _run_cases(rng):
     for gate in GATES * 2:
         n = int(rng.integers(20, 80))
         x0, P0 = _random_state(rng)
-        args = {"gyro_rate": rng.normal(0.0, 0.5, n), "accel_angle": rng.normal(0.0, 0.3, n),
-                "static_ok": rng.random(n) > 0.3, "dt": 0.01, "q_angle": 10 ** rng.uniform(-7, -4),
-                "q_bias": 10 ** rng.uniform(-12, -8), "r": 10 ** rng.uniform(-5, -2), "gate": gate, "x0": x0, "P0": P0}
-        ref = TiltBiasKF(args["dt"], q_angle=args["q_angle"], q_bias=args["q_bias"], r=args["r"], accel_gating=gate,
-                         accel_inflation=INFLATION, x0=x0, P0=P0).run(args["gyro_rate"], args["accel_angle"], args["static_ok"])
+        args = {
+            "gyro_rate": rng.normal(0.0, 0.5, n),
+            "accel_angle": rng.normal(0.0, 0.3, n),
+            "static_ok": rng.random(n) > 0.3,
+            "dt": 0.01,
+            "q_angle": 10 ** rng.uniform(-7, -4),
+            "q_bias": 10 ** rng.uniform(-12, -8),
+            "r": 10 ** rng.uniform(-5, -2),
+            "gate": gate,
+            "x0": x0,
+            "P0": P0,
+        }
+        ref = TiltBiasKF(
+            args["dt"],
+            q_angle=args["q_angle"],
+            q_bias=args["q_bias"],
+            r=args["r"],
+            accel_gating=gate,
+            accel_inflation=INFLATION,
+            x0=x0,
+            P0=P0,
+        ).run(args["gyro_rate"], args["accel_angle"], args["static_ok"])
         cases.append(Case(args, (ref.x, ref.P), f"gate={gate!r}, a random sequence of {n} samples"))
     return cases
 
@@ -211,6 +250,7 @@ def _judge_run(case, got):
 
 # --- tuning and the whole pipeline ------------------------------------------------------------------
 
+
 def pipeline_inputs(tilt=None, still=None, faces=None):
     """kfkit's reference pipeline up to the filter: per axis (gyro rate, accel angle, static_ok, known angle), dt, r,
     q0."""
@@ -226,7 +266,7 @@ def pipeline_inputs(tilt=None, still=None, faces=None):
     still_roll, still_pitch = accel_tilt((still.body("acc") - bias) / scale)
     dt = 1.0 / tilt.rate_hz
     r = float(np.mean([np.var(still_roll), np.var(still_pitch)]))
-    q0 = float(np.mean(np.var(still.body("gyr")[:, :2], axis=0))) * dt ** 2
+    q0 = float(np.mean(np.var(still.body("gyr")[:, :2], axis=0))) * dt**2
     axes = {"roll": (gyr[:, 0], roll, roll_ok, roll_ref), "pitch": (gyr[:, 1], pitch, ok, pitch_ref)}
     return axes, dt, r, q0
 
@@ -247,14 +287,17 @@ def tune_reference(gyro_rate, accel_angle, static_ok, reference, dt, r, q0):
     log₁₀ q_θ = log₁₀ q0 + 0, 0.5, …, 6, then refine with a bounded scalar search (Brent) within
     half a decade of the best. Returns (q_angle, q_bias).
     """
+
     def mse(log_q):
-        run = TiltBiasKF(dt, q_angle=10 ** log_q, q_bias=Q_BIAS_RATIO * 10 ** log_q, r=r).run(gyro_rate, accel_angle, static_ok)
+        run = TiltBiasKF(dt, q_angle=10**log_q, q_bias=Q_BIAS_RATIO * 10**log_q, r=r).run(
+            gyro_rate, accel_angle, static_ok
+        )
         return static_rmse(run.angle, reference) ** 2
 
     grid = np.log10(q0) + np.arange(0.0, 6.5, 0.5)
     start = min(grid, key=mse)
     best = minimize_scalar(mse, bounds=(start - 0.5, start + 0.5), method="bounded", options={"xatol": 0.02})
-    return 10 ** best.x, Q_BIAS_RATIO * 10 ** best.x
+    return 10**best.x, Q_BIAS_RATIO * 10**best.x
 
 
 @lru_cache(maxsize=1)
@@ -265,7 +308,11 @@ def _tuned_pitch():
     q_angle, q_bias = tune_reference(gyro, angle, ok, ref, dt, r, q0)
     best = static_rmse(TiltBiasKF(dt, q_angle=q_angle, q_bias=q_bias, r=r).run(gyro, angle, ok).angle, ref)
     start = static_rmse(TiltBiasKF(dt, q_angle=q0, q_bias=Q_BIAS_RATIO * q0, r=r).run(gyro, angle, ok).angle, ref)
-    return {"gyro_rate": gyro, "accel_angle": angle, "static_ok": ok, "reference": ref, "dt": dt, "r": r, "q0": q0}, best, start
+    return (
+        {"gyro_rate": gyro, "accel_angle": angle, "static_ok": ok, "reference": ref, "dt": dt, "r": r, "q0": q0},
+        best,
+        start,
+    )
 
 
 def _tune_cases(rng):
@@ -281,12 +328,18 @@ def _judge_tune(case, got):
     if not (q_angle > 0 and q_bias >= 0):
         return f"q_angle must be > 0 and q_bias ≥ 0, got {q_angle:.3g}, {q_bias:.3g}"
     a = case.args
-    rmse = static_rmse(TiltBiasKF(a["dt"], q_angle=q_angle, q_bias=q_bias, r=a["r"]).run(a["gyro_rate"], a["accel_angle"], a["static_ok"]).angle,
-                       a["reference"])
+    rmse = static_rmse(
+        TiltBiasKF(a["dt"], q_angle=q_angle, q_bias=q_bias, r=a["r"])
+        .run(a["gyro_rate"], a["accel_angle"], a["static_ok"])
+        .angle,
+        a["reference"],
+    )
     if rmse > 1.1 * case.expected["best"]:
-        return (f"static-window RMSE {np.degrees(rmse):.3f}° with q_angle = {q_angle:.2e}, q_bias = {q_bias:.2e}; "
-                f"kfkit's tuning reaches {np.degrees(case.expected['best']):.3f}° "
-                f"(from {np.degrees(case.expected['start']):.3f}° at q0)")
+        return (
+            f"static-window RMSE {np.degrees(rmse):.3f}° with q_angle = {q_angle:.2e}, q_bias = {q_bias:.2e}; "
+            f"kfkit's tuning reaches {np.degrees(case.expected['best']):.3f}° "
+            f"(from {np.degrees(case.expected['start']):.3f}° at q0)"
+        )
     return None
 
 
@@ -294,10 +347,19 @@ def _final_cases(rng):
     tilt, still, faces = bundled()
     roll_ref, pitch_ref = protocol_angles(tilt)
     settled = (tilt.t >= BIAS_AFTER) & ~(np.isnan(roll_ref) & np.isnan(pitch_ref))  # the holds after 30 s
-    return [Case({"tilt": tilt, "still": still, "faces": faces},
-                 {"ref": (roll_ref, pitch_ref), "bias": true_gyro_bias(tilt)[:2], "settled": settled,
-                  "nose_up": tilt.phase(NOSE_UP), "true_roll": tilt["true_roll"]},
-                 "the bundled recordings 05_tilt_protocol, 05_stationary, 05_six_faces")]
+    return [
+        Case(
+            {"tilt": tilt, "still": still, "faces": faces},
+            {
+                "ref": (roll_ref, pitch_ref),
+                "bias": true_gyro_bias(tilt)[:2],
+                "settled": settled,
+                "nose_up": tilt.phase(NOSE_UP),
+                "true_roll": tilt["true_roll"],
+            },
+            "the bundled recordings 05_tilt_protocol, 05_stationary, 05_six_faces",
+        )
+    ]
 
 
 def _judge_final(case, got):
@@ -313,55 +375,128 @@ def _judge_final(case, got):
     for name, est, ref in (("roll", roll, case.expected["ref"][0]), ("pitch", pitch, case.expected["ref"][1])):
         err = static_rmse(est, ref)
         if not err < RMSE_LIMIT:
-            problems.append(f"{name} RMSE on the static windows {np.degrees(err):.2f}° (limit {np.degrees(RMSE_LIMIT):.1f}°)")
+            problems.append(
+                f"{name} RMSE on the static windows {np.degrees(err):.2f}° (limit {np.degrees(RMSE_LIMIT):.1f}°)"
+            )
     nose_up = case.expected["nose_up"]
     err = np.sqrt(np.mean(wrap_angle(roll[nose_up] - case.expected["true_roll"][nose_up]) ** 2))
     if not err < NOSE_UP_LIMIT:
-        problems.append(f"roll RMSE {np.degrees(err):.1f}° while the board points nose-up "
-                        f"(limit {np.degrees(NOSE_UP_LIMIT):.0f}°): "
-                        "there f_y and f_z are only noise, so the accelerometer roll must not update the filter")
+        problems.append(
+            f"roll RMSE {np.degrees(err):.1f}° while the board points nose-up "
+            f"(limit {np.degrees(NOSE_UP_LIMIT):.0f}°): "
+            "there f_y and f_z are only noise, so the accelerometer roll must not update the filter"
+        )
     settled = case.expected["settled"]
-    for name, est, true in (("roll", roll_bias, case.expected["bias"][0]), ("pitch", pitch_bias, case.expected["bias"][1])):
+    for name, est, true in (
+        ("roll", roll_bias, case.expected["bias"][0]),
+        ("pitch", pitch_bias, case.expected["bias"][1]),
+    ):
         tolerance = BIAS_TOLERANCE * abs(true)
         if abs(est[0] - true) <= tolerance:  # started at the answer: nothing left for the filter to find
-            problems.append(f"{name} gyro bias is {np.degrees(est[0]):+.3f} °/s already at the first sample (simulated "
-                            f"{np.degrees(true):+.3f} °/s): start the bias state at 0 so that the check sees the filter find it")
+            problems.append(
+                f"{name} gyro bias is {np.degrees(est[0]):+.3f} °/s already at the first sample (simulated "
+                f"{np.degrees(true):+.3f} °/s): start the bias state at 0 so that the check sees the filter find it"
+            )
             continue
         worst = int(np.argmax(np.where(settled, np.abs(est - true), -np.inf)))
         if not abs(est[worst] - true) <= tolerance:
-            problems.append(f"{name} gyro bias {np.degrees(est[worst]):+.3f} °/s at t = {case.args['tilt'].t[worst]:.2f} s "
-                            f"(a hold after {BIAS_AFTER:.0f} s), simulated {np.degrees(true):+.3f} °/s "
-                            f"(tolerance {100 * BIAS_TOLERANCE:.0f} %)")
+            problems.append(
+                f"{name} gyro bias {np.degrees(est[worst]):+.3f} °/s at t = {case.args['tilt'].t[worst]:.2f} s "
+                f"(a hold after {BIAS_AFTER:.0f} s), simulated {np.degrees(true):+.3f} °/s "
+                f"(tolerance {100 * BIAS_TOLERANCE:.0f} %)"
+            )
     return "; ".join(problems) or None
 
 
 register(
-    Checkpoint("05.to_body", "to_body", _to_body_cases, matches(rtol=1e-9, atol=1e-12), points=1,
-               hint="counts / 16384 is in g and counts / 131 in °/s: convert to m/s² and rad/s, then to the body frame "
-                    "(this sensor's z points up when the board is flat: y and z change sign)."),
-    Checkpoint("05.gyro_bias", "gyro_bias", _gyro_bias_cases, matches(), points=1,
-               hint="at rest the true rate is zero, so the bias is the average reading of each axis (not its spread)."),
-    Checkpoint("05.correct_accel", "correct_accel", _correct_cases, matches(), points=1,
-               hint="the sensor reads s·f + b: undo the offset first, then the scale; per axis."),
-    Checkpoint("05.accel_tilt", "accel_tilt", _tilt_cases, _judge_tilt, points=1,
-               hint="at rest f = [g sinθ, −g sinφ cosθ, −g cosφ cosθ]: roll from f_y and f_z, pitch from f_x against "
-                    "the length of (f_y, f_z); level must give (0, 0)."),
-    Checkpoint("05.static_ok", "static_ok", _static_cases, _judge_static, points=1,
-               hint="compare the length of f (all three axes) with g; the test is |‖f‖ − g| < eps."),
-    Checkpoint("05.kf_predict", "kf_predict", _predict_cases, matches(), points=1,
-               hint="x⁻ = A x + B ω with A = [[1, −dt], [0, 1]], B = [dt, 0]; P⁻ = A P Aᵀ + diag(q_angle, q_bias)."),
-    Checkpoint("05.kf_update", "kf_update", _update_cases, matches(), points=2,
-               hint="H = [1, 0]: y = z − x[0], S = P[0, 0] + r, K = P Hᵀ / S (a 2-vector); x + K y, (I − K H) P. "
-                    "Return (x, P, y, S)."),
-    Checkpoint("05.run_kf", "run_kf", _run_cases, _judge_run, points=2,
-               hint="predict at every sample; update when static_ok, or else: 'none' updates anyway, 'skip' does not "
-                    "update, 'inflate' updates with r × 100. Keep x and P after each sample."),
-    Checkpoint("05.tune", "tune", _tune_cases, _judge_tune, points=2, what="bundled recording",
-               hint="minimise the mean squared error on the holds over log₁₀ q_angle (q_bias = 10⁻⁴ q_angle); the "
-                    "cost has more than one dip: scan the six decades above q0 first, then refine near the best "
-                    "with scipy.optimize.minimize_scalar."),
-    Checkpoint("05.final", "estimate_tilt", _final_cases, _judge_final, points=3, what="bundled recordings",
-               hint="six-face-correct the accelerometer, gate roll where √(f_y² + f_z²) is small (pitch near 90°), "
-                    "use your tuned q's, and feed the filter the raw gyro rates from a bias state of 0, so that it has "
-                    "the bias to find."),
+    Checkpoint(
+        "05.to_body",
+        "to_body",
+        _to_body_cases,
+        matches(rtol=1e-9, atol=1e-12),
+        points=1,
+        hint="counts / 16384 is in g and counts / 131 in °/s: convert to m/s² and rad/s, then to the body frame "
+        "(this sensor's z points up when the board is flat: y and z change sign).",
+    ),
+    Checkpoint(
+        "05.gyro_bias",
+        "gyro_bias",
+        _gyro_bias_cases,
+        matches(),
+        points=1,
+        hint="at rest the true rate is zero, so the bias is the average reading of each axis (not its spread).",
+    ),
+    Checkpoint(
+        "05.correct_accel",
+        "correct_accel",
+        _correct_cases,
+        matches(),
+        points=1,
+        hint="the sensor reads s·f + b: undo the offset first, then the scale; per axis.",
+    ),
+    Checkpoint(
+        "05.accel_tilt",
+        "accel_tilt",
+        _tilt_cases,
+        _judge_tilt,
+        points=1,
+        hint="at rest f = [g sinθ, −g sinφ cosθ, −g cosφ cosθ]: roll from f_y and f_z, pitch from f_x against "
+        "the length of (f_y, f_z); level must give (0, 0).",
+    ),
+    Checkpoint(
+        "05.static_ok",
+        "static_ok",
+        _static_cases,
+        _judge_static,
+        points=1,
+        hint="compare the length of f (all three axes) with g; the test is |‖f‖ − g| < eps.",
+    ),
+    Checkpoint(
+        "05.kf_predict",
+        "kf_predict",
+        _predict_cases,
+        matches(),
+        points=1,
+        hint="x⁻ = A x + B ω with A = [[1, −dt], [0, 1]], B = [dt, 0]; P⁻ = A P Aᵀ + diag(q_angle, q_bias).",
+    ),
+    Checkpoint(
+        "05.kf_update",
+        "kf_update",
+        _update_cases,
+        matches(),
+        points=2,
+        hint="H = [1, 0]: y = z − x[0], S = P[0, 0] + r, K = P Hᵀ / S (a 2-vector); x + K y, (I − K H) P. "
+        "Return (x, P, y, S).",
+    ),
+    Checkpoint(
+        "05.run_kf",
+        "run_kf",
+        _run_cases,
+        _judge_run,
+        points=2,
+        hint="predict at every sample; update when static_ok, or else: 'none' updates anyway, 'skip' does not "
+        "update, 'inflate' updates with r × 100. Keep x and P after each sample.",
+    ),
+    Checkpoint(
+        "05.tune",
+        "tune",
+        _tune_cases,
+        _judge_tune,
+        points=2,
+        what="bundled recording",
+        hint="minimise the mean squared error on the holds over log₁₀ q_angle (q_bias = 10⁻⁴ q_angle); the "
+        "cost has more than one dip: scan the six decades above q0 first, then refine near the best "
+        "with scipy.optimize.minimize_scalar.",
+    ),
+    Checkpoint(
+        "05.final",
+        "estimate_tilt",
+        _final_cases,
+        _judge_final,
+        points=3,
+        what="bundled recordings",
+        hint="six-face-correct the accelerometer, gate roll where √(f_y² + f_z²) is small (pitch near 90°), "
+        "use your tuned q's, and feed the filter the raw gyro rates from a bias state of 0, so that it has "
+        "the bias to find.",
+    ),
 )

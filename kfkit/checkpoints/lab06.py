@@ -1,4 +1,5 @@
 """Checkpoints of lab 06 (vehicle sideslip with a bicycle-model Kalman filter)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -26,17 +27,34 @@ MODEL_R_STD, MODEL_FACTOR = (0.03, 0.5), 1.5
 
 def random_car(rng) -> BicycleParams:
     """A plausible car: 900–2500 kg, 0.9–1.8 m axle distances, 60–250 kN/rad per axle."""
-    return BicycleParams(m=float(rng.uniform(900, 2500)), Iz=float(rng.uniform(1200, 4500)), a=float(rng.uniform(0.9, 1.5)),
-                         b=float(rng.uniform(1.2, 1.8)), Cf=float(rng.uniform(6e4, 2e5)), Cr=float(rng.uniform(6e4, 2.5e5)))
+    return BicycleParams(
+        m=float(rng.uniform(900, 2500)),
+        Iz=float(rng.uniform(1200, 4500)),
+        a=float(rng.uniform(0.9, 1.5)),
+        b=float(rng.uniform(1.2, 1.8)),
+        Cf=float(rng.uniform(6e4, 2e5)),
+        Cr=float(rng.uniform(6e4, 2.5e5)),
+    )
 
 
 def _model_cases(rng):
-    cases = [Case({"params": BicycleParams(), "vx": 20 / 3.6}, linear_model(BicycleParams(), 20 / 3.6), "the default car at 20 km/h")]
+    cases = [
+        Case(
+            {"params": BicycleParams(), "vx": 20 / 3.6},
+            linear_model(BicycleParams(), 20 / 3.6),
+            "the default car at 20 km/h",
+        )
+    ]
     for _ in range(11):
         p, vx = random_car(rng), float(rng.uniform(2.0, 40.0))
-        cases.append(Case({"params": p, "vx": vx}, linear_model(p, vx),
-                          f"bicycle_model(params=BicycleParams(m={p.m:.0f}, Iz={p.Iz:.0f}, a={p.a:.2f}, b={p.b:.2f}, "
-                          f"Cf={p.Cf:.0f}, Cr={p.Cr:.0f}), vx={vx:.2f})"))
+        cases.append(
+            Case(
+                {"params": p, "vx": vx},
+                linear_model(p, vx),
+                f"bicycle_model(params=BicycleParams(m={p.m:.0f}, Iz={p.Iz:.0f}, a={p.a:.2f}, b={p.b:.2f}, "
+                f"Cf={p.Cf:.0f}, Cr={p.Cr:.0f}), vx={vx:.2f})",
+            )
+        )
     return cases
 
 
@@ -47,8 +65,9 @@ def _shape_problem(names, expected, got):
     for name, e, g in zip(names, expected, got):
         shape = np.shape(g)
         if shape != np.shape(e):
-            return (f"{name} has shape {shape}, expected {np.shape(e)}" +
-                    (" (a column: np.array([[…], […]]))" if np.shape(e)[1:] == (1,) else ""))
+            return f"{name} has shape {shape}, expected {np.shape(e)}" + (
+                " (a column: np.array([[…], […]]))" if np.shape(e)[1:] == (1,) else ""
+            )
     return None
 
 
@@ -62,14 +81,20 @@ def _judge_model(case, got):
     names = "ABCD"
     try:
         got = [np.asarray(g, dtype=float) for g in got]
-        bad = [f"{names[i]}[{int(idx[0])},{int(idx[1])}]" for i, (e, g) in enumerate(zip(case.expected, got)) if e.shape == g.shape
-               for idx in np.argwhere(~np.isclose(g, e, rtol=1e-9, atol=1e-12))]
+        bad = [
+            f"{names[i]}[{int(idx[0])},{int(idx[1])}]"
+            for i, (e, g) in enumerate(zip(case.expected, got))
+            if e.shape == g.shape
+            for idx in np.argwhere(~np.isclose(g, e, rtol=1e-9, atol=1e-12))
+        ]
     except (TypeError, ValueError):
         return problem
     copied = miscopied_linear_model(case.args["params"], case.args["vx"])
     if all(np.shape(g) == np.shape(c) and np.allclose(g, c, rtol=1e-9) for g, c in zip(got, copied)):
-        return ("this is the widely copied model with three errors: check the units of A[0,1] and A[1,0], and C[1,1] "
-                "against a_y = V_x(β̇ + r)")
+        return (
+            "this is the widely copied model with three errors: check the units of A[0,1] and A[1,0], and C[1,1] "
+            "against a_y = V_x(β̇ + r)"
+        )
     return problem + (f"; wrong entries: {', '.join(bad)}" if bad else "")
 
 
@@ -109,9 +134,19 @@ def _step_cases(rng):
         A, B, C, D = linear_model(random_car(rng), float(rng.uniform(2.0, 40.0)))
         Ad, Bd, Qd = discretize(A, B, 0.01, np.diag(10 ** rng.uniform(-6, -2, 2)))
         L = rng.normal(0, 0.02, (2, 2))
-        args = {"x": rng.normal(0, 0.02, 2), "P": L @ L.T + 1e-5 * np.eye(2), "delta_prev": float(rng.normal(0, 0.05)),
-                "z": np.array([rng.normal(0, 0.2), rng.normal(0, 3.0)]), "delta": float(rng.normal(0, 0.05)),
-                "Ad": Ad, "Bd": Bd, "Qd": Qd, "C": C, "D": D, "R": np.diag([0.003 ** 2, 0.05 ** 2])}
+        args = {
+            "x": rng.normal(0, 0.02, 2),
+            "P": L @ L.T + 1e-5 * np.eye(2),
+            "delta_prev": float(rng.normal(0, 0.05)),
+            "z": np.array([rng.normal(0, 0.2), rng.normal(0, 3.0)]),
+            "delta": float(rng.normal(0, 0.05)),
+            "Ad": Ad,
+            "Bd": Bd,
+            "Qd": Qd,
+            "C": C,
+            "D": D,
+            "R": np.diag([0.003**2, 0.05**2]),
+        }
         cases.append(Case(args, sideslip_step(**args)))
     return cases
 
@@ -142,16 +177,25 @@ def bundled_inputs(name=SLALOM):
 
 def _slalom_cases(rng):
     cases = []
-    for name, limit, label in [(SLALOM, RMSE_LIMIT_DEG, "the bundled slalom at 20 km/h (06_slalom_20kmh)"),
-                               (FAST_SLALOM, FAST_LIMIT_DEG, "the bundled slalom at 80 km/h (06_slalom_80kmh)")]:
+    for name, limit, label in [
+        (SLALOM, RMSE_LIMIT_DEG, "the bundled slalom at 20 km/h (06_slalom_20kmh)"),
+        (FAST_SLALOM, FAST_LIMIT_DEG, "the bundled slalom at 80 km/h (06_slalom_80kmh)"),
+    ]:
         args, truth = bundled_inputs(name)
         cases.append(Case(dict(args, params=BicycleParams()), (truth, limit), label))
     args, truth = bundled_inputs(SLALOM)
-    kfkit = estimate_sideslip(**args, params=BicycleParams(), model=linear_model, gyro_noise=MODEL_R_STD[0], accel_noise=MODEL_R_STD[1]).beta
+    kfkit = estimate_sideslip(
+        **args, params=BicycleParams(), model=linear_model, gyro_noise=MODEL_R_STD[0], accel_noise=MODEL_R_STD[1]
+    ).beta
     limit = MODEL_FACTOR * float(np.degrees(rmse(kfkit, truth)))
-    cases.append(Case(dict(args, params=BicycleParams(), r_std=MODEL_R_STD), (truth, limit),
-                      f"the slalom at 20 km/h with r_std = {MODEL_R_STD} (the filter leans on its model; kfkit: "
-                      f"{limit / MODEL_FACTOR:.3f}°)"))
+    cases.append(
+        Case(
+            dict(args, params=BicycleParams(), r_std=MODEL_R_STD),
+            (truth, limit),
+            f"the slalom at 20 km/h with r_std = {MODEL_R_STD} (the filter leans on its model; kfkit: "
+            f"{limit / MODEL_FACTOR:.3f}°)",
+        )
+    )
     return cases
 
 
@@ -165,22 +209,49 @@ def _judge_slalom(case, got):
         return f"expected {truth.size} β values, got shape {beta.shape}"
     err = np.degrees(rmse(beta, truth))
     if not err < limit:
-        return (f"β RMSE {err:.3f}°, expected under {limit:.3g}° (true β peaks at {np.degrees(np.abs(truth).max()):.2f}°; "
-                f"β = 0 would score {np.degrees(rmse(np.zeros_like(truth), truth)):.2f}°)")
+        return (
+            f"β RMSE {err:.3f}°, expected under {limit:.3g}° (true β peaks at {np.degrees(np.abs(truth).max()):.2f}°; "
+            f"β = 0 would score {np.degrees(rmse(np.zeros_like(truth), truth)):.2f}°)"
+        )
     return None
 
 
 register(
-    Checkpoint("06.bicycle_model", "bicycle_model", _model_cases, _judge_model, points=2,
-               hint="sum the two axle forces for m·V_x(β̇ + r) and their moments for I_z·ṙ, with α_f = δ − β − a r/V_x and "
-                    "α_r = −β + b r/V_x; then a_y = V_x(β̇ + r). Check each entry's units."),
-    Checkpoint("06.discretize", "discretize", _discretize_cases, _judge_discretize, points=2,
-               hint="one expm of the (n+1)×(n+1) matrix [[A, B], [0, 0]]·dt gives Ad and Bd; Van Loan's "
-                    "expm([[−A, Qc], [0, Aᵀ]]·dt) gives Ad and Qd = Ad·(upper-right block)."),
-    Checkpoint("06.kf_step", "kf_step", _step_cases, _judge_step, points=2,
-               hint="predict with the previous steering δ_{k−1}; the predicted measurement is C x⁻ + D δ_k; "
-                    "return (x, P, y, S)."),
-    Checkpoint("06.slalom_rmse", "run_sideslip", _slalom_cases, _judge_slalom, points=2, what="bundled slaloms",
-               hint="if the three checks above pass, look at which steering sample goes into the prediction, at "
-                    "the speed used for each step's model, and at how r_std reaches R."),
+    Checkpoint(
+        "06.bicycle_model",
+        "bicycle_model",
+        _model_cases,
+        _judge_model,
+        points=2,
+        hint="sum the two axle forces for m·V_x(β̇ + r) and their moments for I_z·ṙ, with α_f = δ − β − a r/V_x and "
+        "α_r = −β + b r/V_x; then a_y = V_x(β̇ + r). Check each entry's units.",
+    ),
+    Checkpoint(
+        "06.discretize",
+        "discretize",
+        _discretize_cases,
+        _judge_discretize,
+        points=2,
+        hint="one expm of the (n+1)×(n+1) matrix [[A, B], [0, 0]]·dt gives Ad and Bd; Van Loan's "
+        "expm([[−A, Qc], [0, Aᵀ]]·dt) gives Ad and Qd = Ad·(upper-right block).",
+    ),
+    Checkpoint(
+        "06.kf_step",
+        "kf_step",
+        _step_cases,
+        _judge_step,
+        points=2,
+        hint="predict with the previous steering δ_{k−1}; the predicted measurement is C x⁻ + D δ_k; "
+        "return (x, P, y, S).",
+    ),
+    Checkpoint(
+        "06.slalom_rmse",
+        "run_sideslip",
+        _slalom_cases,
+        _judge_slalom,
+        points=2,
+        what="bundled slaloms",
+        hint="if the three checks above pass, look at which steering sample goes into the prediction, at "
+        "the speed used for each step's model, and at how r_std reaches R.",
+    ),
 )

@@ -30,17 +30,18 @@ The contract (x-io Fusion's and VQF's shape: settings with units and defaults, t
 The names in ``__all__`` below are importable from ``kfkit.filters``; the helpers (``tilt_heading``,
 ``learn_field``, ``jacobian_rows``, ``MagGate``, …) from their own modules.
 """
+
 from .attitude import estimate_attitude
 from .attitude_run import AttitudeRun
 from .contract import Filter, FilterRun, State, Step, TunedFilter
 from .euler_ekf import (
-                        EulerAttitudeEKF,
-                        EulerAttitudeEKFSettings,
-                        attitude_jacobian,
-                        attitude_measurement,
-                        euler_ekf_predict,
-                        euler_ekf_update,
-                        euler_process_noise,
+    EulerAttitudeEKF,
+    EulerAttitudeEKFSettings,
+    attitude_jacobian,
+    attitude_measurement,
+    euler_ekf_predict,
+    euler_ekf_update,
+    euler_process_noise,
 )
 from .euler_ekf_fast import FastEulerAttitudeEKF
 from .linear import KalmanFilter
@@ -48,27 +49,58 @@ from .mekf import MekfSettings, MultiplicativeEKF
 from .registry import FILTERS
 from .roll import RollKF, RollKFSettings, integrate_rate, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
 from .sideslip import (
-                        SideslipKF,
-                        SideslipKFSettings,
-                        SideslipRun,
-                        copied_kinematic_kf,
-                        kinematic_sideslip,
-                        sideslip_step,
+    SideslipKF,
+    SideslipKFSettings,
+    SideslipRun,
+    copied_kinematic_kf,
+    kinematic_sideslip,
+    sideslip_step,
 )
 from .sideslip_ekf import SideslipEKF, SideslipEKFSettings
 from .sideslip_estimate import compare_estimators, estimate_sideslip
 from .tilt import TiltAttitude, TiltBiasKF, TiltBiasKFSettings, TiltRun, accel_static_ok, protocol_angles
 
 __all__ = [
-    "estimate_attitude", "AttitudeRun",
-    "Filter", "FilterRun", "State", "Step", "TunedFilter",
-    "EulerAttitudeEKF", "EulerAttitudeEKFSettings", "attitude_jacobian", "attitude_measurement", "euler_ekf_predict",
-    "euler_ekf_update", "euler_process_noise", "FastEulerAttitudeEKF",
+    "estimate_attitude",
+    "AttitudeRun",
+    "Filter",
+    "FilterRun",
+    "State",
+    "Step",
+    "TunedFilter",
+    "EulerAttitudeEKF",
+    "EulerAttitudeEKFSettings",
+    "attitude_jacobian",
+    "attitude_measurement",
+    "euler_ekf_predict",
+    "euler_ekf_update",
+    "euler_process_noise",
+    "FastEulerAttitudeEKF",
     "KalmanFilter",
-    "MekfSettings", "MultiplicativeEKF",
+    "MekfSettings",
+    "MultiplicativeEKF",
     "FILTERS",
-    "RollKF", "RollKFSettings", "integrate_rate", "roll_kf", "roll_kf_predict", "roll_kf_steady_state", "roll_kf_update",
-    "SideslipKF", "SideslipKFSettings", "SideslipRun", "copied_kinematic_kf", "kinematic_sideslip", "sideslip_step",
-    "SideslipEKF", "SideslipEKFSettings", "compare_estimators", "estimate_sideslip",
-    "TiltAttitude", "TiltBiasKF", "TiltBiasKFSettings", "TiltRun", "accel_static_ok", "protocol_angles",
+    "RollKF",
+    "RollKFSettings",
+    "integrate_rate",
+    "roll_kf",
+    "roll_kf_predict",
+    "roll_kf_steady_state",
+    "roll_kf_update",
+    "SideslipKF",
+    "SideslipKFSettings",
+    "SideslipRun",
+    "copied_kinematic_kf",
+    "kinematic_sideslip",
+    "sideslip_step",
+    "SideslipEKF",
+    "SideslipEKFSettings",
+    "compare_estimators",
+    "estimate_sideslip",
+    "TiltAttitude",
+    "TiltBiasKF",
+    "TiltBiasKFSettings",
+    "TiltRun",
+    "accel_static_ok",
+    "protocol_angles",
 ]

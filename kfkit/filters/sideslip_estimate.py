@@ -7,6 +7,7 @@ The default is :class:`~kfkit.filters.sideslip_ekf.SideslipEKF` because a real c
 range in any brisk corner: on the race-track log the linear KF is off by 0.94°, the EKF by 0.40° (the linear
 model run open loop: 0.55°), and on the bundled slaloms, inside the linear range, both stay under 0.03°.
 """
+
 from __future__ import annotations
 
 from dataclasses import fields
@@ -18,8 +19,20 @@ from .sideslip import SideslipKF, SideslipKFSettings, SideslipRun, _as_inputs, c
 from .sideslip_ekf import SideslipEKF, SideslipEKFSettings
 
 
-def estimate_sideslip(t, delta, yaw_rate, ay, vx, params: BicycleParams = BicycleParams(), *, model=None, tyres=None,
-                      x0=None, P0=None, **settings) -> SideslipRun:
+def estimate_sideslip(
+    t,
+    delta,
+    yaw_rate,
+    ay,
+    vx,
+    params: BicycleParams = BicycleParams(),
+    *,
+    model=None,
+    tyres=None,
+    x0=None,
+    P0=None,
+    **settings,
+) -> SideslipRun:
     """Sideslip β over a drive, filtered at the drive's median sample interval from (x0, P0).
 
     t (s), delta (rad, road wheel), yaw_rate (rad/s), ay (m/s²), vx (m/s ≥ 0): equal-length 1-D arrays,
@@ -31,15 +44,22 @@ def estimate_sideslip(t, delta, yaw_rate, ay, vx, params: BicycleParams = Bicycl
     d = _as_inputs(t, delta, yaw_rate, ay, vx)
     dt = float(np.median(np.diff(d["t"])))
     if model is None:
-        linear_only = sorted(set(settings) & ({f.name for f in fields(SideslipKFSettings)} - {f.name for f in fields(SideslipEKFSettings)}))
+        linear_only = sorted(
+            set(settings)
+            & ({f.name for f in fields(SideslipKFSettings)} - {f.name for f in fields(SideslipEKFSettings)})
+        )
         if linear_only:
-            raise TypeError(f"estimate_sideslip: {', '.join(linear_only)} is a setting of the linear KF; pass "
-                            "model=kfkit.vehicle.linear_model to run it (the default saturating-tyre EKF has "
-                            f"{', '.join(f.name for f in fields(SideslipEKFSettings))})")
+            raise TypeError(
+                f"estimate_sideslip: {', '.join(linear_only)} is a setting of the linear KF; pass "
+                "model=kfkit.vehicle.linear_model to run it (the default saturating-tyre EKF has "
+                f"{', '.join(f.name for f in fields(SideslipEKFSettings))})"
+            )
         kf = SideslipEKF(dt, params, tyres=tyres, x0=x0, P0=P0, **settings)
     else:
         if tyres is not None:
-            raise TypeError("estimate_sideslip: tyres is for the default EKF (model=None); a linear model has C·α tyres")
+            raise TypeError(
+                "estimate_sideslip: tyres is for the default EKF (model=None); a linear model has C·α tyres"
+            )
         kf = SideslipKF(dt, params, model=model, x0=x0, P0=P0, **settings)
     return kf.run(*d.values())
 

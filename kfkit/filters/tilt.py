@@ -12,6 +12,7 @@ When it is false the update is skipped (``accel_gating="skip"``) or made with R 
 ``firmware/tilt_kf/tilt_kf.c`` is the same filter in C (float32; its ``gate`` and ``inflation`` are
 ``accel_gating`` and ``accel_inflation``); ``tests/test_tilt_c.py`` holds them together.
 """
+
 from __future__ import annotations
 
 import math
@@ -48,8 +49,12 @@ class TiltBiasKFSettings:
     accel_inflation: float = 100.0
 
     def __post_init__(self):
-        check_settings(self, positive=("q_angle", "r", "accel_inflation"), non_negative=("q_bias",),
-                       choices={"accel_gating": GATINGS})
+        check_settings(
+            self,
+            positive=("q_angle", "r", "accel_inflation"),
+            non_negative=("q_bias",),
+            choices={"accel_gating": GATINGS},
+        )
 
 
 def accel_static_ok(f_b, eps=DEFAULT_EPS):
@@ -60,7 +65,9 @@ def accel_static_ok(f_b, eps=DEFAULT_EPS):
     """
     f = np.asarray(f_b, dtype=float)
     if f.ndim == 0 or f.shape[-1] != 3:
-        raise ValueError(f"accel_static_ok expects specific force with 3 components on the last axis, got shape {f.shape}")
+        raise ValueError(
+            f"accel_static_ok expects specific force with 3 components on the last axis, got shape {f.shape}"
+        )
     if not eps > 0:
         raise ValueError(f"accel_static_ok: eps must be a positive tolerance in m/s², got {eps}")
     ok = np.abs(np.linalg.norm(f, axis=-1) - G) < eps
@@ -97,11 +104,12 @@ class TiltBiasKF:
                [the first accelerometer angle (0 if there is none), 0]; P0 None: diag(r, (0.1 rad/s)²)
     """
 
-    def __init__(self, dt=None, settings: TiltBiasKFSettings | None = None, *, rate_hz=None, x0=None, P0=None,
-                 **changes):
+    def __init__(
+        self, dt=None, settings: TiltBiasKFSettings | None = None, *, rate_hz=None, x0=None, P0=None, **changes
+    ):
         self.dt = sample_period("TiltBiasKF", dt, rate_hz)
         self.settings = configure(TiltBiasKFSettings, settings, changes, "TiltBiasKF")
-        self._x0, self._P0 = None, np.diag([self.settings.r, 0.1 ** 2])
+        self._x0, self._P0 = None, np.diag([self.settings.r, 0.1**2])
         self.reset(x0, P0)
 
     def reset(self, x0=None, P0=None):
@@ -121,7 +129,9 @@ class TiltBiasKF:
         """
         s = self.state
         x = (accel_angle if accel_angle == accel_angle else 0.0, 0.0) if s.x is None else s.x.tolist()
-        row = _tilt_sample(*x, s.P[0, 0], s.P[0, 1], s.P[1, 1], gyro_rate, accel_angle, static_ok, *self._coefficients())
+        row = _tilt_sample(
+            *x, s.P[0, 0], s.P[0, 1], s.P[1, 1], gyro_rate, accel_angle, static_ok, *self._coefficients()
+        )
         x_prior, P_prior, x, P, y, S = (a[0] for a in _unpack(np.array([row])))
         s.x, s.P = x, P
         return Step(x, P, float(y), float(S), x_prior, P_prior)
@@ -142,13 +152,17 @@ class TiltBiasKF:
         z = np.asarray(accel_angle, dtype=float)
         ok = np.ones(len(z), dtype=bool) if static_ok is None else np.asarray(static_ok, dtype=bool)
         if w.ndim != 1 or w.shape != z.shape or ok.shape != z.shape:
-            raise ValueError(f"TiltBiasKF.run: gyro_rate, accel_angle and static_ok must be 1-D of equal length, "
-                             f"got shapes {w.shape}, {z.shape}, {ok.shape}")
+            raise ValueError(
+                f"TiltBiasKF.run: gyro_rate, accel_angle and static_ok must be 1-D of equal length, "
+                f"got shapes {w.shape}, {z.shape}, {ok.shape}"
+            )
         if not len(z):
             raise ValueError("TiltBiasKF.run: no samples")
         if not np.isfinite(w).all():
             k = int(np.flatnonzero(~np.isfinite(w))[0])
-            raise ValueError(f"TiltBiasKF.run: gyro_rate[{k}] is {w[k]}: the prediction needs a finite rate at every sample")
+            raise ValueError(
+                f"TiltBiasKF.run: gyro_rate[{k}] is {w[k]}: the prediction needs a finite rate at every sample"
+            )
         if not resume:
             self.reset()
         s, c = self.state, self._coefficients()
@@ -193,8 +207,10 @@ def _tilt_sample(angle, bias, P00, P01, P11, gyro_rate, accel_angle, static_ok, 
 
 def _unpack(rows):
     """(N, 12) rows of :func:`_tilt_sample` → x⁻ (N, 2), P⁻ (N, 2, 2), x, P, y (N,), S (N,)."""
+
     def cov(c):
         return rows[:, [c, c + 1, c + 1, c + 2]].reshape(-1, 2, 2)
+
     return rows[:, 0:2].copy(), cov(2), rows[:, 5:7].copy(), cov(7), rows[:, 10].copy(), rows[:, 11].copy()
 
 
@@ -211,8 +227,17 @@ class TiltAttitude:
     √(f_y² + f_z²) < roll_min·g: near pitch ±90° the accelerometer roll is the angle of noise.
     """
 
-    def __init__(self, board="mpu6050", rate_hz=None, settings: TiltBiasKFSettings | None = None, eps=DEFAULT_EPS,
-                 roll_min=0.5, bias_seconds=2.0, accel_bias=(0.0, 0.0, 0.0), accel_scale=(1.0, 1.0, 1.0)):
+    def __init__(
+        self,
+        board="mpu6050",
+        rate_hz=None,
+        settings: TiltBiasKFSettings | None = None,
+        eps=DEFAULT_EPS,
+        roll_min=0.5,
+        bias_seconds=2.0,
+        accel_bias=(0.0, 0.0, 0.0),
+        accel_scale=(1.0, 1.0, 1.0),
+    ):
         self.board = get_board(board) if isinstance(board, str) else board
         self.rate_hz = float(rate_hz or self.board.rate_hz)
         self.kfs = [TiltBiasKF(rate_hz=self.rate_hz, settings=settings) for _ in range(2)]
@@ -255,8 +280,10 @@ def protocol_angles(rec):
     known = {"roll_0": (0.0, 0.0), "roll_90": (np.pi / 2, 0.0), "pitch_0": (0.0, 0.0), "pitch_90": (np.nan, np.pi / 2)}
     labels = {p["label"] for p in rec.phases} & set(known)
     if not labels:
-        raise KeyError(f"recording {rec.path or ''} has no tilt-protocol phases ({', '.join(known)}): "
-                       f"record it with the guided tilt protocol (kfkit capture --protocol tilt)")
+        raise KeyError(
+            f"recording {rec.path or ''} has no tilt-protocol phases ({', '.join(known)}): "
+            f"record it with the guided tilt protocol (kfkit capture --protocol tilt)"
+        )
     for label in labels:
         mask = rec.phase(label)
         roll[mask], pitch[mask] = known[label]
