@@ -14,8 +14,9 @@ KIT_ROOT = Path(__file__).resolve().parents[1]
 
 
 def ruff(*args: str) -> subprocess.CompletedProcess:
-    exe = shutil.which("ruff") or str(Path(sys.executable).with_name("ruff"))
-    if not Path(exe).exists():
+    beside = Path(sys.executable).with_name("ruff")  # the pinned one, installed with this interpreter's packages
+    exe = str(beside) if beside.exists() else shutil.which("ruff")
+    if exe is None:
         pytest.fail("ruff is not installed: it comes with `python -m pip install -r requirements-test.txt`")
     return subprocess.run([exe, *args], cwd=KIT_ROOT, capture_output=True, text=True, check=False)
 
