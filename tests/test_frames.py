@@ -392,7 +392,10 @@ def vee_of_skew(W):
 
 def body_rate_by_finite_difference(euler, euler_dot, h=1e-6):
     """Oracle: Ω× ≈ R_nbᵀ (R_nb(t+h) − R_nb(t−h)) / 2h, rotation from scipy."""
-    R = lambda e: scipy_dcm(*e)[0]  # noqa: E731
+
+    def R(e):
+        return scipy_dcm(*e)[0]
+
     return vee_of_skew(R(euler).T @ (R(euler + h * euler_dot) - R(euler - h * euler_dot)) / (2 * h))
 
 

@@ -56,7 +56,10 @@ def answers(wrong_roll=False) -> dict[int, str]:
     """Hand-out cell index → the code a student fills in: the solution's function bodies (the nbgrader markers
     dropped), matched by the functions each stub cell defines; with ``wrong_roll`` accel_roll swaps atan2's
     arguments."""
-    defines = lambda text: tuple(re.findall(r"^def (\w+)\(", text, re.M))  # noqa: E731
+
+    def defines(text):
+        return tuple(re.findall(r"^def (\w+)\(", text, re.M))
+
     solution = json.loads((KIT_ROOT / "solutions" / LAB).read_text(encoding="utf-8"))
     by_functions = {defines(source(c)): source(c) for c in solution["cells"] if c["cell_type"] == "code"}
     handout = json.loads((KIT_ROOT / "labs" / LAB).read_text(encoding="utf-8"))

@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from kfkit import sensors
+from kfkit import sim as _sim
 from kfkit.frames import accel_tilt
 from kfkit.sim import Motion, sample_times, simulate_imu, sine_roll, stationary
 
@@ -327,8 +328,6 @@ def test_sample_times():
 
 
 # --- attitude motions (lab 04) --------------------------------------------------------------
-
-from kfkit import sim as _sim  # noqa: E402
 
 ATTITUDE_MOTIONS = {
     "attitude_tour": lambda: _sim.attitude_tour(vibration_rms=0.1, seed=1),

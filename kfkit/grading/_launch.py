@@ -72,7 +72,9 @@ def _check(result, what):
 
 
 def mount(src, target, fstype, flags, data=None):
-    enc = lambda s: None if s is None else os.fsencode(s)  # noqa: E731
+    def enc(s):
+        return None if s is None else os.fsencode(s)
+
     _check(libc.mount(enc(src), enc(target), enc(fstype), ctypes.c_ulong(flags), enc(data)), f"mount {src} on {target}")
 
 
