@@ -1,7 +1,7 @@
 """Attitude filters: accuracy (BROAD total / heading / inclination RMSE) and speed vs peers, one run.
 
-    python benchmarks/bench_attitude.py            # bundled simulations, bundled BROAD excerpts, full BROAD trials if present
-    python benchmarks/bench_attitude.py --quick    # skip the full BROAD trials (the bundled excerpts always run)
+    python benchmarks/bench_attitude.py           # bundled simulations and BROAD excerpts, full BROAD trials if present
+    python benchmarks/bench_attitude.py --quick   # skip the full BROAD trials (the bundled excerpts always run)
 
 Filters: kfkit's euler-ekf and mekf (defaults), ahrs 0.4.0's EKF and Madgwick, imufusion 1.3.3
 (x-io Fusion) and VQF 2.1.2 (the best published filter on BROAD; offline=False, i.e. causal),
@@ -54,6 +54,7 @@ What the BROAD tables show (the signed-heading and field tables printed after th
   acceleration tilts it (4.6° inclination RMSE), and its full 3-axis magnetometer update turns tilt
   error into heading (×tan(dip) ≈ 2.9 at a 71° dip): −15.6° mean heading error in motion.
 """
+
 import argparse
 import glob
 import math
@@ -65,26 +66,46 @@ import numpy as np
 
 from kfkit import datasets
 from kfkit.filters import EulerAttitudeEKF, estimate_attitude
-from kfkit.filters.registry import methods
 from kfkit.filters.attitude_run import learn_field, tilt_heading
-from kfkit.filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement,
-                                     euler_kinematics_jacobian, euler_process_noise)
-from kfkit.frames import (G, body_rates_to_euler_rates, declination, enu_to_ned_quat, euler_to_quat, quat_conjugate,
-                          quat_multiply, quat_to_dcm, wrap_angle)
-from kfkit.readers import load_broad
+from kfkit.filters.euler_ekf import (
+    EulerAttitudeEKFSettings,
+    attitude_jacobian,
+    attitude_measurement,
+    euler_kinematics_jacobian,
+    euler_process_noise,
+)
+from kfkit.filters.registry import methods
+from kfkit.frames import (
+    G,
+    body_rates_to_euler_rates,
+    declination,
+    enu_to_ned_quat,
+    euler_to_quat,
+    quat_conjugate,
+    quat_multiply,
+    quat_to_dcm,
+    wrap_angle,
+)
 from kfkit.metrics import attitude_rmse
+from kfkit.readers import load_broad
 
 BROAD_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"
 SIMULATIONS = ("04_attitude_tour", "04_gimbal_lock", "04_mag_disturbance")
 #: the bundled BROAD excerpts with a movement phase (02_broad_rest is a rest only)
-BUNDLED_REAL = ("01_broad_slow_rotation", "03_broad_attached_magnet", "04_broad_fast_rotation",
-                "04_broad_stationary_magnet", "05_broad_rotation_breaks")
+BUNDLED_REAL = (
+    "01_broad_slow_rotation",
+    "03_broad_attached_magnet",
+    "04_broad_fast_rotation",
+    "04_broad_stationary_magnet",
+    "05_broad_rotation_breaks",
+)
 Q_NED_NWU = np.array([0.0, 1.0, 0.0, 0.0])  # 180° about x: NWU → NED
 
 
 # ---- peers -----------------------------------------------------------------------------------
 def run_ahrs_ekf(gyr, acc, mag, rate):
     from ahrs.filters import EKF
+
     field = learn_field(acc, mag)
     dip = math.degrees(math.atan2(field[2], field[0]))
     mag = _fill_mag(mag)
@@ -93,11 +114,13 @@ def run_ahrs_ekf(gyr, acc, mag, rate):
 
 def run_ahrs_madgwick(gyr, acc, mag, rate):
     from ahrs.filters import Madgwick
+
     return quat_multiply(Q_NED_NWU, Madgwick(gyr=gyr, acc=acc, mag=_fill_mag(mag), frequency=rate).Q)
 
 
 def run_imufusion(gyr, acc, mag, rate):
     import imufusion
+
     ahrs = imufusion.Ahrs()
     s = imufusion.AhrsSettings()
     s.convention, s.gain, s.gyroscope_range = imufusion.CONVENTION_NED, 0.5, 2000.0
@@ -114,6 +137,7 @@ def run_imufusion(gyr, acc, mag, rate):
 
 def run_vqf(gyr, acc, mag, rate):
     from vqf import VQF
+
     c = np.ascontiguousarray
     return enu_to_ned_quat(VQF(1.0 / rate).updateBatch(c(gyr), c(acc), c(_fill_mag(mag)))["quat9D"])
 
@@ -140,6 +164,7 @@ FILTERS = {
 # ---- data ------------------------------------------------------------------------------------
 def simulated_cases():
     from kfkit.calibration import Calibration, bundled_calibration_path
+
     cal = Calibration.load(bundled_calibration_path("nucleo-iks02a1"))
     for name in SIMULATIONS:
         try:
@@ -158,8 +183,15 @@ def bundled_real_cases():
     Euler angles as quaternions (NaN rows where the markers were not seen), BROAD's movement phases."""
     for name in BUNDLED_REAL:
         rec = datasets.load(name)
-        yield name, rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz, euler_to_quat(rec.truth()), \
-            rec.phase("movement")
+        yield (
+            name,
+            rec.body("gyr"),
+            rec.body("acc"),
+            rec.body("mag"),
+            rec.rate_hz,
+            euler_to_quat(rec.truth()),
+            rec.phase("movement"),
+        )
 
 
 def broad_cases():
@@ -173,8 +205,10 @@ def print_field_in_truth_frame(cases):
     """The magnetometer seen through the optical truth: where its horizontal part points (0 = the
     truth's north) and how its norm varies, at rest and in motion. No filter is involved."""
     print("\nBROAD: the measured field in the truth's frame (how far the truth's north is from the magnetometer's)\n")
-    print("| trial | heading of the field at rest (°) | in motion: mean ± std (°) | norm in motion / at rest | "
-          "mekf used the magnetometer (% of motion) |")
+    print(
+        "| trial | heading of the field at rest (°) | in motion: mean ± std (°) | norm in motion / at rest | "
+        "mekf used the magnetometer (% of motion) |"
+    )
     print("|---|---:|---:|---:|---:|")
     for name, gyr, acc, mag, rate, q_true, mask in cases:
         ok = ~np.isnan(q_true[:, 0])
@@ -183,8 +217,10 @@ def print_field_in_truth_frame(cases):
         norm = np.linalg.norm(mag[ok], axis=1)
         rest, moving = ~mask[ok], mask[ok]
         used = estimate_attitude(gyr, acc, mag, rate, method="mekf").mag_used[mask].mean()
-        print(f"| {name} | {heading[rest].mean():+.1f} | {heading[moving].mean():+.1f} ± {heading[moving].std():.1f} | "
-              f"{norm[moving].mean() / norm[rest].mean():.3f} | {100 * used:.0f} |")
+        print(
+            f"| {name} | {heading[rest].mean():+.1f} | {heading[moving].mean():+.1f} ± {heading[moving].std():.1f} | "
+            f"{norm[moving].mean() / norm[rest].mean():.3f} | {100 * used:.0f} |"
+        )
 
 
 def accuracy(cases):
@@ -216,14 +252,17 @@ def signed_heading_error(q_est, q_true):
 
 
 def print_signed_heading(rows, names=("mekf", "ahrs EKF", "imufusion", "VQF")):
-    print("\nBROAD: mean signed heading error (°), at rest / in motion — a constant offset, unlike noise, "
-          "shows which north a filter followed\n")
+    print(
+        "\nBROAD: mean signed heading error (°), at rest / in motion — a constant offset, unlike noise, "
+        "shows which north a filter followed\n"
+    )
     names = [n for n in names if n in FILTERS]
     print("| trial | " + " | ".join(names) + " |")
     print("|---|" + "---:|" * len(names))
     for trial, row in rows:
-        cells = [f"{row[n]['heading at rest']:+.1f} / {row[n]['heading in motion']:+.1f}" if n in row else "–"
-                 for n in names]
+        cells = [
+            f"{row[n]['heading at rest']:+.1f} / {row[n]['heading in motion']:+.1f}" if n in row else "–" for n in names
+        ]
         print(f"| {trial} | " + " | ".join(cells) + " |")
 
 
@@ -277,7 +316,7 @@ def filterpy_euler_ekf(gyr, acc, mag, rate):
         ekf.Q = euler_process_noise(ekf.x, st.gyro_noise, dt)
         ekf.predict(u=gyr[k])
         gated = abs(np.linalg.norm(acc[k]) - G) > st.accel_gate
-        R6 = np.diag([st.accel_noise ** 2 * (st.accel_inflation if gated else 1.0)] * 3 + [st.mag_noise ** 2] * 3)
+        R6 = np.diag([st.accel_noise**2 * (st.accel_inflation if gated else 1.0)] * 3 + [st.mag_noise**2] * 3)
         if np.isnan(mag[k, 0]):
             ekf.update(acc[k], hj3, hx3, R=R6[:3, :3])
         else:
@@ -289,13 +328,15 @@ def filterpy_euler_ekf(gyr, acc, mag, rate):
 
 def speed():
     from kfkit.calibration import Calibration, bundled_calibration_path
+
     rec = datasets.load("04_attitude_tour")
     gyr, acc, mag = Calibration.load(bundled_calibration_path("nucleo-iks02a1")).apply(rec)
     rate, n = rec.rate_hz, len(rec)
     contenders = {
         **{f"kfkit {name}": (lambda name=name: estimate_attitude(gyr, acc, mag, rate, method=name)) for name in KFKIT},
-        "kfkit euler-ekf, reference (a loop over step)": lambda: EulerAttitudeEKF(rate_hz=rate, field_n=learn_field(acc, mag)).run(
-            gyr, acc, mag),
+        "kfkit euler-ekf, reference (a loop over step)": lambda: EulerAttitudeEKF(
+            rate_hz=rate, field_n=learn_field(acc, mag)
+        ).run(gyr, acc, mag),
         "filterpy EKF (same Euler model)": lambda: filterpy_euler_ekf(gyr, acc, mag, rate),
         "ahrs EKF": lambda: run_ahrs_ekf(gyr, acc, mag, rate),
     }
@@ -313,8 +354,10 @@ def speed():
     if same > 1e-8:
         raise SystemExit(f"filterpy's EKF and kfkit's euler-ekf differ by {same:.2e} rad: not the same model")
     base = times["kfkit euler-ekf"]
-    print(f"\nSpeed on 04_attitude_tour ({n} samples, {n / rate:.0f} s at {rate:g} Hz), best of 3; filterpy's "
-          f"estimates equal kfkit euler-ekf's to {same:.0e} rad\n")
+    print(
+        f"\nSpeed on 04_attitude_tour ({n} samples, {n / rate:.0f} s at {rate:g} Hz), best of 3; filterpy's "
+        f"estimates equal kfkit euler-ekf's to {same:.0e} rad\n"
+    )
     print("| filter | steps/s | time for 60 s at 100 Hz (ms) | time vs kfkit euler-ekf |")
     print("|---|---:|---:|---:|")
     for name, t in times.items():
@@ -326,8 +369,9 @@ def main():
     parser.add_argument("--quick", action="store_true", help="skip the BROAD trials")
     args = parser.parse_args()
     print_accuracy("Bundled lab 04 simulations", accuracy(simulated_cases()), goal=False)
-    print_accuracy("Bundled BROAD excerpts (100 Hz, real IMU, optical truth; movement phases)",
-                   accuracy(bundled_real_cases()))
+    print_accuracy(
+        "Bundled BROAD excerpts (100 Hz, real IMU, optical truth; movement phases)", accuracy(bundled_real_cases())
+    )
     if not args.quick:
         if BROAD_DIR.exists() and glob.glob(str(BROAD_DIR / "*.mat")):
             rows = accuracy(broad_cases())

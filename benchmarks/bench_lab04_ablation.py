@@ -8,6 +8,7 @@ the substeps and each of the MEKF's other features added alone (a gyro-bias stat
 the accelerometer low-passed in a gyro-turned frame), then with all three; kfkit's MEKF last, for the gap.
 :func:`kfkit.labs.lab04.ablation` defines each variant; lab 04, section 14, prints this table.
 """
+
 import numpy as np
 
 from kfkit import filters
@@ -24,8 +25,13 @@ def main():
     table["kfkit's MEKF"] = mekf
     print(f"{'total (heading / inclination) RMSE, °':50s}" + "".join(f"{n[3:]:>28s}" for n in lab04.REAL_TRIALS))
     for label, row in table.items():
-        print(f"{label:50s}" + "".join(f"{row[n]['total']:10.2f} ({row[n]['heading']:5.2f} / {row[n]['inclination']:5.2f})"
-                                       for n in lab04.REAL_TRIALS))
+        print(
+            f"{label:50s}"
+            + "".join(
+                f"{row[n]['total']:10.2f} ({row[n]['heading']:5.2f} / {row[n]['inclination']:5.2f})"
+                for n in lab04.REAL_TRIALS
+            )
+        )
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """Lab 01 notebooks for the grading tests, built from the solution: whole, reduced to its exercise functions, or
 edited (a loop put in, a cell added)."""
+
 import nbformat
 
 from kfkit.paths import KIT_ROOT

@@ -5,6 +5,7 @@ are only backstops, for code that waits without computing.
 Oracles: what the test's own processes allocate, the kernel's own accounting of a reaped child's CPU time
 (``resource.getrusage(RUSAGE_CHILDREN)``), and, for the busy machine, the same grading judged by the wall clock.
 """
+
 import csv
 import functools
 import os
@@ -17,10 +18,10 @@ import time
 import nbformat
 import psutil
 import pytest
-
-from kfkit.grading import core, resources, runner, sandbox
 from lab01_notebooks import edit, minimal
 from waiting import HANG_GUARD_S
+
+from kfkit.grading import core, resources, runner, sandbox
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
@@ -139,8 +140,10 @@ def grade_cells(tmp_path, cells, **limits):
     box = sandbox.probe([str(tmp_path)])
     if box.mode == "none":
         pytest.skip(f"no isolation possible here: {box.warning}")
-    nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_markdown_cell("## 1. Roll from the accelerometer")] +
-                                  [nbformat.v4.new_code_cell(c) for c in cells])
+    nb = nbformat.v4.new_notebook(
+        cells=[nbformat.v4.new_markdown_cell("## 1. Roll from the accelerometer")]
+        + [nbformat.v4.new_code_cell(c) for c in cells]
+    )
     path = tmp_path / "student.ipynb"
     nbformat.write(nb, path)
     limits = core.Limits(cell_timeout=SAFETY, total_timeout=4 * SAFETY, **limits)
@@ -209,24 +212,31 @@ def test_a_busy_loop_ignoring_the_interrupt_loses_its_kernel(box):
     """Interrupted after its 1 s of CPU, it burns on: once it has used INTERRUPT_GRACE_CPU more, the kernel is killed,
     restarted, and the notebook replayed without it."""
     run = run_cells(box, [IGNORING, "after = 1"], cell_timeout=1, wall_factor=100)
-    assert run.cell_notes == {0: "timed out after 1 s and ignored the interrupt; the kernel was restarted and this "
-                                 "cell skipped"}
+    assert run.cell_notes == {
+        0: "timed out after 1 s and ignored the interrupt; the kernel was restarted and this cell skipped"
+    }
     assert run.restarts == 1 and 1 in run.spent  # the next cell ran, in the new kernel
     grace = 1 + runner.INTERRUPT_GRACE_CPU
     assert grace < run.spent[0][0] < grace + 1.5, run.spent
 
 
-@pytest.mark.parametrize("loop, factor, why", [
-    (BUSY, 100, r"the submission used up its total time \(1 s\)"),
-    (SLEEPING, 2, r"the submission did not finish: used \d+\.\d s of CPU in 2 s \(the wall-clock backstop\)")],
-    ids=["busy: CPU time", "sleeping: the backstop"])
+@pytest.mark.parametrize(
+    "loop, factor, why",
+    [
+        (BUSY, 100, r"the submission used up its total time \(1 s\)"),
+        (SLEEPING, 2, r"the submission did not finish: used \d+\.\d s of CPU in 2 s \(the wall-clock backstop\)"),
+    ],
+    ids=["busy: CPU time", "sleeping: the backstop"],
+)
 def test_the_total_is_cpu_time_with_a_wall_clock_backstop(box, loop, factor, why):
     """1 s of CPU in all, the backstop ``factor`` × that: the loop takes the lot, the next cell is not run, nor any
     call."""
     limits = core.Limits(cell_timeout=5, total_timeout=1, wall_factor=factor)
     with runner.KernelRun([loop, "after = 1"], box, limits) as run:
         run.run_notebook()
-        assert run.cell_notes[1].startswith("not run: the notebook had used its share of the total time"), run.cell_notes
+        assert run.cell_notes[1].startswith("not run: the notebook had used its share of the total time"), (
+            run.cell_notes
+        )
         with pytest.raises(runner.OutOfTime, match=why):
             run.call("accel_roll", [{"ay": 0.0, "az": -9.81}])
 
@@ -258,16 +268,35 @@ def test_a_busy_machine_fails_nobody_where_the_wall_clock_judge_did(tmp_path, bo
     subs.mkdir()
     nbformat.write(edit(minimal(), "return np.arctan2(-ay, -az)", SLOW_BUT_RIGHT), subs / "slow_but_right.ipynb")
     pin = functools.partial(os.sched_setaffinity, 0, {min(os.sched_getaffinity(0))})
-    command = [sys.executable, "-m", "kfkit", "grade", "--lab", "01", "--jobs", "1", "--timeout", "1",
-               *(["--no-sandbox"] if box.mode == "none" else [])]
-    burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=pin, start_new_session=True)
-               for _ in range(BURNERS)]
+    command = [
+        sys.executable,
+        "-m",
+        "kfkit",
+        "grade",
+        "--lab",
+        "01",
+        "--jobs",
+        "1",
+        "--timeout",
+        "1",
+        *(["--no-sandbox"] if box.mode == "none" else []),
+    ]
+    burners = [
+        subprocess.Popen([sys.executable, "-c", "while True: pass"], preexec_fn=pin, start_new_session=True)
+        for _ in range(BURNERS)
+    ]
     graders = []
     try:
         for rule, extra in (("cpu", []), ("wall", ["--wall-factor", "1"])):
-            graders.append(subprocess.Popen(command + ["--out", str(tmp_path / f"{rule}.csv"), *extra, str(subs)],
-                                            preexec_fn=pin, stdout=subprocess.DEVNULL,
-                                            stderr=open(tmp_path / f"{rule}.log", "w")))
+            with open(tmp_path / f"{rule}.log", "w") as log:  # the grader writes to its own copy of the file
+                graders.append(
+                    subprocess.Popen(
+                        command + ["--out", str(tmp_path / f"{rule}.csv"), *extra, str(subs)],
+                        preexec_fn=pin,
+                        stdout=subprocess.DEVNULL,
+                        stderr=log,
+                    )
+                )
         for grader in graders:
             grader.wait(timeout=HANG_GUARD_S)
     finally:
@@ -279,6 +308,7 @@ def test_a_busy_machine_fails_nobody_where_the_wall_clock_judge_did(tmp_path, bo
     assert len(by_cpu) == 5
     control = by_wall["01.accel_roll"]
     assert control["status"] == "timed out", control
-    used = re.fullmatch(r"accel_roll did not finish: used (\d+\.\d) s of CPU in 1 s on the grader's cases",
-                        control["message"])
+    used = re.fullmatch(
+        r"accel_roll did not finish: used (\d+\.\d) s of CPU in 1 s on the grader's cases", control["message"]
+    )
     assert used and float(used[1]) < 1, control

@@ -2,6 +2,7 @@
 two Gaussians (a numerical integral), the q of a time constant (filterpy's gain), q = N²Δt (Van Loan, allantools),
 what tuning adds (the simulator with its bias walk switched off), the bias's mean error (issue 25 item 6) and the
 simulation against the real IMU (issue 25 item 5)."""
+
 import functools
 
 import numpy as np
@@ -43,7 +44,13 @@ def test_the_q_the_time_constant_checkpoint_expects_gives_that_time_constant_in_
     for case in get("01.q_for_time_constant").cases(np.random.default_rng(5))[:6]:
         tau, dt, r = case.args["tau"], case.args["dt"], case.args["r"]
         kf = KalmanFilter(dim_x=1, dim_z=1)
-        kf.F, kf.H, kf.Q, kf.R, kf.P = np.eye(1), np.eye(1), np.array([[case.expected]]), np.array([[r]]), np.array([[r]])
+        kf.F, kf.H, kf.Q, kf.R, kf.P = (
+            np.eye(1),
+            np.eye(1),
+            np.array([[case.expected]]),
+            np.array([[r]]),
+            np.array([[r]]),
+        )
         for _ in range(int(50 * tau / dt) + 100):
             kf.predict()
             kf.update(np.zeros(1))
@@ -74,7 +81,7 @@ def test_the_density_lab_01_uses_is_lab_02s_calibration_or_for_the_real_imu_alla
     taus, adev, *_ = allantools.oadev(rest.body("gyr")[:, 0], rate=rest.rate_hz, data_type="freq", taus=np.array([1.0]))
     N, source = lab01.roll_gyro_density(lab01.real_excerpt())
     assert N == pytest.approx(adev[0], rel=0.01) and "lab 02" in source
-    assert np.degrees(N) * 1e3 == pytest.approx(5.75, abs=0.01)           # section 10's table
+    assert np.degrees(N) * 1e3 == pytest.approx(5.75, abs=0.01)  # section 10's table
 
 
 # --- section 7: what tuning adds beyond the sensor's noise -----------------------------------------------------------
@@ -111,8 +118,9 @@ def test_tuning_adds_the_bias_and_its_walk_and_without_the_walk_the_best_q_is_th
     rest, dt = rec.t < SIM_REST, 1 / rec.rate_hz
     gyro = rec.body("gyr")[:, 0] - rec.body("gyr")[rest, 0].mean()
     z = np.unwrap(np.arctan2(-rec.body("acc")[:, 1], -rec.body("acc")[:, 2]))
-    at_q_N = metrics.angle_rmse_deg(filters.roll_kf(gyro, z, dt, q_N, z[rest].var(), z[rest].mean(), P0=z[rest].var()).x,
-                                    rec["true_roll"])
+    at_q_N = metrics.angle_rmse_deg(
+        filters.roll_kf(gyro, z, dt, q_N, z[rest].var(), z[rest].mean(), P0=z[rest].var()).x, rec["true_roll"]
+    )
     assert at_q_N < 1.05 * best
 
 
@@ -127,7 +135,7 @@ def test_the_bias_wanders_from_0_30_to_0_21_deg_per_s_with_mean_0_25():
 
 
 # --- section 11: the bias's error, measured (issue 25 item 6) --------------------------------------------------------
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _bundled():
     """The bundled recording through the lab's sections 3–8 (raw gyro, the best q of section 7's sweep)."""
     rec = datasets.load("01_roll_sine")
@@ -135,8 +143,11 @@ def _bundled():
     gyro, z = rec.body("gyr")[:, 0], np.unwrap(np.arctan2(-rec.body("acc")[:, 1], -rec.body("acc")[:, 2]))
     x0, r = z[rest].mean(), z[rest].var()
     qs = np.logspace(-12, -2, 41)
-    q = qs[np.argmin([metrics.angle_rmse_deg(filters.roll_kf(gyro, z, dt, q, r, x0, P0=r).x, rec["true_roll"])
-                      for q in qs])]
+    q = qs[
+        np.argmin(
+            [metrics.angle_rmse_deg(filters.roll_kf(gyro, z, dt, q, r, x0, P0=r).x, rec["true_roll"]) for q in qs]
+        )
+    ]
     return {"rec": rec, "gyro": gyro, "z": z, "r": r, "q": q, "x": filters.roll_kf(gyro, z, dt, q, r, x0, P0=r).x}
 
 
@@ -154,11 +165,11 @@ def test_the_tuned_filters_mean_error_is_0_16_deg_not_the_0_38_a_constant_bias_w
     K = filters.roll_kf_steady_state(b["q"], b["r"])[1]
     at_rest = np.degrees(b["gyro"][rest].mean() * dt * (1 - K) / K)
     assert at_rest == pytest.approx(0.38, abs=0.005)
-    assert at_rest**2 > np.mean(err**2)                     # a constant 0.38° alone exceeds the RMSE
+    assert at_rest**2 > np.mean(err**2)  # a constant 0.38° alone exceeds the RMSE
     accel_mean = np.degrees(metrics.angle_error(b["z"], truth)).mean()
     assert accel_mean == pytest.approx(-0.16, abs=0.005)
-    b_y = -rec.meta["sim"]["accel_bias"][1]                  # body y = −sensor y (M_bs = diag(1, −1, −1))
-    assert b_y / frames.G * 1e3 == pytest.approx(3.0, abs=0.05)     # 3 mg
+    b_y = -rec.meta["sim"]["accel_bias"][1]  # body y = −sensor y (M_bs = diag(1, −1, −1))
+    assert b_y / frames.G * 1e3 == pytest.approx(3.0, abs=0.05)  # 3 mg
     assert accel_mean == pytest.approx(-np.degrees(np.arctan2(b_y, frames.G)), abs=0.02)
     gyro_error = b["gyro"] - np.gradient(truth, dt)
     predicted = np.degrees(gyro_error.mean() * dt * (1 - K) / K) + accel_mean
@@ -175,7 +186,7 @@ def test_four_times_q_with_four_times_r_gives_the_same_estimates_sample_for_samp
     np.testing.assert_allclose(four, one, rtol=0, atol=1e-12)
 
 
-# --- question 5: ‖f‖ − g and the sideways shakes -----------------------------------------------------------------------
+# --- question 5: ‖f‖ − g and the sideways shakes -------------------------------------------------------------------
 def test_norm_minus_g_hardly_sees_the_sideways_shakes_that_tilt_the_accelerometer_roll_by_12_deg():
     b = _bundled()
     rec = b["rec"]
@@ -183,8 +194,13 @@ def test_norm_minus_g_hardly_sees_the_sideways_shakes_that_tilt_the_acceleromete
     shakes = np.any([(t >= t0) & (t < t1) for t0, t1 in lab01.SHAKES], axis=0)
     others = (t >= SIM_REST) & ~shakes
     excess = np.abs(np.linalg.norm(rec.body("acc"), axis=1) - frames.G)
-    rms = lambda x: np.sqrt(np.mean(x**2))
-    assert rms(excess[shakes]) == pytest.approx(0.46, abs=0.005) and rms(excess[others]) == pytest.approx(0.31, abs=0.005)
+
+    def rms(x):
+        return np.sqrt(np.mean(x**2))
+
+    assert rms(excess[shakes]) == pytest.approx(0.46, abs=0.005) and rms(excess[others]) == pytest.approx(
+        0.31, abs=0.005
+    )
     assert np.sqrt(frames.G**2 + 3.0**2) - frames.G == pytest.approx(0.45, abs=0.005)
     assert np.degrees(np.arctan(3.0 / frames.G)) == pytest.approx(17.0, abs=0.05)
     assert metrics.angle_rmse_deg(b["z"][shakes], rec["true_roll"][shakes]) == pytest.approx(12.2, abs=0.05)
@@ -192,14 +208,20 @@ def test_norm_minus_g_hardly_sees_the_sideways_shakes_that_tilt_the_acceleromete
     assert np.mean(excess[others] > 0.33) == pytest.approx(0.29, abs=0.005)
 
 
-# --- section 10: the simulation against the real IMU (issue 25 item 5) ---------------------------------------------------
+# --- section 10: the simulation against the real IMU (issue 25 item 5) ---------------------------------------------
 @pytest.fixture(scope="module")
 def side_by_side():
-    accel_roll = lambda ay, az: np.arctan2(-ay, -az)
-    run_kf = lambda *args, **kw: (filters.roll_kf(*args, **kw).x,)     # the recipe reads x only
+    def accel_roll(ay, az):
+        return np.arctan2(-ay, -az)
+
+    def run_kf(*args, **kw):
+        return (filters.roll_kf(*args, **kw).x,)  # the recipe reads x only
+
     sim_rec, real = datasets.load("01_roll_sine"), lab01.real_excerpt()
-    cases = {"sim": (sim_rec, sim_rec.t < SIM_REST, sim_rec.t >= SIM_REST),
-             "real": (real, real.phase("rest"), real.phase("movement"))}
+    cases = {
+        "sim": (sim_rec, sim_rec.t < SIM_REST, sim_rec.t >= SIM_REST),
+        "real": (real, real.phase("rest"), real.phase("movement")),
+    }
     return {name: (*case, lab01.recipe(*case[:2], accel_roll, run_kf)) for name, case in cases.items()}
 
 
@@ -208,10 +230,11 @@ def test_across_gravity_is_the_specific_force_less_the_gravity_scipy_puts_in_the
     seen = ~np.isnan(rec["true_roll"]) & ~np.isnan(rec["true_pitch"]) & ~np.isnan(rec["true_yaw"])
     angles = np.column_stack([rec["true_yaw"], rec["true_pitch"], rec["true_roll"]])[seen]
     R_nb = Rotation.from_euler("ZYX", angles)
-    a_b = rec.body("acc")[seen] + R_nb.inv().apply([0.0, 0.0, frames.G])          # f_b = R_bn (a_n − g_n)
+    a_b = rec.body("acc")[seen] + R_nb.inv().apply([0.0, 0.0, frames.G])  # f_b = R_bn (a_n − g_n)
     phi = rec["true_roll"][seen]
-    np.testing.assert_allclose(lab01.across_gravity(rec)[seen], a_b[:, 1] * np.cos(phi) - a_b[:, 2] * np.sin(phi),
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        lab01.across_gravity(rec)[seen], a_b[:, 1] * np.cos(phi) - a_b[:, 2] * np.sin(phi), atol=1e-9
+    )
 
 
 @pytest.mark.slow
@@ -221,7 +244,7 @@ def test_the_real_filters_short_time_constant_comes_from_r_not_from_q(side_by_si
     (sim_rec, *_, s), (real, *_, r) = side_by_side["sim"], side_by_side["real"]
     assert s.r / r.r == pytest.approx(125, rel=0.01)
     assert np.degrees(np.sqrt([s.r, r.r])) == pytest.approx([1.81, 0.16], abs=0.005)
-    assert s.q_best / r.q_best == pytest.approx(np.sqrt(10), rel=1e-9)           # a half decade of the sweep's grid
+    assert s.q_best / r.q_best == pytest.approx(np.sqrt(10), rel=1e-9)  # a half decade of the sweep's grid
     tau = lab01.time_constant
     assert [tau(s.q_best, s.r, sim_rec), tau(r.q_best, r.r, real)] == pytest.approx([2.28, 0.38], abs=0.005)
     assert [tau(s.q_best, r.r, sim_rec), tau(r.q_best, s.r, real)] == pytest.approx([0.21, 4.21], abs=0.005)
@@ -230,12 +253,16 @@ def test_the_real_filters_short_time_constant_comes_from_r_not_from_q(side_by_si
 
 @pytest.mark.slow
 def test_the_simulated_shakes_are_sideways_and_the_real_accelerometer_roll_is_the_better_one(side_by_side):
-    rms = lambda x: np.sqrt(np.nanmean(np.square(x)))
+    def rms(x):
+        return np.sqrt(np.nanmean(np.square(x)))
+
     got = {}
-    for name, (rec, rest, moving, run) in side_by_side.items():
-        got[name] = (rms(np.linalg.norm(rec.body("acc")[moving], axis=1) - frames.G),
-                     rms(lab01.across_gravity(rec)[moving]),
-                     metrics.angle_rmse_deg(run.estimates["accel only"][0][moving], rec["true_roll"][moving]))
+    for name, (rec, _rest, moving, run) in side_by_side.items():
+        got[name] = (
+            rms(np.linalg.norm(rec.body("acc")[moving], axis=1) - frames.G),
+            rms(lab01.across_gravity(rec)[moving]),
+            metrics.angle_rmse_deg(run.estimates["accel only"][0][moving], rec["true_roll"][moving]),
+        )
     assert got["sim"] == pytest.approx((0.33, 0.77, 4.37), abs=0.005)
     assert got["real"] == pytest.approx((0.53, 0.43, 2.54), abs=0.005)
 
@@ -261,4 +288,3 @@ def test_the_text_quotes_the_measurements_printed_beside_it():
     for value in taus + swapped:
         assert f"{value} s" in tuning, value
     assert "errs faster" not in tuning and "*smaller*" in tuning
-

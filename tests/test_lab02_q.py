@@ -1,16 +1,17 @@
 """Lab 02's Q from the noise it measures (issue 26 §3): the claims its text and answers make, each against an oracle
 outside the lab's code (Van Loan's matrix exponential, scipy's unit constants, Monte Carlo rests of the simulator's
 noise model), and the calibration it saves for labs 04 and 05 carrying the gyro's N and K."""
+
 import numpy as np
 import pytest
 from scipy import constants
+from test_checkpoints_every import solution_namespace
 
 from kfkit import calibration as C
 from kfkit import datasets, discrete, sim
 from kfkit.io import save_recording
 from kfkit.labs import lab02
 from kfkit.unit_errors import NUCLEO_UNIT
-from test_checkpoints_every import solution_namespace
 
 ANGLE_BIAS_A = [[0.0, -1.0], [0.0, 0.0]]  # θ̇ = ω_m − b − n_g, ḃ = n_b
 
@@ -102,6 +103,7 @@ def test_the_calibration_lab_02_saves_from_your_own_rest_carries_n_and_k(tmp_pat
     """A student's own 20-minute rest (the bundled unit, another seed) through the solution: the saved file holds the
     K the Allan fit reads on that rest, not 0, and N as σ at the filter's rate; lab 04 loads both."""
     from test_calibration_labs import run_solution_on
+
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
     unit = {k: (np.asarray(v) if k == "mag_soft_iron" else v) for k, v in NUCLEO_UNIT.items()}
     motion = sim.stationary(1200.0, datasets.STATIONARY_RATE_HZ)

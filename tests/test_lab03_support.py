@@ -3,11 +3,13 @@
 The level formula's error on the tilted rests has the same RMS with and without the calibration; the lab says that is
 a coincidence, because the calibration moves the error at every rest. Measured here with the library's own level
 heading and fit (not the notebook's), so the claim holds whatever the student writes."""
+
 import numpy as np
 import pytest
 
 from kfkit import calibration, datasets, frames
-from kfkit.checkpoints import get, lab03 as checkpoints_lab03, run_checkpoint
+from kfkit.checkpoints import get, run_checkpoint
+from kfkit.checkpoints import lab03 as checkpoints_lab03
 from kfkit.labs import lab03
 
 #: the level formula's error (°) at each tilted rest of 03_headings, in time order (issue 25 §8, measured)
@@ -30,13 +32,15 @@ def test_the_level_formulas_equal_rms_hides_per_rest_errors_that_differ_by_15_to
     yaw = rec["true_yaw"]
     rms = {name: np.degrees(np.sqrt(np.mean(frames.wrap_angle(psi - yaw[tilted]) ** 2))) for name, psi in level.items()}
     assert abs(rms["raw"] - rms["calibrated"]) < 0.1 and 59 < rms["raw"] < 62, rms  # the table's 60.3° twice
-    per_rest = {name: lab03.rest_errors_deg(rec, psi, yaw, "heading_tilted", rows=tilted) for name, psi in level.items()}
+    per_rest = {
+        name: lab03.rest_errors_deg(rec, psi, yaw, "heading_tilted", rows=tilted) for name, psi in level.items()
+    }
     np.testing.assert_allclose(per_rest["raw"], LEVEL_RAW, atol=0.5)
     np.testing.assert_allclose(per_rest["calibrated"], LEVEL_CALIBRATED, atol=0.5)
     moved = np.abs(np.degrees(frames.wrap_angle(np.radians(per_rest["calibrated"] - per_rest["raw"]))))
-    assert np.all(moved > 15), moved                                   # the calibration moves every rest's error
-    assert np.sum((moved > 15) & (moved < 32)) == 5 and moved[3] > 140, moved   # 16–31° at five rests, 150° at one
-    assert np.sum(np.abs(per_rest["calibrated"]) < np.abs(per_rest["raw"])) == 3   # smaller at half, larger at half
+    assert np.all(moved > 15), moved  # the calibration moves every rest's error
+    assert np.sum((moved > 15) & (moved < 32)) == 5 and moved[3] > 140, moved  # 16–31° at five rests, 150° at one
+    assert np.sum(np.abs(per_rest["calibrated"]) < np.abs(per_rest["raw"])) == 3  # smaller at half, larger at half
     # the fourth rest: the leaked vertical field nearly cancels the horizontal one in the calibrated (m_x, m_y)
     fourth = lab03.rests(rec, "heading_tilted")[3]
     inside = tilted & (rec.t >= fourth[0]) & (rec.t < fourth[1])
@@ -67,8 +71,9 @@ def test_the_hard_iron_budget_is_the_worst_heading_error_a_hard_iron_of_that_len
     for case in cases:
         north, east, _ = case.args["field_ned"]
         h = case.expected * np.stack([np.cos(turn), np.sin(turn)], axis=1)
-        worst = np.degrees(np.max(np.abs(frames.wrap_angle(np.arctan2(east + h[:, 1], north + h[:, 0])
-                                                           - np.arctan2(east, north)))))
+        worst = np.degrees(
+            np.max(np.abs(frames.wrap_angle(np.arctan2(east + h[:, 1], north + h[:, 0]) - np.arctan2(east, north))))
+        )
         assert worst == pytest.approx(case.args["max_error_deg"], abs=1e-6), case.label
 
 

@@ -2,6 +2,7 @@
 
 Oracles: χ² bounds of a 20-run average NEES (scipy, through metrics.chi2_bounds) and the simulations' own truth.
 """
+
 import numpy as np
 import pytest
 
@@ -21,8 +22,11 @@ def tour():
 def moving_median_and_inside(avg_nees, motion, label=None):
     t = motion.t[1:]
     lo, hi = metrics.chi2_bounds(3, RUNS)
-    mask = ((t >= 5.0) & (t < 57.0)) if label is None else np.any(
-        [(t >= a) & (t < b) for a, b, name in motion.phases if name == label], axis=0)
+    mask = (
+        ((t >= 5.0) & (t < 57.0))
+        if label is None
+        else np.any([(t >= a) & (t < b) for a, b, name in motion.phases if name == label], axis=0)
+    )
     return np.median(avg_nees[mask]), ((avg_nees >= lo) & (avg_nees <= hi)).mean(), (lo, hi)
 
 
@@ -46,9 +50,16 @@ def phone():
     field = np.array(rec.meta["sim"]["field_n"])
 
     def rmse(gyro_noise, accel_noise, mag_noise):
-        run = filters.FastEulerAttitudeEKF(rate_hz=rec.rate_hz, field_n=field, accel_gate=1.0, gyro_noise=gyro_noise,
-                                           accel_noise=accel_noise, mag_noise=mag_noise).run(lab04.midpoint_rates(gyr), acc, mag)
+        run = filters.FastEulerAttitudeEKF(
+            rate_hz=rec.rate_hz,
+            field_n=field,
+            accel_gate=1.0,
+            gyro_noise=gyro_noise,
+            accel_noise=accel_noise,
+            mag_noise=mag_noise,
+        ).run(lab04.midpoint_rates(gyr), acc, mag)
         return run, metrics.angle_rmse_deg(run.euler, rec.truth())
+
     return rec, (gyr, acc, mag), rmse
 
 
@@ -67,9 +78,19 @@ def test_the_nis_recipe_without_truth_makes_both_sensors_consistent_in_motion_an
     np.testing.assert_allclose(sigmas, [np.radians(0.07), 0.0147, 0.3], rtol=0.1)  # the phone model's noise
 
     def table(run):
-        return lab04.nis_table(run, phases, lambda y, S, rows, samples: metrics.nis(
-            y[samples & ~np.isnan(y[:, rows]).any(axis=1)][:, rows],
-            S[samples & ~np.isnan(y[:, rows]).any(axis=1)][:, rows][:, :, rows]).mean() / len(rows), out=lambda *_: None)
+        return lab04.nis_table(
+            run,
+            phases,
+            lambda y, S, rows, samples: (
+                metrics.nis(
+                    y[samples & ~np.isnan(y[:, rows]).any(axis=1)][:, rows],
+                    S[samples & ~np.isnan(y[:, rows]).any(axis=1)][:, rows][:, :, rows],
+                ).mean()
+                / len(rows)
+            ),
+            out=lambda *_: None,
+        )
+
     run, measured_rmse = rmse(*sigmas)
     first = table(run)
     assert first["accelerometer"]["moving"] > 100 and first["accelerometer"]["at rest"] > 2  # overconfident
@@ -95,14 +116,28 @@ def test_rest_is_found_without_labels_where_the_simulation_rested(phone):
 def test_on_broad_06_the_discretisation_is_the_main_cause_and_its_samples_want_the_end_of_step_rate():
     # section 14: 5 substeps take the lab's filter from 18.33° to 7.12° on 06 whole; fed ω_k it scores 15.86°
     from kfkit.frames import euler_to_quat
+
     rec, gyr, acc, mag, field, q_true, moving = lab04.to_movement_end("04_broad_fast_rotation")
-    lab, substeps = (metrics.attitude_rmse(euler_to_quat(lab04.ablation_run(v, gyr, acc, mag, rec.rate_hz, field)),
-                                           q_true, moving)["total"] for v in lab04.ABLATION[:2])
+    lab, substeps = (
+        metrics.attitude_rmse(euler_to_quat(lab04.ablation_run(v, gyr, acc, mag, rec.rate_hz, field)), q_true, moving)[
+            "total"
+        ]
+        for v in lab04.ABLATION[:2]
+    )
     assert lab > 2.0 * substeps
 
     def kfkit_total(rates):
-        run = filters.FastEulerAttitudeEKF(rate_hz=rec.rate_hz, field_n=field, accel_gate=1.0, gyro_noise=np.radians(0.3),
-                                           accel_noise=0.3, mag_noise=1.0).run(rates, acc, mag)
+        run = filters.FastEulerAttitudeEKF(
+            rate_hz=rec.rate_hz,
+            field_n=field,
+            accel_gate=1.0,
+            gyro_noise=np.radians(0.3),
+            accel_noise=0.3,
+            mag_noise=1.0,
+        ).run(rates, acc, mag)
         return metrics.attitude_rmse(euler_to_quat(run.euler), q_true, moving)["total"]
+
     assert kfkit_total(gyr) < kfkit_total(lab04.midpoint_rates(gyr))
-    assert kfkit_total(lab04.midpoint_rates(gyr)) == pytest.approx(lab, rel=1e-3)  # the ablation's first row is the lab's
+    assert kfkit_total(lab04.midpoint_rates(gyr)) == pytest.approx(
+        lab, rel=1e-3
+    )  # the ablation's first row is the lab's

@@ -3,6 +3,7 @@
 Oracle: rotations composed by scipy (``Rotation.from_rotvec``), independent of kfkit's quaternion code: the
 derivation's error δθ is a body-frame rotation, R_true = R·Exp(δθ).
 """
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -30,8 +31,9 @@ def test_the_reference_vector_jacobian_is_the_cross_product_matrix_of_the_body_v
     rng = np.random.default_rng(seed)
     R, v_n = Rotation.random(random_state=seed).as_matrix(), rng.normal(0.0, 10.0, 3)
     eps = 1e-6
-    fd = np.column_stack([((R @ exp_so3(eps * e)).T @ v_n - (R @ exp_so3(-eps * e)).T @ v_n) / (2 * eps)
-                          for e in np.eye(3)])
+    fd = np.column_stack(
+        [((R @ exp_so3(eps * e)).T @ v_n - (R @ exp_so3(-eps * e)).T @ v_n) / (2 * eps) for e in np.eye(3)]
+    )
     np.testing.assert_allclose(fd, skew(R.T @ v_n), atol=1e-6)
 
 

@@ -1,12 +1,13 @@
 """Lab 04b's support code (kfkit.labs.lab04b) against independent oracles: its BROAD inputs are lab 04's, the error
 state's finite differences are scipy's, and the reset's J = diag(I − [δθ/2 ×], I) is the derivative of the new error
 with respect to the old one, by finite differences of scipy's rotations."""
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from kfkit.checkpoints.lab04 import real_inputs
 from kfkit.labs import lab04b
+from kfkit.labs.lab04 import real_inputs
 
 
 def scalar_first(r):
@@ -29,9 +30,13 @@ def test_error_state_finite_differences_turn_on_the_right():
     q = scalar_first(Rotation.from_euler("ZYX", [1.0, -0.2, 0.3]))
     h = lambda p: Rotation.from_quat(p[[1, 2, 3, 0]]).inv().apply(lab04b.UP_N)
     eps = 1e-6
-    expected = np.column_stack([(Rotation.from_quat(q[[1, 2, 3, 0]]) * Rotation.from_rotvec(e)).inv().apply(lab04b.UP_N)
-                                - (Rotation.from_quat(q[[1, 2, 3, 0]]) * Rotation.from_rotvec(-e)).inv().apply(lab04b.UP_N)
-                                for e in np.eye(3) * eps]) / (2 * eps)
+    expected = np.column_stack(
+        [
+            (Rotation.from_quat(q[[1, 2, 3, 0]]) * Rotation.from_rotvec(e)).inv().apply(lab04b.UP_N)
+            - (Rotation.from_quat(q[[1, 2, 3, 0]]) * Rotation.from_rotvec(-e)).inv().apply(lab04b.UP_N)
+            for e in np.eye(3) * eps
+        ]
+    ) / (2 * eps)
     assert np.allclose(lab04b.error_state_fd(h, q), expected, atol=1e-8)
     assert np.allclose(lab04b.accel_jacobian(q)[:, :3], expected, atol=1e-6)
 
@@ -49,5 +54,5 @@ def test_the_reset_jacobian_is_the_derivative_of_the_new_error():
     J_reset = np.eye(3) - lab04b.cross_matrix(d_hat / 2)
     assert np.allclose(J, J_reset @ J_reset.T)
     size = np.linalg.norm(d_hat)
-    assert np.abs(derivative - J_reset).max() < 0.25 * size ** 2  # the second-order terms the reset leaves out
+    assert np.abs(derivative - J_reset).max() < 0.25 * size**2  # the second-order terms the reset leaves out
     assert np.abs(derivative - (np.eye(3) + lab04b.cross_matrix(d_hat / 2))).max() > 0.3 * size

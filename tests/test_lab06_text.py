@@ -5,20 +5,20 @@ Oracles: scipy's rotations for the accelerometer on a bank, a force balance for 
 magic formula's own definition (slope B·C·D at 0, peak D = μ F_z) for what friction changes; the race-track log's
 measured β for the claims of sections 11–12 and the model answers about µ and trust.
 """
+
 import functools
 
 import nbformat
 import numpy as np
 import pytest
+from handouts import NEEDS, NOTE, execute, half_done, printed, stubs
 from scipy.spatial.transform import Rotation
 
-from handouts import NEEDS, NOTE, execute, half_done, printed, stubs
 from kfkit import datasets, vehicle
 from kfkit.filters import estimate_sideslip
-from kfkit.labs import lab06
 from kfkit.frames import G
+from kfkit.labs import lab06
 from kfkit.paths import KIT_ROOT
-from waiting import HANG_GUARD_S
 
 BANK = np.radians(3.0)
 CAR = vehicle.BicycleParams()
@@ -29,7 +29,7 @@ def test_the_accelerometer_on_a_bank_reads_toward_the_high_side():
     ISO signals take a_y = −f_y (y left): +g sin 3°, toward the high side, as the road's push tilted with the car."""
     R_nb = Rotation.from_euler("ZYX", [0.0, 0.0, BANK]).as_matrix()
     f_b = R_nb.T @ np.array([0.0, 0.0, -G])
-    assert f_b[1] == pytest.approx(-G * np.sin(BANK), rel=1e-12)      # FRD y points right: the reading is to the left
+    assert f_b[1] == pytest.approx(-G * np.sin(BANK), rel=1e-12)  # FRD y points right: the reading is to the left
     a_y_iso = -f_b[1]
     assert a_y_iso == pytest.approx(0.5132, abs=1e-4) and a_y_iso > 0  # ISO y left = the high side
 
@@ -61,7 +61,7 @@ def test_on_a_banked_straight_the_plain_filter_finds_the_real_sideslip_and_the_b
 def test_friction_sets_the_tyre_s_peak_not_its_cornering_stiffness(mu):
     """Ice (μ ≈ 0.1) leaves the initial slope C_α where it is and cuts the peak μ F_z, so the linear range (force
     within 5 % of C_α·α) shrinks by the same factor: ~4.8 m/s² of a_y on dry road, ~0.48 m/s² on ice."""
-    load = CAR.m * G * CAR.a / (CAR.a + CAR.b)            # rear axle, N
+    load = CAR.m * G * CAR.a / (CAR.a + CAR.b)  # rear axle, N
     tyre = vehicle.MagicFormula.for_axle(CAR.Cr, load, mu)
     h = 1e-7
     assert (tyre.force(h) - tyre.force(-h)) / (2 * h) == pytest.approx(CAR.Cr, rel=1e-6)
@@ -101,7 +101,7 @@ def test_half_done_the_hand_out_runs_what_the_written_exercise_allows_and_names_
 def test_a_check_on_given_code_that_calls_an_unwritten_exercise_names_the_exercise():
     """06.slalom_rmse checks run_sideslip, which the lab gives complete: "fill in run_sideslip" would send the
     student to the wrong cell; the note names the stub it reached. A stub checked itself is named as before."""
-    from kfkit.checkpoints import run_checkpoint, get
+    from kfkit.checkpoints import get, run_checkpoint
 
     def bicycle_model(params, vx):
         raise NotImplementedError()
@@ -123,7 +123,9 @@ def track():
 
 
 def track_rmse(params, **settings):
-    return lab06.beta_rmse_deg(estimate_sideslip(*lab06.signals(track()), params, **settings).beta, track()["true_beta"])
+    return lab06.beta_rmse_deg(
+        estimate_sideslip(*lab06.signals(track()), params, **settings).beta, track()["true_beta"]
+    )
 
 
 def test_the_log_shows_its_friction_in_sustained_corners_not_in_single_samples():

@@ -5,6 +5,7 @@ leaves room to think: one Questions section at the end whose questions name thei
 in the very next cell: ``tests/test_solutions_layout.py``, for every lab), and a prompt to predict before the key
 figure (lab 01's consistency, lab 02's Allan curve).
 """
+
 import re
 
 import nbformat
@@ -27,7 +28,7 @@ def test_the_solution_loads_the_exercise_guard_right_after_matplotlib(name):
     first = next(c for c in read("solutions", name).cells if c.cell_type == "code")
     lines = first.source.splitlines()
     assert lines[:2] == ["%matplotlib inline", "%load_ext kfkit.exercise_guard"]
-    assert lines[2].startswith("#") and "skipped" in lines[2]         # says what it does, for the student
+    assert lines[2].startswith("#") and "skipped" in lines[2]  # says what it does, for the student
 
 
 @pytest.mark.parametrize("name", LABS)

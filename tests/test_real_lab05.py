@@ -2,18 +2,19 @@
 TiltBiasKF stepped sample by sample (an implementation independent of the textbook loop the lab's helpers run) and
 the left-out rates written out; the lab's section-12 helpers against those oracles; the whole notebook run with
 SOURCE = "real"."""
+
 from dataclasses import replace
 
 import numpy as np
 import pytest
+from waiting import HANG_GUARD_S
 
 from kfkit import datasets, filters
-from kfkit.labs import lab05
 from kfkit.frames import G, accel_tilt, wrap_angle
 from kfkit.io import Recording
+from kfkit.labs import lab05
 from kfkit.paths import KIT_ROOT
 from kfkit.real_data import PASS_HZ, STOP_HZ
-from waiting import HANG_GUARD_S
 
 
 @pytest.fixture(scope="module")
@@ -68,8 +69,10 @@ def test_known_angles_of_a_real_recording_are_the_motion_capture_in_its_rests(re
 
 def test_known_angles_without_protocol_or_truth_say_what_is_missing():
     still = datasets.load("05_stationary")
-    rec = Recording(dict(still.meta, phases=[{"label": "rest", "start": 0.0, "end": 5.0}]),
-                    {k: v for k, v in still.data.items() if not k.startswith("true_")})
+    rec = Recording(
+        dict(still.meta, phases=[{"label": "rest", "start": 0.0, "end": 5.0}]),
+        {k: v for k, v in still.data.items() if not k.startswith("true_")},
+    )
     with pytest.raises(KeyError, match="no tilt-protocol phases"):
         lab05.known_angles(rec)
 
@@ -79,7 +82,7 @@ def oracle_run(w, z, ok, left_out, dt, q_angle, r, into):
     taken nearest the prediction, and the left-out rate (rad/s) ``into`` "Q" (q_θ + (c·Δt)² per step), "model"
     (the gyro rate + c) or "none". Returns [angle, bias] (N, 2)."""
     kf = filters.TiltBiasKF(dt, q_angle=q_angle, q_bias=0.0, r=r, accel_gating="skip")
-    kf.reset((z[0], 0.0), np.diag([r, 0.1 ** 2]))
+    kf.reset((z[0], 0.0), np.diag([r, 0.1**2]))
     out = np.empty((len(z), 2))
     for k in range(len(z)):
         if into == "Q":
@@ -94,8 +97,10 @@ def oracle_run(w, z, ok, left_out, dt, q_angle, r, into):
 def left_out_oracle(w, roll, pitch):
     """φ̇ − p and θ̇ − q written out (ZYX Euler kinematics), |θ| ≤ 60° in tan θ."""
     tan_pitch = np.tan(np.clip(pitch, -np.radians(60), np.radians(60)))
-    return (tan_pitch * (w[:, 1] * np.sin(roll) + w[:, 2] * np.cos(roll)),
-            w[:, 1] * (np.cos(roll) - 1.0) - w[:, 2] * np.sin(roll))
+    return (
+        tan_pitch * (w[:, 1] * np.sin(roll) + w[:, 2] * np.cos(roll)),
+        w[:, 1] * (np.cos(roll) - 1.0) - w[:, 2] * np.sin(roll),
+    )
 
 
 def recipe(rec, rest):
@@ -104,7 +109,7 @@ def recipe(rec, rest):
     f, w, dt = rec.body("acc"), rec.body("gyr"), 1.0 / rec.rate_hz
     roll, pitch = accel_tilt(f)
     r = float(np.mean([np.var(a[rest]) for a in (roll, pitch)]))
-    q_angle = float(np.mean(np.std(w[rest, :2], axis=0))) ** 2 * dt ** 2
+    q_angle = float(np.mean(np.std(w[rest, :2], axis=0))) ** 2 * dt**2
     ok = filters.accel_static_ok(f)
     gates = (ok & (np.hypot(f[:, 1], f[:, 2]) >= 0.5 * G), ok)
     return f, w, dt, (roll, pitch), r, q_angle, gates, left_out_oracle(w - np.mean(w[rest], axis=0), roll, pitch)
@@ -131,17 +136,26 @@ def test_section12_1_on_turns_about_one_axis_the_filter_beats_the_accelerometer(
     assert 101.5 < one.t[-1] < 102.5 and np.nanmax(np.abs(one["true_pitch"])) <= lab05.SINGLE_AXIS_MAX_PITCH
     seen = one["true_roll"][~np.isnan(one["true_roll"])]
     upside_down = np.abs(seen) > np.radians(170)
-    assert np.sum(upside_down[1:] & ~upside_down[:-1]) >= 5 and np.ptp(np.unwrap(seen)) > np.radians(300)  # level ↔ upside down
+    assert np.sum(upside_down[1:] & ~upside_down[:-1]) >= 5 and np.ptp(np.unwrap(seen)) > np.radians(
+        300
+    )  # level ↔ upside down
     rest = lab05.in_windows(one, lab05.rest_windows(one))
     f, w, dt, (roll, pitch), _, _, gates, (c_roll, c_pitch) = recipe(one, rest)
     turning = one.phase("movement")
-    assert np.degrees(np.sqrt(np.mean(c_roll[turning] ** 2))) < 4 < 12 < np.degrees(np.sqrt(np.mean(c_pitch[turning] ** 2)))
-    r_roll, q_roll = float(np.var(roll[rest])), (np.std(w[rest, 0]) * dt) ** 2   # the notebook's: roll's own
+    assert (
+        np.degrees(np.sqrt(np.mean(c_roll[turning] ** 2)))
+        < 4
+        < 12
+        < np.degrees(np.sqrt(np.mean(c_pitch[turning] ** 2)))
+    )
+    r_roll, q_roll = float(np.var(roll[rest])), (np.std(w[rest, 0]) * dt) ** 2  # the notebook's: roll's own
     kf = oracle_run(w[:, 0], roll, gates[1], np.zeros(len(roll)), dt, q_roll, r_roll, "none")
     kf_roll, accel_roll = moving_rmse_deg(one, kf[:, 0], 0), moving_rmse_deg(one, roll, 0)
     assert kf_roll < 0.7 * accel_roll, (kf_roll, accel_roll)
     r_pitch, q_pitch = float(np.var(pitch[rest])), (np.std(w[rest, 1]) * dt) ** 2
-    plain, known = (oracle_run(w[:, 1], pitch, gates[1], c_pitch, dt, q_pitch, r_pitch, into)[:, 0] for into in ("none", "model"))
+    plain, known = (
+        oracle_run(w[:, 1], pitch, gates[1], c_pitch, dt, q_pitch, r_pitch, into)[:, 0] for into in ("none", "model")
+    )
     accel_pitch = moving_rmse_deg(one, pitch, 1)
     assert moving_rmse_deg(one, plain, 1) > 3 * accel_pitch and moving_rmse_deg(one, known, 1) < 0.4 * accel_pitch
 
@@ -156,9 +170,14 @@ def test_section12_3_what_tuning_adds_on_turns_about_one_axis_is_the_left_out_ra
     _, w, dt, (roll, _), _, _, gates, (c_roll, _) = recipe(one, rest)
     r, q0 = float(np.var(roll[rest])), (np.std(w[rest, 0]) * dt) ** 2
     ratios = np.arange(0.0, 3.1, 0.5)  # log₁₀(q_θ / N²Δt)
+
     def cost_of(into):
-        return np.array([moving_rmse_deg(one, oracle_run(w[:, 0], roll, gates[1], c_roll, dt, 10 ** a * q0, r, into)[:, 0], 0)
-                         for a in ratios])
+        return np.array(
+            [
+                moving_rmse_deg(one, oracle_run(w[:, 0], roll, gates[1], c_roll, dt, 10**a * q0, r, into)[:, 0], 0)
+                for a in ratios
+            ]
+        )
 
     cost = {into: cost_of(into) for into in ("none", "model")}
     assert 1.5 <= ratios[cost["none"].argmin()] <= 2.5 and cost["none"].min() < 0.75 * cost["none"][0], cost["none"]
@@ -171,8 +190,11 @@ def section12_2(real):
     """Section 12.2's three filters per axis (the recipe on the first rest), run by the oracle."""
     first = lab05.in_windows(real, lab05.rest_windows(real)[:1])
     f, w, dt, angles, r, q_angle, gates, left_out = recipe(real, first)
-    return {(into, name): oracle_run(w[:, i], angles[i], gates[i], left_out[i], dt, q_angle, r, into)
-            for into in ("none", "Q", "model") for i, name in enumerate(("roll", "pitch"))}, angles
+    return {
+        (into, name): oracle_run(w[:, i], angles[i], gates[i], left_out[i], dt, q_angle, r, into)
+        for into in ("none", "Q", "model")
+        for i, name in enumerate(("roll", "pitch"))
+    }, angles
 
 
 def test_section12_2_q_from_the_noise_fails_on_motion_about_all_axes(real, section12_2):
@@ -233,9 +255,11 @@ def test_lab05_section12_helpers_match_the_oracles(real):
     args = (w[window, 0], roll[window], gates[0][window])
     c = left_out[0][window]
     Q = np.diag([q_angle, 0.0])
-    for into, got in (("none", lab05.run_nearest(*args, dt, Q, r)),
-                      ("Q", lab05.run_nearest(*args, dt, Q, r, q_extra=(c * dt) ** 2)),
-                      ("model", lab05.run_nearest(args[0] + c, *args[1:], dt, Q, r))):
+    for into, got in (
+        ("none", lab05.run_nearest(*args, dt, Q, r)),
+        ("Q", lab05.run_nearest(*args, dt, Q, r, q_extra=(c * dt) ** 2)),
+        ("model", lab05.run_nearest(args[0] + c, *args[1:], dt, Q, r)),
+    ):
         np.testing.assert_allclose(got, oracle_run(*args, c, dt, q_angle, r, into), rtol=1e-9, atol=1e-12)
 
 
@@ -250,10 +274,21 @@ def test_lab05_runs_on_the_real_recording():
     nb = nbformat.read(path, as_version=4)
     source = next(c for c in nb.cells if c.cell_type == "code" and c.source.startswith('SOURCE = "bundled"'))
     source.source = source.source.replace('SOURCE = "bundled"', 'SOURCE = "real"', 1)
-    NotebookClient(nb, timeout=HANG_GUARD_S, startup_timeout=HANG_GUARD_S, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}).execute()
+    NotebookClient(
+        nb,
+        timeout=HANG_GUARD_S,
+        startup_timeout=HANG_GUARD_S,
+        kernel_name="python3",
+        resources={"metadata": {"path": str(path.parent)}},
+    ).execute()
     printed = ""
     for cell in nb.cells:
         for out in cell.get("outputs", []):
             assert not (out.output_type == "stream" and out.name == "stderr"), out.text[:300]
             printed += out.get("text", "")
-    assert "BROAD trial 04" in printed and "❌" not in printed and "✅ 05.final" in printed and "c into the model" in printed
+    assert (
+        "BROAD trial 04" in printed
+        and "❌" not in printed
+        and "✅ 05.final" in printed
+        and "c into the model" in printed
+    )

@@ -5,6 +5,7 @@ functions; central finite differences for the Jacobian the checkpoint judges by;
 driven to its limit for the friction bound; a force balance on the magic-formula tyres, solved by scipy, for the
 banked straight.
 """
+
 import math
 
 import numpy as np
@@ -52,7 +53,9 @@ def test_the_ekf_loop_refuses_a_crawl_and_names_the_sample():
     vx = np.full_like(t, 10.0)
     vx[37] = 1.0
     with pytest.raises(ValueError, match=r"vx\[37\] = 1 m/s is below v_min = 2 m/s"):
-        lab06.run_tyre_ekf(t, 0 * t, 0 * t, 0 * t, vx, CAR, kit_tyre_force, reference_jacobian, discretize, sideslip_step)
+        lab06.run_tyre_ekf(
+            t, 0 * t, 0 * t, 0 * t, vx, CAR, kit_tyre_force, reference_jacobian, discretize, sideslip_step
+        )
 
 
 def model_outputs(params, x, delta, vx):
@@ -70,8 +73,12 @@ def test_the_checkpoints_jacobian_is_the_models_derivative(seed):
         x, delta, vx = random_tyre_state(rng, params)
         J, H = reference_jacobian(params, x, delta, vx)
         eps = 1e-7
-        numeric = np.column_stack([(model_outputs(params, x + e, delta, vx) - model_outputs(params, x - e, delta, vx))
-                                   / (2 * eps) for e in eps * np.eye(2)])
+        numeric = np.column_stack(
+            [
+                (model_outputs(params, x + e, delta, vx) - model_outputs(params, x - e, delta, vx)) / (2 * eps)
+                for e in eps * np.eye(2)
+            ]
+        )
         np.testing.assert_allclose(np.vstack([J, H]), numeric, rtol=1e-5, atol=1e-6 * np.abs(numeric).max())
 
 
@@ -95,7 +102,7 @@ def test_peak_friction_is_a_lower_bound_that_a_limit_drive_reaches(mu):
 def test_peak_friction_averages_out_vibration_that_one_sample_would_count():
     t, ay, measured = limit_drive(vehicle.BicycleParams(mu=0.9))
     clean = vehicle.peak_friction(t, ay)
-    assert abs(vehicle.peak_friction(t, measured) - clean) < 0.03           # half a second: σ 0.07 m/s², 4σ
+    assert abs(vehicle.peak_friction(t, measured) - clean) < 0.03  # half a second: σ 0.07 m/s², 4σ
     assert vehicle.peak_friction(t, measured, window_s=0.01) > clean + 0.1  # one sample: a 3–4σ spike
 
 

@@ -1,4 +1,5 @@
 """Checkpoints of lab 02 (bias and noise)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -61,8 +62,13 @@ def _accel_bias_cases(rng):
     for _ in range(8):
         expected = G * np.eye(3)[rng.integers(3)] * rng.choice([-1, 1])
         acc = _rest(rng, int(rng.integers(5, 300)), expected + rng.normal(0, 0.1, 3), 0.01)
-        cases.append(Case({"acc": acc, "expected": expected}, calibration.accel_bias(acc, expected),
-                          f"a rest of {len(acc)} samples with expected specific force {np.round(expected, 3).tolist()}"))
+        cases.append(
+            Case(
+                {"acc": acc, "expected": expected},
+                calibration.accel_bias(acc, expected),
+                f"a rest of {len(acc)} samples with expected specific force {np.round(expected, 3).tolist()}",
+            )
+        )
     return cases
 
 
@@ -102,8 +108,13 @@ def _allan_cases(rng):
         n, rate = int(rng.integers(200, 2000)), float(rng.choice([12.5, 100.0, 104.0]))
         x = rng.normal(0, 1e-3, n) + np.cumsum(rng.normal(0, 1e-5, n))
         taus = np.unique(np.round(np.logspace(0, np.log10(n / 4), 8))) / rate
-        cases.append(Case({"x": x, "rate_hz": rate, "taus": taus}, calibration.allan_deviation(x, rate, taus)[1],
-                          f"{n} samples at {rate:g} Hz, {len(taus)} values of τ"))
+        cases.append(
+            Case(
+                {"x": x, "rate_hz": rate, "taus": taus},
+                calibration.allan_deviation(x, rate, taus)[1],
+                f"{n} samples at {rate:g} Hz, {len(taus)} values of τ",
+            )
+        )
     return cases
 
 
@@ -117,27 +128,44 @@ def _judge_allan(case, got):
     if np.allclose(ratio, 0.0, atol=1e-12):
         return problem + " — every σ is 0: is θ integrated (cumsum), and the squared differences summed?"
     if not np.allclose(ratio, ratio[0], rtol=1e-3):
-        return (problem + f" — the ratio to the right values changes with τ (from {fmt(ratio.min())} to {fmt(ratio.max())}): "
-                "a count of terms or a sum range that depends on m is off; N + 1 − 2m differences, k = 0 … N − 2m")
-    causes = {rate: "θ is not divided by rate_hz: θ = cumsum(x)/rate_hz is in (unit of x)·s",
-              1 / rate: "θ is divided by rate_hz once too often",
-              np.sqrt(2.0): "the 2 in 1/(2τ²…) is missing", 1 / np.sqrt(2.0): "the 2 in 1/(2τ²…) is there twice",
-              rate ** 2: "τ looks counted in samples (m), not seconds"}
+        return (
+            problem
+            + f" — the ratio to the right values changes with τ (from {fmt(ratio.min())} to {fmt(ratio.max())}): "
+            "a count of terms or a sum range that depends on m is off; N + 1 − 2m differences, k = 0 … N − 2m"
+        )
+    causes = {
+        rate: "θ is not divided by rate_hz: θ = cumsum(x)/rate_hz is in (unit of x)·s",
+        1 / rate: "θ is divided by rate_hz once too often",
+        np.sqrt(2.0): "the 2 in 1/(2τ²…) is missing",
+        1 / np.sqrt(2.0): "the 2 in 1/(2τ²…) is there twice",
+        rate**2: "τ looks counted in samples (m), not seconds",
+    }
     for factor, cause in causes.items():
         if np.isclose(ratio[0], factor, rtol=1e-3):
             return problem + f" — off by a constant factor {fmt(ratio[0])}: {cause}"
     if np.isclose(ratio[0], 1.0, rtol=1e-2):
-        return problem + f" — off by a constant factor {fmt(ratio[0], 7)}: nearly right, check the sum range and its count"
+        return (
+            problem + f" — off by a constant factor {fmt(ratio[0], 7)}: nearly right, check the sum range and its count"
+        )
     return problem + f" — off by a constant factor {fmt(ratio[0])}: check the 1/(2τ²(N + 1 − 2m)) normalisation"
 
 
 def _rate_cases(rng):
-    return [Case(args, calibration.noise_at_rate(**args)) for args in (
-        {"sigma": 10 ** rng.uniform(-5, -1, 3), "rate_from": float(rng.choice([12.5, 26.0, 52.0])),
-         "rate_to": float(rng.choice([100.0, 104.0, 208.0]))} for _ in range(6))]
+    return [
+        Case(args, calibration.noise_at_rate(**args))
+        for args in (
+            {
+                "sigma": 10 ** rng.uniform(-5, -1, 3),
+                "rate_from": float(rng.choice([12.5, 26.0, 52.0])),
+                "rate_to": float(rng.choice([100.0, 104.0, 208.0])),
+            }
+            for _ in range(6)
+        )
+    ]
 
 
 # --- Q from the noise measured -----------------------------------------------------------------------------------
+
 
 def _q_cases(rng):
     """Δt from a sample to long gaps: in the long ones (Δt of a third to three times √3·N/K, where the bias's walk
@@ -153,15 +181,23 @@ def _q_cases(rng):
 
 def _q_mistakes(N, K, dt):
     """What each classic mistake makes of one entry of Q: {(row, col): {what it is: value}}."""
-    return {(0, 0): {"K²·Δt³/3, the bias's walk integrated into the angle, is missing from Q[0,0]": N**2 * dt,
-                     "(N·Δt)² treats the density N as a per-sample σ: a sample's σ is N·√rate = N/√Δt, so the "
-                     "angle's variance over Δt is (σ·Δt)² = N²·Δt": (N * dt) ** 2 + K**2 * dt**3 / 3,
-                     "N² leaves out Δt: a white-noise density's variance grows with time, N²·Δt": N**2 + K**2 * dt**3 / 3},
-            (0, 1): {"Q[0,1] = 0: no cross term, but the bias's walk during the step has already turned the angle: "
-                     "−K²·Δt²/2": 0.0,
-                     "the off-diagonal has the wrong sign: θ̇ = ω_m − b, so a bias that grew during the step has "
-                     "turned the angle the other way": K**2 * dt**2 / 2},
-            (1, 1): {"(K·Δt)² treats the density K as a per-sample step: the bias's variance over Δt is K²·Δt": (K * dt) ** 2}}
+    return {
+        (0, 0): {
+            "K²·Δt³/3, the bias's walk integrated into the angle, is missing from Q[0,0]": N**2 * dt,
+            "(N·Δt)² treats the density N as a per-sample σ: a sample's σ is N·√rate = N/√Δt, so the "
+            "angle's variance over Δt is (σ·Δt)² = N²·Δt": (N * dt) ** 2 + K**2 * dt**3 / 3,
+            "N² leaves out Δt: a white-noise density's variance grows with time, N²·Δt": N**2 + K**2 * dt**3 / 3,
+        },
+        (0, 1): {
+            "Q[0,1] = 0: no cross term, but the bias's walk during the step has already turned the angle: "
+            "−K²·Δt²/2": 0.0,
+            "the off-diagonal has the wrong sign: θ̇ = ω_m − b, so a bias that grew during the step has "
+            "turned the angle the other way": K**2 * dt**2 / 2,
+        },
+        (1, 1): {
+            "(K·Δt)² treats the density K as a per-sample step: the bias's variance over Δt is K²·Δt": (K * dt) ** 2
+        },
+    }
 
 
 def _judge_q(case, got):
@@ -172,14 +208,18 @@ def _judge_q(case, got):
     g = np.asarray(got, float)
     if not np.isclose(g[0, 1], g[1, 0], rtol=1e-9, atol=0):
         return problem + " — Q is a covariance: Q[0,1] and Q[1,0] are the same number"
-    named = [what for (i, j), mistakes in _q_mistakes(**case.args).items()
-             if not np.isclose(g[i, j], case.expected[i, j], rtol=1e-6, atol=0)
-             for what, value in mistakes.items() if np.isclose(g[i, j], value, rtol=1e-6, atol=0)]
+    named = [
+        what
+        for (i, j), mistakes in _q_mistakes(**case.args).items()
+        if not np.isclose(g[i, j], case.expected[i, j], rtol=1e-6, atol=0)
+        for what, value in mistakes.items()
+        if np.isclose(g[i, j], value, rtol=1e-6, atol=0)
+    ]
     return problem + "".join(f" — {what}" for what in named)
 
 
-ARW_SI = np.pi / 180 / 60          # rad/√s per °/√h: 1 h = 3600 s, so √h = 60 √s
-RRW_SI = np.pi / 180 / 3600 / 60   # rad/s/√s per °/h/√h
+ARW_SI = np.pi / 180 / 60  # rad/√s per °/√h: 1 h = 3600 s, so √h = 60 √s
+RRW_SI = np.pi / 180 / 3600 / 60  # rad/s/√s per °/h/√h
 
 
 def _datasheet_cases(rng):
@@ -189,8 +229,12 @@ def _datasheet_cases(rng):
     cases = []
     for _ in range(6):
         rrw = 10 ** rng.uniform(0.5, 2.0)
-        args = {"arw": 10 ** rng.uniform(-1.5, 0.5), "bias_instability": rrw * 10 ** rng.uniform(-1.5, -1.0),
-                "rrw": rrw, "dt": float(rng.choice([1 / 416, 0.01, 1 / 104, 0.1, 1.0]))}
+        args = {
+            "arw": 10 ** rng.uniform(-1.5, 0.5),
+            "bias_instability": rrw * 10 ** rng.uniform(-1.5, -1.0),
+            "rrw": rrw,
+            "dt": float(rng.choice([1 / 416, 0.01, 1 / 104, 0.1, 1.0])),
+        }
         cases.append(Case(args, angle_bias_process_noise(args["arw"] * ARW_SI, args["rrw"] * RRW_SI, args["dt"])))
     return cases
 
@@ -204,23 +248,28 @@ def _judge_datasheet(case, got):
     g, a, dt = np.asarray(got, float), case.args, case.args["dt"]
     K = np.sqrt(max(g[1, 1], 0.0) / dt)
     N = np.sqrt(max(g[0, 0] - K**2 * dt**3 / 3, 0.0) / dt)
-    arw_wrong = {a["arw"]: "the ARW is used in °/√h: 1 °/√h = (π/180)/60 rad/√s",
-                 a["arw"] * np.pi / 180 / 3600: "the ARW is converted as if it were °/h: √h = 60 √s, not 3600",
-                 a["arw"] * np.pi / 180: "the ARW is converted to rad but not from √h to √s (÷60)"}
+    arw_wrong = {
+        a["arw"]: "the ARW is used in °/√h: 1 °/√h = (π/180)/60 rad/√s",
+        a["arw"] * np.pi / 180 / 3600: "the ARW is converted as if it were °/h: √h = 60 √s, not 3600",
+        a["arw"] * np.pi / 180: "the ARW is converted to rad but not from √h to √s (÷60)",
+    }
     B = a["bias_instability"]
-    rrw_wrong = {B * RRW_SI: "that is the bias instability, not the rate random walk: B is the Allan curve's floor, "
-                             "K its +½ slope",
-                 B * np.pi / 180 / 3600: "that is the bias instability (in rad/s), not the rate random walk: B is the "
-                                         "Allan curve's floor, K its +½ slope",
-                 B: "that is the bias instability, not the rate random walk",
-                 a["rrw"]: "the RRW is used in °/h/√h: 1 °/h/√h = (π/180)/3600/60 rad/s/√s",
-                 a["rrw"] * np.pi / 180 / 3600: "the RRW is converted from °/h but not from /√h to /√s (÷60 more)"}
+    rrw_wrong = {
+        B * RRW_SI: "that is the bias instability, not the rate random walk: B is the Allan curve's floor, "
+        "K its +½ slope",
+        B * np.pi / 180 / 3600: "that is the bias instability (in rad/s), not the rate random walk: B is the "
+        "Allan curve's floor, K its +½ slope",
+        B: "that is the bias instability, not the rate random walk",
+        a["rrw"]: "the RRW is used in °/h/√h: 1 °/h/√h = (π/180)/3600/60 rad/s/√s",
+        a["rrw"] * np.pi / 180 / 3600: "the RRW is converted from °/h but not from /√h to /√s (÷60 more)",
+    }
     named = [what for value, what in arw_wrong.items() if np.isclose(N, value, rtol=1e-4, atol=0)]
     named += [what for value, what in rrw_wrong.items() if np.isclose(K, value, rtol=1e-4, atol=0)]
     return problem + "".join(f" — {what}" for what in named)
 
 
 # --- estimates on the bundled recordings ----------------------------------------------------------
+
 
 def _bias_recording_cases(rng):
     rec = datasets.load("02_stationary")
@@ -241,8 +290,10 @@ def _judge_bias_recording(case, got):
     z = np.abs(np.asarray(got, float) - gyr.mean(axis=0)) / u_white
     if np.all(z <= N_SIGMA):
         return None
-    return (f"your bias is {z.max():.0f} white-noise uncertainties σ/√N = {fmt(u_white.max())} rad/s from the average "
-            f"of all {len(gyr):,} samples (allowed {N_SIGMA:g}): use the whole rest")
+    return (
+        f"your bias is {z.max():.0f} white-noise uncertainties σ/√N = {fmt(u_white.max())} rad/s from the average "
+        f"of all {len(gyr):,} samples (allowed {N_SIGMA:g}): use the whole rest"
+    )
 
 
 def _judge_within(case, got, unit=""):
@@ -256,8 +307,10 @@ def _judge_within(case, got, unit=""):
     z = np.abs(g - truth) / u
     if np.all(z <= N_SIGMA):
         return None
-    return (f"the true value is {np.round(truth, 6).tolist()}{unit}, yours {np.round(g, 6).tolist()}: "
-            f"{z.max():.0f} standard uncertainties away (allowed {N_SIGMA:g})")
+    return (
+        f"the true value is {np.round(truth, 6).tolist()}{unit}, yours {np.round(g, 6).tolist()}: "
+        f"{z.max():.0f} standard uncertainties away (allowed {N_SIGMA:g})"
+    )
 
 
 def _noise_recording_cases(rng):
@@ -265,8 +318,13 @@ def _noise_recording_cases(rng):
     cases = []
     for sensor, name in (("gyr", "gyro"), ("acc", "accelerometer")):
         sigma, u, n = noise_truth(rec, sensor)
-        cases.append(Case({"x": rec.body(sensor)[:n]}, (sigma, u),
-                          f"the {name} over the first {NOISE_CHECK_S:g} s of the bundled recording 02_stationary"))
+        cases.append(
+            Case(
+                {"x": rec.body(sensor)[:n]},
+                (sigma, u),
+                f"the {name} over the first {NOISE_CHECK_S:g} s of the bundled recording 02_stationary",
+            )
+        )
     return cases
 
 
@@ -280,37 +338,105 @@ def _judge_six_face_recording(case, got):
     bias, scale, u_b, u_s = case.expected
     if not isinstance(got, (tuple, list)) or len(got) != 2:
         return f"expected (bias, scale), got {type(got).__name__}"
-    return _judge_within(Case({}, (bias, u_b)), got[0], " m/s² (bias)") or _judge_within(Case({}, (scale, u_s)), got[1], " (scale)")
+    return _judge_within(Case({}, (bias, u_b)), got[0], " m/s² (bias)") or _judge_within(
+        Case({}, (scale, u_s)), got[1], " (scale)"
+    )
 
 
 register(
-    Checkpoint("02.gyro_bias", "gyro_bias", _gyro_bias_cases, _judge_bias, points=1,
-               hint="at rest the true rate is zero, so what is left on average, per axis, is the bias."),
-    Checkpoint("02.noise_std", "noise_std", _noise_cases, _judge_noise, points=1,
-               hint="the spread about the mean, per axis (axis=0), with the N − 1 of a sample standard deviation."),
-    Checkpoint("02.accel_bias", "accel_bias", _accel_bias_cases, _judge_accel_bias, points=1,
-               hint="at rest the accelerometer reads the specific force of the pose plus the bias."),
-    Checkpoint("02.six_face", "six_face", _six_face_cases, matches(rtol=1e-9, atol=1e-12),
-               points=2, hint="axis i reads s·g + b pointing up and −s·g + b pointing down: add and subtract the two means "
-                              "of that axis's component. Return (bias, scale), each of shape (3,)."),
-    Checkpoint("02.allan_deviation", "allan_deviation", _allan_cases, _judge_allan, points=2,
-               hint="integrate to θ = cumsum(x)/rate with θ₀ = 0 in front (N + 1 values), then for each τ = m/rate use "
-                    "every overlapping difference θ[k+2m] − 2θ[k+m] + θ[k], k = 0 … N − 2m, and divide by their count."),
-    Checkpoint("02.sigma_at_rate", "sigma_at_rate", _rate_cases, matches(), points=1,
-               hint="the density N = σ/√rate is the sensor's; the per-sample σ at another rate follows from it."),
-    Checkpoint("02.q_from_noise_density", "q_from_noise_density", _q_cases, _judge_q, points=2,
-               hint="θ̇ = ω_m − b − n_g and ḃ = n_b: over Δt the angle collects the white noise (∫n_g) and the bias's walk "
-                    "since the step began, integrated once more (−∫∫n_b); take the variances and the covariance of the two."),
-    Checkpoint("02.q_from_datasheet", "q_from_datasheet", _datasheet_cases, _judge_datasheet, points=1,
-               hint="convert each figure to SI first (1 h = 3600 s, so √h = 60 √s), then ask which of the three the "
-                    "[angle, bias] model has a place for."),
-    Checkpoint("02.gyro_bias_recording", "gyro_bias", _bias_recording_cases, _judge_bias_recording, points=1,
-               what="bundled recording",
-               hint="use the whole rest: the uncertainty of a mean shrinks as σ/√N, until the bias's own wander dominates."),
-    Checkpoint("02.noise_recording", "noise_std", _noise_recording_cases, _judge_within, points=1,
-               what="bundled recording checks",
-               hint="if 02.noise_std passes, check that you pass the samples at rest in the body frame, all three axes."),
-    Checkpoint("02.six_face_recording", "six_face", _six_face_recording_cases, _judge_six_face_recording, points=1,
-               what="bundled recording",
-               hint="if 02.six_face passes, check that each face's samples come from its own phase."),
+    Checkpoint(
+        "02.gyro_bias",
+        "gyro_bias",
+        _gyro_bias_cases,
+        _judge_bias,
+        points=1,
+        hint="at rest the true rate is zero, so what is left on average, per axis, is the bias.",
+    ),
+    Checkpoint(
+        "02.noise_std",
+        "noise_std",
+        _noise_cases,
+        _judge_noise,
+        points=1,
+        hint="the spread about the mean, per axis (axis=0), with the N − 1 of a sample standard deviation.",
+    ),
+    Checkpoint(
+        "02.accel_bias",
+        "accel_bias",
+        _accel_bias_cases,
+        _judge_accel_bias,
+        points=1,
+        hint="at rest the accelerometer reads the specific force of the pose plus the bias.",
+    ),
+    Checkpoint(
+        "02.six_face",
+        "six_face",
+        _six_face_cases,
+        matches(rtol=1e-9, atol=1e-12),
+        points=2,
+        hint="axis i reads s·g + b pointing up and −s·g + b pointing down: add and subtract the two means "
+        "of that axis's component. Return (bias, scale), each of shape (3,).",
+    ),
+    Checkpoint(
+        "02.allan_deviation",
+        "allan_deviation",
+        _allan_cases,
+        _judge_allan,
+        points=2,
+        hint="integrate to θ = cumsum(x)/rate with θ₀ = 0 in front (N + 1 values), then for each τ = m/rate use "
+        "every overlapping difference θ[k+2m] − 2θ[k+m] + θ[k], k = 0 … N − 2m, and divide by their count.",
+    ),
+    Checkpoint(
+        "02.sigma_at_rate",
+        "sigma_at_rate",
+        _rate_cases,
+        matches(),
+        points=1,
+        hint="the density N = σ/√rate is the sensor's; the per-sample σ at another rate follows from it.",
+    ),
+    Checkpoint(
+        "02.q_from_noise_density",
+        "q_from_noise_density",
+        _q_cases,
+        _judge_q,
+        points=2,
+        hint="θ̇ = ω_m − b − n_g and ḃ = n_b: over Δt the angle collects the white noise (∫n_g) and the bias's walk "
+        "since the step began, integrated once more (−∫∫n_b); take the variances and the covariance of the two.",
+    ),
+    Checkpoint(
+        "02.q_from_datasheet",
+        "q_from_datasheet",
+        _datasheet_cases,
+        _judge_datasheet,
+        points=1,
+        hint="convert each figure to SI first (1 h = 3600 s, so √h = 60 √s), then ask which of the three the "
+        "[angle, bias] model has a place for.",
+    ),
+    Checkpoint(
+        "02.gyro_bias_recording",
+        "gyro_bias",
+        _bias_recording_cases,
+        _judge_bias_recording,
+        points=1,
+        what="bundled recording",
+        hint="use the whole rest: the uncertainty of a mean shrinks as σ/√N, until the bias's own wander dominates.",
+    ),
+    Checkpoint(
+        "02.noise_recording",
+        "noise_std",
+        _noise_recording_cases,
+        _judge_within,
+        points=1,
+        what="bundled recording checks",
+        hint="if 02.noise_std passes, check that you pass the samples at rest in the body frame, all three axes.",
+    ),
+    Checkpoint(
+        "02.six_face_recording",
+        "six_face",
+        _six_face_recording_cases,
+        _judge_six_face_recording,
+        points=1,
+        what="bundled recording",
+        hint="if 02.six_face passes, check that each face's samples come from its own phase.",
+    ),
 )

@@ -1,11 +1,11 @@
 """The MEKF's magnetometer gate: is this magnetometer sample to be used (norm and dip gates,
 innovation gate, bounded rejection that adopts a field that changed for good)?"""
+
 from __future__ import annotations
 
 import math
 
 from ..frames import wrap_angle_f
-
 
 
 class MagGate:
@@ -24,8 +24,21 @@ class MagGate:
     ref_tau     time constant (s) with which the reference follows a trusted field; None = fixed
     """
 
-    __slots__ = ("norm_ref", "dip_ref", "norm_gate", "dip_gate", "recovery", "nis_gate", "ref_rate", "r_psi",
-                 "good_since", "t_prev", "nis_since", "mean", "adopt_since")
+    __slots__ = (
+        "norm_ref",
+        "dip_ref",
+        "norm_gate",
+        "dip_gate",
+        "recovery",
+        "nis_gate",
+        "ref_rate",
+        "r_psi",
+        "good_since",
+        "t_prev",
+        "nis_since",
+        "mean",
+        "adopt_since",
+    )
 
     def __init__(self, field_n, r_psi, norm_gate, dip_gate, recovery, nis_gate, ref_tau):
         mN, mE, mD = (float(v) for v in field_n)

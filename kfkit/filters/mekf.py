@@ -3,6 +3,7 @@ tuned by :class:`MekfSettings`, carrying a :class:`MekfState`, its update writte
 (predict, stabilised accelerometer, accelerometer update, heading update, reset); the magnetometer
 gate is :class:`kfkit.filters.mag_gate.MagGate`.
 """
+
 from __future__ import annotations
 
 import math
@@ -10,8 +11,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..frames import (G, MAG_FIELD_LONDON, euler_to_quat, quat_multiply_f, quat_normalise_f, quat_to_dcm,
-                      quat_to_dcm_f, rotvec_to_quat_f, wrap_angle_f)
+from ..frames import (
+    MAG_FIELD_LONDON,
+    G,
+    euler_to_quat,
+    quat_multiply_f,
+    quat_normalise_f,
+    quat_to_dcm,
+    quat_to_dcm_f,
+    rotvec_to_quat_f,
+    wrap_angle_f,
+)
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, learn_field, tilt_heading
 from .linear import Step, configure, require_positive
 from .mag_gate import MagGate
@@ -65,14 +75,32 @@ class MekfSettings:
     accel_tau: float | None = 1.0
 
     def __post_init__(self):
-        require_positive("MekfSettings", zero_ok=("gyro_noise", "gyro_bias_rw", "mag_ref_tau", "accel_tau"),
-                         none_ok=("gyro_noise", "accel_gate", "mag_norm_gate", "mag_dip_gate", "mag_nis_gate",
-                                  "mag_ref_tau", "accel_tau"),
-                         gyro_noise=self.gyro_noise, gyro_density=self.gyro_density, gyro_bias_rw=self.gyro_bias_rw,
-                         accel_noise=self.accel_noise, mag_noise=self.mag_noise, accel_gate=self.accel_gate,
-                         accel_gate_factor=self.accel_gate_factor, mag_norm_gate=self.mag_norm_gate,
-                         mag_dip_gate=self.mag_dip_gate, mag_recovery=self.mag_recovery, mag_nis_gate=self.mag_nis_gate,
-                         mag_ref_tau=self.mag_ref_tau, accel_tau=self.accel_tau)
+        require_positive(
+            "MekfSettings",
+            zero_ok=("gyro_noise", "gyro_bias_rw", "mag_ref_tau", "accel_tau"),
+            none_ok=(
+                "gyro_noise",
+                "accel_gate",
+                "mag_norm_gate",
+                "mag_dip_gate",
+                "mag_nis_gate",
+                "mag_ref_tau",
+                "accel_tau",
+            ),
+            gyro_noise=self.gyro_noise,
+            gyro_density=self.gyro_density,
+            gyro_bias_rw=self.gyro_bias_rw,
+            accel_noise=self.accel_noise,
+            mag_noise=self.mag_noise,
+            accel_gate=self.accel_gate,
+            accel_gate_factor=self.accel_gate_factor,
+            mag_norm_gate=self.mag_norm_gate,
+            mag_dip_gate=self.mag_dip_gate,
+            mag_recovery=self.mag_recovery,
+            mag_nis_gate=self.mag_nis_gate,
+            mag_ref_tau=self.mag_ref_tau,
+            accel_tau=self.accel_tau,
+        )
 
 
 @dataclass
@@ -166,8 +194,9 @@ class MultiplicativeEKF:
 
     method = "mekf"
 
-    def __init__(self, rate_hz, settings: MekfSettings | None = None, *, field_n=None, q0=None, bias0=None, P0=None,
-                 **changes):
+    def __init__(
+        self, rate_hz, settings: MekfSettings | None = None, *, field_n=None, q0=None, bias0=None, P0=None, **changes
+    ):
         require_positive("MultiplicativeEKF", rate_hz=rate_hz)
         self.rate_hz = float(rate_hz)
         self.dt = 1.0 / self.rate_hz
@@ -190,21 +219,35 @@ class MultiplicativeEKF:
         mN, mE, mD = (float(v) for v in self.field_n)
         r_psi = (st.mag_noise / math.hypot(mN, mE)) ** 2
         gyro_noise = st.gyro_density * math.sqrt(self.rate_hz) if st.gyro_noise is None else st.gyro_noise
-        ra = st.accel_noise ** 2
+        ra = st.accel_noise**2
         self.coefficients = MekfCoefficients(
-            Qd=np.diag([gyro_noise ** 2 * dt * dt] * 3 + [st.gyro_bias_rw ** 2 * dt] * 3), ra=ra,
-            ra_gated=ra * st.accel_gate_factor, gate=st.accel_gate if st.accel_gate is not None else math.inf,
-            psi_ref=math.atan2(mE, mN), r_psi=r_psi,
-            lpf=1.0 - math.exp(-dt / st.accel_tau) if st.accel_tau else 1.0)
+            Qd=np.diag([gyro_noise**2 * dt * dt] * 3 + [st.gyro_bias_rw**2 * dt] * 3),
+            ra=ra,
+            ra_gated=ra * st.accel_gate_factor,
+            gate=st.accel_gate if st.accel_gate is not None else math.inf,
+            psi_ref=math.atan2(mE, mN),
+            r_psi=r_psi,
+            lpf=1.0 - math.exp(-dt / st.accel_tau) if st.accel_tau else 1.0,
+        )
         q = self._q0
         if q is None:
             first = first_mag_row(mag)
-            q = tuple(float(v) for v in euler_to_quat(tilt_heading(acc[0], None if first is None else mag[first],
-                                                                    self.field_n)))
-        gate = MagGate(self.field_n, r_psi, st.mag_norm_gate, st.mag_dip_gate, st.mag_recovery, st.mag_nis_gate,
-                       st.mag_ref_tau)
-        self.state = MekfState(q=q, bias=self._bias0, P=self._P0.copy(), k=0, strapdown=(1.0, 0.0, 0.0, 0.0),
-                               f_I=tuple(float(v) for v in acc[0]), mag_gate=gate)
+            q = tuple(
+                float(v)
+                for v in euler_to_quat(tilt_heading(acc[0], None if first is None else mag[first], self.field_n))
+            )
+        gate = MagGate(
+            self.field_n, r_psi, st.mag_norm_gate, st.mag_dip_gate, st.mag_recovery, st.mag_nis_gate, st.mag_ref_tau
+        )
+        self.state = MekfState(
+            q=q,
+            bias=self._bias0,
+            P=self._P0.copy(),
+            k=0,
+            strapdown=(1.0, 0.0, 0.0, 0.0),
+            f_I=tuple(float(v) for v in acc[0]),
+            mag_gate=gate,
+        )
         self._F = np.eye(6)  # work arrays of the steps, filled in place
         self._F[0:3, 3:6] = -dt * np.eye(3)
         self._Ha, self._Hm, self._I6 = np.zeros((3, 6)), np.zeros(6), np.eye(6)
@@ -342,7 +385,12 @@ class MultiplicativeEKF:
         N = len(gyr)
         y, S = np.full((N, 6), np.nan), np.full((N, 6, 6), np.nan)
         x, Ps = np.empty((N, 7)), np.empty((N, 6, 6))
-        nis, gated, used, rejected = np.zeros(N), np.zeros(N, dtype=bool), np.zeros(N, dtype=bool), np.zeros(N, dtype=bool)
+        nis, gated, used, rejected = (
+            np.zeros(N),
+            np.zeros(N, dtype=bool),
+            np.zeros(N, dtype=bool),
+            np.zeros(N, dtype=bool),
+        )
         M = mag.tolist() if mag is not None else [None] * N
         sample, s = self._sample, self.state
         for k, (w, f, m) in enumerate(zip(gyr.tolist(), acc.tolist(), M)):
@@ -352,5 +400,6 @@ class MultiplicativeEKF:
         x[:, :4] *= np.where(x[:, :1] < 0, -1.0, 1.0)
         R = quat_to_dcm(x[:, :4])
         P_att_n = R @ Ps[:, :3, :3] @ np.swapaxes(R, 1, 2)  # attitude error covariance in NED
-        return AttitudeRun(x, P_att_n, y, S, nis=nis, accel_gated=gated, mag_used=used, mag_gated=rejected,
-                           method=self.method)
+        return AttitudeRun(
+            x, P_att_n, y, S, nis=nis, accel_gated=gated, mag_used=used, mag_gated=rejected, method=self.method
+        )

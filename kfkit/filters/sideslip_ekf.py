@@ -43,6 +43,7 @@ them on the race-track log, and the benchmark prints what the log shows):
 
 Below ``v_min`` the filter hands over to the same kinematic guard as the KF (β = b·δ/L, yaw-rate update).
 """
+
 from __future__ import annotations
 
 import cmath
@@ -78,8 +79,11 @@ class SideslipEKFSettings:
     beta_low_std: float = math.radians(1.0)
 
     def __post_init__(self):
-        check_settings(self, positive=("q_beta", "q_r", "gyro_noise", "accel_noise", "v_min", "beta_low_std"),
-                       non_negative=("stiffness_std",))
+        check_settings(
+            self,
+            positive=("q_beta", "q_r", "gyro_noise", "accel_noise", "v_min", "beta_low_std"),
+            non_negative=("stiffness_std",),
+        )
 
 
 def matrix_functions_2x2(M, *functions):
@@ -146,8 +150,18 @@ class SideslipEKF:
     x0, P0    initial state (default 0) and covariance (default diag((2°)², (2°/s)²))
     """
 
-    def __init__(self, dt=None, params: BicycleParams = BicycleParams(), settings: SideslipEKFSettings | None = None, *,
-                 rate_hz=None, tyres=None, x0=None, P0=None, **changes):
+    def __init__(
+        self,
+        dt=None,
+        params: BicycleParams = BicycleParams(),
+        settings: SideslipEKFSettings | None = None,
+        *,
+        rate_hz=None,
+        tyres=None,
+        x0=None,
+        P0=None,
+        **changes,
+    ):
         self.dt, self.params = sample_period("SideslipEKF", dt, rate_hz), params
         self.settings = configure(SideslipEKFSettings, settings, changes, "SideslipEKF")
         self.front, self.rear = axle_tyres(params) if tyres is None else tyres
@@ -165,15 +179,23 @@ class SideslipEKF:
         """(F_f, F_r, k_f, k_r): axle forces (N) and their slopes dF/dα (N/rad) at the state, steering and speed."""
         p = self.params
         alpha_f, alpha_r = delta - beta - p.a * r / vx, -beta + p.b * r / vx
-        return (float(self.front.force(alpha_f)), float(self.rear.force(alpha_r)),
-                float(self.front.slope(alpha_f)), float(self.rear.slope(alpha_r)))
+        return (
+            float(self.front.force(alpha_f)),
+            float(self.rear.force(alpha_r)),
+            float(self.front.slope(alpha_f)),
+            float(self.rear.slope(alpha_r)),
+        )
 
     def jacobian(self, kf, kr, vx):
         """J = ∂[β̇, ṙ]/∂[β, r] (the linear model's A with the local slopes) and ∂a_y/∂[β, r] (its C row)."""
         p = self.params
-        lat = (p.b * kr - p.a * kf)
-        J = np.array([[-(kf + kr) / (p.m * vx), lat / (p.m * vx * vx) - 1.0],
-                      [lat / p.Iz, -(p.a * p.a * kf + p.b * p.b * kr) / (p.Iz * vx)]])
+        lat = p.b * kr - p.a * kf
+        J = np.array(
+            [
+                [-(kf + kr) / (p.m * vx), lat / (p.m * vx * vx) - 1.0],
+                [lat / p.Iz, -(p.a * p.a * kf + p.b * p.b * kr) / (p.Iz * vx)],
+            ]
+        )
         return J, (-(kf + kr) / p.m, lat / (p.m * vx))
 
     def step(self, delta, yaw_rate, ay, vx, dt=None) -> Step:
@@ -197,7 +219,9 @@ class SideslipEKF:
         _, (c21, c22) = self.jacobian(kf, kr, vx)
         offset = x_prior - Ad @ s.x  # the predict's x⁻ = Ad x + offset, in _step2's Ad x + Bd·1 form
         d2 = (ff + fr) / p.m - c21 * x_prior[0] - c22 * x_prior[1]  # a_y(x⁻) = C x⁻ + d2·1
-        R = np.array(((st.gyro_noise ** 2, 0.0), (0.0, st.accel_noise ** 2 + (st.stiffness_std / p.m) ** 2 * (ff * ff + fr * fr))))
+        R = np.array(
+            ((st.gyro_noise**2, 0.0), (0.0, st.accel_noise**2 + (st.stiffness_std / p.m) ** 2 * (ff * ff + fr * fr)))
+        )
         m = (*Ad.ravel().tolist(), *offset.tolist(), Qd[0, 0], Qd[0, 1], Qd[1, 1], c21, c22, d2)
         x_prior, P_prior, s.x, s.P, y, S = _step2(s.x, s.P, 1.0, (yaw_rate, ay), 1.0, m, R)
         return Step(s.x, s.P, y, S, x_prior, P_prior)

@@ -27,10 +27,12 @@ faults. Before the grader's calls the functions are put back, so each is judged 
 (the interrupt may have caught a function that was merely called often); a grader's call that times out stops
 its function for the rest of the grading the same way.
 """
+
 from __future__ import annotations
 
 import ast
 import asyncio
+import contextlib
 import ctypes
 import json
 import logging
@@ -53,15 +55,24 @@ from nbclient import NotebookClient
 from nbclient.exceptions import CellTimeoutError, DeadKernelError
 
 from ..exercise_guard import assigned_names
-from . import CELL_TIMEOUT, TOTAL_TIMEOUT, WALL_FACTOR
-from . import resources
+from . import CELL_TIMEOUT, TOTAL_TIMEOUT, WALL_FACTOR, resources, wire
 from . import sandbox as sb
-from . import wire
 
 MAX_RESTARTS = 3
 WARM_UP_TIMEOUT = 120.0  # s for the kernel's first imports, not charged to the student's first cell
-WARM_UP_MODULES = ("numpy", "scipy.linalg", "matplotlib.pyplot", "ipywidgets", "kfkit.datasets", "kfkit.filters",
-                   "kfkit.frames", "kfkit.metrics", "kfkit.plots", "kfkit.widgets", "kfkit.checkpoints")
+WARM_UP_MODULES = (
+    "numpy",
+    "scipy.linalg",
+    "matplotlib.pyplot",
+    "ipywidgets",
+    "kfkit.datasets",
+    "kfkit.filters",
+    "kfkit.frames",
+    "kfkit.metrics",
+    "kfkit.plots",
+    "kfkit.widgets",
+    "kfkit.checkpoints",
+)
 _WARM_UP_CODE = f"""
 import importlib
 for name in {WARM_UP_MODULES!r}:
@@ -73,7 +84,9 @@ for name in {WARM_UP_MODULES!r}:
 WARM_UP = f"exec({_WARM_UP_CODE!r}, {{}})"  # the labs' heavy imports, outside the student's namespace
 SHORT_TMP = 48  # characters of temporary folder that leave room for box/ipc-N in an AF_UNIX path (≤ 107)
 PING_TIMEOUT = 5.0  # s a kernel gets to answer after the wall-clock backstop's interrupt before it is restarted
-INTERRUPT_GRACE_CPU = 5.0  # s of CPU a cell interrupted for its CPU budget may still use: more, it ignored the interrupt
+INTERRUPT_GRACE_CPU = (
+    5.0  # s of CPU a cell interrupted for its CPU budget may still use: more, it ignored the interrupt
+)
 CPU_POLL = 0.1  # s between two looks at the watchdog's CPU count while a student's cell runs
 GRADER_CELL_TIMEOUT = 60.0  # s for the grader's own short cells (stopping, restoring functions): a hang guard
 IOPUB_TIMEOUT = 10  # s from a cell's reply to its last output; longer means the kernel's output has died
@@ -101,6 +114,7 @@ def _die_with_grader():
 @dataclass
 class Stopped:
     """A function of the notebook that timed out and was replaced by a stub (see the module doc)."""
+
     name: str
     cell: int  # where it timed out: a cell's index, or len(sources) for a grader's call
     why: str  # "timed out after 4 s" (of CPU) or "did not finish: used 0.1 s of CPU in 40 s" (the backstop)
@@ -136,8 +150,15 @@ class _SandboxKernelManager(AsyncKernelManager):
     max_message = None  # bytes: a bigger message from the kernel drops its connection, unread
 
     def format_kernel_cmd(self, extra_arguments=None):
-        argv = [sys.executable, "-m", "ipykernel_launcher", "-f", self.connection_file,
-                "--HistoryManager.enabled=False", "--IPKernelApp.log_level=CRITICAL"]
+        argv = [
+            sys.executable,
+            "-m",
+            "ipykernel_launcher",
+            "-f",
+            self.connection_file,
+            "--HistoryManager.enabled=False",
+            "--IPKernelApp.log_level=CRITICAL",
+        ]
         return self.wrap(argv)
 
     def client(self, **kwargs):
@@ -155,7 +176,11 @@ def _output_size(kind: str, content: dict) -> int:
     if kind == "error":
         return len(str(content.get("evalue", "")))
     data = content.get("data", {})
-    return sum(len(v) if isinstance(v, str) else len(json.dumps(v)) for v in data.values()) if isinstance(data, dict) else 0
+    return (
+        sum(len(v) if isinstance(v, str) else len(json.dumps(v)) for v in data.values())
+        if isinstance(data, dict)
+        else 0
+    )
 
 
 class _Client(NotebookClient):
@@ -195,8 +220,14 @@ class _Client(NotebookClient):
             if sum(map(len, self.capture)) + size <= wire.MAX_PAYLOAD + 200:
                 self.capture.append(content["text"])
         elif kind == "error":
-            outs.append(nbformat.NotebookNode(output_type="error", ename=str(content.get("ename", ""))[:100],
-                                              evalue=str(content.get("evalue", ""))[:600], traceback=[]))
+            outs.append(
+                nbformat.NotebookNode(
+                    output_type="error",
+                    ename=str(content.get("ename", ""))[:100],
+                    evalue=str(content.get("evalue", ""))[:600],
+                    traceback=[],
+                )
+            )
         self.cell_bytes += size
         if self.cell_bytes > self.max_output and not self.flooded:
             self.flooded = True  # stop the cell now rather than read on until it times out
@@ -250,25 +281,40 @@ class KernelRun:
 
     def _start(self):
         self.box = sb.make_box(self.scratch, self.sandbox)
-        km = _SandboxKernelManager(kernel_name="python3", transport="ipc", ip=str(self.box / "ipc"),
-                                   connection_file=str(self.box / "kernel.json"))
+        km = _SandboxKernelManager(
+            kernel_name="python3",
+            transport="ipc",
+            ip=str(self.box / "ipc"),
+            connection_file=str(self.box / "kernel.json"),
+        )
         cgroup = resources.Cgroup(self.cgroup_parent, self.limits.memory) if self.cgroup_parent else None
-        km.wrap = lambda argv: self.sandbox.command(self.box, self.scratch, self.box / "home", km.connection_file,
-                                                    argv, cgroup=cgroup and cgroup.path)
+        km.wrap = lambda argv: self.sandbox.command(
+            self.box, self.scratch, self.box / "home", km.connection_file, argv, cgroup=cgroup and cgroup.path
+        )
         km.max_message = self.limits.max_message
         nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(s) for s in self.sources])
-        self.client = _Client(nb, km, self.limits.max_cell_output, timeout=int(self.limits.cell_timeout),
-                              interrupt_on_timeout=True,
-                              error_on_timeout={"ename": "Timeout", "evalue": "timed out", "traceback": []},
-                              allow_errors=True, record_timing=False, shutdown_kernel="immediate",
-                              startup_timeout=60, iopub_timeout=IOPUB_TIMEOUT, raise_on_iopub_timeout=True)
+        self.client = _Client(
+            nb,
+            km,
+            self.limits.max_cell_output,
+            timeout=int(self.limits.cell_timeout),
+            interrupt_on_timeout=True,
+            error_on_timeout={"ename": "Timeout", "evalue": "timed out", "traceback": []},
+            allow_errors=True,
+            record_timing=False,
+            shutdown_kernel="immediate",
+            startup_timeout=60,
+            iopub_timeout=IOPUB_TIMEOUT,
+            raise_on_iopub_timeout=True,
+        )
         self.client.timeout_func = self._cell_timeout
-        self.log = open(self.box / "kernel.log", "wb")
+        self.log = open(self.box / "kernel.log", "wb")  # noqa: SIM115  (the kernel's stdout for its life; _stop closes it)
         cwd = self.box / "home" if self.sandbox.mode == "none" else Path("/")
         try:
             self.client.km = km
-            self.client.start_new_kernel(env=sb.kernel_env(self.box), cwd=str(cwd), stdout=self.log, stderr=self.log,
-                                         preexec_fn=_die_with_grader)
+            self.client.start_new_kernel(
+                env=sb.kernel_env(self.box), cwd=str(cwd), stdout=self.log, stderr=self.log, preexec_fn=_die_with_grader
+            )
             self.client.start_new_kernel_client()
             if self.sandbox.uid():  # sockets exist now: the kernel may write only in its tmpfs home and /tmp
                 os.chown(self.box, 0, 0)
@@ -276,14 +322,16 @@ class KernelRun:
             meter = cgroup or resources.ProcessTree(km.provisioner.pid)
             self._quiet(WARM_UP, max(WARM_UP_TIMEOUT, self.limits.cell_timeout))
             warm_up = meter.usage().cpu  # the grader's imports are not charged to the student
-            self.watchdog = resources.Watchdog(meter, self.limits.memory, self.limits.cpu_time,
-                                               cpu_before=self.cpu_used - warm_up)
+            self.watchdog = resources.Watchdog(
+                meter, self.limits.memory, self.limits.cpu_time, cpu_before=self.cpu_used - warm_up
+            )
         except Exception as exc:
             if cgroup is not None and self.watchdog is None:
                 cgroup.close()
             self._stop()
-            raise RuntimeError(f"the kernel did not start ({type(exc).__name__}: {exc}); "
-                               f"kernel log: {self._log_tail()}") from None
+            raise RuntimeError(
+                f"the kernel did not start ({type(exc).__name__}: {exc}); kernel log: {self._log_tail()}"
+            ) from None
 
     def _log_tail(self) -> str:
         try:
@@ -293,10 +341,8 @@ class KernelRun:
 
     def _stop(self):
         if self.client is not None and self.client.km is not None:
-            try:
+            with contextlib.suppress(Exception):  # already dead: nothing left to stop
                 self.client._cleanup_kernel()
-            except Exception:  # already dead: nothing left to stop
-                pass
         self.client = None
         if self.watchdog is not None:
             self.watchdog.stop()
@@ -330,8 +376,10 @@ class KernelRun:
 
     def _left(self) -> tuple[float, float]:
         """What the current phase (the notebook's share, or the whole) has left: (s of CPU, s of wall time)."""
-        return (min(self.limits.total_timeout, self.cpu_until) - self._cpu(),
-                min(self.deadline, self.until) - time.monotonic())
+        return (
+            min(self.limits.total_timeout, self.cpu_until) - self._cpu(),
+            min(self.deadline, self.until) - time.monotonic(),
+        )
 
     def _cell_timeout(self, cell=None) -> int:
         """The wall-clock backstop of the cell running, in whole seconds (nbclient's unit)."""
@@ -354,8 +402,10 @@ class KernelRun:
         if self._cpu() >= self.limits.total_timeout:
             raise OutOfTime(f"the submission used up its total time ({self.limits.total_timeout:g} s)")
         if self.deadline <= time.monotonic():
-            raise OutOfTime(f"the submission did not finish: used {self._cpu():.1f} s of CPU in "
-                            f"{self.limits.wall_factor * self.limits.total_timeout:.0f} s (the wall-clock backstop)")
+            raise OutOfTime(
+                f"the submission did not finish: used {self._cpu():.1f} s of CPU in "
+                f"{self.limits.wall_factor * self.limits.total_timeout:.0f} s (the wall-clock backstop)"
+            )
 
     async def _judge_cpu(self):
         """Beside a student's cell: interrupt it when it has used its CPU budget (the watchdog's count, all its
@@ -399,7 +449,9 @@ class KernelRun:
             self._check_limits()
             if client.timed_out:
                 raise KernelLost(index, f"{self._stopped_why()} and ignored the interrupt", timed_out=True) from None
-            raise KernelLost(index, "the kernel died (sys.exit in a thread, os._exit, a crash or too much memory)") from None
+            raise KernelLost(
+                index, "the kernel died (sys.exit in a thread, os._exit, a crash or too much memory)"
+            ) from None
         except CellTimeoutError:  # the reply came, its output did not: the kernel's output thread is gone
             self._check_limits()
             if client.timed_out:
@@ -441,8 +493,9 @@ class KernelRun:
             client.timeout_func, client.capture = saved, None
 
     # a loop paid for once (see the module doc)
-    def _stop_functions(self, index: int, names: list[str] | None, checkpoint: str = "",
-                        why: str | None = None) -> list[str]:
+    def _stop_functions(
+        self, index: int, names: list[str] | None, checkpoint: str = "", why: str | None = None
+    ) -> list[str]:
         """Stop ``names`` (None: the function the interrupt of cell ``index`` caught) in the kernel, stopped as
         ``why`` says (default: the last cell's :data:`last_why`); → those stopped."""
         why = self.last_why if why is None else why
@@ -460,7 +513,7 @@ class KernelRun:
         for name in stopped:
             if name not in self.stopped or checkpoint:  # a grader's call's timeout is the one that counts
                 defining = re.compile(rf"^\s*def\s+{re.escape(name)}\s*\(", re.M)
-                cells = [i for i, src in enumerate(self.sources[:index + 1]) if defining.search(src)]
+                cells = [i for i, src in enumerate(self.sources[: index + 1]) if defining.search(src)]
                 self.stopped[name] = Stopped(name, index, why, cells[-1] if cells else None, checkpoint)
         return stopped
 
@@ -512,15 +565,18 @@ class KernelRun:
             notes.append(f"{self.last_why} (interrupted)")
             cause = next(iter(self._stop_functions(i, None)), None)
             if cause is not None:
-                notes[-1] += (f" inside {cause}; later calls of {cause} in the notebook failed at once instead of "
-                              "running again")
+                notes[-1] += (
+                    f" inside {cause}; later calls of {cause} in the notebook failed at once instead of running again"
+                )
         elif status == "error":
             cause = self._follow_on(i, error)
             if cause is None:
                 notes.append(f"{error.ename}: {error.evalue}" if error.evalue else error.ename)
             elif self.stopped[cause].cell != i:
-                self.affected[i] = (cause, f"calls {cause}" if error.ename == wire.TIMED_OUT_EARLIER
-                                    else f"{error.ename}: {error.evalue}")
+                self.affected[i] = (
+                    cause,
+                    f"calls {cause}" if error.ename == wire.TIMED_OUT_EARLIER else f"{error.ename}: {error.evalue}",
+                )
         if cause is not None:
             self._note_unmade(i, cause)
         for name, s in list(self.stopped.items()):  # a replay: stopped again before the cells calling it
@@ -536,9 +592,11 @@ class KernelRun:
                         continue
                     if min(self._left()) <= 0:
                         left = sum(1 for k in range(i + 1, len(self.sources)) if k not in self.skipped)
-                        self.cell_notes[i] = (f"not run{f', nor the {left} cells after it' if left else ''}: the "
-                                              "notebook had used its share of the total time (the rest grades its "
-                                              "functions)")
+                        self.cell_notes[i] = (
+                            f"not run{f', nor the {left} cells after it' if left else ''}: the "
+                            "notebook had used its share of the total time (the rest grades its "
+                            "functions)"
+                        )
                         return
                     status, error = self._execute(i, source)
                     printed = self.client.cell_bytes

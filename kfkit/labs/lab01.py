@@ -4,6 +4,7 @@ The notebook's exercises (``accel_roll``, ``fuse_gaussians``, ``kf_predict``, ``
 notebook; :func:`recipe` takes the student's ``accel_roll`` and ``run_kf`` as arguments, so section 10 runs the
 student's own filter on the simulation and on the real IMU.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -57,15 +58,19 @@ def roll_gyro_density(rec) -> tuple[float, str]:
     measures it. A board or a phone: the calibration :func:`kfkit.calibration.calibration_for` picks (the one lab 02
     saved for your board, else the kit's bundled one, lab 02's analysis of the board's bundled rest), σ/√f_s of its
     white noise. The real IMU (BROAD's Myon, which has no calibration file): its Allan deviation at τ = 1 s over the
-    rest lab 02's section 8 reads (:data:`REAL_REST`, at the IMU's native rate: a density does not depend on the rate)."""
+    rest lab 02's section 8 reads (:data:`REAL_REST`, at the IMU's native rate: a density does not depend on the
+    rate)."""
     if rec.meta.get("board") == REAL_BOARD:
         rest = datasets.load(REAL_REST)
         taus, adev = calibration.allan_deviation(rest.body("gyr")[:, 0], rest.rate_hz)
         return float(calibration.angle_random_walk(taus, adev)), f"lab 02, section 8: the Allan curve of {REAL_REST}"
     cal = calibration.calibration_for(rec)
     bundled = cal == calibration.Calibration.load(bundled_calibration_path(cal.board))
-    return float(cal.gyro_density[0]), (f"the kit's bundled calibration of the {cal.board}" if bundled
-                                        else f"your lab 02 calibration of the {cal.board}")
+    return float(cal.gyro_density[0]), (
+        f"the kit's bundled calibration of the {cal.board}"
+        if bundled
+        else f"your lab 02 calibration of the {cal.board}"
+    )
 
 
 def gaussian(x, mean, var):
@@ -75,16 +80,24 @@ def gaussian(x, mean, var):
 
 def fusion_figure(prior, measurement, posterior, title="Prior × measurement = posterior"):
     """The three densities of section 4's fusion, each (mean (rad), variance (rad²)), drawn in degrees."""
-    (m0, v0), (mz, vz), (m1, v1) = prior, measurement, posterior
+    (m0, v0), (mz, vz) = prior, measurement
     spread = 4.0 * np.sqrt(max(v0, vz))
     x = np.linspace(min(m0, mz) - spread, max(m0, mz) + spread, 600)
     deg = np.degrees(1.0)
     fig, ax = plt.subplots(figsize=(8.0, 3.4))
-    for (mean, var), label, kind in ((prior, "prior: the gyro's prediction", "gyro"),
-                                     (measurement, "measurement: the accelerometer roll", "accel"),
-                                     (posterior, "posterior: their normalised product", "kf")):
-        ax.plot(x * deg, gaussian(x, mean, var) / deg, color=COLORS[kind], ls=STYLES[kind], lw=1.8,
-                label=f"{label}, {mean * deg:.1f}° ± {np.sqrt(var) * deg:.1f}°")
+    for (mean, var), label, kind in (
+        (prior, "prior: the gyro's prediction", "gyro"),
+        (measurement, "measurement: the accelerometer roll", "accel"),
+        (posterior, "posterior: their normalised product", "kf"),
+    ):
+        ax.plot(
+            x * deg,
+            gaussian(x, mean, var) / deg,
+            color=COLORS[kind],
+            ls=STYLES[kind],
+            lw=1.8,
+            label=f"{label}, {mean * deg:.1f}° ± {np.sqrt(var) * deg:.1f}°",
+        )
         ax.axvline(mean * deg, color=COLORS[kind], ls=":", lw=0.9)
     ax.set_xlabel("roll (°)")
     ax.set_ylabel("probability density (1/°)")
@@ -121,9 +134,19 @@ def recipe(rec, rest, accel_roll, run_kf, qs=SWEEP_Q) -> RecipeRun:
     q_N = N**2 * dt
     rmses = [metrics.angle_rmse_deg(filters.roll_kf(gyro, z, dt, q, r, x0, P0=r).x, truth) for q in qs]
     best = float(qs[np.argmin(rmses)])
-    return RecipeRun({"accel only": (z, "accel"), "gyro only, bias removed": (filters.integrate_rate(gyro, dt, x0), "gyro"),
-                      "KF, q = N²Δt": (run_kf(gyro, z, dt, q_N, r, x0, P0=r)[0], "other"),
-                      "KF, best q": (run_kf(gyro, z, dt, best, r, x0, P0=r)[0], "kf")}, bias, N, q_N, best, r)
+    return RecipeRun(
+        {
+            "accel only": (z, "accel"),
+            "gyro only, bias removed": (filters.integrate_rate(gyro, dt, x0), "gyro"),
+            "KF, q = N²Δt": (run_kf(gyro, z, dt, q_N, r, x0, P0=r)[0], "other"),
+            "KF, best q": (run_kf(gyro, z, dt, best, r, x0, P0=r)[0], "kf"),
+        },
+        bias,
+        N,
+        q_N,
+        best,
+        r,
+    )
 
 
 def across_gravity(rec):
@@ -145,8 +168,11 @@ TABLE_ROWS = (
     ("gyro x bias at rest (°/s)", "14.3f", lambda rec, rest, mov, run: np.degrees(run.bias)),
     ("gyro x density N, lab 02 (mdps/√Hz)", "14.2f", lambda rec, rest, mov, run: np.degrees(run.N) * 1e3),
     ("accel roll σ at rest, √r (°)", "14.2f", lambda rec, rest, mov, run: np.degrees(np.sqrt(run.r))),
-    ("‖f‖ − g while moving, RMS (m/s²)", "14.2f",
-     lambda rec, rest, mov, run: _rms(np.linalg.norm(rec.body("acc")[mov], axis=1) - G)),
+    (
+        "‖f‖ − g while moving, RMS (m/s²)",
+        "14.2f",
+        lambda rec, rest, mov, run: _rms(np.linalg.norm(rec.body("acc")[mov], axis=1) - G),
+    ),
     ("across gravity while moving, RMS (m/s²)", "14.2f", lambda rec, rest, mov, run: _rms(across_gravity(rec)[mov])),
 )
 
@@ -154,6 +180,7 @@ TABLE_ROWS = (
 def side_by_side(cases: dict) -> None:
     """Print section 10's table for two columns: ``cases`` maps a column name to (recording, rest mask, moving mask,
     RecipeRun). The last row gives each column's filter (its q and Δt) the other column's r."""
+
     def row(label, values, fmt):
         print(f"{label:42s}" + "".join(f"{v:{fmt}}" for v in values))
 
@@ -166,14 +193,24 @@ def side_by_side(cases: dict) -> None:
         row(label, each(value), fmt)
     print("RMSE while moving (°)")
     for est in runs[0].estimates:
-        row(f"  {est}", each(lambda rec, rest, mov, run: metrics.angle_rmse_deg(run.estimates[est][0][mov],
-                                                                                 rec["true_roll"][mov])), "14.2f")
+        row(
+            f"  {est}",
+            each(
+                lambda rec, rest, mov, run, est=est: metrics.angle_rmse_deg(
+                    run.estimates[est][0][mov], rec["true_roll"][mov]
+                )
+            ),
+            "14.2f",
+        )
     row("q = N²Δt (rad²)", [run.q_N for run in runs], "14.1e")
     row("best q (rad²)", [run.q_best for run in runs], "14.1e")
     row("  best q / (N²Δt)", [run.q_best / run.q_N for run in runs], "14.0f")
     row("its time constant Δt/K∞ (s)", each(lambda rec, rest, mov, run: time_constant(run.q_best, run.r, rec)), "14.2f")
-    row("  with the other column's r (s)",
-        [time_constant(run.q_best, other.r, case[0]) for case, run, other in zip(cases.values(), runs, runs[::-1])], "14.2f")
+    row(
+        "  with the other column's r (s)",
+        [time_constant(run.q_best, other.r, case[0]) for case, run, other in zip(cases.values(), runs, runs[::-1])],
+        "14.2f",
+    )
 
 
 def time_constant(q, r, rec) -> float:

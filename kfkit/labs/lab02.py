@@ -5,6 +5,7 @@ the simulation's truth the notebook and its checkpoints compare with (:func:`gyr
 :func:`six_face_truth`, :func:`noise_model_truth`), and the plumbing of its figures and tables (:func:`allan_xyz`,
 :func:`phone_export`, :func:`row`).
 """
+
 from __future__ import annotations
 
 import tempfile
@@ -20,6 +21,7 @@ NOISE_CHECK_S = 120.0  # s of 02_stationary the noise check uses: the bias wande
 
 
 # --- the data ---------------------------------------------------------------------------------------------------
+
 
 def load(path, bundled, mount="flat"):
     """The recording the data-source cell names: None → the bundled ``bundled``; "real" → a real IMU at rest
@@ -72,6 +74,7 @@ def row(quantity, measured, true=None, datasheet=""):
 
 # --- the simulation's truth --------------------------------------------------------------------------------------
 
+
 def gyro_bias_truth(rec):
     """The simulation's gyro bias in the body frame (rad/s) and the standard uncertainty of a mean
     over the recording: √(σ²/N + K²T/3), white noise σ plus a bias random walk of density K."""
@@ -116,7 +119,9 @@ def six_face_truth(rec):
     scale = np.abs(M) @ np.asarray(sim.get("accel_scale", [1.0, 1.0, 1.0]))
     R_bn = np.swapaxes(euler_to_dcm(rec.truth()), -1, -2)
     f_true = R_bn @ np.array([0.0, 0.0, -G])
-    up, down = (np.array([f_true[rec.phase(f"{a}_{w}"), i].mean() for i, a in enumerate("xyz")]) for w in ("up", "down"))
+    up, down = (
+        np.array([f_true[rec.phase(f"{a}_{w}"), i].mean() for i, a in enumerate("xyz")]) for w in ("up", "down")
+    )
     acc = rec.body("acc")
     n = min(int(rec.phase(f).sum()) for f in calibration.FACES)
     sigma = np.mean([acc[rec.phase(f)].std(axis=0, ddof=1) for f in calibration.FACES], axis=0)

@@ -5,6 +5,7 @@ source, the turns about each axis and the angles they turn, section 3's 3-D fiel
 rests and prompted headings, the magnet window of BROAD trial 34 and the simulated phone's tumbling. The student's
 exercises stay in the notebook.
 """
+
 from __future__ import annotations
 
 import tempfile
@@ -30,13 +31,22 @@ def load(path, bundled, mount="flat") -> Recording:
     student's file or phyphox export (``mount``: how a phone is held). Refuses "real" headings (BROAD has no headings
     protocol) and a board without a magnetometer, saying what to do."""
     if path == "real" and bundled == "03_headings":
-        raise ValueError('HEADINGS = "real": BROAD has no headings protocol; leave it None (section 8 judges the real '
-                         "IMU's heading against its motion capture)")
-    rec = (datasets.load(bundled) if path is None else datasets.load(REAL) if path == "real"
-           else load_any(path, mount=mount, require=("acc", "gyr", "mag")))
+        raise ValueError(
+            'HEADINGS = "real": BROAD has no headings protocol; leave it None (section 8 judges the real '
+            "IMU's heading against its motion capture)"
+        )
+    rec = (
+        datasets.load(bundled)
+        if path is None
+        else datasets.load(REAL)
+        if path == "real"
+        else load_any(path, mount=mount, require=("acc", "gyr", "mag"))
+    )
     if "mag" not in rec.meta["mount"]:
-        raise ValueError(f"{path or bundled}: board {rec.meta['board']!r} has no magnetometer; lab 03 needs the "
-                         "Nucleo + X-NUCLEO-IKS02A1 or a phone")
+        raise ValueError(
+            f"{path or bundled}: board {rec.meta['board']!r} has no magnetometer; lab 03 needs the "
+            "Nucleo + X-NUCLEO-IKS02A1 or a phone"
+        )
     return rec
 
 
@@ -92,13 +102,30 @@ def field_panel(ax, data, title, colour, centre, shape, lim):
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 25), np.linspace(0, np.pi, 13))
     unit = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], axis=-1)
     ax.scatter(*data[::3].T, s=2, color=COLORS[colour], depthshade=False)
-    ax.plot_wireframe(*np.moveaxis(np.asarray(centre) + unit @ np.asarray(shape).T, -1, 0), color=COLORS["truth"],
-                      lw=0.3, alpha=0.5)
-    ax.plot(*np.column_stack([np.zeros(3), centre]), color=COLORS["truth"], lw=2, marker="o", ms=4,
-            label="origin → centre (the hard iron h)")
+    ax.plot_wireframe(
+        *np.moveaxis(np.asarray(centre) + unit @ np.asarray(shape).T, -1, 0), color=COLORS["truth"], lw=0.3, alpha=0.5
+    )
+    ax.plot(
+        *np.column_stack([np.zeros(3), centre]),
+        color=COLORS["truth"],
+        lw=2,
+        marker="o",
+        ms=4,
+        label="origin → centre (the hard iron h)",
+    )
     ticks = [-50, 0, 50]
-    ax.set(xlim=(-lim, lim), ylim=(-lim, lim), zlim=(-lim, lim), xticks=ticks, yticks=ticks, zticks=ticks,
-           xlabel="m_x (µT)", ylabel="m_y (µT)", zlabel="m_z (µT)", box_aspect=(1, 1, 1))
+    ax.set(
+        xlim=(-lim, lim),
+        ylim=(-lim, lim),
+        zlim=(-lim, lim),
+        xticks=ticks,
+        yticks=ticks,
+        zticks=ticks,
+        xlabel="m_x (µT)",
+        ylabel="m_y (µT)",
+        zlabel="m_z (µT)",
+        box_aspect=(1, 1, 1),
+    )
     ax.set_title(title, fontsize=10)
     ax.view_init(elev=20, azim=-60)
 
@@ -152,7 +179,7 @@ def magnet_window(rec):
     off = np.flatnonzero(np.abs(median_filter(norm, size=width, mode="nearest") - B) > MAGNET_SIGMAS * sigma)
     mask = np.zeros(len(rec), dtype=bool)
     if off.size:
-        mask[off[0]:off[-1] + 1] = True
+        mask[off[0] : off[-1] + 1] = True
     return mask, B, sigma
 
 

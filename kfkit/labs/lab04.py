@@ -6,6 +6,7 @@ The notebook's exercises (``euler_rates``, ``ekf_predict``, ``measurement``, ``j
 ``ekf_update``, ``run_ekf``, ``nis_per_row``, ``coast_seconds``) stay in the notebook; :func:`nis_table` takes the
 student's ``nis_per_row`` as an argument, so the recipe reads the student's own NIS.
 """
+
 from __future__ import annotations
 
 import math
@@ -13,12 +14,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import datasets, filters, metrics
-from ..calibration import Calibration, gyro_bias
+from .. import datasets, filters, metrics, sim
+from ..calibration import Calibration, calibration_for, gyro_bias
 from ..filters.attitude_run import learn_field, tilt_heading
-from ..filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_measurement, euler_kinematics_jacobian,
-                                 euler_rate_matrix, jacobian_rows)
-from ..frames import G, euler_to_dcm, euler_to_quat, quat_multiply, quat_to_dcm, wrap_angle
+from ..filters.euler_ekf import (
+    EulerAttitudeEKFSettings,
+    attitude_measurement,
+    euler_kinematics_jacobian,
+    euler_rate_matrix,
+    jacobian_rows,
+)
+from ..frames import (
+    MAG_FIELD_LONDON,
+    G,
+    dcm_to_euler,
+    euler_rates_to_body_rates,
+    euler_to_dcm,
+    euler_to_quat,
+    quat_multiply,
+    quat_to_dcm,
+    wrap_angle,
+)
 
 # --- the gyro sample and the step ------------------------------------------------------------------------------
 
@@ -72,7 +88,8 @@ def monte_carlo(motion, sigmas, field_n, runs=20, seed=11, midpoint=True):
 
 
 def nees_summary(name, result, motion, runs, moving=(5.0, 57.0)):
-    """One line on a :func:`monte_carlo` result of ``motion`` (its phases (start, end, label) in s): how much of the time
+    """One line on a :func:`monte_carlo` result of ``motion`` (its phases (start, end, label) in s): how much of the
+    time
     the run-averaged NEES is inside its 95 % bounds, its median while moving (``moving``: from, to, s) and in the
     tumble, and the NIS per row against its bounds."""
     avg_nees, nis_total, dof_total = result
@@ -81,9 +98,11 @@ def nees_summary(name, result, motion, runs, moving=(5.0, 57.0)):
     within = (t >= moving[0]) & (t < moving[1])
     tumble = np.any([(t >= a) & (t < b) for a, b, label in motion.phases if label == "tumble"], axis=0)
     nis_lo, nis_hi = metrics.chi2_bounds(1, dof_total)
-    return (f"{name}: average NEES inside its bounds {100 * ((avg_nees >= lo) & (avg_nees <= hi)).mean():3.0f} % of the "
-            f"time, median {np.median(avg_nees[within]):5.1f} while moving ({np.median(avg_nees[tumble]):.1f} in the "
-            f"tumble); NIS per row {nis_total / dof_total:.3f} (bounds {nis_lo:.3f} … {nis_hi:.3f})")
+    return (
+        f"{name}: average NEES inside its bounds {100 * ((avg_nees >= lo) & (avg_nees <= hi)).mean():3.0f} % of the "
+        f"time, median {np.median(avg_nees[within]):5.1f} while moving ({np.median(avg_nees[tumble]):.1f} in the "
+        f"tumble); NIS per row {nis_total / dof_total:.3f} (bounds {nis_lo:.3f} … {nis_hi:.3f})"
+    )
 
 
 # --- section 9: tuning without truth ------------------------------------------------------------------------------
@@ -110,16 +129,21 @@ def noise_at_rest(gyr, acc, mag, rest):
     start = int(np.argmax(rest))
     end = start + (int(np.argmin(rest[start:])) or len(rest) - start)
     first = slice(start, end)
-    return (float(gyr[first].std(axis=0).mean()), float(acc[first].std(axis=0).mean()),
-            float(np.nanstd(mag[first], axis=0).mean()))
+    return (
+        float(gyr[first].std(axis=0).mean()),
+        float(acc[first].std(axis=0).mean()),
+        float(np.nanstd(mag[first], axis=0).mean()),
+    )
 
 
 def nis_table(run, masks, nis_per_row, out=print):
     """The recipe's table: the NIS per row of each sensor's innovations (:data:`SENSOR_ROWS`) in each phase
     (``masks``: {phase: mask}), by the student's ``nis_per_row(y, S, rows, samples)``. Prints it; returns
     {sensor: {phase: NIS per row}}."""
-    table = {sensor: {group: float(nis_per_row(run.y, run.S, rows, mask)) for group, mask in masks.items()}
-             for sensor, rows in SENSOR_ROWS.items()}
+    table = {
+        sensor: {group: float(nis_per_row(run.y, run.S, rows, mask)) for group, mask in masks.items()}
+        for sensor, rows in SENSOR_ROWS.items()
+    }
     out(f"{'NIS per row (1 expected)':26s}" + "".join(f"{group:>10s}" for group in masks))
     for sensor, row in table.items():
         out(f"{sensor:26s}" + "".join(f"{value:10.2f}" for value in row.values()))
@@ -131,6 +155,8 @@ def nis_table(run, masks, nis_per_row, out=print):
 #: the real recording the student's filter runs on (BROAD trial 06) and how much of it: the whole first rest (where the
 #: gyro bias and the field are learned), then the first REAL_MOVING_SECONDS of rotations by hand, up to 7 rad/s and
 #: 77° of pitch (the fast part after them, up to 16 rad/s, is where the ablation below looks)
+#: the simulated tour the lab (and its graded runs) filter
+RECORDING = "04_attitude_tour"
 REAL_RECORDING, REAL_MOVING_SECONDS = "04_broad_fast_rotation", 30.0
 #: both bundled BROAD excerpts: 06 (fast rotations) and 28 (a magnet near the path)
 REAL_TRIALS = ("04_broad_fast_rotation", "04_broad_stationary_magnet")
@@ -142,8 +168,12 @@ def rest_calibration(rec) -> Calibration:
     """A BROAD recording's calibration: the dataset comes calibrated by its authors, but its gyro keeps a
     bias, measured as in lab 02: the mean rate over the first rest (rad/s); nothing else is corrected."""
     first_rest = rec.phase("rest") & (rec.t < rec.phases[0]["end"])
-    return Calibration(board=rec.meta["board"], rate_hz=rec.rate_hz, gyro_bias=gyro_bias(rec.body("gyr")[first_rest]),
-                       source=f"{rec.meta['source']}: calibrated by its authors; gyro bias = mean of the first rest")
+    return Calibration(
+        board=rec.meta["board"],
+        rate_hz=rec.rate_hz,
+        gyro_bias=gyro_bias(rec.body("gyr")[first_rest]),
+        source=f"{rec.meta['source']}: calibrated by its authors; gyro bias = mean of the first rest",
+    )
 
 
 def movement_start(rec) -> float:
@@ -189,11 +219,12 @@ def truth_error_at_rest(rec, acc, mag, seconds=TRUTH_CHECK_SECONDS):
 
 def broad_errors(q, q_true, moving):
     """BROAD's total (heading / inclination) RMSE over the movement of the first len(q) samples, as text (°)."""
-    e = {k: np.degrees(v) for k, v in metrics.attitude_rmse(q, q_true[:len(q)], moving[:len(q)]).items()}
+    e = {k: np.degrees(v) for k, v in metrics.attitude_rmse(q, q_true[: len(q)], moving[: len(q)]).items()}
     return f"{e['total']:5.2f} ({e['heading']:.2f} / {e['inclination']:.2f})"
 
 
 # --- the ablation: the Euler EKF plus one of the MEKF's features at a time ----------------------------------------
+
 
 @dataclass(frozen=True)
 class Variant:
@@ -240,8 +271,7 @@ def stabilised_accel(gyr, acc, rate_hz, tau=ACCEL_TAU):
     dt = 1.0 / rate_hz
     angle = np.linalg.norm(gyr, axis=1) * dt
     half = 0.5 * angle
-    axis = np.divide(gyr, np.linalg.norm(gyr, axis=1, keepdims=True), out=np.zeros_like(gyr),
-                     where=angle[:, None] > 0)
+    axis = np.divide(gyr, np.linalg.norm(gyr, axis=1, keepdims=True), out=np.zeros_like(gyr), where=angle[:, None] > 0)
     steps = np.column_stack([np.cos(half), axis * np.sin(half)[:, None]])
     q, a = np.array([1.0, 0.0, 0.0, 0.0]), 1.0 - math.exp(-dt / tau)
     f_I, out = np.array(acc[0], dtype=float), np.empty_like(acc)
@@ -265,21 +295,29 @@ def ablation_run(variant: Variant, gyr, acc, mag, rate_hz, field_n, settings=Eul
     fresh = ~np.isnan(mag[:, 0])
     x = np.zeros(n)
     x[:3] = tilt_heading(acc[0], mag[np.argmax(fresh)], field_n)
-    P = np.diag(np.r_[np.radians([5.0, 5.0, 10.0]) ** 2, [BIAS_SIGMA0 ** 2] * 3][:n])
+    P = np.diag(np.r_[np.radians([5.0, 5.0, 10.0]) ** 2, [BIAS_SIGMA0**2] * 3][:n])
     gate = _HeadingGate(field_n)
     out, previous = np.empty((len(gyr), 3)), gyr[0]
     for k, (w, f, m) in enumerate(zip(gyr, acc, mag)):
         x, P = _ablation_predict(x, P, previous, w, dt, st.gyro_noise, variant.substeps)
         previous = w
         gated = st.accel_gate is not None and abs(np.linalg.norm(f) - G) > st.accel_gate
-        r_acc = st.accel_noise ** 2 * (st.accel_inflation if gated else 1.0)
+        r_acc = st.accel_noise**2 * (st.accel_inflation if gated else 1.0)
         rows = 6 if fresh[k] and not variant.heading_only else 3
-        x, P = _update(x, P, np.r_[f, m][:rows], attitude_measurement(x[:3], field_n)[:rows],
-                       _jacobian(x, field_n)[:rows], [r_acc] * 3 + [st.mag_noise ** 2] * (rows - 3))
+        x, P = _update(
+            x,
+            P,
+            np.r_[f, m][:rows],
+            attitude_measurement(x[:3], field_n)[:rows],
+            _jacobian(x, field_n)[:rows],
+            [r_acc] * 3 + [st.mag_noise**2] * (rows - 3),
+        )
         if fresh[k] and variant.heading_only:
             y = gate.innovation(k * dt, euler_to_dcm(x[:3]) @ m)
             if y is not None:
-                x, P = _update(x, P, np.array([y]), np.zeros(1), np.array([[0.0, 0.0, 1.0]]), [gate.r_psi(st.mag_noise)])
+                x, P = _update(
+                    x, P, np.array([y]), np.zeros(1), np.array([[0.0, 0.0, 1.0]]), [gate.r_psi(st.mag_noise)]
+                )
         out[k] = x[:3]
     return out
 
@@ -295,7 +333,7 @@ def _ablation_predict(x, P, w0, w1, dt, gyro_noise, substeps):
     Q[:3, :3] = E @ E.T * (gyro_noise * dt) ** 2
     if n == 6:
         F[:3, 3:] = -dt * E
-        Q[3:, 3:] = np.eye(3) * BIAS_WALK ** 2 * dt
+        Q[3:, 3:] = np.eye(3) * BIAS_WALK**2 * dt
     x = x.copy()
     for j in range(substeps):
         w = w0 + (j + 0.5) / substeps * (w1 - w0) - b
@@ -341,8 +379,10 @@ class _HeadingGate:
     def innovation(self, t, m_n):
         """ψ_ref − the heading of the field ``m_n`` (NED, µT), wrapped (rad), or None if the gates refuse it."""
         horizontal = math.hypot(m_n[0], m_n[1])
-        if (abs(np.linalg.norm(m_n) - self.norm) > MAG_NORM_GATE * self.norm
-                or abs(math.atan2(m_n[2], horizontal) - self.dip) > MAG_DIP_GATE):
+        if (
+            abs(np.linalg.norm(m_n) - self.norm) > MAG_NORM_GATE * self.norm
+            or abs(math.atan2(m_n[2], horizontal) - self.dip) > MAG_DIP_GATE
+        ):
             self.good_since = math.inf
         elif self.good_since > t:
             self.good_since = t
@@ -358,7 +398,77 @@ def ablation(trials=REAL_TRIALS, variants=ABLATION, settings=EulerAttitudeEKFSet
     for name in trials:
         rec, gyr, acc, mag, field_n, q_true, moving = to_movement_end(name)
         for v in variants:
-            errors = metrics.attitude_rmse(euler_to_quat(ablation_run(v, gyr, acc, mag, rec.rate_hz, field_n, settings)),
-                                           q_true, moving)
+            errors = metrics.attitude_rmse(
+                euler_to_quat(ablation_run(v, gyr, acc, mag, rec.rate_hz, field_n, settings)), q_true, moving
+            )
             table[v.label][name] = {k: float(np.degrees(e)) for k, e in errors.items()}
     return table
+
+
+# --- the graded runs' inputs (kfkit.checkpoints.lab04 judges run_ekf on them) -----------------------------------
+
+#: noise_free_turns' number of one-second turns
+TURNS = 5
+
+
+def bundled_inputs():
+    """Lab 04's inputs: the bundled recording corrected with the calibration that belongs to it, the
+    bundled unit's (:func:`kfkit.calibration.calibration_for`; the student's own file is not used, so
+    every grader agrees).
+
+    Returns (recording, gyr rad/s, acc m/s², mag µT), body frame.
+    """
+    rec = datasets.load(RECORDING)
+    gyr, acc, mag = calibration_for(rec).apply(rec)
+    return rec, gyr, acc, mag
+
+
+#: The gated run: the recording with BURSTS horizontal accelerations of BURST_ACCEL m/s² for BURST_SECONDS each
+#: (random start and direction), judged at the plain limits with ``accel_gate`` = ACCEL_GATE. A horizontal a
+#: tilts the measured specific force by atan(a/g) = 31° and lengthens it by √(g² + a²) − g = 1.7 m/s² > the gate,
+#: so a gated filter rides the bursts on the gyro (kfkit: ≤ 0.3° RMSE on every angle), while a filter that ignores
+#: ``accel_gate`` follows the tilted force (1.5–4° roll/pitch, 5–8° yaw RMSE over 50 seeds).
+BURSTS, BURST_ACCEL, BURST_SECONDS, ACCEL_GATE = 4, 6.0, 2.0, 1.0
+
+
+def accelerated(acc, truth, t, rng):
+    """``acc`` plus the specific force R_bn·a_n of BURSTS horizontal accelerations a_n (NED), and their mask."""
+    a_n, during = np.zeros_like(acc), np.zeros(len(t), bool)
+    slots = np.linspace(t[0] + 3.0, t[-1] - 3.0 - BURST_SECONDS, BURSTS + 1)
+    for t0, t1 in zip(slots[:-1], slots[1:]):
+        start = rng.uniform(t0, t1 - BURST_SECONDS)
+        w = (t >= start) & (t < start + BURST_SECONDS)
+        heading = rng.uniform(-np.pi, np.pi)
+        a_n[w] = BURST_ACCEL * np.array([np.cos(heading), np.sin(heading), 0.0])
+        during |= w
+    R_bn = np.swapaxes(euler_to_dcm(truth), -1, -2)
+    return acc + np.einsum("nij,nj->ni", R_bn, a_n), during
+
+
+def noise_free_turns(rng, rate_hz=104.0, field_n=MAG_FIELD_LONDON):
+    """TURNS one-second turns by hand about one Euler axis at a time (roll ±60–120°, yaw ±90–180°, pitch to ±60°), from
+    a random attitude, seen by noise-free sensors: (gyr at each sample's instant, acc, mag on every other row, truth),
+    rad/s, m/s², µT, rad. Up to 6 rad/s: a step fed the rate at its end runs ½ωΔt (1.6°) ahead of the truth."""
+    t = np.arange(int((2 * TURNS + 2) * rate_hz)) / rate_hz
+    start = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-np.pi, np.pi)])
+    moves, pitch = [], start[1]
+    for i in range(TURNS):
+        axis = int(rng.integers(0, 3))
+        if axis == 1:
+            target = rng.uniform(np.radians(30.0), np.radians(60.0)) * -np.sign(pitch or 1.0)
+            delta, pitch = target - pitch, target
+        else:
+            delta = rng.choice([-1.0, 1.0]) * np.radians(
+                rng.uniform(60.0, 120.0) if axis == 0 else rng.uniform(90.0, 180.0)
+            )
+        moves.append((1.0 + 2 * i, 2.0 + 2 * i, axis, delta))
+    euler, euler_dot = sim.euler_moves(t, start, moves)
+    R_bn = np.swapaxes(euler_to_dcm(euler), 1, 2)
+    mag = R_bn @ np.asarray(field_n, dtype=float)
+    mag[1::2] = np.nan
+    return (
+        euler_rates_to_body_rates(euler, euler_dot),
+        R_bn @ np.array([0.0, 0.0, -G]),
+        mag,
+        dcm_to_euler(euler_to_dcm(euler)),
+    )

@@ -10,6 +10,7 @@ checkpoints to compare with (:mod:`kfkit.checkpoints.lab04b`); the notebook's st
     mekf_update    y = z − h(q), K = P Hᵀ S⁻¹, δx = K y, P ← (I − K H) P, then mekf_reset
     mekf_reset     q ← q ⊗ exp(δθ/2), b ← b + δb, P ← J P Jᵀ with J = diag(I − [δθ/2 ×], I)
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -17,8 +18,17 @@ import numpy as np
 from .. import datasets
 from ..calibration import gyro_bias
 from ..filters.attitude_run import learn_field, tilt_heading
-from ..frames import (G, cross_matrix, enu_to_ned_quat, euler_to_quat, quat_conjugate, quat_multiply, quat_rotate,
-                      quat_to_dcm, rotvec_to_quat)
+from ..frames import (
+    G,
+    cross_matrix,
+    enu_to_ned_quat,
+    euler_to_quat,
+    quat_conjugate,
+    quat_multiply,
+    quat_rotate,
+    quat_to_dcm,
+    rotvec_to_quat,
+)
 from ..metrics import attitude_rmse
 
 #: the specific force an accelerometer at rest reads, in NED (m/s²): the reaction to gravity, "up"
@@ -50,7 +60,7 @@ def transition(dq, dt):
 
 def process_noise(dt, gyro_noise, bias_rw):
     """G Q Gᵀ (6×6) with Q = diag(σ_g²Δt² I, σ_bw²Δt I) and G = diag(−I, I) (the signs cancel in G Q Gᵀ)."""
-    return np.diag(np.r_[[(gyro_noise * dt) ** 2] * 3, [bias_rw ** 2 * dt] * 3])
+    return np.diag(np.r_[[(gyro_noise * dt) ** 2] * 3, [bias_rw**2 * dt] * 3])
 
 
 def mekf_predict(q, b, P, omega_prev, omega, dt, gyro_noise, bias_rw):
@@ -96,8 +106,13 @@ def mekf_update(q, b, P, z, R, field_n):
 
 def error_state_fd(h, q, eps=1e-6):
     """Central finite differences of h(q ⊗ exp(δθ/2)) w.r.t. δθ at 0: the attitude columns (m×3) of H."""
-    return np.stack([(h(quat_multiply(q, rotvec_to_quat(eps * e))) - h(quat_multiply(q, rotvec_to_quat(-eps * e))))
-                     / (2 * eps) for e in np.eye(3)], axis=-1)
+    return np.stack(
+        [
+            (h(quat_multiply(q, rotvec_to_quat(eps * e))) - h(quat_multiply(q, rotvec_to_quat(-eps * e)))) / (2 * eps)
+            for e in np.eye(3)
+        ],
+        axis=-1,
+    )
 
 
 def broad(name):
@@ -122,8 +137,8 @@ def initial_state(acc, mag, field_n):
 def noise_matrix(acc, accel_noise, mag_noise, accel_gate=ACCEL_GATE):
     """R (6×6) for one sample: σ_a² per accelerometer axis, × GATE_FACTOR when |‖f‖ − g| > accel_gate (the hand
     pushes the board: the accelerometer reads more than gravity), and σ_m² per magnetometer axis."""
-    ra = accel_noise ** 2 * (GATE_FACTOR if abs(np.linalg.norm(acc) - G) > accel_gate else 1.0)
-    return np.diag([ra] * 3 + [mag_noise ** 2] * 3)
+    ra = accel_noise**2 * (GATE_FACTOR if abs(np.linalg.norm(acc) - G) > accel_gate else 1.0)
+    return np.diag([ra] * 3 + [mag_noise**2] * 3)
 
 
 def vqf_quat(gyr, acc, mag, rate_hz):

@@ -3,6 +3,7 @@ noise model lab 02 measured, and the two loops section 12 runs on a real IMU tur
 
 The checkpoints (:mod:`kfkit.checkpoints.lab05`) build their cases from the same helpers.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -47,7 +48,8 @@ def lab02_calibration(rec, source):
     if rec.meta.get("board") != BOARD.name:
         return None
     return calibration.load_calibration(
-        BOARD.name, path=calibration.bundled_calibration_path(BOARD.name) if source == "bundled" else None)
+        BOARD.name, path=calibration.bundled_calibration_path(BOARD.name) if source == "bundled" else None
+    )
 
 
 def noise_densities(cal, w_still, dt):
@@ -69,10 +71,14 @@ def shipped_process_noise(dt=0.01):
 
 # --- where the angles are known ------------------------------------------------------------------------------------
 
+
 def rest_windows(rec, trim=REST_TRIM) -> list[tuple[float, float]]:
     """The (start, end) windows (s) of a recording's ``rest`` phases, ``trim`` s shorter at each end."""
-    return [(p["start"] + trim, p["end"] - trim) for p in rec.phases
-            if p["label"] == "rest" and p["end"] - p["start"] > 2 * trim]
+    return [
+        (p["start"] + trim, p["end"] - trim)
+        for p in rec.phases
+        if p["label"] == "rest" and p["end"] - p["start"] > 2 * trim
+    ]
 
 
 def in_windows(rec, windows):
@@ -128,8 +134,10 @@ def single_axis_stretch():
 
 # --- the reference pipeline and tuning -----------------------------------------------------------------------------
 
+
 def pipeline_inputs(tilt=None, still=None, faces=None):
-    """kfkit's reference pipeline up to the filter: per axis (gyro rate, accel angle, static_ok, known angle), dt, r, q0."""
+    """kfkit's reference pipeline up to the filter: per axis (gyro rate, accel angle, static_ok, known angle), dt, r,
+    q0."""
     if tilt is None:
         tilt, still, faces = bundled()
     bias, scale = calibration.accel_six_face({f: faces.body("acc")[faces.phase(f)] for f in calibration.FACES})
@@ -142,7 +150,7 @@ def pipeline_inputs(tilt=None, still=None, faces=None):
     still_roll, still_pitch = accel_tilt((still.body("acc") - bias) / scale)
     dt = 1.0 / tilt.rate_hz
     r = float(np.mean([np.var(still_roll), np.var(still_pitch)]))
-    q0 = float(np.mean(np.var(still.body("gyr")[:, :2], axis=0))) * dt ** 2
+    q0 = float(np.mean(np.var(still.body("gyr")[:, :2], axis=0))) * dt**2
     axes = {"roll": (gyr[:, 0], roll, roll_ok, roll_ref), "pitch": (gyr[:, 1], pitch, ok, pitch_ref)}
     return axes, dt, r, q0
 
@@ -154,17 +162,21 @@ def tune_on_holds(gyro_rate, accel_angle, static_ok, reference, dt, r, q0):
     log₁₀ q_θ = log₁₀ q0 + 0, 0.5, …, 6, then refine with a bounded scalar search (Brent) within
     half a decade of the best. Returns (q_angle, q_bias).
     """
+
     def mse(log_q):
-        run = TiltBiasKF(dt, q_angle=10 ** log_q, q_bias=Q_BIAS_RATIO * 10 ** log_q, r=r).run(gyro_rate, accel_angle, static_ok)
+        run = TiltBiasKF(dt, q_angle=10**log_q, q_bias=Q_BIAS_RATIO * 10**log_q, r=r).run(
+            gyro_rate, accel_angle, static_ok
+        )
         return static_rmse(run.angle, reference) ** 2
 
     grid = np.log10(q0) + np.arange(0.0, 6.5, 0.5)
     start = min(grid, key=mse)
     best = minimize_scalar(mse, bounds=(start - 0.5, start + 0.5), method="bounded", options={"xatol": 0.02})
-    return 10 ** best.x, Q_BIAS_RATIO * 10 ** best.x
+    return 10**best.x, Q_BIAS_RATIO * 10**best.x
 
 
 # --- section 12: a known term in the prediction, or in Q -----------------------------------------------------------
+
 
 def left_out_rates(w, roll, pitch):
     """(roll, pitch) rates the per-axis model leaves out (rad/s), each (N,): [φ̇, θ̇] − [p, q] by ZYX kinematics
@@ -184,7 +196,7 @@ def run_nearest(gyro_rate, accel_angle, static_ok, dt, Q, r, x0=None, P0=None, q
     ``q_extra`` (N,) rad², if given, is added to q_θ at each step (Q_k = Q + diag(q_extra_k, 0)).
     x0 None: [first accelerometer angle, 0]; P0 None: diag(r, (0.1 rad/s)²). Returns [angle, bias] (N, 2)."""
     x = np.array([accel_angle[0], 0.0] if x0 is None else x0, dtype=float)
-    P = np.diag([r, 0.1 ** 2]) if P0 is None else np.asarray(P0, dtype=float)
+    P = np.diag([r, 0.1**2]) if P0 is None else np.asarray(P0, dtype=float)
     extra = np.zeros(len(accel_angle)) if q_extra is None else np.asarray(q_extra, dtype=float)
     xs = np.empty((len(accel_angle), 2))
     for k, (w, z, ok, q) in enumerate(zip(gyro_rate, accel_angle, static_ok, extra)):

@@ -5,6 +5,7 @@ The loops hold the bookkeeping (the speed-bin cache, the previous steering, the 
 section 5 serve the EKF); the model, the discretisation, the filter step, the tyre forces and their Jacobian are the
 student's functions, passed in. The checkpoints build their cases from the same helpers.
 """
+
 from __future__ import annotations
 
 import math
@@ -47,8 +48,22 @@ def published_car(rec, mu=None) -> BicycleParams:
     return BicycleParams(**rec.meta["vehicle"], **({} if mu is None else {"mu": mu}))
 
 
-def run_sideslip(t, delta, yaw_rate, ay, vx, params, bicycle_model, discretize, kf_step, *, q_beta=1e-4, q_r=1e-3,
-                 r_std=(0.003, 0.05), vx_step=0.05) -> np.ndarray:
+def run_sideslip(
+    t,
+    delta,
+    yaw_rate,
+    ay,
+    vx,
+    params,
+    bicycle_model,
+    discretize,
+    kf_step,
+    *,
+    q_beta=1e-4,
+    q_r=1e-3,
+    r_std=(0.003, 0.05),
+    vx_step=0.05,
+) -> np.ndarray:
     """Section 5's filter over a drive with the student's three functions: β (rad), one per sample.
 
     Per sample: the model ``bicycle_model(params, V)`` at the speed rounded to ``vx_step`` (m/s; discretised once
@@ -66,8 +81,9 @@ def run_sideslip(t, delta, yaw_rate, ay, vx, params, bicycle_model, discretize, 
             A, B, C, D = bicycle_model(params, key * vx_step)
             cache[key] = (*discretize(A, B, dt, Qc), C, D)
         Ad, Bd, Qd, C, D = cache[key]
-        x, P, _, _ = kf_step(x, P, delta[k - 1] if k else delta[0], np.array([yaw_rate[k], ay[k]]), delta[k],
-                             Ad, Bd, Qd, C, D, R)
+        x, P, _, _ = kf_step(
+            x, P, delta[k - 1] if k else delta[0], np.array([yaw_rate[k], ay[k]]), delta[k], Ad, Bd, Qd, C, D, R
+        )
         beta[k] = x[0]
     return beta
 
@@ -76,11 +92,24 @@ def tyre_rates(params, forces, r, vx):
     """The single-track model's rates from the axle forces (N): β̇ = (F_f + F_r)/(m V_x) − r (rad/s),
     ṙ = (a F_f − b F_r)/I_z (rad/s²), as an array, and a_y = (F_f + F_r)/m (m/s²)."""
     ff, fr = forces
-    return np.array([(ff + fr) / (params.m * vx) - r, (params.a * ff - params.b * fr) / params.Iz]), (ff + fr) / params.m
+    return np.array([(ff + fr) / (params.m * vx) - r, (params.a * ff - params.b * fr) / params.Iz]), (
+        ff + fr
+    ) / params.m
 
 
-def run_tyre_ekf(t, delta, yaw_rate, ay, vx, params, tyre_force, tyre_jacobian, discretize, kf_step,
-                 settings: SideslipEKFSettings = SideslipEKFSettings()) -> np.ndarray:
+def run_tyre_ekf(
+    t,
+    delta,
+    yaw_rate,
+    ay,
+    vx,
+    params,
+    tyre_force,
+    tyre_jacobian,
+    discretize,
+    kf_step,
+    settings: SideslipEKFSettings = SideslipEKFSettings(),
+) -> np.ndarray:
     """Section 12's EKF over a drive with the student's functions: β (rad), one per sample.
 
     ``tyre_force(params, x, δ, V)`` → (F_f, F_r) N; ``tyre_jacobian(params, x, δ, V)`` → (J, H), J = ∂[β̇, ṙ]/∂x,
@@ -97,8 +126,10 @@ def run_tyre_ekf(t, delta, yaw_rate, ay, vx, params, tyre_force, tyre_jacobian, 
     slow = np.asarray(vx) < settings.v_min
     if slow.any():
         k = int(np.argmax(slow))
-        raise ValueError(f"run_tyre_ekf: vx[{k}] = {vx[k]:.3g} m/s is below v_min = {settings.v_min:g} m/s; this loop "
-                         "has no low-speed guard (kfkit's SideslipEKF has): cut the drive to where the car rolls")
+        raise ValueError(
+            f"run_tyre_ekf: vx[{k}] = {vx[k]:.3g} m/s is below v_min = {settings.v_min:g} m/s; this loop "
+            "has no low-speed guard (kfkit's SideslipEKF has): cut the drive to where the car rolls"
+        )
     dt = float(np.median(np.diff(t)))
     Qc = np.diag([settings.q_beta, settings.q_r])
     x, P = np.zeros(2), np.diag([math.radians(2.0) ** 2] * 2)
@@ -113,9 +144,15 @@ def run_tyre_ekf(t, delta, yaw_rate, ay, vx, params, tyre_force, tyre_jacobian, 
         _, ay_prior = tyre_rates(params, forces, x_prior[1], vx[k])
         H = np.asarray(tyre_jacobian(params, x_prior, delta[k], vx[k])[1], dtype=float)
         D = np.array([[x_prior[1]], [ay_prior]]) - (H @ x_prior)[:, None]
-        R = np.diag([settings.gyro_noise ** 2,
-                     settings.accel_noise ** 2 + (settings.stiffness_std / params.m) ** 2 * float(np.sum(np.square(forces)))])
-        x, P, _, _ = kf_step(x, P, 1.0, np.array([yaw_rate[k], ay[k]]), 1.0, Ad, (x_prior - Ad @ x)[:, None], Qd, H, D, R)
+        R = np.diag(
+            [
+                settings.gyro_noise**2,
+                settings.accel_noise**2 + (settings.stiffness_std / params.m) ** 2 * float(np.sum(np.square(forces))),
+            ]
+        )
+        x, P, _, _ = kf_step(
+            x, P, 1.0, np.array([yaw_rate[k], ay[k]]), 1.0, Ad, (x_prior - Ad @ x)[:, None], Qd, H, D, R
+        )
         beta[k] = x[0]
     return beta
 
@@ -132,12 +169,16 @@ def mu_sweep(rec, params, mus) -> dict:
 
 def linear_ay(params, beta, r, delta, vx):
     """a_y (m/s²) the linear tyres promise at β, r, δ: the model's C x + D δ."""
-    return (-(params.Cf + params.Cr) / params.m * beta + (params.b * params.Cr - params.a * params.Cf) / (params.m * vx) * r
-            + params.Cf / params.m * delta)
+    return (
+        -(params.Cf + params.Cr) / params.m * beta
+        + (params.b * params.Cr - params.a * params.Cf) / (params.m * vx) * r
+        + params.Cf / params.m * delta
+    )
 
 
 def by_ay_bins(ay, values, edges, how=np.median) -> list:
-    """``how`` (median by default) of ``values`` in each |a_y| bin [edges[i], edges[i+1]) (m/s²); NaN for an empty bin."""
+    """``how`` (median by default) of ``values`` in each |a_y| bin [edges[i], edges[i+1]) (m/s²); NaN for an empty
+    bin."""
     level = np.digitize(np.abs(ay), edges) - 1
     return [float(how(values[level == i])) if np.any(level == i) else math.nan for i in range(len(edges) - 1)]
 
@@ -145,14 +186,27 @@ def by_ay_bins(ay, values, edges, how=np.median) -> list:
 def sensitivity_table(drives: dict, car: BicycleParams) -> dict:
     """Section 8: β RMSE (°) of kfkit's linear KF per drive (name → recording) and case — nominal, the cornering
     stiffnesses ±20 %, 0.3 m/s² added to a_y, and that bias with the bias state: {drive: {case: RMSE}}."""
-    cases = {"nominal": (car, 0.0, False), "C −20 %": (car.scaled(0.8), 0.0, False), "C +20 %": (car.scaled(1.2), 0.0, False),
-             "a_y bias +0.3": (car, 0.3, False), "bias + state": (car, 0.3, True)}
+    cases = {
+        "nominal": (car, 0.0, False),
+        "C −20 %": (car.scaled(0.8), 0.0, False),
+        "C +20 %": (car.scaled(1.2), 0.0, False),
+        "a_y bias +0.3": (car, 0.3, False),
+        "bias + state": (car, 0.3, True),
+    }
     table = {}
     for label, r in drives.items():
         t, delta, yaw_rate, ay, vx = signals(r)
-        table[label] = {name: math.degrees(rmse(estimate_sideslip(t, delta, yaw_rate, ay + bias, vx, params,
-                                                                  model=linear_model, bias_ay=state).beta, r["true_beta"]))
-                        for name, (params, bias, state) in cases.items()}
+        table[label] = {
+            name: math.degrees(
+                rmse(
+                    estimate_sideslip(
+                        t, delta, yaw_rate, ay + bias, vx, params, model=linear_model, bias_ay=state
+                    ).beta,
+                    r["true_beta"],
+                )
+            )
+            for name, (params, bias, state) in cases.items()
+        }
     return table
 
 
