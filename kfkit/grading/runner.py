@@ -74,11 +74,17 @@ WARM_UP_MODULES = (
     "kfkit.checkpoints",
 )
 _WARM_UP_CODE = f"""
-import importlib
+import importlib, pkgutil
 for name in {WARM_UP_MODULES!r}:
     try:
         importlib.import_module(name)
     except Exception:  # a missing optional module: the student's own import will say so
+        pass
+import kfkit.labs
+for lab in pkgutil.iter_modules(kfkit.labs.__path__):  # each lab's support: a lab's first cell imports it
+    try:
+        importlib.import_module("kfkit.labs." + lab.name)
+    except Exception:
         pass
 """
 WARM_UP = f"exec({_WARM_UP_CODE!r}, {{}})"  # the labs' heavy imports, outside the student's namespace

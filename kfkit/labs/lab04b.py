@@ -143,7 +143,7 @@ def noise_matrix(acc, accel_noise, mag_noise, accel_gate=ACCEL_GATE):
 
 def vqf_quat(gyr, acc, mag, rate_hz):
     """VQF 2.1.2 (Laidig and Seel 2023, causal, its defaults) on the same samples, quaternions body → NED; None when
-    the vqf package is not installed (the benchmarks' environment has it, the labs' does not)."""
+    the vqf package is not installed (environment.txt pins it)."""
     try:
         from vqf import VQF
     except ImportError:
