@@ -304,6 +304,7 @@ def test_lab03_and_lab04_magnetometer_and_attitude_on_the_recordings(recorded, t
     assert heading_rmse_deg(None) > 10.0  # raw: the unit's hard iron (≈ 15 µT) turns the heading by ≈ 20°
 
 
+@pytest.mark.slow
 def test_lab03_alignment_and_headings_on_the_recordings(recorded):
     """Lab 03 on the panel's recordings, calibrated by labs 02/03 from the recorded rest, faces and rotations:
     the turns show the IIS2MDC's 180° about y (docs/design.md), the headings come out as the prompts asked."""
@@ -344,6 +345,7 @@ def test_lab03_alignment_and_headings_on_the_recordings(recorded):
         np.testing.assert_allclose(np.degrees([np.median(roll[tilt]), np.median(pitch[tilt])]), expected, atol=0.2)
 
 
+@pytest.mark.slow
 @pytest.mark.xfail(
     strict=True,
     reason="the shipped TiltBiasKFSettings (Q from lab 02's noise, issue 25 §4) give 5.4° roll RMSE on the panel's "

@@ -233,6 +233,7 @@ def test_a_phone_that_pauses_mid_capture_keeps_what_arrived(tmp_path):
     assert 3.5 < rec.t[-1] < 4.0 and rec.meta["capture"]["stats"]["samples"] == len(rec)
 
 
+@pytest.mark.slow
 def test_a_phone_that_stops_answering_mid_capture_keeps_what_arrived(tmp_path):
     with (
         VirtualPhone(step_s=0.4, faults={"hang_after": 15}) as vp,

@@ -838,8 +838,18 @@ CLI_FAILURES = {  # name: (board options, error class, words of its message, sam
 }
 
 
-@pytest.mark.parametrize("as_json", [True, False], ids=["json", "human"])
-@pytest.mark.parametrize("case", CLI_FAILURES)
+#: the cases that wait out the capture's 3 s of silence: their human form is in the full suite only
+WAITS = ("no data", "stall mid-capture")
+
+
+@pytest.mark.parametrize(
+    "case, as_json",
+    [
+        pytest.param(case, as_json, id=f"{case}-{'json' if as_json else 'human'}", marks=slow)
+        for case in CLI_FAILURES
+        for as_json, slow in ((True, ()), (False, pytest.mark.slow if case in WAITS else ()))
+    ],
+)
 def test_cli_capture_failure_still_reports_statistics_and_where_the_data_is(tmp_path, capsys, case, as_json):
     board_options, error_type, words, samples = CLI_FAILURES[case]
     out = tmp_path / "failed.csv"

@@ -123,7 +123,14 @@ def run_all(*runs: list[str]) -> list[list[list]]:
     return [[outputs(c) for c in nb.cells] for nb in notebooks]
 
 
-@pytest.mark.parametrize("path", SOLUTIONS, ids=[p.stem for p in SOLUTIONS])
+#: the lab whose writings the quick tier runs (15 s); the others (14–70 s each) are slow
+QUICK_LAB = "01_roll_kf_1d"
+
+
+@pytest.mark.parametrize(
+    "path",
+    [pytest.param(p, id=p.stem, marks=() if p.stem == QUICK_LAB else pytest.mark.slow) for p in SOLUTIONS],
+)
 def test_every_way_of_writing_the_exercises_runs_as_without_the_guard(path, tmp_path):
     solution = nbformat.read(path, as_version=4)
     exercises = [name for _, names in exercise_cells(solution) for name in names]

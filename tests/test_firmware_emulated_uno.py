@@ -154,6 +154,7 @@ def with_phases(captured, source, first_frame):
     return Recording({**captured.meta, "phases": phases}, captured.data, captured.path)
 
 
+@pytest.mark.slow
 def test_kfkit_capture_records_every_sample_the_emulated_sensor_produced(toolchain, frames, recording, tmp_path):
     """mpu6050_logger on the emulated Uno, recorded by ``kfkit capture --port <pty>``: 4 s of 05_tilt_protocol."""
     log, out = tmp_path / "emulator.log", tmp_path / "capture.csv"
@@ -206,6 +207,7 @@ def process_state(pid) -> str:
         return f.read().rsplit(")", 1)[1].split()[0]
 
 
+@pytest.mark.slow
 def test_a_reader_that_falls_behind_loses_nothing(toolchain, frames, tmp_path):
     """The emulator's choice: when the pty is full (≈ 20 KB unread) it waits, and the AVR with it (its clock is the
     cycle count), rather than drop bytes. The reader here reads nothing until the emulator sleeps in that wait (the
@@ -294,6 +296,7 @@ def test_the_tilt_sketch_filter_equals_python_over_a_whole_recording(toolchain, 
 # --- sensor faults: what firmware/mpu6050_logger/README.md promises ---------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_missing_sensor_is_said_on_the_serial_line_and_reported_by_the_capture(toolchain, frames, tmp_path):
     """NACK from power-on: the sketch says '#ERROR,no MPU6050 answers at 0x68…' once a second and sends nothing else;
     ``kfkit capture`` fails with that message, saves no file."""
@@ -316,6 +319,7 @@ def record_with_fault(fault, frames, tmp_path):
     return rec, captured, read_log(log)
 
 
+@pytest.mark.slow
 def test_a_stuck_bus_costs_the_samples_it_lasts_and_the_logger_carries_on(toolchain, frames, tmp_path):
     """The bus hangs for 0.3 s from 1 s: each transfer gives up after Wire's 25 ms timeout ('#ERROR,MPU6050 read
     failed'), the sketch skips the slots the stall passed, counting them in seq, and carries on when the bus is
@@ -334,6 +338,7 @@ def test_a_stuck_bus_costs_the_samples_it_lasts_and_the_logger_carries_on(toolch
     assert not stuck.any()  # nothing was read while the bus hung
 
 
+@pytest.mark.slow
 def test_a_sensor_reset_is_noticed_and_the_sensor_configured_again(toolchain, frames, tmp_path):
     """The MPU6050 resets at 1 s (its registers back to power-on: asleep, reading zeros): the next read sees
     PWR_MGMT_1 = 0x40, the sketch says '#ERROR,MPU6050 was reset…', configures it again and drops that one sample;

@@ -160,6 +160,7 @@ def test_section12_1_on_turns_about_one_axis_the_filter_beats_the_accelerometer(
     assert moving_rmse_deg(one, plain, 1) > 3 * accel_pitch and moving_rmse_deg(one, known, 1) < 0.4 * accel_pitch
 
 
+@pytest.mark.slow
 def test_section12_3_what_tuning_adds_on_turns_about_one_axis_is_the_left_out_rate():
     """Issue 26 §3 on a real IMU: tuned on the motion capture (half decades of q_θ / N²Δt), the roll filter driven by
     the gyro alone wants q_θ 30–300 × N²Δt and gains a third (measured 0.98° at 56 × against 1.54° at 1 ×); driven by
@@ -197,6 +198,7 @@ def section12_2(real):
     }, angles
 
 
+@pytest.mark.slow
 def test_section12_2_q_from_the_noise_fails_on_motion_about_all_axes(real, section12_2):
     """Q from the gyro noise alone: the bias state runs off by degrees per second (the gyro's bias is 0.1 °/s) and the
     angles by tens of degrees while the board turns about all axes (measured 70.7° / 71.2°)."""
@@ -208,6 +210,7 @@ def test_section12_2_q_from_the_noise_fails_on_motion_about_all_axes(real, secti
         assert moving_rmse_deg(real, x[:, 0], col) > 20.0, name
 
 
+@pytest.mark.slow
 def test_section12_2_the_known_term_in_q_keeps_the_bias_but_never_beats_the_accelerometer(real, section12_2):
     """c_k into Q (q_θ + (c·Δt)²): the bias state at the end of every rest lies within the rests' walk (the span of
     their means) plus 3 standard errors of that rest's mean (from its 1-s means); the angles come near the
@@ -231,6 +234,7 @@ def test_section12_2_the_known_term_in_q_keeps_the_bias_but_never_beats_the_acce
         assert accel_alone < moving_rmse_deg(real, x[:, 0], col) < 1.5 * accel_alone, name
 
 
+@pytest.mark.slow
 def test_section12_2_the_known_term_in_the_model_beats_the_accelerometer_in_pitch(real, section12_2):
     """c_θ into the prediction (u = ω + c), Q from the noise: pitch 1.89° against the accelerometer's 3.52° (issue 25's
     u = ω + c_k result). Roll does not recover: 17 % of the motion has |pitch| > 60°, where roll is undefined and

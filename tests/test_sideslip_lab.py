@@ -36,7 +36,9 @@ def test_the_linear_loop_with_kfkits_pieces_is_kfkits_kf():
     assert lab06.beta_rmse_deg(ours, truth) < 0.03
 
 
-@pytest.mark.parametrize("name, samples", [("06_racetrack", 3000), ("06_lane_change", None)])
+@pytest.mark.parametrize(
+    "name, samples", [pytest.param("06_racetrack", 3000, marks=pytest.mark.slow), ("06_lane_change", None)]
+)
 def test_the_ekf_loop_with_kfkits_pieces_is_kfkits_ekf(name, samples):
     """run_tyre_ekf through the KF step's affine form is SideslipEKF (which uses Simpson's Qd, not Van Loan's):
     on the race track's hard corners and on a simulated drive."""

@@ -35,6 +35,7 @@ def read_lines(board, n_lines):
     return lines
 
 
+@pytest.mark.slow
 def test_virtual_board_emits_att_lines_that_track_the_truth():
     motion = driving_motion()
     with VirtualBoard(board="mpu6050", motion=motion, attitude=True, realtime=False, loop=False, seed=3) as board:
@@ -117,6 +118,7 @@ def test_att_lines_from_the_virtual_board_drive_the_game_by_board_time():
     assert "bad lines 0" in lines[0] and "40." in lines[0]
 
 
+@pytest.mark.slow
 def test_the_virtual_hand_steers_both_ways():
     """driving_motion rolls ±20°: the attitudes the sketch's twin sends steer right and left of the start."""
     from contextlib import ExitStack
@@ -178,6 +180,7 @@ def test_demo_runs_headless_against_the_virtual_board(capsys):
     assert "$ATT lines" in out and "bad lines 0" in out and "30.0 s driven" in out
 
 
+@pytest.mark.slow
 def test_demo_in_real_time_against_the_virtual_board(capsys):
     assert main(["demo", "tilt", "--port", "virtual", "--seconds", "1", "--headless"]) == 0
     assert "1.0 s driven" in capsys.readouterr().out
