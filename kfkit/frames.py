@@ -16,6 +16,8 @@ q maps body → navigation frame like R_nb. The names carry the convention and c
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 #: Standard gravity, m/s².
@@ -277,3 +279,56 @@ def tilt_compensated_heading(m_b, roll, pitch, declination=0.0):
 def declination(field_n=MAG_FIELD_LONDON):
     """Magnetic declination D = atan2(B_E, B_N) (rad, east positive) of a NED field (µT)."""
     return float(np.arctan2(field_n[1], field_n[0]))
+
+
+# ---- float-only helpers for hot loops ----------------------------------------------------------
+# One rotation at a time on plain Python floats, for filters that run a Python loop per sample (the
+# MEKF, its magnetometer gate): NumPy's per-call cost (~1 µs) is larger than the arithmetic of a 3-D
+# rotation. The same conventions as the array functions above (w-x-y-z, Hamilton product, body → NED)
+# and held to scipy's Rotation by tests/test_frames.py, like VQF's quatMultiply and x-io Fusion's
+# FusionMath.h. Quaternions are 4-tuples, vectors 3-tuples.
+
+_TWO_PI = 2.0 * math.pi
+
+
+def quat_multiply_f(p, q):
+    """Hamilton product p ⊗ q of two quaternions (w, x, y, z) as a tuple: R(p ⊗ q) = R(p)·R(q)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
+
+
+def quat_to_dcm_f(q):
+    """The 3×3 rotation matrix of a unit quaternion (w, x, y, z), row by row, as a 9-tuple
+    (r00, r01, r02, r10, …, r22): v_n = R v_b for q body → NED."""
+    w, x, y, z = q
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
+            2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
+            2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
+
+
+def rotvec_to_quat_f(vx, vy, vz):
+    """The exact exponential of a rotation vector v (rad): q = [cos(|v|/2), sin(|v|/2)·v/|v|], the turn by
+    |v| about v/|v| (a body rate ω held for dt gives q(t + dt) = q(t) ⊗ exp(ω dt)). Below 1e-8 rad the
+    series 1 − |v|²/8, v/2 (exact to double precision)."""
+    angle2 = vx * vx + vy * vy + vz * vz
+    if angle2 < 1e-16:
+        return (1.0 - angle2 / 8.0, 0.5 * vx, 0.5 * vy, 0.5 * vz)
+    angle = math.sqrt(angle2)
+    s = math.sin(0.5 * angle) / angle
+    return (math.cos(0.5 * angle), vx * s, vy * s, vz * s)
+
+
+def quat_normalise_f(q):
+    """q / |q| for a quaternion (w, x, y, z) as a tuple."""
+    w, x, y, z = q
+    n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+    return (w * n, x * n, y * n, z * n)
+
+
+def wrap_angle_f(a):
+    """One angle (rad) wrapped to (−π, π], like :func:`wrap_angle`."""
+    if -math.pi < a <= math.pi:
+        return a
+    return math.pi - (math.pi - a) % _TWO_PI

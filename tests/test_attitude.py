@@ -261,7 +261,7 @@ def test_settings_carry_units_defaults_and_name_bad_values():
 
 def test_mekf_run_is_its_steps():
     """MultiplicativeEKF.run and the same named steps one sample at a time give the same state, innovations
-    and covariances; run's P is the attitude block of step's P rotated to NED."""
+    and covariances: P is the 6×6 error-state covariance in both, its attitude block the NED rotation error's."""
     rng = np.random.default_rng(21)
     t, euler, omega = smooth_motion(rng, 4.0, 100.0)
     gyr, acc, mag = sensors(rng, euler, omega, 0.01, 0.05, 0.5)
@@ -272,8 +272,8 @@ def test_mekf_run_is_its_steps():
     np.testing.assert_array_equal(np.array([s.x for s in steps]), run.x)
     np.testing.assert_array_equal(np.array([s.y for s in steps]), run.y)
     np.testing.assert_array_equal(np.array([s.S for s in steps]), run.S)
-    R = quat_to_dcm(run.quat)
-    np.testing.assert_allclose(R @ np.array([s.P[:3, :3] for s in steps]) @ np.swapaxes(R, 1, 2), run.P, rtol=1e-12)
+    np.testing.assert_array_equal(np.array([s.P for s in steps]), run.P)
+    np.testing.assert_array_equal(run.attitude_covariance, run.P[:, :3, :3])
 
 
 def test_quaternions_match_scipy():
@@ -454,14 +454,13 @@ def test_mekf_estimates_a_constant_gyro_bias():
 
 
 def test_mekf_heading_update_leaves_tilt_alone():
-    # One magnetometer update with a 10° heading error and no prior correlation between tilt and
-    # heading errors: heading moves towards the truth, tilt does not move at all.
+    # One magnetometer update with a 10° heading error, tilt errors uncertain (1°) and correlated with the
+    # heading's: heading moves towards the truth, tilt does not move at all (the gain has no tilt rows).
     truth = np.radians([20.0, -30.0, 50.0])
     q_wrong = euler_to_quat(truth + [0.0, 0.0, np.radians(10.0)])
     acc, mag = attitude_measurement(truth, FIELD)[:3], attitude_measurement(truth, FIELD)[3:]
-    R_nb = scipy_rotation(truth).as_matrix()
     P0 = np.diag(np.r_[[1e-12] * 6])
-    P0[:3, :3] = R_nb.T @ np.diag(np.radians([1.0, 1.0, 20.0]) ** 2) @ R_nb  # diagonal in NED
+    P0[:3, :3] = np.radians(1.0) ** 2 * np.array([[1.0, 0.3, 2.0], [0.3, 1.0, -2.0], [2.0, -2.0, 400.0]])  # NED
     f = MultiplicativeEKF(100.0, field_n=FIELD, q0=q_wrong, P0=P0, gyro_noise=0.0, gyro_bias_rw=0.0, accel_tau=None)
     res = f.run(np.zeros((1, 3)), acc[None], mag[None])
     _, heading, incl = attitude_errors(res.quat, euler_to_quat(truth)[None])
@@ -483,7 +482,7 @@ def test_mekf_rejects_a_magnetic_disturbance_by_norm_and_dip():
     assert not runs[True].mag_used[window].any() and not runs[True].mag_gated[~window][:1000].any()
     assert not runs[False].mag_gated.any()
     heading = {g: np.degrees(attitude_errors(r.quat, euler_to_quat(euler))[1][window]).max() for g, r in runs.items()}
-    assert heading[True] < 1.0 < 5.0 < heading[False]
+    assert heading[True] < 1.5 < 5.0 < heading[False]  # gated: 10 s on the gyro, its bias learned in motion
 
 
 def field_change_in_ned(euler, change_n, when):
@@ -496,7 +495,9 @@ def field_change_in_ned(euler, change_n, when):
 
 def test_mekf_recovery_is_counted_in_seconds():
     # Magnetometer at half the gyro rate, a disturbance 3–5 s: the field must pass the gates for 1 s
-    # of *time* (50, not 100, of its samples) before it is used again.
+    # of *time* (50, not 100, of its samples) before it is used again. The gates see the field's norm and
+    # dip low-passed with 0.05 s (VQF's magCurrentTau): the end of the disturbance reaches them 2–3
+    # magnetometer samples late.
     rng = np.random.default_rng(24)
     t, euler, omega = smooth_motion(rng, 12.0, 100.0, amp=(0.3, 0.3, 1.0))
     gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.05, 0.3)
@@ -507,7 +508,7 @@ def test_mekf_recovery_is_counted_in_seconds():
     res = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD)
     assert res.mag_gated[fresh & short].all() and not res.mag_gated[fresh & (t < 3.0)].any()
     first_used_again = t[fresh & (t >= 5.0) & res.mag_used][0]
-    assert first_used_again == pytest.approx(6.0, abs=0.03)
+    assert 6.0 < first_used_again < 6.08
 
 
 def heading_of(field_n):
@@ -517,9 +518,9 @@ def heading_of(field_n):
 def test_mekf_adopts_a_changed_field_once_the_gyro_alone_is_no_better():
     # The field changes for good at 20 s (the board moved to a steel desk): +3 µT east, +8 µT down,
     # norm +15 % (fails the gate), heading of the new field 8.7° east of the old one. It is rejected
-    # while the filter's own heading σ (its P, growing with the gyro's bias random walk) says the gyro
-    # is better than 8.7°: adopted about when 3σ reaches the offset; then the heading follows the new
-    # field. A change that keeps the heading (norm ×1.15) is adopted within seconds. Without the
+    # while the filter's own heading σ (its P, growing with the gyro's bias random walk, set high here so
+    # that it happens within the test) says the gyro is better than 8.7°: adopted about when 3σ reaches
+    # the offset; then the heading follows the new field. A change that keeps the heading (norm ×1.15) is adopted within seconds. Without the
     # innovation test a changed field is rejected for as long as it lasts.
     rng = np.random.default_rng(27)
     t, euler, omega = smooth_motion(rng, 120.0, 100.0, amp=(0.3, 0.3, 1.0))
@@ -529,20 +530,23 @@ def test_mekf_adopts_a_changed_field_once_the_gyro_alone_is_no_better():
     offset = heading_of(FIELD + change) - heading_of(FIELD)
     assert abs(np.linalg.norm(FIELD + change) / np.linalg.norm(FIELD) - 1.0) > 0.1
     desk = mag + field_change_in_ned(euler, change, moved)
-    res = estimate_attitude(gyr, acc, desk, 100.0, method="mekf", field_n=FIELD, gyro_bias_rw=2e-4)
-    adopted = np.flatnonzero(moved & res.mag_used)[0]
+    res = estimate_attitude(gyr, acc, desk, 100.0, method="mekf", field_n=FIELD, gyro_bias_rw=1e-3)
+    # the gates see the field low-passed with 0.05 s: the change reaches them within 10 samples (the few
+    # before, whose heading passes the innovation gate, get through)
+    seen = t >= 20.1
+    adopted = np.flatnonzero(seen & res.mag_used)[0]
     assert 30.0 < t[adopted] < 110.0
-    assert res.mag_gated[moved & (t < t[adopted])].all()
-    sigma_h = np.degrees(np.sqrt(res.P[:, 2, 2]))  # heading σ: NED z of the attitude error covariance
+    assert res.mag_gated[seen & (t < t[adopted])].all()
+    sigma_h = np.degrees(np.sqrt(res.P[:, 2, 2]))  # heading σ: the NED down component of the attitude error
     assert 0.6 * abs(offset) < 3 * sigma_h[adopted - 1] < 1.4 * abs(offset)
     heading_error = np.degrees(attitude_errors(res.quat, euler_to_quat(euler))[1])
-    assert heading_error[adopted - 1] < 2.0 and abs(heading_error[-1] - abs(offset)) < 1.5
+    assert heading_error[adopted - 1] < 2.5 and abs(heading_error[-1] - abs(offset)) < 1.5
     same_heading = mag + field_change_in_ned(euler, 0.15 * FIELD, moved)
-    benign = estimate_attitude(gyr, acc, same_heading, 100.0, method="mekf", field_n=FIELD, gyro_bias_rw=2e-4)
-    assert 21.0 < t[np.flatnonzero(moved & benign.mag_used)[0]] < 30.0
+    benign = estimate_attitude(gyr, acc, same_heading, 100.0, method="mekf", field_n=FIELD, gyro_bias_rw=1e-3)
+    assert benign.mag_gated[seen][:10].all() and 21.0 < t[np.flatnonzero(seen & benign.mag_used)[0]] < 30.0
     assert np.degrees(attitude_errors(benign.quat, euler_to_quat(euler))[1][moved]).max() < 1.0
-    never = estimate_attitude(gyr, acc, desk, 100.0, method="mekf", field_n=FIELD, gyro_bias_rw=2e-4, mag_nis_gate=None)
-    assert never.mag_gated[moved].all()
+    never = estimate_attitude(gyr, acc, desk, 100.0, method="mekf", field_n=FIELD, gyro_bias_rw=1e-3, mag_nis_gate=None)
+    assert never.mag_gated[seen].all()
 
 
 def test_mekf_skips_heading_outliers_for_at_most_the_recovery_time():
@@ -553,12 +557,13 @@ def test_mekf_skips_heading_outliers_for_at_most_the_recovery_time():
     spike = (t >= 5.0) & (t < 5.3)
     turned = Rotation.from_euler("z", 40.0, degrees=True).apply(FIELD)
     mag_clean = mag.copy()
-    clean = estimate_attitude(gyr, acc, mag_clean, 100.0, method="mekf", field_n=FIELD)
+    # what a perfect gate would do: no magnetometer during the spike
+    gap = estimate_attitude(gyr, acc, np.where(spike[:, None], np.nan, mag), 100.0, method="mekf", field_n=FIELD)
     mag[spike] = scipy_rotation(euler[spike]).inv().apply(turned) + rng.normal(0, 0.3, (spike.sum(), 3))
     runs = {gate: estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, mag_nis_gate=gate)
             for gate in (9.0, None)}
     assert runs[9.0].mag_gated[spike].all() and not runs[9.0].mag_gated[~spike].any()
-    moved_by_spike = {g: np.degrees(attitude_errors(r.quat, clean.quat)[1]).max() for g, r in runs.items()}
+    moved_by_spike = {g: np.degrees(attitude_errors(r.quat, gap.quat)[1]).max() for g, r in runs.items()}
     assert moved_by_spike[9.0] < 0.1 < 3.0 < moved_by_spike[None]
     # The filter itself is wrong (starts 30° off in heading, claiming 1°): the field, consistent in norm
     # and dip, is skipped for 1 s and then used: the heading is pulled back, not locked out.
@@ -617,12 +622,12 @@ def test_mekf_nees_and_nis_inside_chi2_bounds():
         P0 = np.diag(np.r_[np.radians([2.0, 2.0, 4.0]) ** 2, [1e-14] * 3])
         q0 = (scipy_rotation(euler[0]) * Rotation.from_rotvec(rng.multivariate_normal(np.zeros(3), P0[:3, :3]))
               ).as_quat()[[3, 0, 1, 2]]
-        f = MultiplicativeEKF(100.0, gyro_noise=sg, gyro_bias_rw=0.0, accel_noise=sa, mag_noise=sm, accel_gate=None,
-                              field_n=FIELD, mag_norm_gate=None, mag_dip_gate=None, mag_nis_gate=None, accel_tau=None,
-                              q0=q0, P0=P0)
+        f = MultiplicativeEKF(100.0, gyro_noise=sg, gyro_bias_rw=0.0, accel_noise=sa, mag_noise=sm, field_n=FIELD,
+                              mag_norm_gate=None, mag_dip_gate=None, mag_nis_gate=None, accel_tau=None,
+                              accel_dynamic=None, rest_gyro=None, q0=q0, P0=P0)
         res = f.run(gyr[1:], acc[1:], mag[1:])
         e = rotvec_error_ned(res.quat[-1:], euler[-1:])
-        final_nees.append(nees(e, res.P[-1:])[0])
+        final_nees.append(nees(e, res.attitude_covariance[-1:])[0])
         nis_sum += res.nis.sum()
         dof_sum += res.dof.sum()
     lo, hi = chi2_bounds(3, runs)
@@ -634,10 +639,14 @@ def test_mekf_result_layout_and_heading_innovations():
     euler, gyr, acc, mag = _clean_inputs(400)
     mag[1::2] = np.nan
     res = estimate_attitude(gyr, acc, mag, 100.0, method="mekf")
-    assert res.method == "mekf" and res.quat.shape == (400, 4) and res.P.shape == (400, 3, 3) and res.bias.shape == (400, 3)
+    assert res.method == "mekf" and res.quat.shape == (400, 4) and res.P.shape == (400, 6, 6) and res.bias.shape == (400, 3)
+    assert res.attitude_covariance.shape == (400, 3, 3) and res.at_rest.shape == (400,) and not res.at_rest.any()
     assert np.array_equal(res.mag_used, ~np.isnan(mag[:, 0]) & ~res.mag_gated)
-    assert set(np.unique(res.dof)) <= {3, 4}
-    assert np.all(np.isnan(res.y[:, 4:])) and np.all(np.abs(res.y[res.mag_used, 3]) <= np.pi)
+    assert set(np.unique(res.dof)) <= {2, 3}  # accelerometer north and east, + the heading
+    assert np.array_equal(np.isnan(res.y[:, 2]), ~res.mag_used) and np.all(np.abs(res.y[res.mag_used, 2]) <= np.pi)
+    assert np.all(np.isnan(res.y[:, 3:]))  # no zero-rate update: never at rest
+    np.testing.assert_allclose(res.nis, [y[~np.isnan(y)] @ np.linalg.solve(S[~np.isnan(y)][:, ~np.isnan(y)], y[~np.isnan(y)])
+                                         for y, S in zip(res.y, res.S)], rtol=1e-12)
     np.testing.assert_allclose(quat_to_euler(res.quat), res.euler, atol=1e-9)
     with pytest.raises(ValueError, match="acc row 3 is not finite"):
         acc[3] = np.nan
@@ -650,13 +659,13 @@ def test_mag_gate_rejects_a_disturbed_field_until_it_has_passed_the_gates_for_th
     norm, dip = np.linalg.norm(field), np.arctan2(40.0, 20.0)
     ts = np.arange(50) / 10.0  # s
     disturbed = (ts >= 1.0) & (ts < 2.0)
-    gate = MagGate(field, r_psi=1e-3, norm_gate=0.1, dip_gate=np.radians(10.0), recovery=1.0, nis_gate=9.0, ref_tau=None)
+    gate = MagGate(field, norm_gate=0.1, dip_gate=np.radians(10.0), recovery=1.0, nis_gate=9.0, ref_tau=None)
     # var_h far below the averaged noise variance: the disturbed field is never adopted (layer 3 stays out)
-    used = np.array([gate.use(t, norm * (1.3 if d else 1.0), dip, 0.0, 1e-6) for t, d in zip(ts, disturbed)])
+    used = np.array([gate.use(t, norm * (1.3 if d else 1.0), dip, 0.0, 1e-6, 1e-3) for t, d in zip(ts, disturbed)])
     np.testing.assert_array_equal(used, (ts < 1.0) | (ts >= 3.0))  # trusted again 1 s after the last disturbed sample
-    assert not MagGate(field, 1e-3, 0.1, np.radians(10.0), 1.0, 9.0, None).use(0.0, norm, dip + np.radians(11.0), 0.0, 1e-6)
+    assert not MagGate(field, 0.1, np.radians(10.0), 1.0, 9.0, None).use(0.0, norm, dip + np.radians(11.0), 0.0, 1e-6, 1e-3)
     # an outlier heading (y² > 9 (var_h + r_psi)) in a trusted field is skipped, for at most `recovery` seconds
-    gate = MagGate(field, 1e-3, 0.1, np.radians(10.0), 1.0, 9.0, None)
-    assert [gate.use(t, norm, dip, y, 1e-3) for t, y in ((0.0, 0.0), (0.1, 1.0), (0.2, 0.0))] == [True, False, True]
-    stuck = [gate.use(t, norm, dip, 1.0, 1e-3) for t in 1.0 + np.arange(13) / 10.0]
+    gate = MagGate(field, 0.1, np.radians(10.0), 1.0, 9.0, None)
+    assert [gate.use(t, norm, dip, y, 1e-3, 1e-3) for t, y in ((0.0, 0.0), (0.1, 1.0), (0.2, 0.0))] == [True, False, True]
+    stuck = [gate.use(t, norm, dip, 1.0, 1e-3, 1e-3) for t in 1.0 + np.arange(13) / 10.0]
     assert stuck == [False] * 10 + [True] * 3  # a heading that keeps disagreeing for 1 s is the filter's error

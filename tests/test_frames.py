@@ -363,3 +363,46 @@ def test_true_heading_with_large_declinations(D_deg, dip_deg):
     np.testing.assert_allclose(wrap_angle(tilt_compensated_heading(m_b, roll, pitch, D) - yaw), 0.0, atol=1e-9)
     level = _field_in_body(yaw, 0 * yaw, 0 * yaw, field_n=field_n)
     np.testing.assert_allclose(wrap_angle(mag_heading(level, declination=D) - yaw), 0.0, atol=1e-9)
+
+
+# --- float-only helpers for hot loops --------------------------------------------------------
+
+from kfkit.frames import quat_multiply_f, quat_normalise_f, quat_to_dcm_f, rotvec_to_quat_f, wrap_angle_f  # noqa: E402
+
+
+def test_quat_multiply_f_chains_rotations_like_scipy():
+    rots = random_rotations(60, seed=41)
+    p, q = rots[:-1], rots[1:]
+    for a, b in zip(p, q):
+        got = quat_multiply_f(tuple(scipy_quat(a).tolist()), tuple(scipy_quat(b).tolist()))
+        assert isinstance(got, tuple) and all(type(v) is float for v in got)
+        want = scipy_quat(a * b)  # q and −q are the same rotation
+        np.testing.assert_allclose(np.array(got) * np.sign(np.dot(got, want)), want, atol=1e-12)
+
+
+def test_quat_to_dcm_f_matches_scipy():
+    for rot in random_rotations(60, seed=42):
+        np.testing.assert_allclose(np.reshape(quat_to_dcm_f(tuple(scipy_quat(rot).tolist())), (3, 3)), rot.as_matrix(), atol=1e-12)
+
+
+def test_rotvec_to_quat_f_is_the_exact_exponential():
+    rng = np.random.default_rng(43)
+    vectors = np.concatenate([rng.normal(0.0, 1.5, (60, 3)), [[np.pi, 0.0, 0.0], [0.0, 0.0, 3.0 * np.pi]],
+                              [[1e-9, -2e-9, 3e-10], [0.0, 0.0, 0.0], [1e-7, 0.0, 0.0]]])
+    for v in vectors:
+        got = np.array(rotvec_to_quat_f(*v.tolist()))
+        want = Rotation.from_rotvec(v).as_quat()[[3, 0, 1, 2]]  # the same turn, not reduced to w ≥ 0
+        np.testing.assert_allclose(got * np.sign(got @ want), want, atol=1e-15)
+        assert abs(np.linalg.norm(got) - 1.0) < 1e-15
+
+
+def test_quat_normalise_f():
+    q = quat_normalise_f((2.0, 0.0, -1.0, 2.0))
+    np.testing.assert_allclose(q, np.array([2.0, 0.0, -1.0, 2.0]) / 3.0, atol=1e-16)
+
+
+@pytest.mark.parametrize("a", [0.0, 1.0, -1.0, np.pi, -np.pi, 3 * np.pi, -3 * np.pi, 7.5, -7.5, 1e3, -np.pi + 1e-12])
+def test_wrap_angle_f_agrees_with_wrap_angle(a):
+    got = wrap_angle_f(float(a))
+    assert type(got) is float and -np.pi < got <= np.pi
+    assert got == pytest.approx(wrap_angle(a), abs=1e-12)

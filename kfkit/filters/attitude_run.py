@@ -24,17 +24,20 @@ class AttitudeRun(FilterRun):
 
     x         (N, 3) [φ, θ, ψ] (rad) for ``euler-ekf``; (N, 7) [q (w-x-y-z, body → NED, w ≥ 0), gyro
               bias (rad/s)] for ``mekf``
-    P         (N, 3, 3) covariance of the attitude error, rad²: of [φ, θ, ψ] for ``euler-ekf``; of the
-              small-angle rotation error in the NED frame for ``mekf`` (the attitude block R P Rᵀ of
-              its 6×6 body-frame error covariance, so that the two compare)
-    y         (N, 6) innovations z − h(x⁻): accel (m/s²) in 0–2; for euler-ekf mag (µT) in 3–5,
-              for mekf the heading innovation (rad) in 3 and NaN in 4–5; NaN where not used
+    P         the filter's own covariance, as its ``step`` returns it: (N, 3, 3) of [φ, θ, ψ] (rad²) for
+              ``euler-ekf``; (N, 6, 6) of the error state [δθ (small rotation in NED, rad), δb (rad/s)] for
+              ``mekf``. :attr:`attitude_covariance` is the rotation error's in NED for both
+    y         (N, 6) innovations z − h(x⁻), NaN where not used: for euler-ekf accel (m/s²) in 0–2 and mag
+              (µT) in 3–5; for mekf the accelerometer's north and east (m/s²) in 0–1, the heading (rad) in 2
+              and the zero-rate update's gyro x, y, z (rad/s) in 3–5
     S         (N, 6, 6) their covariances (NaN where not used)
     nis       (N,) normalised innovation squared yᵀ S⁻¹ y over the rows used
-    accel_gated (N,) True where the accelerometer rows were inflated (|‖f‖ − g| > gate)
+    accel_gated (N,) True where the accelerometer rows were inflated: |‖f‖ − g| > gate (euler-ekf), or linear
+              acceleration that at least doubled the accelerometer's variance (mekf)
     mag_used  (N,) True where a magnetometer update was made
     mag_gated (N,) True where a magnetometer sample was not used: a disturbed field or a heading
               outlier (mekf; all False for euler-ekf)
+    at_rest   (N,) True where the rest detector found the IMU still (mekf: zero-rate updates); None for euler-ekf
     method    "euler-ekf" or "mekf"
     """
 
@@ -42,6 +45,7 @@ class AttitudeRun(FilterRun):
     accel_gated: np.ndarray = None
     mag_used: np.ndarray = None
     mag_gated: np.ndarray = None
+    at_rest: np.ndarray = None
     method: str = "euler-ekf"
 
     @cached_property
@@ -54,6 +58,21 @@ class AttitudeRun(FilterRun):
         """(N, 3) [roll, pitch, yaw], rad."""
         return quat_to_euler(self.quat) if self.method == "mekf" else self.x
 
+    @cached_property
+    def attitude_covariance(self) -> np.ndarray:
+        """(N, 3, 3) covariance of the small-angle rotation error δθ in NED, rad² (R_true = Exp(δθ) R_est),
+        for NEES against a rotation-vector error: the MEKF's attitude block; for the Euler EKF its covariance
+        of [φ, θ, ψ] through δθ = Rz(ψ)Ry(θ) e_x δφ + Rz(ψ) e_y δθ + e_z δψ."""
+        if self.method == "mekf":
+            return self.P[:, :3, :3]
+        phi, theta, psi = self.x[:, 0], self.x[:, 1], self.x[:, 2]
+        cp, sp, ct, st = np.cos(psi), np.sin(psi), np.cos(theta), np.sin(theta)
+        J = np.zeros((len(self.x), 3, 3))
+        J[:, :, 0] = np.column_stack([ct * cp, ct * sp, -st])
+        J[:, :, 1] = np.column_stack([-sp, cp, np.zeros_like(psi)])
+        J[:, 2, 2] = 1.0
+        return J @ self.P @ np.swapaxes(J, 1, 2)
+
     @property
     def bias(self) -> np.ndarray:
         """(N, 3) gyro bias estimate, rad/s (mekf; zeros for euler-ekf, which has no bias state)."""
@@ -62,7 +81,7 @@ class AttitudeRun(FilterRun):
     @property
     def dof(self) -> np.ndarray:
         """Innovation entries used per sample (the χ² degrees of freedom of ``nis``):
-        3 or 6 for euler-ekf, 3 or 4 for mekf (its magnetometer gives one heading innovation)."""
+        3 or 6 for euler-ekf; for mekf 2 (accelerometer), + 1 (heading), + 3 (zero-rate update at rest)."""
         return np.sum(~np.isnan(self.y), axis=1)
 
 
