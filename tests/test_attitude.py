@@ -575,18 +575,18 @@ def test_mekf_skips_heading_outliers_for_at_most_the_recovery_time():
 
 
 def test_mekf_reference_field_follows_a_slow_change():
-    # The field's norm creeps up by 15 % over a minute (a magnetometer warming up): the reference of
-    # the gates follows a trusted field (time constant 20 s), so nothing is rejected. A fixed reference
-    # rejects the field once the change passes the 10 % gate; since its heading has not changed, the
-    # innovation test adopts it again once the averaged field is as precise as the filter's heading,
+    # The field's norm creeps up by 15 % over a minute (a magnetometer warming up): with mag_ref_tau = 20 s
+    # the reference of the gates follows a trusted field, so nothing is rejected. The fixed reference (the
+    # default) rejects the field once the change passes the 10 % gate; since its heading has not changed,
+    # the innovation test adopts it again once the averaged field is as precise as the filter's heading,
     # some seconds later (without that test: rejected to the end).
     rng = np.random.default_rng(26)
     t, euler, omega = smooth_motion(rng, 60.0, 100.0, amp=(0.3, 0.3, 1.0))
     gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.05, 0.3)
     mag *= (1.0 + 0.15 * t / 60.0)[:, None]
-    follows = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD)
-    fixed = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, mag_ref_tau=None)
-    never = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, mag_ref_tau=None, mag_nis_gate=None)
+    follows = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, mag_ref_tau=20.0)
+    fixed = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD)
+    never = estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, mag_nis_gate=None)
     assert not follows.mag_gated.any()
     assert never.mag_gated[t > 42.0].all() and not never.mag_gated[t < 28.0].any()
     first_rejected = t[np.flatnonzero(fixed.mag_gated)[0]]
@@ -669,3 +669,128 @@ def test_mag_gate_rejects_a_disturbed_field_until_it_has_passed_the_gates_for_th
     assert [gate.use(t, norm, dip, y, 1e-3, 1e-3) for t, y in ((0.0, 0.0), (0.1, 1.0), (0.2, 0.0))] == [True, False, True]
     stuck = [gate.use(t, norm, dip, 1.0, 1e-3, 1e-3) for t in 1.0 + np.arange(13) / 10.0]
     assert stuck == [False] * 10 + [True] * 3  # a heading that keeps disagreeing for 1 s is the filter's error
+
+
+# ---------------------------------------------------------------------------------------
+# MEKF: the heading update's Jacobian and S, the gyro's timing, rest detection
+# ---------------------------------------------------------------------------------------
+def heading_innovation(R_est, m_b, field_n):
+    """Oracle: ψ_ref − ψ of the tilt-compensated field R_est·m_b (rad, wrapped), written with numpy alone."""
+    v = R_est @ m_b
+    return wrap_angle(np.arctan2(field_n[1], field_n[0]) - np.arctan2(v[1], v[0]))
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_mekf_heading_jacobian_against_finite_differences(seed):
+    # The heading innovation y(δθ) = ψ_ref − ψ(R̂ m_b) with the truth R = Exp(δθ) R̂ (δθ in NED), at a random
+    # attitude in a random field: its derivative at δθ = 0 is the kit's H = [−tan I cos D, −tan I sin D, 1];
+    # the heading alone, H = [0, 0, 1], misses the tilt part, which tan I makes the larger one at high dip.
+    rng = np.random.default_rng(seed + 300)
+    R_est = Rotation.random(random_state=rng).as_matrix()
+    field = np.array([rng.uniform(5, 30), rng.uniform(-10, 10), rng.uniform(-60, 60)])
+    f = MultiplicativeEKF(100.0, field_n=field)
+    m_n = R_est @ (R_est.T @ field)  # the field the estimate sees when it is right
+
+    def innovation(d):
+        R_true = Rotation.from_rotvec(d).as_matrix() @ R_est
+        return heading_innovation(R_est, R_true.T @ field, field)
+
+    fd = finite_difference(lambda d: np.atleast_1d(innovation(d)), np.zeros(3))[0]
+    h, _ = f._heading_row(*m_n, None)
+    np.testing.assert_allclose(h, fd, rtol=1e-6, atol=1e-8)
+    tan_dip = field[2] / np.hypot(field[0], field[1])
+    np.testing.assert_allclose(np.hypot(h[0], h[1]), abs(tan_dip), rtol=1e-9)
+
+
+def test_mekf_heading_jacobian_in_the_body_frame_is_the_issues_finite_difference():
+    # Issue 25's case: φ = 0.3, θ = −0.2, ψ = 1.0 rad in London's field. A body-frame error δθ_b is the NED error
+    # R δθ_b, so H_b = H R; finite differences give [−1.05, 2.20, 0.61], where e_zᵀR (the old H) is [0.20, 0.29, 0.94].
+    R = scipy_rotation([0.3, -0.2, 1.0]).as_matrix()
+    h, _ = MultiplicativeEKF(100.0, field_n=FIELD)._heading_row(*FIELD, None)
+
+    def innovation(d):
+        return np.atleast_1d(heading_innovation(R, (R @ Rotation.from_rotvec(d).as_matrix()).T @ FIELD, FIELD))
+
+    fd = finite_difference(innovation, np.zeros(3))[0]
+    np.testing.assert_allclose(fd, [-1.0523, 2.2009, 0.6105], atol=1e-4)
+    np.testing.assert_allclose(np.array(h) @ R, fd, atol=1e-8)
+    np.testing.assert_allclose(R[2], [0.1987, 0.2896, 0.9363], atol=1e-4)
+
+
+def test_mekf_heading_nis_counts_the_tilt_uncertainty():
+    # Monte Carlo: the estimate off by δθ ~ N(0, P) with tilt σ 3° and heading σ 1°, one magnetometer sample
+    # (σ 0.5 µT) in London's field (dip 66.6°: tan I = 2.3). The kit's S = H P Hᵀ + R makes the heading NIS
+    # χ²(1) per sample; the heading alone (S = P_DD + R) leaves out tan²I·σ_tilt², and the same innovations
+    # then fail the χ² bound by far.
+    rng = np.random.default_rng(31)
+    runs, sm = 400, 0.5
+    P_att = np.diag(np.radians([3.0, 3.0, 1.0]) ** 2)
+    P0 = np.zeros((6, 6))
+    P0[:3, :3] = P_att
+    nis_kit, nis_heading_only = [], []
+    for _ in range(runs):
+        R_est = Rotation.random(random_state=rng)
+        R_true = Rotation.from_rotvec(rng.multivariate_normal(np.zeros(3), P_att)) * R_est
+        f = MultiplicativeEKF(100.0, field_n=FIELD, q0=R_est.as_quat()[[3, 0, 1, 2]], P0=P0, gyro_noise=0.0,
+                              gyro_bias_rw=0.0, accel_noise=1e6, mag_noise=sm, mag_norm_gate=None, mag_dip_gate=None,
+                              mag_nis_gate=None, rest_gyro=None)
+        step = f.step(np.zeros(3), R_true.inv().apply([0.0, 0.0, -G]), R_true.inv().apply(FIELD) + rng.normal(0, sm, 3))
+        y, S = step.y[2], step.S[2, 2]
+        nis_kit.append(y * y / S)
+        r_psi = sm ** 2 / (FIELD[0] ** 2 + FIELD[1] ** 2)
+        nis_heading_only.append(y * y / (P_att[2, 2] + r_psi))
+    lo, hi = chi2.ppf(0.0005, runs), chi2.ppf(0.9995, runs)
+    assert lo <= np.sum(nis_kit) <= hi
+    assert np.sum(nis_heading_only) > 3 * hi
+
+
+def test_mekf_gyro_sample_is_held_over_the_step_it_ends():
+    # A rate ramp ω = α t about z, no magnetometer, the accelerometer level: after N steps the heading is
+    # Σ ω_k dt, the truth's at t_N + dt/2 (a half-step lead; the midpoint of each step's two samples would give
+    # the truth at t_N). benchmarks/bench_attitude.py measures both on BROAD, whose gyro lags its optical truth
+    # by about 4 ms: there the half-step lead is the better of the two (its ablation table).
+    rate, alpha, n = 100.0, 2.0, 200
+    t = np.arange(1, n + 1) / rate
+    gyr = np.column_stack([np.zeros(n), np.zeros(n), alpha * t])
+    acc = np.tile([0.0, 0.0, -G], (n, 1))
+    res = MultiplicativeEKF(rate, field_n=FIELD, q0=[1.0, 0.0, 0.0, 0.0], rest_gyro=None).run(gyr, acc)
+    yaw = np.unwrap(res.euler[:, 2])
+    lead = alpha * (t + 0.5 / rate) ** 2 / 2 - alpha / (8 * rate ** 2)  # Σ α t_k dt = α (t_N + dt/2)²/2 − α dt²/8
+    np.testing.assert_allclose(yaw, lead, atol=1e-9)
+    assert np.all(np.abs(yaw - alpha * t ** 2 / 2) > 0.9 * alpha * t / (2 * rate))
+
+
+def test_mekf_learns_the_bias_at_rest_and_freezes_it_in_motion():
+    # 10 s still, 20 s of turns, 10 s still; the gyro has a bias and, as real gyros do, a 1 % scale-factor
+    # error. The rest detector finds the rests rest_time (1.5 s) after they begin; there the zero-rate updates
+    # learn the bias within 0.01 °/s. In motion the bias estimate does not move at all (the updates leave it
+    # alone), where a filter that learns it everywhere takes part of the scale-factor error for bias. (A turn
+    # slower than rest_gyro = 2 °/s for rest_time would count as rest: the motion here starts within 0.3 s.)
+    rng = np.random.default_rng(32)
+    rate = 100.0
+    t = np.arange(int(40 * rate)) / rate
+    moving = (t >= 10.0) & (t < 30.0)
+    e = np.zeros((len(t), 3))
+    ed = np.zeros_like(e)
+    s = np.clip(np.minimum(t - 10.0, 30.0 - t) / 0.3, 0.0, 1.0) ** 2  # starts and stops within 0.3 s
+    for i, (amp, f) in enumerate(((0.5, 0.23), (0.4, 0.17), (2.0, 0.11))):
+        e[:, i] = amp * s * np.sin(2 * np.pi * f * (t - 10.0))
+    ed = np.gradient(e, 1 / rate, axis=0)
+    omega = euler_rates_to_body_rates(e, ed)
+    bias = np.radians([0.5, -0.3, 0.4])
+    gyr, acc, mag = sensors(rng, e, omega, np.radians(0.05), 0.02, 0.3)
+    gyr = 1.01 * gyr + bias
+    res = estimate_attitude(gyr, acc, mag, rate, method="mekf", field_n=FIELD)
+    first_rest, second_rest = (t >= 1.6) & (t < 10.0), (t >= 34.0)  # after the low-passes settle (2 s) and rest_time
+    assert res.at_rest[first_rest].all() and res.at_rest[second_rest].all()
+    assert not res.at_rest[t < 1.4].any()  # rest_time must pass first
+    assert not res.at_rest[np.linalg.norm(omega, axis=1) > np.radians(5.0)].any()
+    end_of_rest = np.flatnonzero(t < 10.0)[-1]
+    np.testing.assert_allclose(np.degrees(res.bias[end_of_rest]), np.degrees(bias), atol=0.01)
+    after_first_rest = np.arange(len(t)) > end_of_rest
+    unchanged = np.all(res.bias[1:] == res.bias[:-1], axis=1)
+    assert unchanged[~res.at_rest[1:] & after_first_rest[1:]].all()  # no update moves it away from rest
+    assert (~res.at_rest[moving]).mean() > 0.9
+    always = estimate_attitude(gyr, acc, mag, rate, method="mekf", field_n=FIELD, rest_gyro=None)
+    assert np.degrees(np.abs(always.bias[moving] - bias).max()) > 0.05
+    assert np.degrees(np.abs(res.bias[moving] - bias).max()) < 0.01

@@ -58,7 +58,10 @@ class MekfSettings:
                      whose averaged heading agrees within it for mag_recovery s is adopted as the new
                      reference. None: no innovation test                                                 9.0
     mag_ref_tau      time constant (s) with which the reference norm and dip follow a trusted field;
-                     None = fixed                                                                       20.0
+                     None: fixed, those of the field at the start (a field that changes for good is
+                     adopted by the bounded rejection; one that the reference followed would not be
+                     rejected: the lab's rest spot, where the field is 7 % weaker than a few decimetres
+                     above it, BROAD's A session)                                                       None
 
     The rest detector's thresholds and times, the accelerometer's stabilised low-pass and the magnetometer
     gates are VQF's (Laidig & Seel 2023), whose defaults they keep.
@@ -81,7 +84,7 @@ class MekfSettings:
     mag_dip_gate: float | None = math.radians(10.0)
     mag_recovery: float = 1.0
     mag_nis_gate: float | None = 9.0
-    mag_ref_tau: float | None = 20.0
+    mag_ref_tau: float | None = None
 
     def __post_init__(self):
         require_positive("MekfSettings",
@@ -147,7 +150,7 @@ class MekfState:
     strapdown: tuple
     f_I: tuple
     a_lin2: float
-    rest_lp: list
+    rest_lp: tuple
     rest_t: float
     rested: bool
     t_mag: float | None
@@ -244,8 +247,10 @@ class MultiplicativeEKF:
     """
 
     method = "mekf"
-    #: the bias is a "consider" state in motion (rest detection on); False: every update corrects it
+    #: the bias is a "consider" state in motion once measured at rest; False: every update corrects it
     freeze_bias_in_motion = True
+    #: the magnetometer gate's class (a variant can swap it)
+    mag_gate_class = MagGate
 
     def __init__(self, rate_hz, settings: MekfSettings | None = None, *, field_n=None, q0=None, bias0=None, P0=None,
                  **changes):
@@ -284,10 +289,10 @@ class MultiplicativeEKF:
             first = first_mag_row(mag)
             q = tuple(float(v) for v in euler_to_quat(tilt_heading(acc[0], None if first is None else mag[first],
                                                                     self.field_n)))
-        gate = MagGate(self.field_n, st.mag_norm_gate, st.mag_dip_gate, st.mag_recovery, st.mag_nis_gate, st.mag_ref_tau)
+        gate = self.mag_gate_class(self.field_n, st.mag_norm_gate, st.mag_dip_gate, st.mag_recovery, st.mag_nis_gate, st.mag_ref_tau)
         self.state = MekfState(q=q, bias=self._bias0, P=self._P0.copy(), k=0, strapdown=(1.0, 0.0, 0.0, 0.0),
                                f_I=tuple(float(v) for v in acc[0]), a_lin2=0.0,
-                               rest_lp=[float(v) for v in gyr[0]] + [float(v) for v in acc[0]], rest_t=0.0, rested=False, t_mag=None,
+                               rest_lp=tuple(float(v) for v in np.r_[gyr[0], acc[0]]), rest_t=0.0, rested=False, t_mag=None,
                                mag_gate=gate)
         self._F = np.eye(6)  # the prediction's F, filled in place
 
@@ -309,22 +314,23 @@ class MultiplicativeEKF:
 
     def _sample(self, w, f, m, y, s):
         """predict → rest detection (zero-rate update) → stabilised accelerometer → accelerometer update →
-        reset → heading update → reset. Writes the innovations and their variances into y and s (lists of 6);
-        returns (at rest, accelerometer variance raised, magnetometer used, magnetometer rejected)."""
+        heading update → reset. The updates are scalar, one after another, each adding to the error estimate δx
+        (its innovation corrected for the δx before it); the reset folds δx into q and b once. Writes the
+        innovations and their variances into y and s (lists of 6); returns (at rest, accelerometer variance
+        raised, magnetometer used, magnetometer rejected)."""
         self._predict(w)
+        dx = np.zeros(6)
         rest = self._at_rest(w, f)
-        dx = self._zero_rate_update(w, y, s) if rest else np.zeros(6)
         if rest:
             self.state.rested = True
+            self._zero_rate_update(w, dx, y, s)
         frozen = BIAS if self.freeze_bias_in_motion and self.state.rested and not rest else None
-        dx, pushed = self._accel_update(self._stabilised_accel(f), dx, frozen, y, s)
-        self._reset(dx)
+        pushed = self._accel_update(self._stabilised_accel(f), dx, frozen, y, s)
         used = rejected = False
         if m is not None and m[0] == m[0]:  # a new magnetometer sample
-            dx = self._heading_update(m, frozen, y, s)
-            used, rejected = dx is not None, dx is None
-            if used:
-                self._reset(dx)
+            used = self._heading_update(m, dx, frozen, y, s)
+            rejected = not used
+        self._reset(dx)
         self.state.k += 1
         return rest, pushed, used, rejected
 
@@ -335,7 +341,7 @@ class MultiplicativeEKF:
         turn = self._turn(w)
         s.q = quat_multiply_f(s.q, turn)
         s.strapdown = quat_multiply_f(s.strapdown, turn)
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_dcm_f(s.q)
+        self._R = r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_dcm_f(s.q)  # the accelerometer update's too
         F = self._F
         F[0, 3], F[0, 4], F[0, 5] = -dt * r00, -dt * r01, -dt * r02
         F[1, 3], F[1, 4], F[1, 5] = -dt * r10, -dt * r11, -dt * r12
@@ -355,28 +361,29 @@ class MultiplicativeEKF:
         if th is None:
             return False
         s, a = self.state, self.coefficients.rest_lpf
-        lp = s.rest_lp
-        for i in range(3):
-            lp[i] += a * (w[i] - lp[i])
-            lp[3 + i] += a * (f[i] - lp[3 + i])
-        gyro_dev = (w[0] - lp[0]) ** 2 + (w[1] - lp[1]) ** 2 + (w[2] - lp[2]) ** 2
-        accel_dev = (f[0] - lp[3]) ** 2 + (f[1] - lp[4]) ** 2 + (f[2] - lp[5]) ** 2
-        if gyro_dev > th * th or accel_dev > self.settings.rest_accel ** 2 or max(abs(lp[0]), abs(lp[1]), abs(lp[2])) > th:
+        wx, wy, wz, fx, fy, fz = s.rest_lp
+        wx += a * (w[0] - wx)
+        wy += a * (w[1] - wy)
+        wz += a * (w[2] - wz)
+        fx += a * (f[0] - fx)
+        fy += a * (f[1] - fy)
+        fz += a * (f[2] - fz)
+        s.rest_lp = (wx, wy, wz, fx, fy, fz)
+        gyro_dev = (w[0] - wx) ** 2 + (w[1] - wy) ** 2 + (w[2] - wz) ** 2
+        accel_dev = (f[0] - fx) ** 2 + (f[1] - fy) ** 2 + (f[2] - fz) ** 2
+        if gyro_dev > th * th or accel_dev > self.settings.rest_accel ** 2 or max(abs(wx), abs(wy), abs(wz)) > th:
             s.rest_t = 0.0
             return False
         s.rest_t += self.dt
         return s.rest_t >= self.settings.rest_time
 
-    def _zero_rate_update(self, w, y, s_out):
-        """At rest the gyro reads its bias: y_i = ω_i − b_i, H = e_(3+i), R = σ_g²; three scalar updates.
-        Returns δx."""
+    def _zero_rate_update(self, w, dx, y, s_out):
+        """At rest the gyro reads its bias: y_i = ω_i − b_i, H = e_(3+i), R = σ_g²; three scalar updates."""
         s, r = self.state, self.coefficients.r_gyro
-        dx = np.zeros(6)
         for i in range(3):
             y[3 + i] = w[i] - s.bias[i]
             a = s.P[:, 3 + i]
             s_out[3 + i] = self._update(a, a[3 + i], y[3 + i] - dx[3 + i], r, dx, None)
-        return dx
 
     def _stabilised_accel(self, f):
         """f̄_b: f_I = R(q_I) f_b low-passed in I (where rotation does not move gravity), back to the body
@@ -398,12 +405,12 @@ class MultiplicativeEKF:
 
     def _accel_update(self, f_lin, dx, frozen, y, s_out):
         """f_n = g·R f̄ / ‖f̄‖; y = [f_n,N, f_n,E] (zero for a level estimate), H rows g·e_E and −g·e_N of the
-        attitude error, R = σ_a² (1 + a_lin²/accel_dynamic²); two scalar updates, adding to δx. Returns
-        (δx, whether linear acceleration at least doubled R)."""
+        attitude error, R = σ_a² (1 + a_lin²/accel_dynamic²); two scalar updates. Returns whether linear
+        acceleration at least doubled R."""
         s, c = self.state, self.coefficients
         (fx, fy, fz), a_lin2 = f_lin
         scale = G / math.sqrt(fx * fx + fy * fy + fz * fz)
-        r00, r01, r02, r10, r11, r12, _, _, _ = quat_to_dcm_f(s.q)
+        r00, r01, r02, r10, r11, r12, _, _, _ = self._R  # of the predicted q
         y[0] = scale * (r00 * fx + r01 * fy + r02 * fz)
         y[1] = scale * (r10 * fx + r11 * fy + r12 * fz)
         pushed = a_lin2 * c.inv_dyn2
@@ -412,30 +419,30 @@ class MultiplicativeEKF:
         s_out[0] = self._update(a, G * a[1], y[0] - G * dx[1], r, dx, frozen)
         a = -G * s.P[:, 0]  # east row: H = −g·e_N
         s_out[1] = self._update(a, -G * a[0], y[1] + G * dx[0], r, dx, frozen)
-        return dx, pushed > 1.0
+        return pushed > 1.0
 
-    def _heading_update(self, m, frozen, y, s_out):
-        """ψ_m of the tilt-compensated field m = R·m_b, y = wrap(ψ_ref − ψ_m), H = [−tan I cos D_m, −tan I sin D_m,
-        1, 0, 0, 0]; if the gate passes the sample, the update with the gain kept off the tilt. Returns δx, or
-        None if the sample was rejected."""
+    def _heading_update(self, m, dx, frozen, y, s_out):
+        """ψ_m of the tilt-compensated field m = R·m_b, y = wrap(ψ_ref − ψ_m) − H δx, H = [−tan I cos D_m,
+        −tan I sin D_m, 1, 0, 0, 0]; if the gate passes the sample, the update with the gain kept off the tilt.
+        Returns whether the sample was used."""
         s, c = self.state, self.coefficients
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_dcm_f(s.q)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = self._R
         mx, my, mz = m
         m_n, m_e, m_d = r00 * mx + r01 * my + r02 * mz, r10 * mx + r11 * my + r12 * mz, r20 * mx + r21 * my + r22 * mz
-        h2 = m_n * m_n + m_e * m_e
+        m_h = math.hypot(m_n, m_e)  # horizontal part, µT
         t = s.k * self.dt
         r = c.r_psi if c.r_psi is not None else c.r_psi_dt / (t - s.t_mag if s.t_mag is not None else self.dt)
         s.t_mag = t
-        innov = wrap_angle_f(c.psi_ref - math.atan2(m_e, m_n))
-        h, consider = self._heading_row(m_n, m_e, m_d, frozen)
-        a = s.P[:, :3] @ h
-        var_h = h[0] * a[0] + h[1] * a[1] + a[2]
-        if not s.mag_gate.use(t, math.sqrt(h2 + m_d * m_d), math.atan2(m_d, math.sqrt(h2)), innov, var_h, r):
-            return None
-        dx = np.zeros(6)
+        (h0, h1, h2), consider = self._heading_row(m_n, m_e, m_d, frozen)
+        innov = wrap_angle_f(c.psi_ref - math.atan2(m_e, m_n)) - (h0 * dx[0] + h1 * dx[1] + h2 * dx[2])
+        P = s.P
+        a = P[:, 0] * h0 + P[:, 1] * h1 + P[:, 2] * h2  # P Hᵀ
+        var_h = float(h0 * a[0] + h1 * a[1] + h2 * a[2])
+        if not s.mag_gate.use(t, math.hypot(m_h, m_d), math.atan2(m_d, m_h), innov, var_h, r):
+            return False
         y[2] = innov
         s_out[2] = self._update(a, var_h, innov, r, dx, consider)
-        return dx
+        return True
 
     def _heading_row(self, m_n, m_e, m_d, frozen):
         """The heading's H (its attitude part, 3 values) for the tilt-compensated field m = [m_n, m_e, m_d] (µT),
@@ -450,14 +457,14 @@ class MultiplicativeEKF:
         correlations with the rest are kept right). ``innov`` is already corrected for the δx of the updates
         before it in the same sample. Returns S."""
         s = self.state
-        S = hph + r
+        S = float(hph) + r
         k = a * (1.0 / S)
         if consider is None:
-            s.P = s.P - k[:, None] * a
+            s.P = s.P - np.multiply.outer(k, a)
             dx += k * innov
         else:
-            s.P = s.P - k[:, None] * a * consider.keep_P
-            dx += k * consider.keep_x * innov
+            s.P = s.P - np.multiply.outer(k, a) * consider.keep_P
+            dx += k * (consider.keep_x * innov)
         return S
 
     def _reset(self, dx):
