@@ -41,6 +41,7 @@ ablation table takes one mechanism at a time out of the MEKF (ABLATIONS).
 import argparse
 import contextlib
 import glob
+import hashlib
 import io
 import itertools
 import math
@@ -55,18 +56,19 @@ import numpy as np
 from kfkit import datasets
 from kfkit.filters import EulerAttitudeEKF, MultiplicativeEKF, estimate_attitude
 from kfkit.filters.attitude_run import learn_field, tilt_heading
-from kfkit.filters.euler_ekf import (EulerEkfSettings, attitude_jacobian, attitude_measurement, euler_kinematics_jacobian,
-                                     euler_process_noise, euler_rates)
+from kfkit.filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement,
+                                     euler_kinematics_jacobian, euler_process_noise)
 from kfkit.filters.mag_gate import MagGate
-from kfkit.frames import (G, declination, enu_to_ned_quat, euler_to_quat, quat_conjugate, quat_multiply,
-                          quat_normalise_f, quat_to_dcm, wrap_angle)
+from kfkit.filters.registry import methods
+from kfkit.frames import (G, body_rates_to_euler_rates, declination, enu_to_ned_quat, euler_to_quat, quat_conjugate,
+                          quat_multiply, quat_normalise_f, quat_to_dcm, wrap_angle)
 from kfkit.metrics import attitude_rmse
 from kfkit.readers import load_broad
-from kfkit.real_data import resample, slerp_at
+from kfkit.real_data import resample, shared_dir, slerp_at
 
 from timing import best_of
 
-BROAD_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"
+BROAD_DIR = shared_dir() / "broad"  # $KFKIT_SHARED_DATA/broad, or ../shared/data/broad beside the kit
 SIMULATIONS = ("04_attitude_tour", "04_gimbal_lock", "04_mag_disturbance")
 #: the bundled BROAD excerpts with a movement phase (02_broad_rest is a rest only), and the trial each is cut from
 BUNDLED_REAL = {"01_broad_slow_rotation": "02", "03_broad_attached_magnet": "34", "04_broad_fast_rotation": "06",
@@ -123,20 +125,22 @@ def _fill_mag(mag):
 
 def run_mekf(gyr, acc, mag, rate, kind=MultiplicativeEKF, **settings):
     """The MEKF as estimate_attitude runs it (field learned from the first samples), any subclass and settings."""
-    return kind(rate, field_n=learn_field(acc, mag), **settings).run(gyr, acc, mag).quat
+    return kind(rate_hz=rate, field_n=learn_field(acc, mag), **settings).run(gyr, acc, mag).quat
 
 
-def run_euler_ekf(gyr, acc, mag, rate):
-    return estimate_attitude(gyr, acc, mag, rate).quat
+class _Kfkit:
+    """A picklable runner of estimate_attitude(method=name) (the accuracy runs send it to worker processes)."""
+
+    def __init__(self, name):
+        self.name = name
+
+    def __call__(self, gyr, acc, mag, rate):
+        return estimate_attitude(gyr, acc, mag, rate, method=self.name).quat
 
 
-def run_kfkit_mekf(gyr, acc, mag, rate):
-    return estimate_attitude(gyr, acc, mag, rate, method="mekf").quat
-
-
-FILTERS = {  # module-level functions: the accuracy runs send them to worker processes
-    "euler-ekf": run_euler_ekf,
-    "mekf": run_kfkit_mekf,
+KFKIT = tuple(methods("attitude"))  # estimate_attitude's methods: "euler-ekf", "mekf"
+FILTERS = {  # picklable: the accuracy runs send them to worker processes
+    **{name: _Kfkit(name) for name in KFKIT},
     "ahrs EKF": run_ahrs_ekf,
     "ahrs Madgwick": run_ahrs_madgwick,
     "imufusion": run_imufusion,
@@ -238,10 +242,19 @@ def bundled_real_cases():
             rec.phase("movement")
 
 
-def broad_cases(rate=None):
+def broad_cases(rate=None, cache=None):
     """The full BROAD trials: at their native rate (``rate`` None), or resampled to ``rate`` Hz through the
-    kit's anti-alias FIR (truth by slerp, the movement flag of the nearest native sample)."""
-    for path in sorted(glob.glob(str(BROAD_DIR / "*.mat"))):
+    kit's anti-alias FIR (truth by slerp, the movement flag of the nearest native sample). Decoded once into
+    ``cache`` (a folder; None: no cache), keyed by the trial file's size and time and the decoding code's hash."""
+    version = _decoder_version()
+    for path in sorted(BROAD_DIR.glob("*.mat")):
+        stat = path.stat()
+        stored = None if cache is None else \
+            cache / f"{path.stem}_{rate or 'native'}_{stat.st_size}_{stat.st_mtime_ns}_{version}.npz"
+        if stored is not None and stored.exists():
+            d = np.load(stored)
+            yield str(d["trial"]), d["gyr"], d["acc"], d["mag"], float(d["rate"]), d["q"], d["moving"]
+            continue
         rec = load_broad(path)
         q = np.column_stack([rec[c] for c in ("true_qw", "true_qx", "true_qy", "true_qz")])
         signals, fs, moving = [rec.body(s) for s in ("gyr", "acc", "mag")], rec.rate_hz, rec["movement"]
@@ -250,7 +263,21 @@ def broad_cases(rate=None):
             t = np.arange(len(signals[0])) / rate
             q = slerp_at(q, fs, t)
             moving = moving[np.minimum(np.rint(t * fs).astype(int), len(moving) - 1)]
-        yield rec.meta["trial"], *signals, rate or fs, q, moving
+        case = (rec.meta["trial"], *signals, rate or fs, q, moving.astype(bool))
+        if stored is not None:
+            stored.parent.mkdir(parents=True, exist_ok=True)
+            np.savez(stored, **dict(zip(("trial", "gyr", "acc", "mag", "rate", "q", "moving"), case)))
+        yield case
+
+
+def _decoder_version():
+    """A hash of the code that reads and resamples a trial (kfkit.readers.broad, kfkit.real_data)."""
+    import kfkit.readers.broad
+    import kfkit.real_data
+    digest = hashlib.sha1()
+    for module in (kfkit.readers.broad, kfkit.real_data):
+        digest.update(Path(module.__file__).read_bytes())
+    return digest.hexdigest()[:12]
 
 
 # ---- running filters (in worker processes) ---------------------------------------------------
@@ -399,7 +426,7 @@ def filterpy_euler_ekf(gyr, acc, mag, rate):
 
     class EulerEKF(ExtendedKalmanFilter):
         def predict_x(self, u=0):
-            self.x = self.x + euler_rates(self.x, u) * self.dt
+            self.x = self.x + body_rates_to_euler_rates(self.x, u) * self.dt
             self.x[2] = wrap_angle(self.x[2])
 
     dt = 1.0 / rate
@@ -412,13 +439,13 @@ def filterpy_euler_ekf(gyr, acc, mag, rate):
     hx6, hj6 = (lambda x: attitude_measurement(x, field)), (lambda x: attitude_jacobian(x, field))
     hx3, hj3 = (lambda x: attitude_measurement(x, field)[:3]), (lambda x: attitude_jacobian(x, field)[:3])
     out = np.empty((len(gyr), 3))
-    st = EulerEkfSettings()  # the defaults estimate_attitude uses
+    st = EulerAttitudeEKFSettings()  # the defaults estimate_attitude uses
     for k in range(len(gyr)):
         ekf.F = np.eye(3) + dt * euler_kinematics_jacobian(ekf.x, gyr[k])
         ekf.Q = euler_process_noise(ekf.x, st.gyro_noise, dt)
         ekf.predict(u=gyr[k])
         gated = abs(np.linalg.norm(acc[k]) - G) > st.accel_gate
-        R6 = np.diag([st.accel_noise ** 2 * (st.accel_gate_factor if gated else 1.0)] * 3 + [st.mag_noise ** 2] * 3)
+        R6 = np.diag([st.accel_noise ** 2 * (st.accel_inflation if gated else 1.0)] * 3 + [st.mag_noise ** 2] * 3)
         if np.isnan(mag[k, 0]):
             ekf.update(acc[k], hj3, hx3, R=R6[:3, :3])
         else:
@@ -434,10 +461,9 @@ def speed():
     gyr, acc, mag = Calibration.load(bundled_calibration_path("nucleo-iks02a1")).apply(rec)
     rate, n = rec.rate_hz, len(rec)
     contenders = {
-        "kfkit euler-ekf": lambda: estimate_attitude(gyr, acc, mag, rate),
-        "kfkit euler-ekf, reference (a loop over step)": lambda: EulerAttitudeEKF(rate, field_n=learn_field(acc, mag)).run(
+        **{f"kfkit {name}": (lambda name=name: estimate_attitude(gyr, acc, mag, rate, method=name)) for name in KFKIT},
+        "kfkit euler-ekf, reference (a loop over step)": lambda: EulerAttitudeEKF(rate_hz=rate, field_n=learn_field(acc, mag)).run(
             gyr, acc, mag),
-        "kfkit mekf": lambda: estimate_attitude(gyr, acc, mag, rate, method="mekf"),
         "filterpy EKF (same Euler model)": lambda: filterpy_euler_ekf(gyr, acc, mag, rate),
         "ahrs EKF": lambda: run_ahrs_ekf(gyr, acc, mag, rate),
     }
@@ -459,9 +485,9 @@ def speed():
 
 
 # ---- main ------------------------------------------------------------------------------------
-def full_trials(jobs):
+def full_trials(jobs, cache=None):
     """The full BROAD trials at both rates and the bundled excerpts: the goal tables, leave-one-out, the ablation."""
-    groups = {"native": list(broad_cases()), f"{BOARD_RATE:g} Hz": list(broad_cases(BOARD_RATE))}
+    groups = {"native": list(broad_cases(cache=cache)), f"{BOARD_RATE:g} Hz": list(broad_cases(BOARD_RATE, cache))}
     excerpts = list(bundled_real_cases())
     names = {g: [c[0] for c in cases] for g, cases in groups.items()}
     board = f"{BOARD_RATE:g} Hz"
@@ -499,6 +525,7 @@ def main():
     parser.add_argument("--quick", action="store_true", help="skip the full BROAD trials")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes for the accuracy runs (default 2)")
     parser.add_argument("--out", type=Path, help="also write the printed tables to this file")
+    parser.add_argument("--cache", type=Path, help="a folder for the decoded and resampled BROAD trials (reused)")
     args = parser.parse_args()
     printed = io.StringIO()
     with contextlib.redirect_stdout(_Tee(sys.stdout, printed)):
@@ -508,7 +535,7 @@ def main():
             rows = score_all(list(bundled_real_cases()), FILTERS, args.jobs)
             print_accuracy("Bundled BROAD excerpts (100 Hz, real IMU, optical truth; movement phases)", rows, list(FILTERS))
         elif BROAD_DIR.exists() and glob.glob(str(BROAD_DIR / "*.mat")):
-            full_trials(args.jobs)
+            full_trials(args.jobs, args.cache)
         else:
             print(f"\n(no BROAD trials in {BROAD_DIR}: the full trials, leave-one-out and the ablation are skipped)")
             rows = score_all(list(bundled_real_cases()), FILTERS, args.jobs)

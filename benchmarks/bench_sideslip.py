@@ -23,7 +23,7 @@ from threadpoolctl import threadpool_limits
 
 from pathlib import Path
 
-from kfkit import datasets, vehicle
+from kfkit import datasets, discrete, vehicle
 from kfkit.filters import compare_estimators, estimate_sideslip, sideslip
 from kfkit.readers import load_vehicle_csv
 from kfkit.metrics import rmse
@@ -44,7 +44,7 @@ def filterpy_sideslip(t, delta, yaw_rate, ay, vx, params=CAR, q=(1e-4, 1e-3), r=
         key = round(vx[k] / vx_step)
         if key not in cache:
             A, B, C, D = vehicle.linear_model(params, key * vx_step)
-            cache[key] = vehicle.discretize(A, B, dt, np.diag(q)) + (C, D)
+            cache[key] = discrete.discretize(A, B, dt, np.diag(q)) + (C, D)
         kf.F, kf.B, kf.Q, kf.H, D = cache[key]
         kf.predict(u=np.array([delta[k - 1] if k else delta[0]]))
         kf.update(np.array([yaw_rate[k], ay[k]]) - D[:, 0] * delta[k])

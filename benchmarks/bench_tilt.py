@@ -102,7 +102,7 @@ def accuracy():
             if gate is None:
                 est[name] = z
             else:
-                run = TiltBiasKF(dt, q_angle=q[name][0], q_bias=q[name][1], r=r, gate=gate).run(w, z, ok)
+                run = TiltBiasKF(dt, q_angle=q[name][0], q_bias=q[name][1], r=r, accel_gating=gate).run(w, z, ok)
                 est[name] = run.angle
                 errs.append(100 * (run.bias[-1] / bias[0 if name == "roll" else 1] - 1))
             cells.append(f"{np.degrees(lab05.static_rmse(est[name], ref)):.2f}°")
@@ -152,7 +152,7 @@ def c_accuracy():
         c = c_filter(w, z, ok, dt)
         if c is None:
             return
-        ref = TiltBiasKF(dt, tilt.TiltSettings()).run(w, z, ok)
+        ref = TiltBiasKF(dt, tilt.TiltBiasKFSettings()).run(w, z, ok)
         rows.append((name, np.max(np.abs(c[1][:, 0] - ref.angle)), np.max(np.abs(c[1][:, 1] - ref.bias))))
     print("\n| C (float32) vs Python (float64), whole 05_tilt_protocol | max angle difference | max bias difference |")
     print("| --- | --- | --- |")
@@ -164,7 +164,7 @@ def speed():
     rng = np.random.default_rng(0)
     n, dt = 6000, 0.01
     w, z, ok = rng.normal(0, 0.5, n), rng.normal(0, 0.3, n), rng.random(n) > 0.2
-    kf = TiltBiasKF(dt, q_angle=2e-6, q_bias=2e-10, r=1.6e-5, gate="skip")
+    kf = TiltBiasKF(dt, q_angle=2e-6, q_bias=2e-10, r=1.6e-5, accel_gating="skip")
     ours = best_of(lambda: kf.run(w, z, ok))
 
     def filterpy_run():

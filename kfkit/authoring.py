@@ -9,7 +9,11 @@ Markers (the ones nbgrader uses), each on a line of its own:
 
 * code cells: the lines from ``### BEGIN SOLUTION`` to ``### END SOLUTION``
   (inclusive) become ``# YOUR CODE HERE`` and ``raise NotImplementedError()``,
-  indented like the BEGIN line. A cell may hold several blocks.
+  indented like the BEGIN line. A cell may hold several blocks. Each block must
+  be a statement of its function's body, or of the cell (not inside an if, a
+  loop, a try or a with), with no ``return`` before it: that is how the exercise
+  guard tells a stub from a finished function (:func:`is_stub`), and a block it
+  would not recognise is refused.
 * markdown cells: the same markers around a model answer; the block becomes
   ``YOUR ANSWER HERE``.
 * cells tagged ``solution-only`` (instructor notes, checks of the model
@@ -17,13 +21,24 @@ Markers (the ones nbgrader uses), each on a line of its own:
 * nbval's cell markers (``# NBVAL_CHECK_OUTPUT``, ``# NBVAL_IGNORE_OUTPUT``, …) are removed: nbval
   validates the solutions, and a student has no use for them.
 
+Predict, run, then read. A markdown cell tagged ``predict`` asks the student to predict what the cells after it
+will show; the lab gets a markdown cell for the student's answer right after it ("My prediction: …", tag
+``my-prediction``, ungraded). Markdown cells tagged ``reveal`` explain the answer: in the lab they are folded
+(``jupyter.source_hidden``, which JupyterLab shows as a bar to click) until the student opens them, and start with a
+line that names them (the bar previews a cell's first line, which would otherwise give the answer away). A reveal may
+quote the bundled run's numbers for the instructor as ``<!-- run: the RMSE printed above -->0.33°<!-- /run -->``:
+the solution shows 0.33° (the comment is invisible), the lab reads "the RMSE printed above", so a hand-out never
+gives a number the student has not produced yet.
+
 The labs carry no outputs and no run state, so they are byte-identical
 whoever regenerates them.
 """
 
 from __future__ import annotations
 
+import ast
 import copy
+import re
 from pathlib import Path
 
 import nbformat
@@ -31,11 +46,18 @@ import nbformat
 BEGIN = "### BEGIN SOLUTION"
 END = "### END SOLUTION"
 CODE_STUB = ["# YOUR CODE HERE", "raise NotImplementedError()"]
+_STUB_STATEMENT = ast.dump(ast.parse(CODE_STUB[-1]).body[0])  # the statement, whatever its indentation
 ANSWER_STUB = ["YOUR ANSWER HERE"]
 SOLUTION_ONLY_TAG = "solution-only"
 RUN_STATE_KEYS = ("execution", "collapsed", "scrolled")
 NOTEBOOK_METADATA_KEPT = ("kernelspec", "language_info")
 NBVAL_MARKER = "# NBVAL_"
+PREDICT_TAG, REVEAL_TAG, MY_PREDICTION_TAG = "predict", "reveal", "my-prediction"
+MY_PREDICTION = ("**My prediction:** *(write it here before you run the cells below; the explanation after them is "
+                 "folded: click its bar to open it once you have compared)*")
+#: the first line of a folded explanation: JupyterLab's fold bar previews a cell's first line, which must not be the answer
+REVEAL_LEAD = "**Explanation** *(folded: open it after you have run the cells above and compared with your prediction)*"
+RUN_NUMBER = re.compile(r"<!--\s*run:\s*(.*?)\s*-->(.*?)<!--\s*/run\s*-->", re.S)
 
 
 class AuthoringError(ValueError):
@@ -54,11 +76,17 @@ def strip_solutions(nb: nbformat.NotebookNode, name: str | None = None) -> nbfor
     )
     cells = []
     for index, cell in enumerate(lab.cells):
-        if SOLUTION_ONLY_TAG in cell.metadata.get("tags", []):
+        tags = cell.metadata.get("tags", [])
+        if SOLUTION_ONLY_TAG in tags:
             continue
+        if REVEAL_TAG in tags:
+            cell.source = f"{REVEAL_LEAD}\n\n{_lab_wording(cell.source, f'{where}cell index {index}')}"
+            cell.metadata.setdefault("jupyter", {})["source_hidden"] = True
         stub = {"code": CODE_STUB, "markdown": ANSWER_STUB}.get(cell.cell_type)
         if stub:
-            cell.source = _replace_blocks(cell.source, stub, f"{where}cell index {index}")
+            cell.source, stubs = _replace_blocks(cell.source, stub, f"{where}cell index {index}")
+            if cell.cell_type == "code":
+                _check_stubs_recognised(cell.source, stubs, f"{where}cell index {index}")
         if cell.cell_type == "code":
             cell.source = _without_test_markers(cell.source)
             cell.outputs = []
@@ -66,14 +94,61 @@ def strip_solutions(nb: nbformat.NotebookNode, name: str | None = None) -> nbfor
         for key in RUN_STATE_KEYS:
             cell.metadata.pop(key, None)
         cells.append(cell)
+        if PREDICT_TAG in tags:
+            cells.append(nbformat.v4.new_markdown_cell(MY_PREDICTION, id=f"{cell.id}-mine"[:64],
+                                                       metadata={"tags": [MY_PREDICTION_TAG]}))
     lab.cells = cells
     _check_clean(lab, where)
     return lab
 
 
-def _replace_blocks(source: str, stub: list[str], where: str) -> str:
-    """Replace every BEGIN..END block in ``source`` by ``stub`` at the BEGIN line's indentation."""
+def is_stub(body: list[ast.stmt]) -> bool:
+    """True when ``body``, a function's statements or a cell's, is an exercise make-labs left to the student: the
+    statement it writes, ``raise NotImplementedError()``, is one of ``body``'s own statements (not inside an if, a
+    loop, a try or a with) and nothing before it can return or yield. Calling such a function raises it whatever the
+    input. A finished function never is one: one that raises NotImplementedError for some input, catches it, or keeps
+    the stub after its ``return`` can return."""
+    for statement in body:
+        if ast.dump(statement) == _STUB_STATEMENT:
+            return True
+        if any(isinstance(n, (ast.Return, ast.Yield, ast.YieldFrom)) for n in _same_scope(statement)):
+            return False
+    return False
+
+
+def _same_scope(node: ast.AST):
+    """``node`` and what it holds, not the bodies of the functions, lambdas and classes it defines."""
+    stack = [node]
+    while stack:
+        n = stack.pop()
+        yield n
+        stack.extend(c for c in ast.iter_child_nodes(n)
+                     if not isinstance(c, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)))
+
+
+def _check_stubs_recognised(source: str, stub_lines: list[int], where: str) -> None:
+    """Refuse a stub (its ``raise`` on one of ``stub_lines``, 1-based) that :func:`is_stub` would not recognise in
+    the lab's cell ``source``: the exercise guard would let the cells that need it run, and Run All would stop."""
+    python = "\n".join("" if line.lstrip().startswith(("%", "!")) else line for line in source.split("\n"))
+    try:
+        tree = ast.parse(python)
+    except SyntaxError:  # not Python (a %%bash cell …): no function in it for the guard to judge
+        return
+    bodies = [tree.body] + [n.body for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))]
+    recognised = {statement.lineno for body in bodies if is_stub(body) for statement in body}
+    for line in stub_lines:
+        if line not in recognised:
+            raise AuthoringError(
+                f"{where}, line {line}: the exercise guard would not take this for a stub: put the "
+                f"'{BEGIN}' block straight in the function's body (or the cell's), not inside an if, a loop, a try "
+                "or a with, and with no return before it")
+
+
+def _replace_blocks(source: str, stub: list[str], where: str) -> tuple[str, list[int]]:
+    """Replace every BEGIN..END block in ``source`` by ``stub`` at the BEGIN line's indentation; → (the new source,
+    the line numbers (1-based) of each stub's last line)."""
     out: list[str] = []
+    stub_lines: list[int] = []
     begin_line = None  # 1-based line number of the open BEGIN marker
     for number, line in enumerate(source.split("\n"), start=1):
         if BEGIN in line:
@@ -84,6 +159,7 @@ def _replace_blocks(source: str, stub: list[str], where: str) -> str:
             begin_line = number
             indent = line[: len(line) - len(line.lstrip())]
             out.extend(indent + stub_line for stub_line in stub)
+            stub_lines.append(len(out))
         elif END in line:
             if begin_line is None:
                 raise AuthoringError(f"{where}, line {number}: '{END}' without '{BEGIN}'")
@@ -92,7 +168,15 @@ def _replace_blocks(source: str, stub: list[str], where: str) -> str:
             out.append(line)
     if begin_line is not None:
         raise AuthoringError(f"{where}, line {begin_line}: '{BEGIN}' without '{END}'")
-    return "\n".join(out)
+    return "\n".join(out), stub_lines
+
+
+def _lab_wording(source: str, where: str) -> str:
+    """A reveal cell's text for the lab: each ``<!-- run: words -->number<!-- /run -->`` becomes ``words``."""
+    lab = RUN_NUMBER.sub(lambda m: m.group(1), source)
+    if re.search(r"<!--\s*/?run\b", lab):
+        raise AuthoringError(f"{where}: a '<!-- run: … -->' needs its '<!-- /run -->' (and the other way round)")
+    return lab
 
 
 def _without_test_markers(source: str) -> str:

@@ -36,6 +36,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import nnls
 
 from .frames import G, MAG_FIELD_LONDON
 from .paths import bundled_calibration_path, data_dir, user_calibration_path
@@ -261,6 +262,25 @@ def bias_instability(taus, adev):
     return adev.min(axis=0) / BIAS_INSTABILITY_FACTOR, taus[k]
 
 
+def allan_noise_fit(taus, adev):
+    """(N, B, K): white-noise density, bias instability and rate random walk that best explain an Allan curve,
+
+        σ²(τ) = N²/τ + (2 ln 2/π)·B² + K²·τ/3        (IEEE Std 952-1997, Annex C)
+
+    fitted by non-negative least squares on σ², each point weighted by its precision: an Allan variance averages about
+    T/τ independent clusters of a record T long, so its relative error grows as √τ, and the weight is 1/(σ²(τ)·√τ).
+    Units for a gyro in rad/s: N rad/√s (= rad/s/√Hz), B rad/s, K rad/s/√s (the bias's random walk:
+    its σ grows as K·√t). A term the curve does not show comes out 0: K needs the curve to turn up (slope +½) before
+    its longest τ, so a short rest gives K = 0 (unmeasured, not zero). Per column for (M, k) curves.
+    """
+    taus, adev = np.asarray(taus, float), np.asarray(adev, float)
+    var = adev.reshape(len(taus), -1) ** 2
+    basis = np.column_stack([1.0 / taus, np.full(len(taus), BIAS_INSTABILITY_FACTOR**2), taus / 3.0])
+    weight = 1.0 / (var * np.sqrt(taus)[:, None])
+    out = np.array([np.sqrt(nnls(basis * w[:, None], v * w)[0]) for v, w in zip(var.T, weight.T)])  # (k, 3)
+    return tuple(out[:, i] if adev.ndim > 1 else float(out[0, i]) for i in range(3))
+
+
 # --- magnetometer ----------------------------------------------------------------------------------
 
 def fit_mag_calibration(mag, field_norm=None, min_samples=50, min_spread=MIN_MAG_SPREAD):
@@ -337,7 +357,8 @@ def _zeros():
 class Calibration:
     """One board's calibration, body frame FRD, SI units (µT for the magnetometer).
 
-    gyro_bias (rad/s), gyro_noise (rad/s, σ per sample at ``rate_hz``), accel_bias (m/s²),
+    gyro_bias (rad/s), gyro_noise (rad/s, σ per sample at ``rate_hz``), gyro_bias_walk (rad/s/√s: the bias's
+    random walk K, read on a long rest's Allan curve; 0 = not measured), accel_bias (m/s²),
     accel_scale (1), accel_noise (m/s², σ per sample at ``rate_hz``), mag_hard_iron (µT),
     mag_soft_iron (3×3), mag_noise (µT, σ per magnetometer sample), source (how it was made).
     """
@@ -346,6 +367,7 @@ class Calibration:
     rate_hz: float = 104.0
     gyro_bias: list = field(default_factory=_zeros)
     gyro_noise: list = field(default_factory=_zeros)
+    gyro_bias_walk: list = field(default_factory=_zeros)
     accel_bias: list = field(default_factory=_zeros)
     accel_scale: list = field(default_factory=lambda: [1.0, 1.0, 1.0])
     accel_noise: list = field(default_factory=_zeros)
@@ -354,7 +376,7 @@ class Calibration:
     mag_noise: list = field(default_factory=_zeros)
     source: str = ""
 
-    SHAPES = {"gyro_bias": (3,), "gyro_noise": (3,), "accel_bias": (3,), "accel_scale": (3,), "accel_noise": (3,),
+    SHAPES = {"gyro_bias": (3,), "gyro_noise": (3,), "gyro_bias_walk": (3,), "accel_bias": (3,), "accel_scale": (3,), "accel_noise": (3,),
               "mag_hard_iron": (3,), "mag_soft_iron": (3, 3), "mag_noise": (3,)}
 
     def __post_init__(self):
@@ -382,9 +404,9 @@ class Calibration:
         if not all(lo <= s <= hi for s in self.accel_scale):
             raise CalibrationError(f"Calibration.accel_scale must lie within {lo:g} … {hi:g} (1 = exact; it divides the "
                                    f"reading), got {self.accel_scale}")
-        for name in ("gyro_noise", "accel_noise", "mag_noise"):
+        for name in ("gyro_noise", "gyro_bias_walk", "accel_noise", "mag_noise"):
             if min(getattr(self, name)) < 0:
-                raise CalibrationError(f"Calibration.{name} is a standard deviation: it cannot be negative, got {getattr(self, name)}")
+                raise CalibrationError(f"Calibration.{name} is a noise level: it cannot be negative, got {getattr(self, name)}")
         S = np.asarray(self.mag_soft_iron)
         w = np.linalg.eigvalsh((S + S.T) / 2)
         if not np.allclose(S, S.T, rtol=1e-6, atol=1e-9 * np.abs(S).max()) or w[0] <= 0 or w[-1] > MAX_SOFT_IRON_CONDITION * w[0]:
@@ -392,6 +414,11 @@ class Calibration:
                                    f"(eigenvalues {', '.join(f'{x:.3g}' for x in w)}), got {self.mag_soft_iron}: "
                                    f"fit it again with fit_mag_calibration")
         self.rate_hz = float(self.rate_hz)
+
+    @property
+    def gyro_density(self) -> np.ndarray:
+        """The gyro's white-noise density N = σ/√rate (rad/s/√Hz = rad/√s), per axis: what a Q is made from."""
+        return np.asarray(self.gyro_noise) / np.sqrt(self.rate_hz)
 
     def to_json(self) -> str:
         """The JSON text ``save`` writes (one field per line, 9 significant digits)."""
@@ -401,7 +428,8 @@ class Calibration:
     def from_json(cls, text: str, where="calibration") -> "Calibration":
         """A calibration file's text. Stricter than the constructor: every field but ``source`` must be
         there (no default stands in for a measurement) and the board must be one the kit knows. A noise σ
-        of 0 means "not measured" (a board without magnetometer, a lab that saved before measuring it)."""
+        of 0 means "not measured" (a board without magnetometer, a lab that saved before measuring it); a file from
+        before ``gyro_bias_walk`` existed reads it as 0."""
         try:
             d = json.loads(text.removeprefix("\ufeff"))
         except json.JSONDecodeError as e:
@@ -411,7 +439,7 @@ class Calibration:
         unknown = sorted(set(d) - {f for f in cls.__dataclass_fields__})
         if unknown:
             raise CalibrationError(f"{where}: unknown fields {', '.join(unknown)}")
-        missing = [f for f in cls.__dataclass_fields__ if f not in d and f != "source"]
+        missing = [f for f in cls.__dataclass_fields__ if f not in d and f not in ("source", "gyro_bias_walk")]
         if missing:
             raise CalibrationError(f"{where}: missing fields {', '.join(missing)}: a calibration file needs every "
                                    f"measurement; save one again from labs 02/03 (Calibration.save)")
@@ -523,6 +551,7 @@ def calibrate(stationary, six_faces=None, mag_rotations=None, rate_hz=None, fiel
     window = min(len(gyr), int(NOISE_WINDOW_S * stationary.rate_hz))
     cal = {"board": board.name, "rate_hz": rate, "gyro_bias": gyro_bias(gyr),
            "gyro_noise": noise_at_rate(noise_std(gyr, window), stationary.rate_hz, rate),
+           "gyro_bias_walk": allan_noise_fit(*allan_deviation(gyr, stationary.rate_hz))[2],
            "accel_noise": noise_at_rate(noise_std(acc, window), stationary.rate_hz, rate),
            "accel_bias": accel_bias(acc, [0.0, 0.0, -G])}
     if six_faces is not None:

@@ -17,10 +17,10 @@ import numpy as np
 from . import real_data, sim, vehicle
 from .frames import G
 from .calibration import Calibration, calibrate
-from .io import Recording, load_recording, recording_text
+from .io import Recording, load_recording, load_vehicle, recording_text, vehicle_text
 from .paths import data_dir
-from .phone_sim import simulate_phone
-from .readers.phyphox_export import load_phyphox, simple_experiment_files
+from .phone_sim import simple_experiment_files, simulate_phone
+from .readers.phyphox_export import load_phyphox
 from .sensors import phone_board
 from .unit_errors import MPU6050_ACCEL_BIAS, MPU6050_ACCEL_SCALE, MPU6050_GYRO_BIAS, NUCLEO_UNIT
 
@@ -207,9 +207,9 @@ BUNDLED = {
     "04_attitude_tour": Bundled(_attitude_tour),
     "04_gimbal_lock": Bundled(_gimbal_lock),
     "04_mag_disturbance": Bundled(_mag_disturbance),
-    "06_slalom_20kmh": Bundled(_slalom_20kmh, text=vehicle.vehicle_text, read=vehicle.load_vehicle),
-    "06_slalom_80kmh": Bundled(_slalom_80kmh, text=vehicle.vehicle_text, read=vehicle.load_vehicle),
-    "06_lane_change": Bundled(_lane_change, text=vehicle.vehicle_text, read=vehicle.load_vehicle),
+    "06_slalom_20kmh": Bundled(_slalom_20kmh, text=vehicle_text, read=load_vehicle),
+    "06_slalom_80kmh": Bundled(_slalom_80kmh, text=vehicle_text, read=load_vehicle),
+    "06_lane_change": Bundled(_lane_change, text=vehicle_text, read=load_vehicle),
     "02_stationary": Bundled(_stationary_long),
     "02_six_faces": Bundled(_six_faces),
     "03_axis_turns": Bundled(_axis_turns),

@@ -6,19 +6,25 @@ z down). Euler angles are ZYX ("3-2-1": yaw ψ, then pitch θ, then roll φ) and
     R_nb = Rz(ψ) · Ry(θ) · Rx(φ)        maps body → NED,   R_bn = R_nbᵀ,
 
 which equals ``scipy.spatial.transform.Rotation.from_euler('ZYX', [ψ, θ, φ]).as_matrix()``.
-All angles are radians. Functions accept scalars or arrays and broadcast like NumPy.
+All angles are radians. Functions take arrays with the components on the last axis — Euler angles
+[roll, pitch, yaw] (…, 3), quaternions (…, 4), matrices (…, 3, 3), vectors (…, 3) — and broadcast like NumPy.
+This module is the kit's only home of rotations: nothing else in ``kfkit`` multiplies quaternions or uses
+scipy's ``Rotation`` (``tests/test_architecture.py``); scipy's ``Rotation`` is also the oracle it is tested against.
 
 Quaternions are w-x-y-z (scalar first; scipy's ``as_quat()`` is x-y-z-w), Hamilton product, and
 q maps body → navigation frame like R_nb. The names carry the convention and come in pairs:
 :func:`euler_to_dcm`/:func:`dcm_to_euler`, :func:`euler_to_quat`/:func:`quat_to_euler`,
-:func:`quat_to_dcm`/:func:`dcm_to_quat`, :func:`quat_multiply`, :func:`quat_conjugate`,
-:func:`enu_to_ned` (vectors) and :func:`enu_to_ned_quat`.
+:func:`quat_to_dcm`/:func:`dcm_to_quat`, :func:`rotvec_to_quat`/:func:`quat_to_rotvec`,
+:func:`euler_rates_to_body_rates`/:func:`body_rates_to_euler_rates`, :func:`quat_multiply`, :func:`quat_conjugate`,
+:func:`quat_rotate`, :func:`quat_slerp`, :func:`dcm_slerp`, :func:`random_dcm`, :func:`enu_to_ned` (vectors) and
+:func:`enu_to_ned_quat`.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 #: Standard gravity, m/s².
 G = 9.80665
@@ -35,6 +41,11 @@ MOUNT_Z_UP = np.diag([1.0, -1.0, -1.0])
 MOUNT_IDENTITY = np.eye(3)
 
 
+def _require_last_axis(a, n, owner, what):
+    if a.ndim == 0 or a.shape[-1] != n:
+        raise ValueError(f"{owner} expects {what} on the last axis ({n} values), got shape {a.shape}")
+
+
 def wrap_angle(a):
     """Wrap angles to (−π, π] (rad)."""
     a = np.asarray(a, dtype=float)
@@ -42,12 +53,11 @@ def wrap_angle(a):
     return w if w.ndim else float(w)
 
 
-def euler_to_dcm(roll, pitch, yaw):
-    """R_nb = Rz(yaw) Ry(pitch) Rx(roll), body → NED.
-
-    Scalars give a (3, 3) matrix; arrays of N angles give (N, 3, 3).
-    """
-    roll, pitch, yaw = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (roll, pitch, yaw)))
+def euler_to_dcm(euler):
+    """R_nb = Rz(ψ) Ry(θ) Rx(φ), body → NED, from [roll φ, pitch θ, yaw ψ] (…, 3), rad → (…, 3, 3)."""
+    e = np.asarray(euler, dtype=float)
+    _require_last_axis(e, 3, "euler_to_dcm", "[roll, pitch, yaw]")
+    roll, pitch, yaw = e[..., 0], e[..., 1], e[..., 2]
     cf, sf = np.cos(roll), np.sin(roll)
     ct, st = np.cos(pitch), np.sin(pitch)
     cp, sp = np.cos(yaw), np.sin(yaw)
@@ -65,7 +75,7 @@ def euler_to_dcm(roll, pitch, yaw):
 
 
 def dcm_to_euler(R):
-    """(roll, pitch, yaw) from R_nb (3×3 or N×3×3), the inverse of :func:`euler_to_dcm`.
+    """[roll, pitch, yaw] (…, 3), rad, from R_nb (…, 3, 3): the inverse of :func:`euler_to_dcm`.
 
     φ = atan2(R₃₂, R₃₃), θ = −asin(R₃₁), ψ = atan2(R₂₁, R₁₁). At θ = ±90° (gimbal lock)
     only φ ∓ ψ is defined; the split returned there is arbitrary but R is reproduced.
@@ -80,9 +90,7 @@ def dcm_to_euler(R):
     if np.any(lock):
         roll = np.where(lock, np.arctan2(-np.sign(R[..., 2, 0]) * R[..., 0, 1], R[..., 1, 1]), roll)
         yaw = np.where(lock, 0.0, yaw)
-    if R.ndim == 2:
-        return float(roll), float(pitch), float(yaw)
-    return roll, pitch, yaw
+    return np.stack([roll, pitch, yaw], axis=-1)
 
 
 def euler_to_quat(euler):
@@ -103,7 +111,7 @@ def euler_to_quat(euler):
 
 def quat_to_euler(q):
     """[roll, pitch, yaw] (…, 3), rad, of quaternion(s) w-x-y-z (…, 4) body → NED."""
-    return np.stack(dcm_to_euler(quat_to_dcm(q)), axis=-1)
+    return dcm_to_euler(quat_to_dcm(q))
 
 
 def quat_to_dcm(q):
@@ -165,6 +173,64 @@ def quat_conjugate(q):
     return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
 
 
+def quat_rotate(q, v):
+    """R(q)·v: vectors v (…, 3) rotated by unit quaternions q (…, 4) w-x-y-z, e.g. body → NED for q_nb.
+
+    v' = v + 2w (u × v) + 2 u × (u × v) with u = [x, y, z] (the vector part), which is R(q)·v without the matrix.
+    """
+    q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
+    w, u = q[..., :1], q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def rotvec_to_quat(rotvec):
+    """The exponential map: unit quaternion(s) w-x-y-z (…, 4) of rotation vectors θ·n (…, 3), rad —
+    a turn by ‖θn‖ about n: q = [cos(θ/2), sin(θ/2)·n]; for small θ, [1, θn/2] to first order."""
+    v = np.asarray(rotvec, dtype=float)
+    _require_last_axis(v, 3, "rotvec_to_quat", "a rotation vector")
+    angle = np.linalg.norm(v, axis=-1, keepdims=True)
+    # sin(θ/2)/θ, with its series 1/2 − θ²/48 near 0 (no 0/0)
+    half_sinc = np.where(angle < 1e-6, 0.5 - angle**2 / 48.0, np.sin(angle / 2) / np.where(angle < 1e-6, 1.0, angle))
+    return np.concatenate([np.cos(angle / 2), half_sinc * v], axis=-1)
+
+
+def quat_to_rotvec(q):
+    """The logarithm map: rotation vector(s) θ·n (…, 3), rad, |θ| ≤ π, of unit quaternions w-x-y-z (…, 4);
+    the inverse of :func:`rotvec_to_quat` (q and −q give the same rotation vector)."""
+    q = np.asarray(q, dtype=float)
+    _require_last_axis(q, 4, "quat_to_rotvec", "a quaternion w-x-y-z")
+    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
+    s = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)  # sin(θ/2)
+    angle = 2.0 * np.arctan2(s, q[..., :1])
+    scale = np.where(s < 1e-12, 2.0 / np.where(q[..., :1] == 0, 1.0, q[..., :1]), angle / np.where(s < 1e-12, 1.0, s))
+    return scale * q[..., 1:]
+
+
+def quat_slerp(q0, q1, fraction):
+    """Spherical linear interpolation q0 ⊗ exp(fraction · log(q0* ⊗ q1)) between unit quaternions (…, 4)
+    w-x-y-z, ``fraction`` (…) in [0, 1]: the shortest turn from q0 (0) to q1 (1) at constant rate. Computed with
+    scipy's Rotation (the kit's rotation oracle), so conversions made with it before are reproduced exactly."""
+    q0, q1 = np.broadcast_arrays(np.asarray(q0, dtype=float), np.asarray(q1, dtype=float))
+    shape = q0.shape
+    r0 = Rotation.from_quat(q0.reshape(-1, 4)[:, [1, 2, 3, 0]])  # scipy is scalar-last
+    r1 = Rotation.from_quat(q1.reshape(-1, 4)[:, [1, 2, 3, 0]])
+    step = (r0.inv() * r1).as_rotvec() * np.broadcast_to(np.asarray(fraction, dtype=float), shape[:-1]).reshape(-1, 1)
+    return (r0 * Rotation.from_rotvec(step)).as_quat()[:, [3, 0, 1, 2]].reshape(shape)
+
+
+def dcm_slerp(t_known, R_nb, t):
+    """Attitudes R_nb (N, 3, 3) known at increasing times ``t_known`` (N,), s, interpolated at times ``t`` (inside
+    their span) by slerp between the two neighbouring samples → (len(t), 3, 3)."""
+    return Slerp(np.asarray(t_known, dtype=float), Rotation.from_matrix(R_nb))(np.asarray(t, dtype=float)).as_matrix()
+
+
+def random_dcm(n=None, rng=None):
+    """Rotation matrices drawn uniformly over all attitudes (Haar measure): (3, 3) for ``n`` None, else (n, 3, 3);
+    ``rng`` a seed or a numpy Generator."""
+    return Rotation.random(n, random_state=rng).as_matrix()
+
+
 #: ENU → NED as a matrix: swap x and y, negate z (a 180° turn about (1, 1, 0)/√2), v_NED = R v_ENU.
 R_NED_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 #: The same rotation as a quaternion w-x-y-z: q_NED = Q_NED_ENU ⊗ q_ENU.
@@ -219,6 +285,23 @@ def euler_rates_to_body_rates(euler, euler_dot):
     q = dtheta * np.cos(phi) + dpsi * np.sin(phi) * np.cos(theta)
     r = -dtheta * np.sin(phi) + dpsi * np.cos(phi) * np.cos(theta)
     return np.stack([p, q, r], axis=-1)
+
+
+def body_rates_to_euler_rates(euler, omega_b):
+    """[φ̇, θ̇, ψ̇] (rad/s) from Euler angles [φ, θ, ψ] and body rate [p, q, r] (rad/s), ZYX, the inverse of
+    :func:`euler_rates_to_body_rates`:
+
+        φ̇ = p + (q sin φ + r cos φ) tan θ,   θ̇ = q cos φ − r sin φ,   ψ̇ = (q sin φ + r cos φ) / cos θ
+
+    Singular at cos θ = 0 (gimbal lock). ``euler`` and ``omega_b`` are (…, 3); broadcasts over leading axes.
+    """
+    e = np.asarray(euler, dtype=float)
+    w = np.asarray(omega_b, dtype=float)
+    sf, cf = np.sin(e[..., 0]), np.cos(e[..., 0])
+    ct, tt = np.cos(e[..., 1]), np.tan(e[..., 1])
+    p, q, r = w[..., 0], w[..., 1], w[..., 2]
+    u = q * sf + r * cf
+    return np.stack(np.broadcast_arrays(p + u * tt, q * cf - r * sf, u / ct), axis=-1)
 
 
 def mount_matrix(spec):

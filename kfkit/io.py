@@ -1,4 +1,9 @@
-"""The kit's recording format: load, validate, save.
+"""The kit's own file formats: load, validate, save. Foreign formats (phyphox, BROAD, a logger's CSV) are
+:mod:`kfkit.readers`'; both kit formats share one header line, ``# kfkit-<kind> v1 {json}`` (:func:`parse_header`,
+:func:`format_header`), and the CSV row readers.
+
+The vehicle format (``# kfkit-vehicle v1``, lab 06: SI columns ``t,delta,yaw_rate,ay,vx`` and ``true_*``) is at the
+end (:func:`load_vehicle`, :func:`save_vehicle`). The IMU recording format:
 
 A recording is a CSV file with one header comment line holding JSON metadata, a
 column-name line, then one row per sample::
@@ -19,12 +24,14 @@ column-name line, then one row per sample::
 Loading fails with :class:`RecordingError` naming the file and line: for a header that is not the
 format's, metadata without a positive finite ``rate_hz`` or without ``sensors``/``mount`` entries for the
 sensor columns present, duplicate or unnamed columns, a count that is not an exact integer within ±2^53
-(exact both as int64 and as float64, so no count is ever rounded), a number that is not plain ASCII
-decimal, time that does not increase, and a last line without its newline (see :func:`load_recording`).
+(exact both as int64 and as float64, so no count is ever rounded), a ``seq`` outside 0 … 65535 (a 16-bit
+counter), a number that is not plain ASCII decimal or is longer than :data:`MAX_NUMBER_CHARS`, time that
+does not increase, and a last line without its newline (see :func:`load_recording`).
 A UTF-8 byte-order mark (Excel writes one) is accepted.
 """
 from __future__ import annotations
 
+import csv
 import json
 import math
 import re
@@ -35,8 +42,16 @@ import numpy as np
 
 from .frames import mount_matrix
 
-MAGIC = "# kfkit-recording v1 "
-VERSION_PREFIX = "# kfkit-recording "
+FORMAT_VERSION = 1  # of both kit formats: kfkit-recording (IMU boards, phones) and kfkit-vehicle (lab 06)
+
+
+def magic(kind: str) -> str:
+    """The start of a kit file's first line: ``# kfkit-<kind> v1 `` (then the JSON metadata)."""
+    return f"# kfkit-{kind} v{FORMAT_VERSION} "
+
+
+MAGIC = magic("recording")
+VERSION_PREFIX = "# kfkit-"  # any kit file, of any kind and version: what readers.load_any looks for
 REQUIRED_COLUMNS = ("t", "seq")
 INT_COLUMNS = frozenset({"seq", "ax", "ay", "az", "gx", "gy", "gz", "t_us", "static_ok"})  # t_us, static_ok: lab 05's logger columns
 OPTIONAL_INT_COLUMNS = frozenset({"mx", "my", "mz"})  # empty cell = no new sample (NaN)
@@ -45,6 +60,12 @@ TRUTH_COLUMNS = ("true_roll", "true_pitch", "true_yaw")
 BOM = "\ufeff"
 #: the largest count magnitude: integers up to 2^53 are exact as int64 and as float64 (counts() and NaN-able mag columns)
 MAX_COUNT = 2**53
+SEQ_MODULO = 2**16  # ``seq`` is the board's 16-bit sample counter: 0 … 65535
+#: the longest number text read: every writer of the kit's formats writes far shorter ones (a count ≤ 2^53 has 17
+#: characters, %.9g 16, a time in %.6f 24 below 10^16 s), so a longer one is a corrupted file (a megabyte of digits
+#: that parses to 0.0), refused before it is parsed
+MAX_NUMBER_CHARS = 64
+SHOWN_CHARS = 24  # a value in a message is cut to this many characters
 _INTEGER = re.compile(r"[+-]?[0-9]+")
 _DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 
@@ -58,12 +79,24 @@ class RecordingError(ValueError):
         self.path, self.line = path, line
 
 
+def shown(text: str, limit: int = SHOWN_CHARS) -> str:
+    """``text`` quoted for a message, cut to ``limit`` characters (saying how long it is) when longer."""
+    return repr(text) if len(text) <= limit else f"{text[:limit]!r}… ({len(text):,} characters)"
+
+
+def _check_length(text: str):
+    if len(text) > MAX_NUMBER_CHARS:
+        raise ValueError(f"{shown(text)} is longer than any number the file's writer produces "
+                         f"(≤ {MAX_NUMBER_CHARS} characters): a corrupted value?")
+
+
 def parse_count(text: str) -> int:
     """An integer count in ASCII decimal digits with |n| ≤ :data:`MAX_COUNT` (2^53), never through float.
 
     Raises ValueError saying why (callers add the file, line and column)."""
+    _check_length(text)
     if not _INTEGER.fullmatch(text):
-        raise ValueError(f"{text!r} is not an integer count")
+        raise ValueError(f"{shown(text)} is not an integer count")
     n = int(text)
     if abs(n) > MAX_COUNT:
         raise ValueError(f"{text} is out of range for a count (|n| ≤ 2^53 = {MAX_COUNT}): a corrupted value?")
@@ -74,14 +107,16 @@ def parse_number(text: str) -> float:
     """A finite number in plain ASCII decimal or scientific notation (``-1.5``, ``9.80665E0``).
 
     Stricter than ``float``, which also takes ``1_000``, non-ASCII digits, ``nan`` and ``inf``, and
-    overflows ``1e999`` to inf. Raises ValueError saying why."""
+    overflows ``1e999`` to inf; nor does it take more than :data:`MAX_NUMBER_CHARS` characters. Raises
+    ValueError saying why."""
+    _check_length(text)
     if text.lower().lstrip("+-") in ("nan", "inf", "infinity"):
         raise ValueError(f"{text!r} is not a finite number")
     if not _DECIMAL.fullmatch(text):
-        raise ValueError(f"{text!r} is not a number")
+        raise ValueError(f"{shown(text)} is not a number")
     value = float(text)
     if not math.isfinite(value):
-        raise ValueError(f"{text!r} is not a finite number (beyond ±1.8e308)")
+        raise ValueError(f"{shown(text)} is not a finite number (beyond ±1.8e308)")
     return value
 
 
@@ -169,6 +204,8 @@ def _count_text(name: str, value) -> str:
     n = int(value)
     if abs(n) > MAX_COUNT:
         raise ValueError(f"column {name!r}: {n} is out of range for a count (|n| ≤ 2^53)")
+    if name == "seq" and not 0 <= n < SEQ_MODULO:
+        raise ValueError(f"column 'seq': {n} is not a 16-bit sample counter (0 … {SEQ_MODULO - 1}): take it modulo 2^16")
     return str(n)
 
 
@@ -184,9 +221,9 @@ def _format_cell(name: str, value) -> str:
     return f"{value:.9g}"
 
 
-def format_header(meta: dict, columns) -> str:
-    """The two header lines (metadata comment and column names), newline-terminated."""
-    return f"{MAGIC}{json.dumps(meta, ensure_ascii=False)}\n{','.join(columns)}\n"
+def format_header(meta: dict, columns, kind: str = "recording") -> str:
+    """The two header lines (``# kfkit-<kind> v1 {json}`` and column names), newline-terminated."""
+    return f"{magic(kind)}{json.dumps(meta, ensure_ascii=False)}\n{','.join(columns)}\n"
 
 
 def format_row(columns, values) -> str:
@@ -208,21 +245,27 @@ def save_recording(rec: Recording, path) -> Path:
     return path
 
 
-def _parse_header(path, line: str) -> dict:
-    if not line.startswith(VERSION_PREFIX):
+def parse_header(path, line: str, kind: str = "recording", hint: str = "", needs_rate: bool = True) -> dict:
+    """The metadata of a kit file's first line ``# kfkit-<kind> v1 {json}``: a JSON object with valid ``phases`` and
+    (``needs_rate``) a positive finite ``rate_hz``. A file of another kind or version, or bad JSON, is a RecordingError on line 1
+    (``hint``: what to do instead, for a file that is not the kit's at all)."""
+    expected = magic(kind)
+    if not line.startswith(f"# kfkit-{kind} "):
         shown = line[:60].rstrip("\n")
-        raise RecordingError(path, 1, f"expected the header '{MAGIC.strip()} {{…json…}}', got {shown!r}: is this a kfkit recording?")
-    if not line.startswith(MAGIC):
-        version = line[len(VERSION_PREFIX):].split(" ", 1)[0]
-        raise RecordingError(path, 1, f"unsupported recording version {version!r}; this kfkit reads v1")
+        raise RecordingError(path, 1, f"expected the header '{expected.strip()} {{…json…}}', got {shown!r}: is this a "
+                             f"kfkit {kind}?{' ' + hint if hint else ''}")
+    if not line.startswith(expected):
+        version = line[len(f"# kfkit-{kind} "):].split(" ", 1)[0]
+        raise RecordingError(path, 1, f"unsupported {kind} version {version!r}; this kfkit reads v{FORMAT_VERSION}")
     try:
-        meta = json.loads(line[len(MAGIC):])
+        meta = json.loads(line[len(expected):])
     except json.JSONDecodeError as e:
-        raise RecordingError(path, 1, f"the metadata is not valid JSON ({e.msg} at column {e.colno + len(MAGIC)})") from None
-    if not isinstance(meta, dict) or "rate_hz" not in meta:
-        raise RecordingError(path, 1, "the metadata must be a JSON object with at least 'rate_hz'")
-    if not positive_number(meta["rate_hz"]):
+        raise RecordingError(path, 1, f"the metadata is not valid JSON ({e.msg} at column {e.colno + len(expected)})") from None
+    if not isinstance(meta, dict) or (needs_rate and "rate_hz" not in meta):
+        raise RecordingError(path, 1, "the metadata must be a JSON object" + (" with at least 'rate_hz'" if needs_rate else ""))
+    if needs_rate and not positive_number(meta["rate_hz"]):
         raise RecordingError(path, 1, f"metadata 'rate_hz' must be a positive finite number (Hz), got {meta['rate_hz']!r}")
+    check_phases(path, meta.get("phases", []))
     return meta
 
 
@@ -245,7 +288,6 @@ def _check_meta(path, meta: dict, cols) -> None:
         except (ValueError, TypeError):
             raise RecordingError(path, 1, f"metadata mount.{s} must be a 3×3 rotation matrix M_bs (body ← sensor; "
                                  f"orthonormal, det +1), got {meta['mount'].get(s)!r}") from None
-    check_phases(path, meta.get("phases", []))
 
 
 def check_phases(path, phases, line=1) -> None:
@@ -278,9 +320,13 @@ def _parse_cell(path, lineno: int, col: str, text: str):
     if text == "" and (col in OPTIONAL_INT_COLUMNS or col.startswith("true_")):
         return math.nan
     try:
-        return parse_count(text) if col in INT_COLUMNS or col in OPTIONAL_INT_COLUMNS else parse_number(text)
+        value = parse_count(text) if col in INT_COLUMNS or col in OPTIONAL_INT_COLUMNS else parse_number(text)
     except ValueError as e:
         raise RecordingError(path, lineno, f"column {col!r}: {e}") from None
+    if col == "seq" and not 0 <= value < SEQ_MODULO:
+        raise RecordingError(path, lineno, f"column 'seq': {value} is not a sample counter: seq counts the board's "
+                             f"samples modulo 2^16, 0 … {SEQ_MODULO - 1}")
+    return value
 
 
 def load_recording(path) -> Recording:
@@ -300,7 +346,7 @@ def load_recording(path) -> Recording:
     lines = text.split("\n")
     if len(lines) < 2 or not lines[0]:
         raise RecordingError(path, 1, "the file is empty: expected a metadata header line")
-    meta = _parse_header(path, lines[0])
+    meta = parse_header(path, lines[0])
     cols = _parse_columns(path, lines[1])
     _check_meta(path, meta, cols)
     truncated_tail = not text.endswith("\n")
@@ -331,4 +377,114 @@ def load_recording(path) -> Recording:
     for c, column in zip(cols, columns):
         dtype = np.int64 if c in INT_COLUMNS else float
         data[c] = np.asarray(column, dtype=dtype)
+    return Recording(meta, data, path)
+
+
+# --- the kit's vehicle recording format (and the row reader students' CSVs share) ----------------------------------------------
+
+VEHICLE_MAGIC = magic("vehicle")
+VEHICLE_COLUMNS = ("t", "delta", "yaw_rate", "ay", "vx")
+VEHICLE_TRUTH = ("true_beta", "true_yaw_rate", "true_vy")
+
+def vehicle_text(rec: Recording) -> str:
+    """The file contents of a vehicle recording: ``# kfkit-vehicle v1 {json}``, column names, rows."""
+    cols = rec.columns
+    fmt = ["{:.6f}" if c == "t" else "{:.9g}" for c in cols]
+    rows = zip(*(rec.data[c].tolist() for c in cols))
+    lines = [",".join(f.format(v + 0.0) for f, v in zip(fmt, row)) for row in rows]  # + 0.0 writes −0 as 0
+    return format_header(rec.meta, cols, "vehicle") + "".join(line + "\n" for line in lines)
+
+
+def save_vehicle(rec: Recording, path) -> Path:
+    """Write a vehicle recording to ``path``."""
+    path = Path(path)
+    path.write_text(vehicle_text(rec), encoding="utf-8", newline="\n")
+    return path
+
+
+def read_csv_rows(path, lines, first_lineno, header, columns, delimiter=","):
+    """Parse CSV ``lines`` (after the header) into arrays for ``columns`` {kit name: file column}, in the file's units.
+
+    Returns (data, line numbers of the rows). Errors name the file, the line and the column.
+    """
+    index = {}
+    for name, col in columns.items():
+        if col not in header:
+            raise RecordingError(path, first_lineno - 1, f"no column {col!r} for {name} (columns in the file: {', '.join(header)})")
+        if header.count(col) > 1:
+            raise RecordingError(path, first_lineno - 1, f"column {col!r} (for {name}) appears {header.count(col)} times in the header")
+        index[name] = header.index(col)
+    values = {name: [] for name in columns}
+    linenos = []
+    t_prev = None
+    for offset, cells in enumerate(csv_rows(path, lines, first_lineno, delimiter)):
+        lineno = first_lineno + offset
+        if not cells or all(not c.strip() for c in cells):
+            continue
+        # a trailing delimiter (spreadsheet exports) adds empty cells: allowed; anything else must match the header
+        if len(cells) < len(header) or any(c.strip() for c in cells[len(header):]):
+            raise RecordingError(path, lineno, f"expected {len(header)} fields ({delimiter.join(header)}), got {len(cells)}")
+        for name, i in index.items():
+            text = cells[i].strip()
+            try:
+                values[name].append(parse_number(text))
+            except ValueError as e:
+                raise RecordingError(path, lineno, f"column {header[i]!r} ({name}): {'is empty' if not text else e}") from None
+        t = values["t"][-1]
+        if t_prev is not None and t <= t_prev:
+            raise RecordingError(path, lineno, f"time (column {header[index['t']]!r}) does not increase: {t:.10g} after {t_prev:.10g}")
+        t_prev = t
+        linenos.append(lineno)
+    if t_prev is None:
+        raise RecordingError(path, first_lineno, "no data rows")
+    return {name: np.asarray(v) for name, v in values.items()}, np.asarray(linenos)
+
+
+def csv_rows(path, lines, first_lineno, delimiter=","):
+    """The cells of each of ``lines`` (one row per line) as :func:`csv.reader` splits them; what it cannot read (a field
+    over its limit of 131,072 characters, a NUL byte) is a RecordingError naming the file and line."""
+    reader = csv.reader(lines, delimiter=delimiter)
+    while True:
+        try:
+            cells = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as e:
+            raise RecordingError(path, first_lineno + reader.line_num - 1, f"not readable as CSV ({e}): no number is "
+                                 f"that long or holds such a character; a corrupted file?") from None
+        yield cells
+
+
+def read_lines(path) -> tuple[list[str], bool]:
+    """The file's lines (a UTF-8 byte-order mark dropped) and whether the last one ends in a newline."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"no file at {path}") from None
+    except UnicodeDecodeError as e:
+        raise RecordingError(path, None, f"not a text file ({e.reason} at byte {e.start})") from None
+    return text.splitlines(), text.endswith(("\n", "\r"))
+
+
+def load_vehicle(path) -> Recording:
+    """Read a vehicle recording (``# kfkit-vehicle v1`` format); errors name the file and line.
+
+    The kit writes every line with its newline, so a last line without one is rejected (a copy cut
+    short may have cut a number in it: ``0.0123`` to ``0.01`` still parses)."""
+    path = Path(path)
+    lines, terminated = read_lines(path)
+    meta = parse_header(path, lines[0] if lines else "", "vehicle",
+                        hint="For your own CSV use kfkit.readers.load_vehicle_csv(path, columns=…, units=…).")
+    if len(lines) < 2:
+        raise RecordingError(path, 2, "no column-name line")
+    if not terminated and len(lines) > 2:
+        raise RecordingError(path, len(lines), "the last line is cut short (no newline at the end): the file was "
+                             "probably copied or written incompletely; delete this line to load the rows before it")
+    header = [c.strip() for c in lines[1].split(",")]
+    dupes = sorted({c for c in header if header.count(c) > 1})
+    if dupes:
+        raise RecordingError(path, 2, f"duplicate column names: {', '.join(dupes)}")
+    wanted = [c for c in VEHICLE_COLUMNS + VEHICLE_TRUTH if c in header or c in VEHICLE_COLUMNS]
+    data, _ = read_csv_rows(path, lines[2:], 3, header, {c: c for c in wanted})
     return Recording(meta, data, path)

@@ -27,6 +27,12 @@ def angle_error(estimate, truth):
     return wrap_angle(np.asarray(estimate, dtype=float) - np.asarray(truth, dtype=float))
 
 
+def angle_rmse_deg(estimate, truth, axis=0):
+    """RMSE of the wrapped angle error, in degrees: √mean(wrap(estimate − truth)²) of angles in rad, NaN rows
+    ignored (where the motion capture lost the markers). What the labs print as "roll RMSE 0.33°"."""
+    return np.degrees(rmse(angle_error(estimate, truth), 0.0, axis=axis))
+
+
 def _as_vectors(v, M):
     """Reshape scalar-filter histories (N,) / (N,) to (N, 1) / (N, 1, 1)."""
     v = np.asarray(v, dtype=float)

@@ -4,18 +4,21 @@
 :data:`kfkit.sensors.PHONE_MOUNTS`: each sensor samples at its own rate (:data:`PHONE_RATES`) from a random
 phase, its values come from :func:`kfkit.sim.simulate_imu` with the phone's noise
 (:func:`kfkit.sensors.phone_board`) and the phone's unit (:data:`kfkit.unit_errors.PHONE_UNIT`), rounded to
-the phone's fixed-point grid (:data:`kfkit.sensors.PHONE_LSB`). :mod:`kfkit.readers.phyphox_export` writes
-the result as a phyphox export; :mod:`kfkit.capture.virtual_phone` serves it as phyphox's remote interface.
+the phone's fixed-point grid (:data:`kfkit.sensors.PHONE_LSB`). :func:`simple_experiment_files` writes the result
+as phyphox exports it (read back by :mod:`kfkit.readers.phyphox_export`); :mod:`kfkit.capture.virtual_phone` serves
+it as phyphox's remote interface.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
-from .frames import G, MAG_FIELD_LONDON, dcm_to_euler, dcm_to_quat, euler_to_dcm
-from .sensors import DEFAULT_PHONE_MOUNT, PHONE_LSB, phone_board, phone_mount
+from .frames import G, MAG_FIELD_LONDON, dcm_slerp, dcm_to_euler, dcm_to_quat, euler_to_dcm
+from .io import format_header
+from .sensors import DEFAULT_PHONE_MOUNT, PHONE_LSB, PHONE_MAG, phone_board, phone_mount
 from .sim import Motion, simulate_imu
 from .unit_errors import PHONE_UNIT
 
@@ -43,8 +46,7 @@ class PhoneSamples:
 def resample_motion(motion, t):
     """The truth of ``motion`` at times t (s, inside its span): attitude by slerp, body rate and
     linear acceleration linearly. Returns (R_nb (N, 3, 3), ω_b (N, 3), a_n (N, 3))."""
-    rotations = Rotation.from_matrix(euler_to_dcm(*motion.euler.T))
-    R_nb = Slerp(motion.t, rotations)(t).as_matrix()
+    R_nb = dcm_slerp(motion.t, euler_to_dcm(motion.euler), t)
     omega = np.column_stack([np.interp(t, motion.t, motion.omega_b[:, i]) for i in range(3)])
     acc_n = np.column_stack([np.interp(t, motion.t, motion.acc_n[:, i]) for i in range(3)])
     return R_nb, omega, acc_n
@@ -72,7 +74,7 @@ def simulate_phone(motion, seed=0, rates=None, jitter_s=TIMESTAMP_JITTER, unit=N
         t_true = _sample_times(rng, t0, t1, rates[sensor])
         t_true = t_true[rng.random(len(t_true)) >= drop]
         R_nb, omega, acc_n = resample_motion(motion, t_true)
-        euler = np.column_stack(dcm_to_euler(R_nb))
+        euler = dcm_to_euler(R_nb)
         sampled = Motion(t_true, rates[sensor], euler, omega, acc_n)
         rec = simulate_imu(sampled, board=board, seed=int(rng.integers(2**31)), field_n=field_n,
                            mag_rate_hz=1e9, **unit)
@@ -87,3 +89,70 @@ def simulate_phone(motion, seed=0, rates=None, jitter_s=TIMESTAMP_JITTER, unit=N
            "mount": phone_mount(mount)[0], **{k: np.asarray(v, float).tolist() for k, v in unit.items()}}
     phases = [{"label": label, "start": float(a), "end": float(b)} for a, b, label in motion.phases]
     return PhoneSamples(t, values, quat, gravity, phases, motion.description, sim)
+
+
+#: the kit's addition to a simulated export: the phone's true attitude per gyroscope row, ``# kfkit-truth v1 {json}``
+TRUTH_FILE, TRUTH_KIND = "kfkit_truth.csv", "truth"
+
+
+# --- an export as phyphox writes it (the bundled phone recording, tests) ----------------------------------------------------------------------
+
+def format_number(value: float, decimal: str = ".") -> str:
+    """A number as phyphox's CSV export writes it: ten significant digits, ``9.806650000E0``."""
+    if math.isnan(value):
+        return "NaN"
+    mantissa, exponent = f"{value:.9E}".split("E")
+    return f"{mantissa.replace('.', decimal)}E{int(exponent)}"
+
+
+def csv_text(columns, separator=",", decimal=".") -> str:
+    """One export set as phyphox-android writes it: quoted labels, then one row per sample, every line
+    ending in a newline. ``columns`` is [(label, values (N,)), …] of equal lengths."""
+    header = separator.join(f'"{label}"' for label, _ in columns) + "\n"
+    arrays = [np.asarray(v, dtype=float) for _, v in columns]
+    rows = (separator.join(format_number(v, decimal) for v in row) + "\n" for row in zip(*(a.tolist() for a in arrays)))
+    return header + "".join(rows)
+
+
+#: Android simple experiment: (set name, column labels) per sensor
+SIMPLE_EXPERIMENT_SETS = {
+    "acc": ("Accelerometer", ("Acceleration x (m/s^2)", "Acceleration y (m/s^2)", "Acceleration z (m/s^2)")),
+    "gyr": ("Gyroscope", ("Gyroscope x (rad/s)", "Gyroscope y (rad/s)", "Gyroscope z (rad/s)")),
+    "mag": ("Magnetometer", ("Magnetic field x (µT)", "Magnetic field y (µT)", "Magnetic field z (µT)")),
+}
+
+
+def write_export(files: dict, folder) -> Path:
+    """Write {relative path: text} (e.g. :func:`simple_experiment_files`) as the folder a phyphox zip unpacks to."""
+    folder = Path(folder)
+    for name, text in files.items():
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        (folder / name).write_text(text, encoding="utf-8", newline="\n")
+    return folder
+
+
+def simple_experiment_files(samples, separator=",", decimal=".", device=None) -> dict[str, str]:
+    """The files of an Android simple experiment's CSV export of ``samples``
+    (:class:`kfkit.phone_sim.PhoneSamples`), plus :data:`TRUTH_FILE`: {relative path: text}."""
+    files = {}
+    for k, (set_name, labels) in SIMPLE_EXPERIMENT_SETS.items():
+        v = samples.values[k]
+        files[f"{set_name}.csv"] = csv_text([("Time (s)", samples.t[k])] + [(labels[i], v[:, i]) for i in range(3)],
+                                            separator, decimal)
+    props = {"version": "1.2.0", "deviceModel": "kfkit simulated phone", "deviceBrand": "kfkit",
+             "deviceManufacturer": "kfkit", "deviceRelease": "simulation", **(device or {})}
+    for k, android in (("acc", "accelerometer"), ("gyr", "gyroscope"), ("mag", "magnetic_field")):
+        spec = phone_board().accel if k == "acc" else phone_board().gyro if k == "gyr" else PHONE_MAG
+        props[f"{android} Name"] = spec.chip
+        props[f"{android} Range"] = f"{spec.full_scale:.6g}"
+    files["meta/device.csv"] = (f'"property"{separator}"value"\n'
+                                + "".join(f'"{p}"{separator}"{v}"\n' for p, v in props.items()))
+    files["meta/time.csv"] = (separator.join(f'"{c}"' for c in ("event", "experiment time", "system time",
+                                                                "system time text")) + "\n"
+                              + separator.join(['"START"', format_number(0.0, decimal), "0.000".replace(".", decimal),
+                                                '"1970-01-01 00:00:00.000 UTC+00:00"']) + "\n")
+    truth = {"description": samples.description, "phases": samples.phases, "sim": samples.sim}
+    files[TRUTH_FILE] = (format_header(truth, ("row", "true_qw", "true_qx", "true_qy", "true_qz"), TRUTH_KIND)
+                         + "".join(f"{i},{w:.9f},{x:.9f},{y:.9f},{z:.9f}\n" for i, (w, x, y, z)
+                                   in enumerate(samples.truth_quat.tolist())))
+    return files

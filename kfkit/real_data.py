@@ -41,14 +41,12 @@ from typing import Callable
 
 import numpy as np
 import scipy.signal
-from scipy.spatial.transform import Rotation
 
-from .frames import dcm_to_quat, quat_to_dcm, quat_to_euler
-from .io import Recording, load_recording, recording_text
+from .frames import dcm_to_quat, quat_slerp, quat_to_dcm, quat_to_euler
+from .io import Recording, load_recording, load_vehicle, recording_text, vehicle_text
 from .paths import KIT_ROOT, data_dir
 from .readers.broad import load_broad
 from .readers.vehicle_csv import load_vehicle_csv
-from .vehicle import load_vehicle, vehicle_text
 
 BROAD_CITATION = ("BROAD: D. Laidig, M. Caruso, A. Cereatti, T. Seel, \"BROAD — A Benchmark for Robust Inertial "
                   "Orientation Estimation\", Data 6(7), 2021, doi:10.3390/data6070072; CC BY 4.0")
@@ -94,10 +92,7 @@ def slerp_at(q, fs_hz: float, t):
     a, b = q[i], q[i + 1]
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
     out = np.full((len(pos), 4), np.nan)
-    ra = Rotation.from_quat(a[ok][:, [1, 2, 3, 0]])  # scipy is scalar-last
-    rb = Rotation.from_quat(b[ok][:, [1, 2, 3, 0]])
-    step = (ra.inv() * rb).as_rotvec()
-    out[ok] = (ra * Rotation.from_rotvec(step * frac[ok, None])).as_quat()[:, [3, 0, 1, 2]]
+    out[ok] = quat_slerp(a[ok], b[ok], frac[ok])
     return out
 
 

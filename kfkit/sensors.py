@@ -223,12 +223,15 @@ BOARDS = {b.name: b for b in (NUCLEO_IKS02A1, MPU6050_GY521)}
 # **Counts.** The kit's recordings hold integer counts and a sensitivity per sensor. A phone gives SI
 # floats, stored as fixed-point counts with the resolutions :data:`PHONE_LSB`: rounding changes a value by
 # at most LSB/2 (5e-5 m/s², 5e-6 rad/s, 5e-4 µT), far below the phone sensors' own resolution and noise,
-# and a phone recording then saves, loads and streams exactly like a board's.
+# and a phone recording then saves, loads and streams exactly like a board's: its counts are the serial
+# protocol's int32 (|counts| ≤ :data:`PHONE_MAX_COUNTS`), so a phone holds at most ±214,748 m/s² (21,900 g),
+# ±21,474 rad/s and ±2,147,483 µT, orders of magnitude beyond any phone sensor's range.
 
 PHONE_BOARD = "phone-phyphox"
 
 #: Fixed-point resolution of a phone recording's counts, SI per count (see above).
 PHONE_LSB = {"acc": 1e-4, "gyr": 1e-5, "mag": 1e-3}  # m/s², rad/s, µT
+PHONE_MAX_COUNTS = 2**31 - 1  # the largest |count| of a phone recording: protocol v1's int32 fields
 
 #: Mounting matrices M_bs (body FRD ← phone frame): rows are the body axes in phone axes.
 PHONE_MOUNTS = {

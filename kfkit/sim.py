@@ -164,7 +164,7 @@ def simulate_imu(motion: Motion, board="nucleo-iks02a1", seed=0, *, gyro_bias=No
     b = get_board(board) if isinstance(board, str) else board
     rng = np.random.default_rng(seed)
     rate = float(motion.rate_hz)
-    R_bn = np.swapaxes(euler_to_dcm(*motion.euler.T), -1, -2)
+    R_bn = np.swapaxes(euler_to_dcm(motion.euler), -1, -2)
     g_n = np.array([0.0, 0.0, G])
     f_b = np.einsum("nij,nj->ni", R_bn, motion.acc_n - g_n)
 
@@ -272,7 +272,7 @@ def _motion_from_euler(t, rate_hz, euler, euler_dot, acc_n, description, phases)
     """A Motion whose ω_b comes from the Euler angles and their rates (ZYX kinematics); the stored
     angles are the canonical ZYX angles of the same rotation (pitch within ±90°)."""
     omega_b = euler_rates_to_body_rates(euler, euler_dot)
-    canonical = np.column_stack(dcm_to_euler(euler_to_dcm(*euler.T)))
+    canonical = dcm_to_euler(euler_to_dcm(euler))
     return Motion(t, rate_hz, canonical, omega_b, acc_n, description, phases)
 
 

@@ -1,5 +1,5 @@
-"""Single-track (bicycle) vehicle models, their discretisation, simulated drives, and the kit's vehicle
-recording format (``# kfkit-vehicle v1``; a CSV of your own: :mod:`kfkit.readers.vehicle_csv`).
+"""Single-track (bicycle) vehicle models (made discrete by :func:`kfkit.discrete.discretize`) and simulated
+drives; their files are :mod:`kfkit.io`'s vehicle format (``# kfkit-vehicle v1``; a CSV of your own: :mod:`kfkit.readers.vehicle_csv`).
 
 Axes and signs follow ISO 8855: x forward, y left, z up; steering δ > 0 turns left, yaw rate
 r > 0 is a left turn, lateral acceleration a_y > 0 points left. (The IMU labs use FRD: an IMU
@@ -18,17 +18,13 @@ Reference for the model and the default car: R. Rajamani, *Vehicle Dynamics and 
 """
 from __future__ import annotations
 
-import csv
-import json
 import math
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
-from scipy.linalg import expm
 
 from .frames import G
-from .io import Recording, RecordingError, check_phases, parse_number, positive_number
+from .io import Recording
 
 KMH = 1.0 / 3.6  # m/s per km/h
 
@@ -108,30 +104,6 @@ def linear_model(params: BicycleParams, vx: float):
                   [-(Cf + Cr) / m, (b * Cr - a * Cf) / (m * vx)]])
     D = np.array([[0.0], [Cf / m]])
     return A, B, C, D
-
-
-def discretize(A, B, dt, Qc):
-    """Exact discretisation over a sample interval ``dt`` (s): (Ad, Bd, Qd).
-
-    Zero-order hold on the input: expm([[A, B], [0, 0]]·dt) = [[Ad, Bd], [0, I]].
-    Van Loan (1978) for the process noise of ẋ = A x + w, E[w wᵀ] = Qc δ(t−τ):
-    expm([[−A, Qc], [0, Aᵀ]]·dt) = [[·, G12], [0, G22]],  Ad = G22ᵀ,  Qd = Ad·G12
-    = ∫₀^dt e^{Aτ} Qc e^{Aᵀτ} dτ.
-    """
-    A = np.atleast_2d(np.asarray(A, dtype=float))
-    n = A.shape[0]
-    B = np.asarray(B, dtype=float).reshape(n, -1)
-    Qc = np.atleast_2d(np.asarray(Qc, dtype=float))
-    p = B.shape[1]
-    M = np.zeros((n + p, n + p))
-    M[:n, :n], M[:n, n:] = A, B
-    E = expm(M * dt)
-    Ad, Bd = E[:n, :n], E[:n, n:]
-    V = np.zeros((2 * n, 2 * n))
-    V[:n, :n], V[:n, n:], V[n:, n:] = -A, Qc, A.T
-    F = expm(V * dt)
-    Qd = Ad @ F[:n, n:]
-    return Ad, Bd, 0.5 * (Qd + Qd.T)
 
 
 def steady_state(params: BicycleParams, vx: float, delta: float):
@@ -431,109 +403,3 @@ def simulate_drive(drive: Drive, params: BicycleParams = BicycleParams(), sensor
     data = {"t": drive.t, "delta": delta, "yaw_rate": yaw_rate, "ay": ay, "vx": vx,
             "true_beta": truth["beta"], "true_yaw_rate": truth["r"], "true_vy": truth["vy"]}
     return Recording(meta, {k: np.asarray(v, dtype=float) for k, v in data.items()})
-
-
-# --- the kit's vehicle recording format (and the row reader students' CSVs share) ----------------------------------------------
-
-VEHICLE_MAGIC = "# kfkit-vehicle v1 "
-VEHICLE_COLUMNS = ("t", "delta", "yaw_rate", "ay", "vx")
-VEHICLE_TRUTH = ("true_beta", "true_yaw_rate", "true_vy")
-
-def vehicle_text(rec: Recording) -> str:
-    """The file contents of a vehicle recording: ``# kfkit-vehicle v1 {json}``, column names, rows."""
-    cols = rec.columns
-    lines = [VEHICLE_MAGIC + json.dumps(rec.meta, ensure_ascii=False), ",".join(cols)]
-    fmt = ["{:.6f}" if c == "t" else "{:.9g}" for c in cols]
-    rows = zip(*(rec.data[c].tolist() for c in cols))
-    lines += [",".join(f.format(v + 0.0) for f, v in zip(fmt, row)) for row in rows]  # + 0.0 writes −0 as 0
-    return "\n".join(lines) + "\n"
-
-
-def save_vehicle(rec: Recording, path) -> Path:
-    """Write a vehicle recording to ``path``."""
-    path = Path(path)
-    path.write_text(vehicle_text(rec), encoding="utf-8", newline="\n")
-    return path
-
-
-def read_csv_rows(path, lines, first_lineno, header, columns, delimiter=","):
-    """Parse CSV ``lines`` (after the header) into arrays for ``columns`` {kit name: file column}, in the file's units.
-
-    Returns (data, line numbers of the rows). Errors name the file, the line and the column.
-    """
-    index = {}
-    for name, col in columns.items():
-        if col not in header:
-            raise RecordingError(path, first_lineno - 1, f"no column {col!r} for {name} (columns in the file: {', '.join(header)})")
-        if header.count(col) > 1:
-            raise RecordingError(path, first_lineno - 1, f"column {col!r} (for {name}) appears {header.count(col)} times in the header")
-        index[name] = header.index(col)
-    values = {name: [] for name in columns}
-    linenos = []
-    t_prev = None
-    for offset, cells in enumerate(csv.reader(lines, delimiter=delimiter)):
-        lineno = first_lineno + offset
-        if not cells or all(not c.strip() for c in cells):
-            continue
-        # a trailing delimiter (spreadsheet exports) adds empty cells: allowed; anything else must match the header
-        if len(cells) < len(header) or any(c.strip() for c in cells[len(header):]):
-            raise RecordingError(path, lineno, f"expected {len(header)} fields ({delimiter.join(header)}), got {len(cells)}")
-        for name, i in index.items():
-            text = cells[i].strip()
-            try:
-                values[name].append(parse_number(text))
-            except ValueError as e:
-                raise RecordingError(path, lineno, f"column {header[i]!r} ({name}): {'is empty' if not text else e}") from None
-        t = values["t"][-1]
-        if t_prev is not None and t <= t_prev:
-            raise RecordingError(path, lineno, f"time (column {header[index['t']]!r}) does not increase: {t:.10g} after {t_prev:.10g}")
-        t_prev = t
-        linenos.append(lineno)
-    if t_prev is None:
-        raise RecordingError(path, first_lineno, "no data rows")
-    return {name: np.asarray(v) for name, v in values.items()}, np.asarray(linenos)
-
-
-def read_lines(path) -> tuple[list[str], bool]:
-    """The file's lines (a UTF-8 byte-order mark dropped) and whether the last one ends in a newline."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise FileNotFoundError(f"no file at {path}") from None
-    except UnicodeDecodeError as e:
-        raise RecordingError(path, None, f"not a text file ({e.reason} at byte {e.start})") from None
-    return text.splitlines(), text.endswith(("\n", "\r"))
-
-
-def load_vehicle(path) -> Recording:
-    """Read a vehicle recording (``# kfkit-vehicle v1`` format); errors name the file and line.
-
-    The kit writes every line with its newline, so a last line without one is rejected (a copy cut
-    short may have cut a number in it: ``0.0123`` to ``0.01`` still parses)."""
-    path = Path(path)
-    lines, terminated = read_lines(path)
-    if not lines or not lines[0].startswith(VEHICLE_MAGIC):
-        shown = lines[0][:60] if lines else ""
-        raise RecordingError(path, 1, f"expected the header '{VEHICLE_MAGIC.strip()} {{…json…}}', got {shown!r}; "
-                             "for your own CSV use kfkit.readers.load_vehicle_csv(path, columns=…, units=…)")
-    try:
-        meta = json.loads(lines[0][len(VEHICLE_MAGIC):])
-    except json.JSONDecodeError as e:
-        raise RecordingError(path, 1, f"the metadata is not valid JSON ({e.msg})") from None
-    if not isinstance(meta, dict) or not positive_number(meta.get("rate_hz")):
-        got = meta.get("rate_hz") if isinstance(meta, dict) else meta
-        raise RecordingError(path, 1, f"the metadata must be a JSON object with 'rate_hz' a positive finite number (Hz), got {got!r}")
-    check_phases(path, meta.get("phases", []))
-    if len(lines) < 2:
-        raise RecordingError(path, 2, "no column-name line")
-    if not terminated and len(lines) > 2:
-        raise RecordingError(path, len(lines), "the last line is cut short (no newline at the end): the file was "
-                             "probably copied or written incompletely; delete this line to load the rows before it")
-    header = [c.strip() for c in lines[1].split(",")]
-    dupes = sorted({c for c in header if header.count(c) > 1})
-    if dupes:
-        raise RecordingError(path, 2, f"duplicate column names: {', '.join(dupes)}")
-    wanted = [c for c in VEHICLE_COLUMNS + VEHICLE_TRUTH if c in header or c in VEHICLE_COLUMNS]
-    data, _ = read_csv_rows(path, lines[2:], 3, header, {c: c for c in wanted})
-    return Recording(meta, data, path)

@@ -19,20 +19,13 @@ and ``T:c`` (the host sends character c at T µs after the start).
 """
 from __future__ import annotations
 
-import os
-import re
 import shutil
 import subprocess
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
 
 FIRMWARE = Path(__file__).resolve().parents[1] / "firmware"
-
-#: the real Arduino AVR core: Debian's arduino-core-avr (apt-get install gcc-avr avr-libc arduino-core-avr),
-#: or another copy named by KFKIT_ARDUINO_AVR (e.g. arduino-cli's packages/arduino/hardware/avr/1.8.6)
-AVR_CORE = Path(os.environ.get("KFKIT_ARDUINO_AVR", "/usr/share/arduino/hardware/arduino/avr"))
 
 ARDUINO_H = r"""
 #pragma once
@@ -197,6 +190,7 @@ HardwareSerial Serial;
 TwoWire Wire;
 static uint32_t start = 0, now = 0, maxUs = 10000000u;
 static int whoAmI = 0x68;
+static uint8_t mpuRegisters[128];  /* what the sketch wrote (PWR_MGMT_1 powers on asleep: 0x40, set in main) */
 static long frames[40000][9];
 static long frameCount = 0, used = 0, current = -1;
 static struct { uint32_t at; int c; } commands[16];
@@ -224,13 +218,17 @@ size_t TwoWire::write(uint8_t value) { if (sent < sizeof pending) pending[sent] 
 uint8_t TwoWire::endTransmission(bool) {
     if (address != 0x68) return 2;  /* NACK on the address */
     reg = pending[0];
-    if (sent == 2) fprintf(stderr, "MPU6050 write 0x%02X = 0x%02X\n", reg, pending[1]);
+    if (sent == 2) {
+        fprintf(stderr, "MPU6050 write 0x%02X = 0x%02X\n", reg, pending[1]);
+        mpuRegisters[reg & 0x7F] = pending[1];
+    }
     return 0;
 }
 uint8_t TwoWire::requestFrom(uint8_t a, uint8_t count) {
     position = length = 0;
     if (a != 0x68 || count > sizeof buffer) return 0;
     if (reg == 0x75) { buffer[0] = (uint8_t)whoAmI; length = count; return count; }
+    if (reg == 0x6B && count == 1) { buffer[0] = mpuRegisters[0x6B]; length = count; return count; }  /* PWR_MGMT_1 */
     if (reg == 0x3B && count == 14) {
         if (!nextFrame()) return 0;
         const long *f = frames[current];
@@ -342,6 +340,7 @@ int main(int argc, char **argv) {
         frameCount++;
     }
     for (int i = 0; i < commandCount; i++) commands[i].at += start;
+    mpuRegisters[0x6B] = 0x40;
     now = start;
     setup();
     while (used < frameCount && now - start <= maxUs) { loop(); now += 500u; }
@@ -391,50 +390,26 @@ def run_sketch(exe: Path, frames, *args, timeout=60):
     return run.stdout.splitlines(keepends=True), run.stderr.decode()
 
 
-def build_avr(sketch: Path, work: Path, libraries=("Wire",), include=(), sources=(), mcu="atmega328p",
-              variant="standard") -> dict:
-    """Compile and link ``sketch`` for an Arduino Uno with avr-gcc and the real Arduino AVR core and
-    libraries, as arduino-cli does for ``arduino:avr:uno``. Returns {"flash": bytes, "ram": bytes}
-    (avr-size: .text + .data, and .data + .bss). ``include``/``sources``: more folders and C/C++ files of
-    the sketch (e.g. firmware/tilt_kf). Skips when the toolchain or the core is not installed."""
-    gxx, gcc, size = (shutil.which(tool) for tool in ("avr-g++", "avr-gcc", "avr-size"))
-    if not (gxx and gcc and size and (AVR_CORE / "cores" / "arduino" / "Arduino.h").exists()):
-        pytest.skip("no AVR toolchain with the Arduino core (apt-get install gcc-avr avr-libc arduino-core-avr)")
-    core, lib_dirs = AVR_CORE / "cores" / "arduino", [AVR_CORE / "libraries" / name / "src" for name in libraries]
-    includes = [f"-I{core}", f"-I{AVR_CORE / 'variants' / variant}", f"-I{FIRMWARE / 'common'}"]
-    includes += [f"-I{d}" for d in lib_dirs] + [f"-I{d / 'utility'}" for d in lib_dirs if (d / "utility").exists()]
-    includes += [f"-I{folder}" for folder in include]
-    defines = [f"-mmcu={mcu}", "-DF_CPU=16000000L", "-DARDUINO=10807", "-DARDUINO_AVR_UNO", "-DARDUINO_ARCH_AVR"]
-    c_flags = ["-c", "-Os", "-std=gnu11", "-ffunction-sections", "-fdata-sections", *defines, *includes]
-    cpp_flags = ["-c", "-Os", "-std=gnu++11", "-fpermissive", "-fno-exceptions", "-ffunction-sections", "-fdata-sections",
-                 "-fno-threadsafe-statics", *defines, *includes]
-    core_sources = sorted(core.glob("*.c")) + sorted(core.glob("*.cpp")) + sorted(core.glob("*.S"))
-    for d in lib_dirs:
-        core_sources += sorted(d.rglob("*.c")) + sorted(d.rglob("*.cpp"))
+def uno_image(sketch: str):
+    """The Arduino Uno image of ``firmware/<sketch>`` (a :class:`kfkit.capture.emulated_uno.AvrImage`): avr-gcc with
+    the real Arduino AVR core and Wire (Debian's arduino-core-avr, or ``$KFKIT_ARDUINO_AVR``), the kit's code with
+    every warning an error, linked as for ``arduino:avr:uno``. kfkit builds it once per version of its sources (its
+    cache, shared by the test modules and ``--port emulated-uno``). Skips, naming the packages, without the toolchain."""
+    from kfkit.capture.emulated_uno import EmulatorUnavailable, sketch_image
 
-    def compile_one(source: Path, sketch_file=False):
-        obj = work / (source.stem + (".ino" if sketch_file else source.suffix) + ".o")
-        if sketch_file:  # the sketch itself: every warning, as errors
-            command = [gxx, *cpp_flags, "-Wall", "-Wextra", "-Werror", "-x", "c++", str(source), "-o", str(obj)]
-        elif source.suffix == ".cpp":  # DECIMAL_DIG: Debian's avr-gcc 5 leaves it out of <float.h> for WString.cpp
-            command = [gxx, *cpp_flags, "-w", "-DDECIMAL_DIG=17", str(source), "-o", str(obj)]
-        else:
-            command = [gcc, *c_flags, "-w", "-x", "assembler-with-cpp" if source.suffix == ".S" else "c", str(source),
-                       "-o", str(obj)]
-        result = subprocess.run(command, capture_output=True, text=True)
-        if result.returncode:
-            raise AssertionError(f"{source.name} does not compile for the {mcu}:\n{result.stderr}")
-        return obj
+    try:
+        return sketch_image(sketch)
+    except EmulatorUnavailable as e:
+        pytest.skip(str(e))
 
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        objects = list(pool.map(compile_one, core_sources))
-    sketch_obj = compile_one(sketch, sketch_file=True)
-    objects += [compile_one(Path(source)) for source in sources]
-    elf = work / f"{sketch.stem}.elf"
-    link = subprocess.run([gcc, f"-mmcu={mcu}", "-Os", "-Wl,--gc-sections", "-o", str(elf), str(sketch_obj), *map(str, objects),
-                           "-lm"], capture_output=True, text=True)
-    if link.returncode:
-        raise AssertionError(f"{sketch.name} does not link for the {mcu}:\n{link.stderr}")
-    sizes = subprocess.run([size, "-A", str(elf)], capture_output=True, text=True, check=True).stdout
-    section = {m.group(1): int(m.group(2)) for m in re.finditer(r"^\.(\w+)\s+(\d+)", sizes, re.M)}
-    return {"flash": section.get("text", 0) + section.get("data", 0), "ram": section.get("data", 0) + section.get("bss", 0)}
+
+def avr_symbol(elf: Path, name: str) -> tuple[int, int]:
+    """(SRAM address, size in bytes) of the variable ``name`` in an AVR image (avr-nm; C++ names demangled, so a
+    sketch's ``static TiltKf rollKf`` is "rollKf"). avr-gcc places RAM at 0x800000 in the ELF's address space."""
+    listing = subprocess.run([shutil.which("avr-nm") or "avr-nm", "-S", "-C", str(elf)], capture_output=True, text=True,
+                             check=True).stdout
+    for line in listing.splitlines():
+        fields = line.split()
+        if len(fields) == 4 and fields[3] == name and fields[2].lower() in "bd":
+            return int(fields[0], 16) - 0x800000, int(fields[1], 16)
+    raise AssertionError(f"{elf.name} has no variable {name!r} in RAM")

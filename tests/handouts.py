@@ -7,6 +7,7 @@ import nbformat
 from nbclient import NotebookClient
 
 from kfkit.paths import KIT_ROOT
+from waiting import HANG_GUARD_S
 
 #: the exercise guard's note in a skipped cell, and the stubs it names
 NOTE = re.compile(r"⏭  skipped: (.*)\. Run this cell again when that is done\.")
@@ -30,10 +31,10 @@ def printed(cell) -> str:
     return "".join(o.get("text", "") for o in cell.get("outputs", []) if o.output_type == "stream")
 
 
-def execute(nb, timeout=300) -> nbformat.NotebookNode:
+def execute(nb, timeout=HANG_GUARD_S) -> nbformat.NotebookNode:
     """Run All on ``nb`` in a fresh kernel, from labs/ as a student's would; nbclient raises on the first error,
     naming the cell."""
-    NotebookClient(nb, timeout=timeout, allow_errors=False, kernel_name="python3",
+    NotebookClient(nb, timeout=timeout, startup_timeout=HANG_GUARD_S, allow_errors=False, kernel_name="python3",
                    resources={"metadata": {"path": str(KIT_ROOT / "labs")}}).execute()
     return nb
 

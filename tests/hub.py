@@ -35,11 +35,13 @@ import uuid
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+from waiting import HANG_GUARD_S
+
 from kfkit.paths import KIT_ROOT
 
 CHP = "configurable-http-proxy"
 PASSWORD = "kfkit-class-" + secrets.token_hex(4)
-START_TIMEOUT = 180.0  # s a server may take to start on a busy machine (a safety net, not a measurement)
+START_TIMEOUT = HANG_GUARD_S  # s a server may take to start on a busy machine (a hang guard, not a measurement)
 POLL = re.compile(r"200 GET /hub/api/users/\w+ \(instructor@")  # wait_ready's requests: noise in a failure's log
 
 
@@ -313,7 +315,7 @@ c.JupyterHub.cleanup_servers = True
                                         "targetpath": "kfkit-labs", "urlpath": f"lab/tree/kfkit-labs/{name_in_repo}"})
         return f"{self.url}/hub/user-redirect/git-pull?{query}"
 
-    def run_code(self, name, token, code: str, timeout=120.0, keep=False) -> str:
+    def run_code(self, name, token, code: str, timeout=HANG_GUARD_S, keep=False) -> str:
         """Run ``code`` in a new kernel on ``name``'s server (REST + the kernel's websocket); → its stdout.
         The kernel is shut down afterwards unless ``keep``."""
         kernel = self.server_api(name, "POST", "/kernels", {"name": "python3"}, token)

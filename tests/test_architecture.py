@@ -1,7 +1,7 @@
 """The package's shape (issue 16): imports only point down, modules stay small and uniquely named.
 
 An import graph of kfkit from its source (``ast``), counting imports inside functions too (a deferred
-import that dodges a cycle is still a cycle), checked against the rules in DESIGN.md / the README map:
+import that dodges a cycle is still a cycle), checked against the rules in docs/design.md:
 no import cycle, no module over 600 lines, no two modules with one name, the capture layer depends on
 nothing above it, and the leaves (``paths``, ``frames``) import nothing from kfkit. The walker is
 tested on a small package of its own first, so a rule that cannot fail would show.
@@ -172,3 +172,126 @@ def test_the_capture_layer_depends_on_nothing_above_it(module):
 def test_the_leaves_import_nothing_from_kfkit(leaf):
     assert f"kfkit.{leaf}" in MODS, f"kfkit.{leaf} is missing"
     assert GRAPH[f"kfkit.{leaf}"] == set(), f"kfkit.{leaf} imports {sorted(GRAPH[f'kfkit.{leaf}'])}"
+
+
+# --- rotations live in frames only (issue 27) --------------------------------------------------------------------
+ROTATION_HOME = "frames.py"
+
+
+def _terms(node):
+    """The terms of a sum/difference: a + b − c → [a, b, c] (signs dropped)."""
+    if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Add, ast.Sub)):
+        return _terms(node.left) + _terms(node.right)
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+        return _terms(node.operand)
+    return [node]
+
+
+def _is_product(node):
+    return isinstance(node, ast.BinOp) and isinstance(node.op, ast.Mult)
+
+
+def _mentions_pi(node):
+    return any(isinstance(n, ast.Name) and n.id in ("pi", "TWO_PI") or isinstance(n, ast.Attribute) and n.attr == "pi"
+               for n in ast.walk(node))
+
+
+def _is_number(node, *values):
+    return isinstance(node, ast.Constant) and node.value in values
+
+
+def rotation_maths(source: str) -> list[str]:
+    """Rotation maths a module writes out itself, which belongs in kfkit.frames: scipy's Rotation or Slerp; a
+    Hamilton product (a function with four or more sums of exactly four products, as w1·w2 − x1·x2 − y1·y2 − z1·z2);
+    a quaternion → matrix expansion (1 − 2(a² + b²)); an angle wrap (… % 2π)."""
+    tree, found = ast.parse(source), []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("scipy.spatial.transform") or \
+                isinstance(node, ast.Attribute) and node.attr in ("Rotation", "Slerp"):
+            found.append(f"line {node.lineno}: scipy's Rotation/Slerp")
+        elif isinstance(node, (ast.FunctionDef, ast.Lambda)):
+            sums = [n for n in ast.walk(node) if isinstance(n, ast.BinOp) and len(t := _terms(n)) == 4
+                    and all(_is_product(x) for x in t)]
+            if len(sums) >= 4:
+                found.append(f"line {node.lineno}: a quaternion product written out ({len(sums)} sums of four products)")
+        elif isinstance(node, ast.BinOp) and isinstance(node.op, ast.Sub) and _is_number(node.left, 1, 1.0) and \
+                _is_product(node.right) and _is_number(node.right.left, 2, 2.0) and \
+                len(_terms(node.right.right)) == 2 and all(_is_product(x) for x in _terms(node.right.right)):
+            found.append(f"line {node.lineno}: a quaternion → matrix expansion (1 − 2(a² + b²))")
+        elif isinstance(node, ast.BinOp) and isinstance(node.op, ast.Mod) and _mentions_pi(node.right):
+            found.append(f"line {node.lineno}: an angle wrap written out (% 2π)")
+    return found
+
+
+def test_the_rotation_detector_sees_each_kind():
+    toy = '''
+from scipy.spatial.transform import Rotation
+import math
+def product(p, q):
+    a, b, c, d = p
+    e, f, g, h = q
+    return (a * e - b * f - c * g - d * h, a * f + b * e + c * h - d * g,
+            a * g - b * h + c * e + d * f, a * h + b * g - c * f + d * e)
+def matrix(w, x, y, z):
+    return 1 - 2 * (y * y + z * z)
+def wrap(a):
+    return math.pi - (math.pi - a) % (2 * math.pi)
+'''
+    kinds = " ".join(rotation_maths(toy))
+    for words in ("Rotation", "quaternion product", "matrix expansion", "angle wrap"):
+        assert words in kinds
+    assert rotation_maths("import numpy as np\ndef f(a, b):\n    return a * b + 2 * np.sin(a) % 3\n") == []
+
+
+@pytest.mark.parametrize("path", sorted(p for p in KFKIT.rglob("*.py") if p.name != ROTATION_HOME),
+                         ids=lambda p: str(p.relative_to(KFKIT)))
+def test_rotations_live_in_frames_only(path):
+    found = rotation_maths(path.read_text(encoding="utf-8"))
+    assert not found, f"{path.relative_to(KFKIT.parent)} does rotation maths of its own (use kfkit.frames): {found}"
+
+
+# --- the layers docs/design.md states hold in the code (issue 27) --------------------------------------------------
+DESIGN = KFKIT.parent / "docs" / "design.md"
+
+
+def stated_layers(text: str) -> dict:
+    """{top-level name under kfkit: layer} from the package table's rows ``| n | `a`, `b` | … |``."""
+    layers = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.split("|")]
+        if len(cells) > 3 and cells[1].isdigit():
+            for name in cells[2].replace("`", "").split(","):
+                layers[name.strip()] = int(cells[1])
+    return layers
+
+
+def layer_violations(graph: dict, layers: dict, package="kfkit") -> list[str]:
+    """Imports that point up (to a higher layer); a module not in the table is reported too."""
+    def top(module):
+        parts = module.split(".")
+        return parts[1] if len(parts) > 1 else None
+
+    bad = []
+    for module, targets in graph.items():
+        if top(module) is None:
+            continue
+        if top(module) not in layers:
+            bad.append(f"{module}: not in docs/design.md's package table")
+            continue
+        for target in targets:
+            if top(target) is not None and top(target) in layers and layers[top(target)] > layers[top(module)]:
+                bad.append(f"{module} (layer {layers[top(module)]}) imports {target} (layer {layers[top(target)]})")
+    return sorted(bad)
+
+
+def test_the_layer_rule_sees_an_import_that_points_up():
+    layers = stated_layers("| 0 | `low` | … |\n| 2 | `high`, `other` | … |")
+    assert layers == {"low": 0, "high": 2, "other": 2}
+    graph = {"kfkit.low": {"kfkit.high.sub"}, "kfkit.high.sub": {"kfkit.low"}, "kfkit.new": set()}
+    assert layer_violations(graph, layers) == ["kfkit.low (layer 0) imports kfkit.high.sub (layer 2)",
+                                               "kfkit.new: not in docs/design.md's package table"]
+
+
+def test_every_import_points_to_its_own_layer_or_below_as_docs_design_states():
+    layers = stated_layers(DESIGN.read_text(encoding="utf-8"))
+    assert layer_violations(import_graph(modules(KFKIT)), layers) == []

@@ -6,13 +6,13 @@ from filterpy.kalman import ExtendedKalmanFilter
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from kfkit.frames import (G, MAG_FIELD_LONDON, euler_rates_to_body_rates, euler_to_quat, quat_to_dcm, quat_to_euler,
+from kfkit.frames import (G, MAG_FIELD_LONDON, body_rates_to_euler_rates, euler_rates_to_body_rates, euler_to_quat, quat_to_dcm, quat_to_euler,
                           wrap_angle)
 from kfkit.filters import (EulerAttitudeEKF, attitude_jacobian, attitude_measurement, estimate_attitude, euler_ekf_predict,
-                           euler_ekf_update, euler_process_noise, euler_rates)
-from kfkit.filters import FastEulerAttitudeEKF, MekfSettings, MultiplicativeEKF, Step
+                           euler_ekf_update, euler_process_noise)
+from kfkit.filters import FastEulerAttitudeEKF, MultiplicativeEKFSettings, MultiplicativeEKF, Step
 from kfkit.filters.attitude_run import learn_field, tilt_heading
-from kfkit.filters.euler_ekf import EulerEkfSettings, euler_kinematics_jacobian, euler_rate_matrix
+from kfkit.filters.euler_ekf import EulerAttitudeEKFSettings, euler_kinematics_jacobian, euler_rate_matrix
 from kfkit.filters.mag_gate import MagGate
 from kfkit.metrics import attitude_errors, chi2_bounds, nees
 
@@ -71,17 +71,17 @@ def test_euler_rates_invert_the_body_rate_map():
     rng = np.random.default_rng(1)
     x = random_states(rng, 200, np.radians(85))
     omega = rng.normal(0, 2.0, (200, 3))
-    rates = euler_rates(x, omega)
+    rates = body_rates_to_euler_rates(x, omega)
     np.testing.assert_allclose(euler_rates_to_body_rates(x, rates), omega, atol=1e-9)
     np.testing.assert_allclose([euler_rate_matrix(xi) @ wi for xi, wi in zip(x[:20], omega[:20])], rates[:20], atol=1e-9)
 
 
 def test_euler_rates_divide_by_cos_pitch_not_cos_roll():
     # Level in pitch, rolled 60°: a pure body z rate r gives ψ̇ = r cos φ / cos θ = r/2.
-    rates = euler_rates([np.radians(60), 0.0, 0.0], [0.0, 0.0, 1.0])
+    rates = body_rates_to_euler_rates([np.radians(60), 0.0, 0.0], [0.0, 0.0, 1.0])
     assert rates[2] == pytest.approx(0.5)
     # Pitched 60°, level in roll: ψ̇ = r / cos θ = 2r (÷ cos φ would give r).
-    assert euler_rates([0.0, np.radians(60), 0.0], [0.0, 0.0, 1.0])[2] == pytest.approx(2.0)
+    assert body_rates_to_euler_rates([0.0, np.radians(60), 0.0], [0.0, 0.0, 1.0])[2] == pytest.approx(2.0)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -111,11 +111,11 @@ def test_prediction_jacobian_against_finite_differences(seed):
     x = random_states(rng, 1)[0]
     omega, dt = rng.normal(0, 1.0, 3), 0.01
     A = euler_kinematics_jacobian(x, omega)
-    np.testing.assert_allclose(A, finite_difference(lambda s: euler_rates(s, omega), x), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(A, finite_difference(lambda s: body_rates_to_euler_rates(s, omega), x), rtol=1e-6, atol=1e-7)
     P = np.diag(rng.uniform(0.01, 0.1, 3))
     Q = euler_process_noise(x, 0.02, dt)
     _, P_pred = euler_ekf_predict(x, P, omega, dt, Q)
-    F = np.eye(3) + dt * finite_difference(lambda s: euler_rates(s, omega), x)
+    F = np.eye(3) + dt * finite_difference(lambda s: body_rates_to_euler_rates(s, omega), x)
     np.testing.assert_allclose(P_pred, F @ P @ F.T + Q, rtol=1e-6, atol=1e-12)
 
 
@@ -123,7 +123,7 @@ def test_process_noise_is_gyro_noise_through_the_rate_matrix():
     # Monte Carlo oracle: Q is the covariance of G·n·dt for gyro noise n ~ N(0, σ² I).
     rng = np.random.default_rng(3)
     x, sg, dt = np.array([0.4, 0.7, -1.0]), 0.05, 0.01
-    samples = np.array([euler_rates(x, n) * dt for n in rng.normal(0, sg, (40000, 3))])
+    samples = np.array([body_rates_to_euler_rates(x, n) * dt for n in rng.normal(0, sg, (40000, 3))])
     Q = euler_process_noise(x, sg, dt)
     np.testing.assert_allclose(Q, np.cov(samples.T), atol=0.03 * Q.max())
 
@@ -222,8 +222,8 @@ def test_reference_run_is_a_loop_of_steps_and_the_fast_run_equals_it():
     gyr, acc, mag = sensors(rng, euler, omega, 0.01, 0.05, 0.5)
     acc[100:130] *= 1.2  # ‖f‖ ≈ 1.2 g: gated rows
     mag[1::2] = np.nan  # magnetometer at half rate
-    ref = EulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
-    ekf = EulerAttitudeEKF(100.0, field_n=FIELD)
+    ref = EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
+    ekf = EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD)
     for k in range(len(t)):
         step = ekf.step(gyr[k], acc[k], mag[k])
         assert isinstance(step, Step) and step.y.shape == (6,) and step.S.shape == (6, 6)
@@ -232,9 +232,11 @@ def test_reference_run_is_a_loop_of_steps_and_the_fast_run_equals_it():
         m = 3 if np.isnan(mag[k, 0]) else 6
         assert np.isnan(step.y[m:]).all() and np.isnan(step.S[m:]).all() and np.isnan(step.S[:, m:]).all()
         assert ref.nis[k] == pytest.approx(step.y[:m] @ np.linalg.solve(step.S[:m, :m], step.y[:m]), rel=1e-12)
-    fast = FastEulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    fast = FastEulerAttitudeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
     np.testing.assert_allclose(fast.x, ref.x, rtol=0, atol=1e-12)  # rad
     np.testing.assert_allclose(fast.P, ref.P, rtol=1e-9, atol=1e-18)
+    np.testing.assert_allclose(fast.x_prior, ref.x_prior, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fast.P_prior, ref.P_prior, rtol=1e-9, atol=1e-18)
     np.testing.assert_allclose(fast.y, ref.y, rtol=0, atol=1e-10)  # m/s², µT
     np.testing.assert_allclose(fast.S, ref.S, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(fast.nis, ref.nis, rtol=1e-9, atol=1e-12)
@@ -246,17 +248,20 @@ def test_reference_run_is_a_loop_of_steps_and_the_fast_run_equals_it():
 
 
 def test_settings_carry_units_defaults_and_name_bad_values():
-    assert EulerAttitudeEKF(100.0, accel_noise=0.2).settings == EulerEkfSettings(accel_noise=0.2)
-    assert MultiplicativeEKF(100.0, MekfSettings(mag_nis_gate=None), accel_tau=None).settings == \
-        MekfSettings(mag_nis_gate=None, accel_tau=None)
-    with pytest.raises(ValueError, match="MekfSettings: mag_recovery must be a positive number, got 0"):
-        MultiplicativeEKF(100.0, mag_recovery=0)
-    with pytest.raises(ValueError, match="EulerEkfSettings: accel_noise must be a positive number, got -0.3"):
-        EulerAttitudeEKF(100.0, accel_noise=-0.3)
-    with pytest.raises(TypeError, match="MultiplicativeEKF: unknown setting mag_gate; MekfSettings has gyro_noise"):
-        MultiplicativeEKF(100.0, mag_gate=1.0)
-    with pytest.raises(TypeError, match="settings must be a EulerEkfSettings, got float"):
-        EulerAttitudeEKF(100.0, 0.01)  # the old positional gyro_noise
+    assert EulerAttitudeEKF(rate_hz=100.0, accel_noise=0.2).settings == EulerAttitudeEKFSettings(accel_noise=0.2)
+    assert MultiplicativeEKF(rate_hz=100.0, settings=MultiplicativeEKFSettings(mag_nis_gate=None), accel_tau=None).settings == \
+        MultiplicativeEKFSettings(mag_nis_gate=None, accel_tau=None)
+    with pytest.raises(ValueError, match="MultiplicativeEKFSettings: mag_recovery must be a positive number, got 0"):
+        MultiplicativeEKF(rate_hz=100.0, mag_recovery=0)
+    with pytest.raises(ValueError, match="EulerAttitudeEKFSettings: accel_noise must be a positive number, got -0.3"):
+        EulerAttitudeEKF(rate_hz=100.0, accel_noise=-0.3)
+    with pytest.raises(TypeError, match="MultiplicativeEKF: unknown setting mag_gate; MultiplicativeEKFSettings has gyro_noise"):
+        MultiplicativeEKF(rate_hz=100.0, mag_gate=1.0)
+    with pytest.raises(TypeError, match="settings must be a EulerAttitudeEKFSettings, got float"):
+        EulerAttitudeEKF(0.01, 0.01)  # the old positional gyro_noise
+    with pytest.raises(ValueError, match="EulerAttitudeEKF: dt = 100 s is longer than 1 s; if 100 is a sample rate, pass "
+                                         "rate_hz=100"):
+        EulerAttitudeEKF(100.0)  # the old positional rate_hz
 
 
 def test_mekf_run_is_its_steps():
@@ -266,14 +271,35 @@ def test_mekf_run_is_its_steps():
     t, euler, omega = smooth_motion(rng, 4.0, 100.0)
     gyr, acc, mag = sensors(rng, euler, omega, 0.01, 0.05, 0.5)
     mag[1::3] = np.nan
-    run = MultiplicativeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
-    f = MultiplicativeEKF(100.0, field_n=FIELD)  # both start from tilt_heading of the first samples
+    run = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
+    f = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD)  # both start from tilt_heading of the first samples
     steps = [f.step(gyr[k], acc[k], mag[k]) for k in range(len(t))]
     np.testing.assert_array_equal(np.array([s.x for s in steps]), run.x)
     np.testing.assert_array_equal(np.array([s.y for s in steps]), run.y)
     np.testing.assert_array_equal(np.array([s.S for s in steps]), run.S)
     np.testing.assert_array_equal(np.array([s.P for s in steps]), run.P)
-    np.testing.assert_array_equal(run.attitude_covariance, run.P[:, :3, :3])
+    np.testing.assert_array_equal(run.P_attitude, run.P[:, :3, :3])
+
+
+def test_mekf_prior_is_the_prediction_of_the_previous_state():
+    """x⁻_k is the previous posterior turned by its own bias-corrected gyro (scipy's rotation, not the filter's
+    quaternion code), with the previous bias: the prediction leaves b alone. P⁻_k = F P_(k−1) Fᵀ + Q."""
+    rng = np.random.default_rng(23)
+    t, euler, omega = smooth_motion(rng, 3.0, 100.0)
+    gyr, acc, mag = sensors(rng, euler, omega, 0.01, 0.05, 0.5)
+    run = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD, rest_gyro=None).run(gyr + np.radians([1.0, -1.0, 0.5]), acc, mag)
+    assert np.abs(np.diff(run.bias, axis=0)).max() > 0  # the updates move the bias
+    np.testing.assert_array_equal(run.x_prior[1:, 4:], run.x[:-1, 4:])
+    b = run.x[:-1, 4:]
+    turn = Rotation.from_rotvec((gyr[1:] + np.radians([1.0, -1.0, 0.5]) - b) / 100.0)
+    want = (Rotation.from_quat(run.x[:-1, [1, 2, 3, 0]]) * turn).as_quat()[:, [3, 0, 1, 2]]
+    want *= np.sign(want[:, :1])
+    np.testing.assert_allclose(run.x_prior[1:, :4], want, atol=1e-12)
+    R = Rotation.from_quat(run.x_prior[1:, [1, 2, 3, 0]]).as_matrix()
+    F = np.tile(np.eye(6), (len(R), 1, 1))
+    F[:, :3, 3:] = -R / 100.0
+    Q = np.diag([(np.radians(0.02) * 10.0 / 100.0) ** 2] * 3 + [1e-10 / 100.0] * 3)
+    np.testing.assert_allclose(run.P_prior[1:], F @ run.P[:-1] @ np.swapaxes(F, 1, 2) + Q, rtol=1e-9, atol=1e-18)
 
 
 def test_quaternions_match_scipy():
@@ -291,7 +317,7 @@ def test_tracks_a_smooth_motion_and_yaw_across_plus_minus_pi():
     euler[:, 2] = wrap_angle(euler[:, 2] + np.pi)  # heading around south: ψ crosses ±π repeatedly
     gyr, acc, mag = sensors(rng, euler, omega, 0.005, 0.05, 0.5)
     assert np.any(np.abs(np.diff(euler[:, 2])) > np.pi)
-    res = EulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    res = EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
     err = np.degrees(np.abs(wrap_angle(res.euler - euler)))
     assert np.sqrt((err ** 2).mean(axis=0)).max() < 1.0
     assert np.all((res.euler[:, 2] > -np.pi) & (res.euler[:, 2] <= np.pi))
@@ -305,7 +331,7 @@ def test_accelerometer_gating_flags_accelerating_rows_and_protects_tilt():
     acc_n[shake, 1] = 6.0 * np.sin(2 * np.pi * 1.0 * (t[shake] - 8.0))  # sideways shake, m/s²
     gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.02, 0.3, acc_n=acc_n)
     gated_truth = np.abs(np.linalg.norm(acc, axis=1) - G) > 1.0
-    runs = {gate: EulerAttitudeEKF(100.0, field_n=FIELD, accel_gate=gate, accel_noise=0.1).run(gyr, acc, mag)
+    runs = {gate: EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD, accel_gate=gate, accel_noise=0.1).run(gyr, acc, mag)
             for gate in (1.0, None)}
     np.testing.assert_array_equal(runs[1.0].accel_gated, gated_truth)
     assert not runs[None].accel_gated.any()
@@ -318,14 +344,14 @@ def test_nan_magnetometer_rows_leave_yaw_to_the_gyro():
     t, euler, omega = smooth_motion(rng, 10.0, 100.0)
     gyr, acc, mag = sensors(rng, euler, omega, 0.005, 0.05, 0.5)
     mag[200:] = np.nan
-    res = EulerAttitudeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
+    res = EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
     assert res.mag_used[:200].all() and not res.mag_used[200:].any()
     assert np.isnan(res.y[200:, 3:]).all() and np.isnan(res.S[200:, 3:, 3:]).all()
     # The accelerometer cannot observe yaw (H has a zero yaw column): a yaw error made after the
     # magnetometer stops stays, while a roll error is corrected.
     assert np.all(attitude_jacobian(euler[0], FIELD)[:3, 2] == 0)
     x0 = euler[0] + np.radians([10.0, 0.0, 20.0])
-    res = EulerAttitudeEKF(100.0, field_n=FIELD, x0=x0).run(gyr, acc, np.full_like(mag, np.nan))
+    res = EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD, x0=x0).run(gyr, acc, np.full_like(mag, np.nan))
     err = np.degrees(wrap_angle(res.euler[-1] - euler[-1]))
     assert abs(err[0]) < 1.0 and abs(err[2] - 20.0) < 2.0
 
@@ -343,7 +369,7 @@ def test_monte_carlo_nees_and_nis_inside_chi2_bounds():
         P0 = np.diag(np.radians([2.0, 2.0, 4.0]) ** 2)
         x0 = euler[0] + rng.multivariate_normal(np.zeros(3), P0)
         # gyr[k] is the rate at t_k; the filter predicts t_{k-1} → t_k, so its first sample is t_1.
-        res = FastEulerAttitudeEKF(100.0, gyro_noise=sg, accel_noise=sa, mag_noise=sm, field_n=FIELD, accel_gate=None,
+        res = FastEulerAttitudeEKF(rate_hz=100.0, gyro_noise=sg, accel_noise=sa, mag_noise=sm, field_n=FIELD, accel_gate=None,
                                    x0=x0, P0=P0).run(gyr[1:], acc[1:], mag[1:])
         final_nees.append(nees(wrap_angle(res.euler[-1:] - euler[-1:]), res.P[-1:])[0])
         nis_sum += res.nis.sum()
@@ -461,7 +487,7 @@ def test_mekf_heading_update_leaves_tilt_alone():
     acc, mag = attitude_measurement(truth, FIELD)[:3], attitude_measurement(truth, FIELD)[3:]
     P0 = np.diag(np.r_[[1e-12] * 6])
     P0[:3, :3] = np.radians(1.0) ** 2 * np.array([[1.0, 0.3, 2.0], [0.3, 1.0, -2.0], [2.0, -2.0, 400.0]])  # NED
-    f = MultiplicativeEKF(100.0, field_n=FIELD, q0=q_wrong, P0=P0, gyro_noise=0.0, gyro_bias_rw=0.0, accel_tau=None)
+    f = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD, x0=np.r_[q_wrong, 0.0, 0.0, 0.0], P0=P0, gyro_noise=0.0, gyro_bias_rw=0.0, accel_tau=None)
     res = f.run(np.zeros((1, 3)), acc[None], mag[None])
     _, heading, incl = attitude_errors(res.quat, euler_to_quat(truth)[None])
     assert res.mag_used[0]
@@ -515,6 +541,7 @@ def heading_of(field_n):
     return np.degrees(np.arctan2(field_n[1], field_n[0]))
 
 
+@pytest.mark.slow
 def test_mekf_adopts_a_changed_field_once_the_gyro_alone_is_no_better():
     # The field changes for good at 20 s (the board moved to a steel desk): +3 µT east, +8 µT down,
     # norm +15 % (fails the gate), heading of the new field 8.7° east of the old one. It is rejected
@@ -569,7 +596,7 @@ def test_mekf_skips_heading_outliers_for_at_most_the_recovery_time():
     # and dip, is skipped for 1 s and then used: the heading is pulled back, not locked out.
     q0 = euler_to_quat(euler[0] + [0.0, 0.0, np.radians(30.0)])
     P0 = np.diag(np.r_[np.radians([1.0, 1.0, 1.0]) ** 2, [1e-10] * 3])
-    res = MultiplicativeEKF(100.0, field_n=FIELD, q0=q0, P0=P0).run(gyr, acc, mag_clean)
+    res = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD, x0=np.r_[q0, 0.0, 0.0, 0.0], P0=P0).run(gyr, acc, mag_clean)
     assert t[np.flatnonzero(res.mag_used)[0]] == pytest.approx(1.0, abs=0.02)
     assert np.degrees(attitude_errors(res.quat[-100:], euler_to_quat(euler[-100:]))[1]).max() < 1.0
 
@@ -601,15 +628,16 @@ def test_mekf_fed_in_pieces_equals_one_run():
     gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.05, 0.3)
     mag += field_change_in_ned(euler, [15.0, -10.0, 5.0], (t >= 4.0) & (t < 6.0))
     mag[1::2] = np.nan
-    whole = MultiplicativeEKF(100.0, field_n=FIELD).run(gyr, acc, mag)
-    f = MultiplicativeEKF(100.0, field_n=FIELD)
+    whole = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
+    f = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD)
     cuts = np.r_[0, np.sort(rng.choice(np.arange(1, len(t)), 40, replace=False)), len(t)]
-    pieces = [f.run(gyr[a:b], acc[a:b], mag[a:b]) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+    pieces = [f.run(gyr[a:b], acc[a:b], mag[a:b], resume=a > 0) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
     np.testing.assert_allclose(np.concatenate([p.quat for p in pieces]), whole.quat, atol=1e-12)
     np.testing.assert_array_equal(np.concatenate([p.mag_gated for p in pieces]), whole.mag_gated)
     assert whole.mag_gated.any()
 
 
+@pytest.mark.slow
 def test_mekf_nees_and_nis_inside_chi2_bounds():
     # White Gaussian sensor noise, no bias, raw accelerometer (no low-pass, whose output is
     # correlated in time): the MEKF tuned with the true noise must be consistent.
@@ -622,12 +650,12 @@ def test_mekf_nees_and_nis_inside_chi2_bounds():
         P0 = np.diag(np.r_[np.radians([2.0, 2.0, 4.0]) ** 2, [1e-14] * 3])
         q0 = (scipy_rotation(euler[0]) * Rotation.from_rotvec(rng.multivariate_normal(np.zeros(3), P0[:3, :3]))
               ).as_quat()[[3, 0, 1, 2]]
-        f = MultiplicativeEKF(100.0, gyro_noise=sg, gyro_bias_rw=0.0, accel_noise=sa, mag_noise=sm, field_n=FIELD,
+        f = MultiplicativeEKF(rate_hz=100.0, gyro_noise=sg, gyro_bias_rw=0.0, accel_noise=sa, mag_noise=sm, field_n=FIELD,
                               mag_norm_gate=None, mag_dip_gate=None, mag_nis_gate=None, accel_tau=None,
-                              accel_dynamic=None, rest_gyro=None, q0=q0, P0=P0)
+                              accel_dynamic=None, rest_gyro=None, x0=np.r_[q0, 0.0, 0.0, 0.0], P0=P0)
         res = f.run(gyr[1:], acc[1:], mag[1:])
         e = rotvec_error_ned(res.quat[-1:], euler[-1:])
-        final_nees.append(nees(e, res.attitude_covariance[-1:])[0])
+        final_nees.append(nees(e, res.P_attitude[-1:])[0])
         nis_sum += res.nis.sum()
         dof_sum += res.dof.sum()
     lo, hi = chi2_bounds(3, runs)
@@ -640,7 +668,7 @@ def test_mekf_result_layout_and_heading_innovations():
     mag[1::2] = np.nan
     res = estimate_attitude(gyr, acc, mag, 100.0, method="mekf")
     assert res.method == "mekf" and res.quat.shape == (400, 4) and res.P.shape == (400, 6, 6) and res.bias.shape == (400, 3)
-    assert res.attitude_covariance.shape == (400, 3, 3) and res.at_rest.shape == (400,) and not res.at_rest.any()
+    assert res.P_attitude.shape == (400, 3, 3) and res.at_rest.shape == (400,) and not res.at_rest.any()
     assert np.array_equal(res.mag_used, ~np.isnan(mag[:, 0]) & ~res.mag_gated)
     assert set(np.unique(res.dof)) <= {2, 3}  # accelerometer north and east, + the heading
     assert np.array_equal(np.isnan(res.y[:, 2]), ~res.mag_used) and np.all(np.abs(res.y[res.mag_used, 2]) <= np.pi)
@@ -659,13 +687,15 @@ def test_mag_gate_rejects_a_disturbed_field_until_it_has_passed_the_gates_for_th
     norm, dip = np.linalg.norm(field), np.arctan2(40.0, 20.0)
     ts = np.arange(50) / 10.0  # s
     disturbed = (ts >= 1.0) & (ts < 2.0)
-    gate = MagGate(field, norm_gate=0.1, dip_gate=np.radians(10.0), recovery=1.0, nis_gate=9.0, ref_tau=None)
+    settings = MultiplicativeEKFSettings(mag_norm_gate=0.1, mag_dip_gate=np.radians(10.0), mag_recovery=1.0,
+                                         mag_nis_gate=9.0, mag_ref_tau=None)
+    gate = MagGate(field, settings)
     # var_h far below the averaged noise variance: the disturbed field is never adopted (layer 3 stays out)
     used = np.array([gate.use(t, norm * (1.3 if d else 1.0), dip, 0.0, 1e-6, 1e-3) for t, d in zip(ts, disturbed)])
     np.testing.assert_array_equal(used, (ts < 1.0) | (ts >= 3.0))  # trusted again 1 s after the last disturbed sample
-    assert not MagGate(field, 0.1, np.radians(10.0), 1.0, 9.0, None).use(0.0, norm, dip + np.radians(11.0), 0.0, 1e-6, 1e-3)
+    assert not MagGate(field, settings).use(0.0, norm, dip + np.radians(11.0), 0.0, 1e-6, 1e-3)
     # an outlier heading (y² > 9 (var_h + r_psi)) in a trusted field is skipped, for at most `recovery` seconds
-    gate = MagGate(field, 0.1, np.radians(10.0), 1.0, 9.0, None)
+    gate = MagGate(field, settings)
     assert [gate.use(t, norm, dip, y, 1e-3, 1e-3) for t, y in ((0.0, 0.0), (0.1, 1.0), (0.2, 0.0))] == [True, False, True]
     stuck = [gate.use(t, norm, dip, 1.0, 1e-3, 1e-3) for t in 1.0 + np.arange(13) / 10.0]
     assert stuck == [False] * 10 + [True] * 3  # a heading that keeps disagreeing for 1 s is the filter's error
@@ -688,7 +718,7 @@ def test_mekf_heading_jacobian_against_finite_differences(seed):
     rng = np.random.default_rng(seed + 300)
     R_est = Rotation.random(random_state=rng).as_matrix()
     field = np.array([rng.uniform(5, 30), rng.uniform(-10, 10), rng.uniform(-60, 60)])
-    f = MultiplicativeEKF(100.0, field_n=field)
+    f = MultiplicativeEKF(rate_hz=100.0, field_n=field)
     m_n = R_est @ (R_est.T @ field)  # the field the estimate sees when it is right
 
     def innovation(d):
@@ -706,7 +736,7 @@ def test_mekf_heading_jacobian_in_the_body_frame_is_the_issues_finite_difference
     # Issue 25's case: φ = 0.3, θ = −0.2, ψ = 1.0 rad in London's field. A body-frame error δθ_b is the NED error
     # R δθ_b, so H_b = H R; finite differences give [−1.05, 2.20, 0.61], where e_zᵀR (the old H) is [0.20, 0.29, 0.94].
     R = scipy_rotation([0.3, -0.2, 1.0]).as_matrix()
-    h, _ = MultiplicativeEKF(100.0, field_n=FIELD)._heading_row(*FIELD, None)
+    h, _ = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD)._heading_row(*FIELD, None)
 
     def innovation(d):
         return np.atleast_1d(heading_innovation(R, (R @ Rotation.from_rotvec(d).as_matrix()).T @ FIELD, FIELD))
@@ -731,7 +761,7 @@ def test_mekf_heading_nis_counts_the_tilt_uncertainty():
     for _ in range(runs):
         R_est = Rotation.random(random_state=rng)
         R_true = Rotation.from_rotvec(rng.multivariate_normal(np.zeros(3), P_att)) * R_est
-        f = MultiplicativeEKF(100.0, field_n=FIELD, q0=R_est.as_quat()[[3, 0, 1, 2]], P0=P0, gyro_noise=0.0,
+        f = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD, x0=np.r_[R_est.as_quat()[[3, 0, 1, 2]], 0.0, 0.0, 0.0], P0=P0, gyro_noise=0.0,
                               gyro_bias_rw=0.0, accel_noise=1e6, mag_noise=sm, mag_norm_gate=None, mag_dip_gate=None,
                               mag_nis_gate=None, rest_gyro=None)
         step = f.step(np.zeros(3), R_true.inv().apply([0.0, 0.0, -G]), R_true.inv().apply(FIELD) + rng.normal(0, sm, 3))
@@ -753,7 +783,7 @@ def test_mekf_gyro_sample_is_held_over_the_step_it_ends():
     t = np.arange(1, n + 1) / rate
     gyr = np.column_stack([np.zeros(n), np.zeros(n), alpha * t])
     acc = np.tile([0.0, 0.0, -G], (n, 1))
-    res = MultiplicativeEKF(rate, field_n=FIELD, q0=[1.0, 0.0, 0.0, 0.0], rest_gyro=None).run(gyr, acc)
+    res = MultiplicativeEKF(rate_hz=rate, field_n=FIELD, x0=[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], rest_gyro=None).run(gyr, acc)
     yaw = np.unwrap(res.euler[:, 2])
     lead = alpha * (t + 0.5 / rate) ** 2 / 2 - alpha / (8 * rate ** 2)  # Σ α t_k dt = α (t_N + dt/2)²/2 − α dt²/8
     np.testing.assert_allclose(yaw, lead, atol=1e-9)

@@ -15,11 +15,12 @@ def predict(x, dt):
     ### END SOLUTION
 
 def rms(values):
+    values = list(values)
+    ### BEGIN SOLUTION
     if values:
-        ### BEGIN SOLUTION
         return math.sqrt(sum(v * v for v in values) / len(values))
-        ### END SOLUTION
     return 0.0
+    ### END SOLUTION
 """
 
 
@@ -82,15 +83,33 @@ def test_solution_notebook_is_not_modified():
 def test_indented_blocks_compile_and_raise():
     source = strip_solutions(solution_notebook()).cells[1].source
     assert "    # YOUR CODE HERE\n    raise NotImplementedError()\n" in source
-    assert "        # YOUR CODE HERE\n        raise NotImplementedError()\n    return 0.0" in source
+    assert "    values = list(values)\n    # YOUR CODE HERE\n    raise NotImplementedError()" in source
     assert "sqrt" not in source and "pos + vel" not in source
     namespace = {}
     exec(compile(source, "lab-cell", "exec"), namespace)
     with pytest.raises(NotImplementedError):
         namespace["predict"]((0.0, 1.0), 0.1)
-    with pytest.raises(NotImplementedError):
-        namespace["rms"]([1.0])
-    assert namespace["rms"]([]) == 0.0
+    for values in ([1.0], []):
+        with pytest.raises(NotImplementedError):
+            namespace["rms"](values)
+
+
+@pytest.mark.parametrize("function, line", [
+    ("def rms(values):\n    if values:\n        ### BEGIN SOLUTION\n        return 1.0\n        ### END SOLUTION\n"
+     "    return 0.0", 4),
+    ("def rms(values):\n    try:\n        ### BEGIN SOLUTION\n        return 1.0\n        ### END SOLUTION\n"
+     "    except ValueError:\n        return 0.0", 4),
+    ("def rms(values):\n    if not values:\n        return 0.0\n    ### BEGIN SOLUTION\n    return 1.0\n"
+     "    ### END SOLUTION", 5),
+    ("for k in range(3):\n    ### BEGIN SOLUTION\n    print(k)\n    ### END SOLUTION", 3),
+])
+def test_a_block_the_exercise_guard_would_not_take_for_a_stub_is_refused(function, line):
+    """Inside an if or a try, or after a return, the stub left in the lab raises only for some input: the guard
+    (which must never skip a finished function that raises NotImplementedError for some input) would let the
+    cells that call it run, and Run All would stop there."""
+    nb = new_notebook(cells=[new_markdown_cell("intro"), new_code_cell("%matplotlib inline\n" + function)])
+    with pytest.raises(AuthoringError, match=rf"solutions/01_x\.ipynb: cell index 1, line {line + 1}: .*guard"):
+        strip_solutions(nb, name="solutions/01_x.ipynb")
 
 
 def test_markdown_answer_replaced():
@@ -191,3 +210,36 @@ def test_output_is_byte_deterministic(tmp_path):
         first = (tmp_path / "a" / name).read_bytes()
         assert first == (tmp_path / "b" / name).read_bytes()
         assert b"YOUR CODE HERE" in first
+
+
+def predicting_notebook(reveal_text="The RMSE falls to <!-- run: the RMSE printed above -->0.33°<!-- /run -->."):
+    nb = new_notebook()
+    nb.cells = [new_markdown_cell("**Predict before you run.** Will the RMSE fall?", metadata={"tags": ["predict"]}),
+                new_code_cell("print(0.33)", execution_count=1,
+                              outputs=[new_output("stream", name="stdout", text="0.33\n")]),
+                new_markdown_cell(reveal_text, metadata={"tags": ["reveal"]}),
+                new_markdown_cell("## Next")]
+    return nb
+
+
+def test_a_prediction_gets_an_answer_cell_and_its_explanation_is_folded_in_the_lab_only():
+    nb = predicting_notebook()
+    lab = strip_solutions(nb)
+    assert [c.cell_type for c in lab.cells] == ["markdown", "markdown", "code", "markdown", "markdown"]
+    mine = lab.cells[1]
+    assert mine.source.startswith("**My prediction:**") and mine.metadata["tags"] == ["my-prediction"]
+    assert mine.id == f"{nb.cells[0].id}-mine"
+    reveal = lab.cells[3]
+    assert reveal.metadata["jupyter"]["source_hidden"] is True
+    lead, text = reveal.source.split("\n\n")
+    assert lead.startswith("**Explanation**")  # what the fold bar previews: not the answer
+    assert text == "The RMSE falls to the RMSE printed above."  # the run's number stays in the solution
+    assert "jupyter" not in nb.cells[2].metadata and "0.33°" in nb.cells[2].source  # the solution keeps all open
+    nbformat.validate(lab)  # the new cell's id is a valid nbformat 4.5 id
+    assert strip_solutions(nb).cells[1].id == mine.id  # deterministic
+
+
+@pytest.mark.parametrize("text", ["falls to <!-- run: the RMSE -->0.33°.", "falls to 0.33°<!-- /run -->."])
+def test_an_unclosed_run_number_is_refused(text):
+    with pytest.raises(AuthoringError, match="run"):
+        strip_solutions(predicting_notebook(text))

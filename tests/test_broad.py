@@ -139,6 +139,7 @@ def test_real_broad_trial(path):
 UNDISTURBED_TRIALS = [p for p in REAL_TRIALS if "_undisturbed_" in Path(p).name]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not UNDISTURBED_TRIALS, reason=f"no undisturbed BROAD trials in {BROAD_DIR}")
 @pytest.mark.parametrize("path", UNDISTURBED_TRIALS, ids=[Path(p).stem for p in UNDISTURBED_TRIALS])
 def test_mekf_on_a_whole_real_trial(path):

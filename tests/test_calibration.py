@@ -195,6 +195,39 @@ def test_allan_read_outs_on_synthesised_white_and_flicker_noise():
     assert 0.75 * B < b < 1.05 * B and 10 < tau_min
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_allan_noise_fit_reads_white_noise_and_the_bias_random_walk(seed):
+    """The simulator's gyro: white noise N plus a bias that walks with K (its steps' σ = K/√rate), one hour at 50 Hz.
+    The walk shows on the curve's last two decades only, so K is read to ±30 % (the estimate's own scatter), N to 2 %."""
+    rng = np.random.default_rng(seed)
+    rate, N, K = 50.0, 5e-3, 2e-4
+    n = int(3600 * rate)
+    x = N * np.sqrt(rate) * rng.normal(size=n) + np.cumsum(K / np.sqrt(rate) * rng.normal(size=n))
+    n_fit, b_fit, k_fit = C.allan_noise_fit(*C.allan_deviation(x, rate))
+    assert n_fit == pytest.approx(N, rel=0.02)
+    assert 0.7 * K < k_fit < 1.3 * K
+    assert b_fit < 0.5 * K * np.sqrt(3600 / 3)  # no made-up floor: a flicker level below what the walk reaches
+
+
+def test_allan_noise_fit_reads_flicker_as_bias_instability_and_a_short_rest_gives_no_walk():
+    rng = np.random.default_rng(14)
+    rate, n, N, B = 100.0, 2**19, 1e-3, 2e-3
+    x = noise_with_psd(rng, n, rate, lambda f: N**2 + B**2 / (2 * np.pi * f))
+    n_fit, b_fit, _ = C.allan_noise_fit(*C.allan_deviation(x, rate))
+    assert n_fit == pytest.approx(N, rel=0.03) and b_fit == pytest.approx(B, rel=0.15)
+    white = N * np.sqrt(rate) * rng.normal(size=6000)  # one minute: nothing but white noise to see
+    n_fit, b_fit, k_fit = C.allan_noise_fit(*C.allan_deviation(white, rate))
+    assert n_fit == pytest.approx(N, rel=0.05) and k_fit < 0.1 * N
+
+
+def test_allan_noise_fit_per_column():
+    rng = np.random.default_rng(15)
+    x = rng.normal(size=(20000, 3)) * [1.0, 2.0, 3.0]
+    n_fit, b_fit, k_fit = C.allan_noise_fit(*C.allan_deviation(x, 100.0))
+    assert n_fit.shape == b_fit.shape == k_fit.shape == (3,)
+    np.testing.assert_allclose(n_fit, np.array([1.0, 2.0, 3.0]) / 10.0, rtol=0.05)  # σ = N·√rate
+
+
 def test_allan_slopes_agree_with_allantools():
     allantools = pytest.importorskip("allantools")
     rng = np.random.default_rng(13)
@@ -329,8 +362,11 @@ def test_calibration_json_round_trip_and_apply(tmp_path):
                         mag_soft_iron=np.diag([2.0, 1.0, 0.5]), source="test")
     path = cal.save(tmp_path / "c.json")
     assert C.Calibration.load(path) == cal
-    assert set(json.loads(path.read_text())) == {"board", "rate_hz", "gyro_bias", "gyro_noise", "accel_bias", "accel_scale",
-                                                 "accel_noise", "mag_hard_iron", "mag_soft_iron", "mag_noise", "source"}
+    assert set(json.loads(path.read_text())) == {"board", "rate_hz", "gyro_bias", "gyro_noise", "gyro_bias_walk", "accel_bias",
+                                                 "accel_scale", "accel_noise", "mag_hard_iron", "mag_soft_iron", "mag_noise",
+                                                 "source"}
+    older = {k: v for k, v in json.loads(path.read_text()).items() if k != "gyro_bias_walk"}  # saved before it existed
+    assert C.Calibration.from_json(json.dumps(older)).gyro_bias_walk == [0.0, 0.0, 0.0]
     gyr, acc, mag = cal.apply((np.zeros((2, 3)), np.ones((2, 3)), np.array([[2.0, 3.0, 4.0], [np.nan] * 3])))
     np.testing.assert_allclose(gyr, -np.array([[0.01, -0.02, 0.03]] * 2))
     np.testing.assert_allclose(acc[0], (1 - np.array([0.1, 0.2, 0.3])) / [1.01, 0.99, 1.0])
@@ -394,7 +430,8 @@ def changed(**fields):
     (changed(accel_scale=[1, 1e-9, 1]), r"accel_scale must lie within"),
     (changed(accel_bias=[float("nan"), 0, 0]), "accel_bias: holds NaN or inf"),
     (changed(mag_hard_iron=[float("inf"), 0, 0]), "mag_hard_iron: holds NaN or inf"),
-    (changed(gyro_noise=[-1e-3, 1e-3, 1e-3]), "gyro_noise is a standard deviation: it cannot be negative"),
+    (changed(gyro_noise=[-1e-3, 1e-3, 1e-3]), "gyro_noise is a noise level: it cannot be negative"),
+    (changed(gyro_bias_walk=[1e-5, -1e-5, 0.0]), "gyro_bias_walk is a noise level: it cannot be negative"),
     (changed(mag_soft_iron=[[0, 0, 0]] * 3), "mag_soft_iron must be symmetric positive definite and not .*singular"),
     (changed(mag_soft_iron=[[1, 0, 0], [0, 1, 0], [0, 0, 1e-6]]), "mag_soft_iron .* singular"),
     (changed(mag_soft_iron=[[1, 0.5, 0], [0, 1, 0], [0, 0, 1]]), "mag_soft_iron must be symmetric"),
@@ -407,7 +444,7 @@ def changed(**fields):
     (changed(board=3), "board must be a board name"),
     (changed(board="arduino-nano"), "unknown board 'arduino-nano'"),
 ], ids=["json", "list", "empty", "missing-field", "shape", "text", "object", "unknown", "scale-zero", "scale-negative",
-        "scale-tiny", "nan", "inf", "noise-negative", "soft-iron-zero", "soft-iron-singular", "soft-iron-asymmetric",
+        "scale-tiny", "nan", "inf", "noise-negative", "walk-negative", "soft-iron-zero", "soft-iron-singular", "soft-iron-asymmetric",
         "soft-iron-reflection", "rate-zero", "rate-negative", "rate-nan", "rate-text", "rate-bool", "board-number",
         "board-unknown"])
 def test_calibration_file_errors_name_the_file(tmp_path, text, match):
@@ -472,12 +509,12 @@ PHONE = "phone-phyphox"
 def phone_export(folder, motion, seed, truth=False, unit=None):
     """A simulated phone through ``motion`` as a phyphox export folder (kfkit's writer; the format itself is
     tested in test_phyphox.py). Without ``truth``, like a real export: no kfkit_truth.csv, so no labels."""
+    from kfkit import phone_sim
     from kfkit.phone_sim import simulate_phone
-    from kfkit.readers import phyphox_export
-    files = phyphox_export.simple_experiment_files(simulate_phone(motion, seed=seed, unit=unit))
+    files = phone_sim.simple_experiment_files(simulate_phone(motion, seed=seed, unit=unit))
     if not truth:
-        files.pop(phyphox_export.TRUTH_FILE)
-    return phyphox_export.write_export(files, folder)
+        files.pop(phone_sim.TRUTH_FILE)
+    return phone_sim.write_export(files, folder)
 
 
 def test_phone_default_is_the_identity_with_the_phone_models_noise(tmp_path, monkeypatch):

@@ -14,6 +14,9 @@ from kfkit.paths import KIT_ROOT
 
 import unit_truth
 from test_calibration import PHONE, phone_export
+from waiting import HANG_GUARD_S
+
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
 
 # --- lab 00's recordings from the virtual board --------------------------------------------
@@ -126,7 +129,7 @@ def run_solution_on(name, data_source):
     cells = [c for c in nb.cells if c.source.startswith("# ▶ DATA SOURCE")]
     assert len(cells) == 1, f"{name}: expected one data-source cell"
     cells[0].source += "\n" + "\n".join(f"{k} = {v!r}" for k, v in data_source.items())
-    NotebookClient(nb, timeout=120, allow_errors=True, kernel_name="python3",
+    NotebookClient(nb, timeout=HANG_GUARD_S, startup_timeout=HANG_GUARD_S, allow_errors=True, kernel_name="python3",
                    resources={"metadata": {"path": str(path.parent)}}).execute()
     outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
     errors = [f"{o.ename}: {o.evalue}" for o in outputs if o.output_type == "error"]

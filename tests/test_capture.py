@@ -337,3 +337,71 @@ def test_board_time_reference_against_a_float_clock():
     start = 2**32 - 2_000_000  # 2 s before micros() wraps
     t_us = (start + np.round(true_t * 1e6).astype(np.int64)) % 2**32
     np.testing.assert_allclose(C.board_time(t_us), np.round(true_t * 1e6) / 1e6 - np.round(true_t[0] * 1e6) / 1e6, atol=1e-9)
+
+
+# -- options checked where they are taken: the Recorder, the virtual board, a port's address ------------------------
+@pytest.mark.parametrize("options, words", [
+    ({"seconds": float("nan")}, "seconds"), ({"seconds": -1.0}, "seconds"), ({"seconds": 0}, "seconds"),
+    ({"seconds": float("inf")}, "seconds"), ({"baud": -5}, "baud"), ({"baud": 0}, "baud"), ({"baud": 115200.5}, "baud"),
+    ({"no_data_s": float("nan")}, "no_data_s"), ({"flush_s": 0.0}, "flush_s"),
+])
+def test_the_recorder_refuses_options_it_cannot_honour(options, words):
+    """A NaN duration used to record forever (no board time is ≥ NaN)."""
+    with pytest.raises(ValueError, match=f"Recorder: {words} must be"):
+        C.Recorder("loop://", **options)
+
+
+@pytest.mark.parametrize("rate", [0, -100.0, float("nan"), float("inf"), 1e9, True])
+def test_the_virtual_board_refuses_a_rate_it_cannot_play(rate):
+    """Rate 0 used to fall back to the board's silently; −100 killed the board's thread with a traceback."""
+    with pytest.raises(ValueError, match="VirtualBoard: rate_hz must be a number > 0 and ≤ 10000 Hz"):
+        C.VirtualBoard(rate_hz=rate)
+
+
+@pytest.mark.parametrize("port, words", [
+    ("bogus://x", "no port has the scheme 'bogus://'"),
+    ("BOGUS://x", "no port has the scheme 'bogus://'"),
+    ("a.b://x", "no port has the scheme 'a.b://'"),
+    ("socket://localhost", "socket:// needs HOST:PORT"),
+    ("socket://localhost:0", "socket:// needs HOST:PORT"),
+    ("rfc2217://:4000", "rfc2217:// needs HOST:PORT"),
+    ("", "not a port name"), ("  ", "not a port name"), ("/dev/tty\0", "not a port name"),
+])
+def test_a_port_of_no_known_form_names_it_and_lists_the_forms(port, words):
+    for check in (ports_module.check_port, C.open_port):
+        with pytest.raises(C.PortAddressError) as e:
+            check(port)
+        assert words in str(e.value) and repr(port) in str(e.value)
+        for form in ("'auto'", "'virtual'", "/dev/ttyACM0", "phyphox://HOST[:PORT]", "socket://HOST:PORT", "loop://"):
+            assert form in str(e.value)
+
+
+@pytest.mark.parametrize("url, words", [
+    ("phyphox://", "no host"), ("phyphox://::::", "no host"), ("phyphox://:8080", "no host"),
+    ("phyphox://phone:abc", "whole number 1 … 65535"), ("phyphox://phone:99999", "whole number 1 … 65535"),
+    ("phyphox://phone:0", "whole number 1 … 65535"), ("phyphox://pho ne:80", "not a host name"),
+    ("phyphox://phone/get", "nothing may follow the port"), ("phyphox://phone?poll=nan", "poll='nan'"),
+    ("phyphox://phone?timeout=-3", "timeout='-3'"), ("phyphox://phone?poll=", "poll=''"),
+    ("phyphox://phone?mount=sideways", "unknown phone mounting 'sideways'"), ("phyphox://phone?moutn=flat", "'moutn'"),
+])
+def test_a_bad_phone_address_says_what_is_wrong_and_the_form(url, words):
+    with pytest.raises(C.PortAddressError) as e:
+        ports_module.check_port(url)
+    assert words in str(e.value) and repr(url) in str(e.value) and "phyphox://HOST[:PORT][?mount=NAME" in str(e.value)
+
+
+def test_good_ports_pass_the_check_unchanged():
+    from kfkit.capture.phyphox_http import parse_url
+
+    for port in ("auto", "virtual", "/dev/ttyACM0", "COM3", "loop://", "socket://127.0.0.1:4000", "hwgrep://0483:374B",
+                 "rfc2217://host:2217", "phyphox://192.168.0.42:8080", "phyphox://[fe80::1]:80?mount=upright&poll=0.2"):
+        assert ports_module.check_port(port) == port
+    assert parse_url("phyphox://[fe80::1]?mount=upright&poll=0.2&timeout=5") == (
+        "fe80::1", 8080, {"mount": "upright", "poll": 0.2, "timeout": 5.0})
+
+
+def test_a_name_that_is_no_device_path_lists_the_forms_when_not_found(comports):
+    comports()
+    with pytest.raises(C.PortNotFoundError, match="port virtaul not found; no USB serial ports are connected. A port "
+                                                  "is 'auto'"):
+        C.open_port("virtaul")

@@ -208,6 +208,7 @@ def recorded(tmp_path_factory):
     return folder, {key: load_recording(path) for key, path in files.items()}  # as the labs load them
 
 
+@pytest.mark.slow
 def test_each_guided_dataset_is_saved_under_the_name_its_lab_reads(recorded):
     folder, recs = recorded
     assert sorted(p.name for p in folder.iterdir()) == sorted(
@@ -220,6 +221,7 @@ def test_each_guided_dataset_is_saved_under_the_name_its_lab_reads(recorded):
         assert [(p["start"], p["end"], p["label"]) for p in rec.phases] == [tuple(ph) for ph in motion.phases]
 
 
+@pytest.mark.slow
 def test_lab02_bias_noise_and_six_faces_on_the_recordings(recorded):
     """Lab 02's analysis of each board's rest and faces finds its unit (the bundled recordings', kfkit.datasets):
     biases and scale within 4 standard deviations of white noise and bias walk (tests/unit_truth.py), noise σ at
@@ -251,6 +253,7 @@ def test_lab02_bias_noise_and_six_faces_on_the_recordings(recorded):
         # (the Allan read-outs of this 2 min rest: tests/test_capture_virtual.py, against allantools' intervals)
 
 
+@pytest.mark.slow
 def test_lab03_and_lab04_magnetometer_and_attitude_on_the_recordings(recorded, tmp_path, monkeypatch):
     """Lab 03's fit of the recorded rotations finds the unit's hard and soft iron within the fit's linearised
     uncertainty (4σ); lab 04's MEKF on them is right with labs 02/03's calibration of the recordings and with the kit's
@@ -280,7 +283,7 @@ def test_lab03_and_lab04_magnetometer_and_attitude_on_the_recordings(recorded, t
 
 def test_lab03_alignment_and_headings_on_the_recordings(recorded):
     """Lab 03 on the panel's recordings, calibrated by labs 02/03 from the recorded rest, faces and rotations:
-    the turns show the IIS2MDC's 180° about y (DESIGN.md), the headings come out as the prompts asked."""
+    the turns show the IIS2MDC's 180° about y (docs/design.md), the headings come out as the prompts asked."""
     _, recs = recorded
     still, faces, rot, turns, heads = (recs["nucleo-iks02a1", name] for name in LAB_DATASETS["nucleo-iks02a1"])
     cal = calibration.calibrate(still, faces, rot)
@@ -328,7 +331,7 @@ def test_lab05_tilt_filter_on_the_recordings(recorded):
     ok = filters.accel_static_ok(acc)
     known_roll, known_pitch = filters.tilt.protocol_angles(tilt)
     for axis, rate, angle, known in (("roll", 0, roll, known_roll), ("pitch", 1, pitch, known_pitch)):
-        kf = filters.TiltBiasKF(1.0 / tilt.rate_hz, filters.TiltSettings())
+        kf = filters.TiltBiasKF(rate_hz=tilt.rate_hz, settings=filters.TiltBiasKFSettings())
         run = kf.run(gyr_raw[:, rate], angle, ok)  # raw gyro: the filter finds the bias itself
         held = np.isfinite(known) & (tilt.t > 3.0)
         assert np.degrees(metrics.rmse(run.angle[held], known[held])) < 0.5, axis  # 0.1–0.2° here

@@ -257,6 +257,7 @@ def test_values_have_phyphox_8_significant_digits():
     assert format_number(0.0) == "0E0" and format_number(float("nan")) == "null"
 
 
+@pytest.mark.slow
 def test_virtual_phone_clocks_and_bias_walks_run_on_across_its_loops():
     """20 min from the virtual phone (its 30 s motion looped 40 times): no sample lost at a seam, and the Allan
     curves follow the phone's white noise and its unit's walk (PHONE_UNIT), each point within its 99.9 %

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import kfkit.capture as C
+from kfkit.capture import ports as ports_module
 import unit_truth
 from allan_oracle import allan_curves, loglog_slope, model_adev, outside_chi2_interval
 from kfkit import sim
@@ -270,6 +271,7 @@ except C.PortPermissionError as e:
 """
 
 
+@pytest.mark.slow
 def test_permission_denied_names_the_group_and_the_command():
     """A real pty owned by root:dialout, mode 660, opened by a user outside dialout (as /dev/ttyACM0 is)."""
     import grp
@@ -361,6 +363,7 @@ def curves_and_model(rec, sensor, chip, K):
     return taus, adev, model_adev(taus, chip.noise_density, K, rec.meta["sensors"][sensor]["sensitivity"], rate)
 
 
+@pytest.mark.slow
 def test_allan_deviation_shows_white_noise_then_the_walk_beyond_the_chunks():
     """5 min at 104 Hz with a strong walk (τ_min < 1 s): slope −½ below the minimum, +½ from 5 s to 30 s, far past
     the simulator's 1 s chunks (a walk restarted per chunk gives −½ there), at the level the densities give."""
@@ -377,6 +380,7 @@ def test_allan_deviation_shows_white_noise_then_the_walk_beyond_the_chunks():
         assert outside_chi2_interval(taus, adev, model, len(rec), rec.rate_hz) == [], sensor
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("board", ["nucleo-iks02a1", "mpu6050"])
 def test_allan_deviation_of_a_long_rest_at_the_boards_densities(board):
     """40 min at rest at 12.5 Hz (the ISM330DHCX's lowest rate, as lab 02's bundled rest): every point of the Allan
@@ -591,6 +595,7 @@ def fresh_shell_env():
     return {k: v for k, v in os.environ.items() if not k.startswith(("PYTHON", "PYTEST"))}
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not KFKIT.exists(), reason="the kfkit console script is not installed")
 def test_kfkit_capture_from_a_fresh_shell(tmp_path):
     """`kfkit capture --port virtual --seconds S --out x.csv`, as typed in a new terminal."""
@@ -719,6 +724,50 @@ def test_cli_capture_failure_still_reports_statistics_and_where_the_data_is(tmp_
         assert printed.out.startswith(f"samples        {samples}") and "bad lines      0" in printed.out
         assert printed.out.splitlines()[-1] == (f"saved {samples} samples to {out}" if saved
                                                 else f"nothing saved: no samples arrived, {out} was not written")
+
+
+def fail_at(n_fail):
+    """An ``extra_lines`` hook of the virtual board that raises at sample ``n_fail``: its thread fails mid-capture."""
+    def hook(board, n, euler):
+        if n == n_fail:
+            raise ZeroDivisionError("division by zero (a failing simulation)")
+    return hook
+
+
+@pytest.mark.parametrize("as_json", [True, False], ids=["json", "human"])
+@pytest.mark.parametrize("reached", ["--port virtual", "its pty"])
+def test_a_board_whose_thread_fails_mid_capture_gives_one_answer_and_keeps_what_arrived(tmp_path, capsys, monkeypatch,
+                                                                                        reached, as_json):
+    """The virtual board's thread raising (a bug in what it plays) used to escape as a thread traceback on stderr and
+    end the capture 3 s later as "the board stopped sending". Now the board sends what it made and closes its port:
+    the capture ends at once with the 100 samples made before the failure on disk, and says why: the board's error
+    when the recorder made the board (--port virtual), a disconnect when it only has the board's pty."""
+    escaped = []
+    monkeypatch.setattr(threading, "excepthook", escaped.append)  # what would print a thread's traceback
+    out, boards = tmp_path / "failed.csv", []
+
+    def failing_board(**options):
+        boards.append(C.VirtualBoard(**{**options, "rate_hz": RATE}, extra_lines=[fail_at(100)]))
+        return boards[-1]
+
+    monkeypatch.setitem(C.NAMED_PORTS, "virtual", ports_module.NamedPort("a failing virtual board", failing_board))
+    if reached == "--port virtual":
+        code, printed = run_cli(capsys, "virtual", out, "--fast", *(["--json"] if as_json else []))
+        why, error_type = r"virtual board .* stopped on an error \(ZeroDivisionError: division by zero", "CaptureError"
+    else:
+        with failing_board(board="mpu6050", realtime=False) as vb:
+            code, printed = run_cli(capsys, vb.port, out, *(["--json"] if as_json else []))
+        why, error_type = "the board disconnected", "BoardDisconnectedError"
+    assert code == 2 and escaped == [] and "Traceback" not in printed.err
+    assert isinstance(boards[0].error, ZeroDivisionError) and len(load_recording(out)) == 100
+    if as_json:
+        (line,) = printed.out.splitlines()
+        result = json.loads(line)
+        assert result["error_type"] == error_type and result["samples"] == 100 and result["out"] == str(out.resolve())
+        assert re.search(f"{why}.*every sample received .* is saved in", result["error"]), result["error"]
+    else:
+        assert re.search(f"capture failed: {why}", printed.err)
+        assert printed.out.splitlines()[-1] == f"saved 100 samples to {out}"
 
 
 @pytest.mark.parametrize("as_json", [True, False], ids=["json", "human"])

@@ -3,13 +3,17 @@ test over all labs), and each lab's judges naming the classic mistakes in answer
 
 The solutions' own exercise functions as answers, NaN/inf answers and the catalogue of mutated model answers
 are in test_checkpoints_every.py; lab 05's answers are the notebook's (its pipeline: test_tilt.py)."""
+import dataclasses
+import math
+import re
+
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from kfkit import calibration as C
-from kfkit import datasets, filters, frames
+from kfkit import datasets, discrete, filters, frames
 from kfkit import vehicle as V
 from kfkit.checkpoints import REGISTRY, check, compare, get, run_checkpoint
 from kfkit.filters import estimate_sideslip, sideslip_step
@@ -49,7 +53,7 @@ def central_differences(h, x, eps=1e-6):
 
 
 def reference_run_ekf(gyr, acc, mag, rate_hz, gyro_noise, accel_noise, mag_noise, field_n, accel_gate=None):
-    run = FastEulerAttitudeEKF(rate_hz, gyro_noise=gyro_noise, accel_noise=accel_noise, mag_noise=mag_noise,
+    run = FastEulerAttitudeEKF(rate_hz=rate_hz, gyro_noise=gyro_noise, accel_noise=accel_noise, mag_noise=mag_noise,
                                field_n=field_n, accel_gate=accel_gate).run(gyr, acc, mag)
     return run.euler, run.P, run.nis
 
@@ -77,7 +81,7 @@ RIGHT = {
     "03.real_magnet": C.fit_mag_calibration,
     "03.flat_heading": frames.mag_heading,
     "03.tilt_heading": frames.tilt_compensated_heading,
-    "04.euler_rates": filters.euler_rates,
+    "04.euler_rates": frames.body_rates_to_euler_rates,
     "04.predict": filters.euler_ekf_predict,
     "04.measurement": filters.attitude_measurement,
     "04.jacobian": filters.attitude_jacobian,
@@ -86,7 +90,7 @@ RIGHT = {
     "04.ekf_rmse": reference_run_ekf,
     "04.real_ekf": reference_run_ekf,
     "06.bicycle_model": V.linear_model,
-    "06.discretize": V.discretize,
+    "06.discretize": discrete.discretize,
     "06.kf_step": sideslip_step,
     "06.slalom_rmse": kfkit_run_sideslip,
 }
@@ -245,6 +249,7 @@ def test_mag_calibration_checkpoint_judges_against_the_true_ellipsoid():
     assert "off by" in run_checkpoint(cp, centre_only, seed=3).message
 
 
+@pytest.mark.slow
 def test_bundled_recording_checks_reject_estimates_a_few_uncertainties_off():
     from kfkit.checkpoints.lab02 import gyro_bias_truth, noise_truth, six_face_truth
     rec = datasets.load("02_six_faces")
@@ -285,7 +290,7 @@ def test_the_copied_cos_phi_mistake_is_named():
 def test_predict_without_yaw_wrapping_is_named():
     def unwrapped(x, P, omega_b, dt, Q):
         F = np.eye(3) + dt * filters.euler_ekf.euler_kinematics_jacobian(x, omega_b)
-        return np.asarray(x) + filters.euler_rates(x, omega_b) * dt, F @ P @ F.T + Q
+        return np.asarray(x) + frames.body_rates_to_euler_rates(x, omega_b) * dt, F @ P @ F.T + Q
 
     result = run_checkpoint(get("04.predict"), unwrapped, seed=0)
     assert result.status == "failed" and "not wrapped" in result.message
@@ -293,7 +298,7 @@ def test_predict_without_yaw_wrapping_is_named():
 
 def test_predict_that_forgets_F_fails_with_expected_and_got():
     def no_F(x, P, omega_b, dt, Q):
-        x_new = np.asarray(x) + filters.euler_rates(x, omega_b) * dt
+        x_new = np.asarray(x) + frames.body_rates_to_euler_rates(x, omega_b) * dt
         x_new[2] = frames.wrap_angle(x_new[2])
         return x_new, P + Q
 
@@ -347,7 +352,7 @@ def test_gyro_only_filter_fails_the_rmse_limits():
         x = np.empty((len(gyr), 3))
         x_k = filters.attitude_run.tilt_heading(acc[0], mag[0], field_n)
         for k, w in enumerate(gyr):
-            x_k = x_k + filters.euler_rates(x_k, w) / rate_hz
+            x_k = x_k + frames.body_rates_to_euler_rates(x_k, w) / rate_hz
             x[k] = x_k
         return x, None, None
 
@@ -397,3 +402,82 @@ def test_lab06_judges_name_the_classic_mistakes():
 
     flat = run_checkpoint(get("06.bicycle_model"), b_as_a_row, seed=1)
     assert not flat.ok and "B has shape (2,), expected (2, 1)" in flat.message
+
+
+# --- the hint matches the kind of failure: the checkpoint's own only for wrong numbers ------------------------------
+
+def not_for_arrays(**kwargs):
+    return math.atan2(np.ones(3), np.ones(3))  # math takes one number: a function written for scalars
+
+
+def shapes_that_do_not_fit(**kwargs):
+    return np.ones(3) @ np.ones(2)
+
+
+def divides_by_zero(**kwargs):
+    return 1 / 0
+
+
+def returns_nan(**kwargs):
+    return float("nan")
+
+
+def returns_nothing(**kwargs):
+    pass
+
+
+KINDS = {  # student function → words of the hint its failure must get
+    not_for_arrays: "is called with NumPy arrays",
+    shapes_that_do_not_fit: "shapes do not fit together",
+    divides_by_zero: "a division by zero",
+    returns_nan: "NaN or inf comes from",
+    returns_nothing: "returns None when no return statement runs",
+}
+
+
+@pytest.mark.parametrize("name", all_checkpoints())
+def test_every_checkpoint_gives_the_hint_of_the_failures_kind_not_its_own(name):
+    """`math.atan2` on arrays used to get the atan2-sign hint of 01.accel_roll, and every exception, NaN or missing
+    return its checkpoint's hint about the numbers. The grader's path too: its exception is rebuilt from the
+    kernel's class name and message (kfkit.grading.core), so kinds are matched by name."""
+    from kfkit.grading.core import _student_exception
+
+    cp = get(name)
+    drawn = cp.cases(np.random.default_rng(0))
+    cp = dataclasses.replace(cp, cases=lambda rng: drawn)  # drawn once: some build a filter's whole run
+    for student, words in KINDS.items():
+        result = run_checkpoint(cp, student)
+        assert not result.ok and words in result.message and cp.hint not in result.message, (student.__name__, result)
+
+        def in_the_kernel(**kwargs):
+            try:
+                return student(**kwargs)
+            except Exception as e:  # as the grader sees it: a class of that name, that message
+                raise _student_exception(type(e).__name__, str(e)) from None
+
+        assert words in run_checkpoint(cp, in_the_kernel).message, student.__name__
+
+
+def test_wrong_numbers_keep_the_checkpoints_own_hint_and_a_wrong_form_says_the_expected_one():
+    cp = get("01.accel_roll")
+    assert cp.hint in run_checkpoint(cp, lambda ay, az: np.arctan2(ay, az), seed=0).message
+    update = run_checkpoint(get("01.kf_update"), lambda x, P, z, r: (x, P), seed=0).message
+    assert "Hint: return a tuple of 4 numbers, as the exercise's docstring says" in update
+    run_kf = run_checkpoint(get("01.run_kf"), lambda **kw: np.zeros((3, 2)), seed=0).message
+    assert re.search(r"Hint: return a tuple of 4 arrays of shape \(\d+,\)", run_kf), run_kf
+    jacobian = run_checkpoint(get("04.jacobian"), lambda x, field_n: np.zeros((3, 6)), seed=0).message  # a judge's words
+    assert "got shape (3, 6)" in jacobian and "Hint: return an array of shape (6, 3)" in jacobian, jacobian
+
+
+@pytest.mark.parametrize("raised, words", [
+    (TypeError("f() got an unexpected keyword argument 'omega'"), "the check calls kf_predict(x, P, omega, dt, q) by these names"),
+    (NameError("name 'kf_gain' is not defined"), "a name kf_predict uses is not defined"),
+    (ValueError("math domain error"), "outside its domain"),
+    (KeyError("x"), "run kf_predict yourself on the input shown"),
+])
+def test_other_exception_kinds(raised, words):
+    def student(**kwargs):
+        raise raised
+
+    message = run_checkpoint(get("01.kf_predict"), student, seed=0).message
+    assert words in message and get("01.kf_predict").hint not in message

@@ -56,6 +56,7 @@ def is_heavy(name):
     return "bundled" in get(name).what or "runs" in get(name).what
 
 
+@pytest.mark.slow
 def test_every_lab_registers_checkpoints_and_each_has_a_model_answer():
     names = all_checkpoints()
     assert {n[:2] for n in names} == {lab[3:] for lab in LABS}
@@ -63,6 +64,7 @@ def test_every_lab_registers_checkpoints_and_each_has_a_model_answer():
         assert callable(reference(name)), name
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", all_checkpoints())
 def test_the_model_answer_passes_on_many_seeds(name):
     for seed in range(2 if is_heavy(name) else 20):
@@ -98,6 +100,7 @@ def _reference_outputs(name):
     return cases, [reference(name)(**case.args) for case in cases]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("how", ["nan", "inf", "nan_after_first"])
 @pytest.mark.parametrize("name", all_checkpoints())
 def test_non_finite_answers_never_score(name, how):
@@ -171,7 +174,7 @@ MISTAKES = [  # (checkpoint, (function, text of the model answer, mistaken text)
      "body rates p, q, r unchanged", 20),
     ("04.predict", ("ekf_predict", "x_new[2] = frames.wrap_angle(x_new[2])", ""), "not wrapped", 100),
     ("04.predict", ("ekf_predict", "F @ P @ F.T + Q", "F.T @ P @ F + Q"), "expected", 20),
-    ("04.measurement", ("measurement", "frames.euler_to_dcm(*x).T", "frames.euler_to_dcm(*x)"), "expected", 20),
+    ("04.measurement", ("measurement", "frames.euler_to_dcm(x).T", "frames.euler_to_dcm(x)"), "expected", 20),
     ("04.jacobian", ("jacobian", "return H", "return H.T"), "expected shape (6, 3), got shape (3, 6)", 20),
     ("04.update", ("ekf_update", "x_new[2] = frames.wrap_angle(x_new[2])", ""), "not wrapped", 100),
     ("04.update", ("ekf_update", "if np.isnan(z[3:]).any() else slice(0, 6)", "if False else slice(0, 6)"), "NaN", 20),
@@ -194,6 +197,7 @@ MISTAKES = [  # (checkpoint, (function, text of the model answer, mistaken text)
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, mutate, words, seeds", MISTAKES, ids=[f"{m[0]}:{m[1][2][:30]}" for m in MISTAKES])
 def test_each_classic_mistake_fails_on_every_seed_and_is_named(name, mutate, words, seeds):
     mistaken = solution_namespace(name[:2], mutate)[get(name).function]

@@ -29,6 +29,7 @@ def few_files(monkeypatch):
     monkeypatch.setattr(datasets, "BUNDLED", {name: datasets.BUNDLED[name] for name in FEW})
 
 
+@pytest.mark.slow
 def test_regenerate_writes_every_bundled_file_byte_for_byte_as_shipped(tmp_path):
     written = datasets.regenerate(directory=tmp_path)
     assert written == [str(tmp_path / f"{name}{entry.suffix}") for name, entry in datasets.BUNDLED.items()]

@@ -111,36 +111,61 @@ def test_each_lab_imports_only_what_the_student_install_pins(notebook):
     assert not {m: d for m, d in imported.items() if d not in student}, f"{notebook.name} needs a package environment.txt lacks"
 
 
+@pytest.mark.slow
 def test_pytest_starts_with_only_the_student_plugins():
-    """pyproject.toml's addopts (-n 2, --nbval-lax…) parse with just environment.txt's pytest plugins,
-    so ``python -m pytest NOTEBOOK`` works in a student install."""
+    """pyproject.toml's addopts (--nbval-lax…) and tests/conftest.py parse with just environment.txt's pytest
+    plugins, so ``python -m pytest NOTEBOOK`` works in a student install, which carries no test runner's
+    plugin (pytest-xdist is a test tool: requirements-test.txt)."""
+    assert "pytest-xdist" not in pins(ENVIRONMENT)
     student = pins(ENVIRONMENT)
     plugins = [ep.name for ep in metadata.entry_points(group="pytest11") if canonicalize_name(ep.dist.name) in student]
     env = {**os.environ, "PYTEST_DISABLE_PLUGIN_AUTOLOAD": "1"}
     args = [arg for name in plugins for arg in ("-p", name)]
     done = subprocess.run(
-        [sys.executable, "-m", "pytest", *args, "--collect-only", "-q", "-n", "0", "tests/test_deployment.py"],
+        [sys.executable, "-m", "pytest", *args, "--collect-only", "-q", "tests/test_deployment.py"],
         cwd=KIT_ROOT, env=env, capture_output=True, text=True, timeout=600,
     )
     assert done.returncode == 0, f"pytest with only {plugins}:\n{done.stdout[-2000:]}{done.stderr[-2000:]}"
 
 
 def fenced_commands(section):
-    """The lines of the ```bash block right under README heading ``section``."""
+    """The lines of the first ```bash block under README heading ``section`` (before the next heading)."""
     readme = (KIT_ROOT / "README.md").read_text(encoding="utf-8")
-    match = re.search(rf"^## {re.escape(section)}\n+```bash\n(.*?)\n```", readme, flags=re.M | re.S)
-    assert match, f"README.md has no ```bash block right under '## {section}'"
+    match = re.search(rf"^## {re.escape(section)}\n(?:(?!#|```)[^\n]*\n)*?```bash\n(.*?)\n```", readme,
+                      flags=re.M | re.S)
+    assert match, f"README.md has no ```bash block under '## {section}'"
     return match[1].splitlines()
 
 
-def test_readme_quick_start_installs_the_student_file_and_tests_the_test_file():
-    [quick] = fenced_commands("Quick start (students)")
-    assert quick.startswith("python -m pip install -r environment.txt && ")
+def test_readme_quick_start_is_what_a_newcomer_types_in_order():
+    """Get the kit, go into it, make and activate a virtual environment, install the student file from the kit's
+    root (environment.txt ends in ``-e .``), start JupyterLab on the hand-outs."""
+    quick = fenced_commands("Quick start (students)")
+    steps = ["git clone ", "cd kfkit", "python -m venv .venv", "source .venv/bin/activate",
+             "python -m pip install -r environment.txt && jupyter lab labs/"]
+    at = [next((i for i, line in enumerate(quick) if line.startswith(step)), None) for step in steps]
+    assert None not in at and at == sorted(at), f"the Quick start's commands are not {steps} in this order: {quick}"
+    assert pins(ENVIRONMENT) and ENVIRONMENT.read_text(encoding="utf-8").rstrip().endswith("-e .")
+
+
+def test_readme_test_command_installs_the_test_file_and_runs_on_two_workers():
     [tests] = fenced_commands("Tests")
-    assert tests.startswith("python -m pip install -r requirements-test.txt && python -m pytest")
+    assert tests == "python -m pip install -r requirements-test.txt && python -m pytest -n 2"
 
 
 def test_ci_runs_exactly_the_readme_test_command():
     [tests] = fenced_commands("Tests")
     ci = (KIT_ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
     assert tests in ci, f".ci/run does not run the README's test command {tests!r}"
+
+
+def test_no_comment_says_the_kernels_results_are_pickled():
+    """The grader pickles the cases' inputs into the kernel and parses only JSON back (kfkit/grading/wire.py; the
+    grader-side modules never load a pickle: test_grading.py). environment.txt said "results pickled back": every
+    comment, docstring and document of the kit must say what the code does."""
+    claim = re.compile(r"\b(results?|outputs?|returns?|answers?)\b[^.;:]*\bpickled\b|\bpickled back\b", re.IGNORECASE)
+    files = [*KIT_ROOT.glob("*.txt"), KIT_ROOT / "README.md", *(KIT_ROOT / "kfkit").rglob("*.py"),
+             *(KIT_ROOT / "solutions").glob("*.ipynb")]
+    said = [f"{path.relative_to(KIT_ROOT)}:{number}: {line.strip()}" for path in files
+            for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1) if claim.search(line)]
+    assert said == [], said

@@ -4,6 +4,7 @@ must give the reason of this moment, and a cell must never be held back by what 
 import nbformat
 import pytest
 from nbclient import NotebookClient
+from waiting import HANG_GUARD_S
 
 STUB = "def {name}(x):\n    # YOUR CODE HERE\n    raise NotImplementedError()\n"
 DONE = "def {name}(x):\n    return 2 * x\n"
@@ -13,7 +14,7 @@ DONE = "def {name}(x):\n    return 2 * x\n"
 def run():
     """``run(code)`` executes one cell in one kernel (the guard loaded) and returns what it printed."""
     nb = nbformat.v4.new_notebook()
-    client = NotebookClient(nb, timeout=60, allow_errors=False, kernel_name="python3")
+    client = NotebookClient(nb, timeout=HANG_GUARD_S, startup_timeout=HANG_GUARD_S, allow_errors=False, kernel_name="python3")
     with client.setup_kernel():
         def run(code):
             cell = nbformat.v4.new_code_cell(code)
@@ -61,3 +62,37 @@ def test_a_statement_that_reads_a_name_before_rebinding_it_waits_for_it(run, rea
     run("total = count(3)")
     note = run(reads_it)
     assert "it uses total, made by a cell that needs count (not written yet)" in note
+
+
+def test_a_stub_is_told_from_a_finished_function_by_its_source_in_the_kernel(run):
+    """ipykernel keeps each cell's source under a file name of its own: the guard reads the stub there."""
+    run("import numpy as np")
+    run("def tilt(ay, az):\n    '''Tilt (rad).'''\n    ay = np.asarray(ay)\n"
+        "    # YOUR CODE HERE\n    raise NotImplementedError()\n")
+    assert "it needs tilt (not written yet)" in run("angle = tilt(1.0, 1.0)\nprint('ran')")
+    run("def tilt(ay, az):\n    if np.ndim(ay) > 1:\n        raise NotImplementedError('2-D input')\n"
+        "    return np.arctan2(ay, az)\n")
+    assert run("angle = tilt(1.0, 1.0)\nprint(round(angle, 4))").strip() == "0.7854"
+
+
+def test_a_check_of_an_exercise_whose_new_cell_was_skipped_says_stale_and_never_passes(run):
+    """The cell that rewrites accel_roll also calls a stub: it is skipped (twice, once per transform), and the check of
+    accel_roll must not pass the accel_roll of before; once the stub is done, the new code is what is checked."""
+    run("import numpy as np\nfrom kfkit.checkpoints import check")
+    run(STUB.format(name="smooth"))
+    run("def accel_roll(ay, az):\n    return np.arctan2(-ay, -az)\n")
+    assert "✅ 01.accel_roll" in run("check('01.accel_roll', accel_roll);")
+    rewrite = "def accel_roll(ay, az):\n    return np.arctan2(ay, az)  # changed since\nsmoothed = smooth(1.0)"
+    assert "it needs smooth (not written yet)" in run(rewrite)
+    note = run("check('01.accel_roll', accel_roll);")
+    assert "✅" not in note and "⏳ 01.accel_roll: stale: the cell that defines accel_roll was skipped" in note
+    run(DONE.format(name="smooth"))
+    assert "skipped" not in run(rewrite)
+    assert "❌ 01.accel_roll" in run("check('01.accel_roll', accel_roll);")
+
+
+def test_a_name_a_function_binds_with_global_is_there_once_it_ran(run):
+    run(STUB.format(name="start_value"))
+    run("x0 = start_value(1.0)")  # skipped
+    run("def init():\n    global x0\n    x0 = 0.5\ninit()")
+    assert run("print(x0)").strip() == "0.5"

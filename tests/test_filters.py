@@ -4,7 +4,7 @@ import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 from scipy.linalg import solve_discrete_are
 
-from kfkit.filters import KalmanFilter, RollKF, RollSettings, Step, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
+from kfkit.filters import KalmanFilter, RollKF, RollKFSettings, Step, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
 
 
 def random_stable_system(rng, n, m, with_input):
@@ -34,10 +34,13 @@ def test_kalman_filter_matches_filterpy(seed, with_input):
     ref.F, ref.H, ref.Q, ref.R, ref.x, ref.P = F, H, Q, R, x0.copy(), P0.copy()
     if with_input:
         ref.B = B
+    run = KalmanFilter(F, H, Q, R, x0, P0, B=B).run(zs, us)
     for k in range(N):
         ours.predict(None if us is None else us[k])
         ref.predict(u=None if us is None else us[k])
         np.testing.assert_allclose(ours.P, ref.P, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(run.x_prior[k], ref.x_prior, rtol=1e-9, atol=1e-12)  # what an RTS smoother needs
+        np.testing.assert_allclose(run.P_prior[k], ref.P_prior, rtol=1e-9, atol=1e-12)
         ours.update(zs[k])
         ref.update(zs[k])
         np.testing.assert_allclose(ours.x, ref.x, rtol=1e-9, atol=1e-12)
@@ -127,6 +130,7 @@ def test_roll_kf_matches_filterpy_scalar_filter():
     ref.x, ref.P = np.array([0.1]), np.array([[0.5]])
     for k in range(N):
         ref.predict(u=np.array([omega[k]]))
+        assert (run.x_prior[k], run.P_prior[k]) == pytest.approx((ref.x_prior[0], ref.P_prior[0, 0]), rel=1e-9, abs=1e-12)
         if not np.isnan(z[k]):
             ref.update(np.array([z[k]]))
             assert run.y[k] == pytest.approx(ref.y[0], rel=1e-9, abs=1e-12)
@@ -160,8 +164,8 @@ def test_roll_kf_class_is_the_function_form_step_by_step():
     rng = np.random.default_rng(12)
     omega, z = rng.normal(0, 0.5, 300), rng.normal(0, 0.3, 300)
     z[::11] = np.nan
-    run = RollKF(0.01, RollSettings(q=1e-5, r=4e-4)).run(omega, z, x0=0.1, P0=0.5)
-    kf = RollKF(0.01, q=1e-5, r=4e-4, x0=0.1, P0=0.5)
+    run = RollKF(0.01, RollKFSettings(q_angle=1e-5, r=4e-4), x0=0.1, P0=0.5).run(omega, z)
+    kf = RollKF(0.01, q_angle=1e-5, r=4e-4, x0=0.1, P0=0.5)
     x, P = 0.1, 0.5
     for k in range(300):
         step = kf.step(omega[k], z[k])
@@ -175,11 +179,17 @@ def test_roll_kf_class_is_the_function_form_step_by_step():
 
 
 @pytest.mark.parametrize("make, error, match", [
-    (lambda: RollSettings(q=0.0), ValueError, "RollSettings: q must be a positive number, got 0.0"),
-    (lambda: RollSettings(r=float("nan")), ValueError, "r must be a positive number, got nan"),
+    (lambda: RollKFSettings(q_angle=0.0), ValueError, "RollKFSettings: q_angle must be a positive number, got 0.0"),
+    (lambda: RollKFSettings(r=float("nan")), ValueError, "r must be a positive number, got nan"),
+    (lambda: RollKFSettings(r=True), ValueError, "RollKFSettings: r must be a positive number, got True"),
     (lambda: RollKF(-0.01), ValueError, "RollKF: dt must be a positive number, got -0.01"),
-    (lambda: RollKF(0.01, qq=1e-6), TypeError, "RollKF: unknown setting qq; RollSettings has q, r"),
-    (lambda: RollKF(0.01, {"q": 1e-6}), TypeError, "RollKF: settings must be a RollSettings, got dict"),
+    (lambda: RollKF(rate_hz=0), ValueError, "RollKF: rate_hz must be a positive number, got 0"),
+    (lambda: RollKF(100.0), ValueError, "RollKF: dt = 100 s is longer than 1 s; if 100 is a sample rate, pass rate_hz=100"),
+    (lambda: RollKF(), TypeError, r"RollKF: give the sample period dt \(s\) or the sample rate rate_hz \(Hz\), got neither"),
+    (lambda: RollKF(0.01, rate_hz=100), TypeError, "RollKF: give the sample period .* not both"),
+    (lambda: RollKF(0.01, qq=1e-6), TypeError, "RollKF: unknown setting qq; RollKFSettings has q_angle, r"),
+    (lambda: RollKF(0.01, {"q_angle": 1e-6}), TypeError, "RollKF: settings must be a RollKFSettings, got dict"),
+    (lambda: RollKF(0.01, x0=[0.1, 0.2]), ValueError, r"RollKF: x0 must have shape \(\), got \(2,\)"),
 ])
 def test_bad_roll_settings_are_named(make, error, match):
     with pytest.raises(error, match=match):

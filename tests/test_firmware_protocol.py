@@ -260,11 +260,12 @@ def test_mpu6050_logger_configures_the_chip_and_streams_every_sample(tmp_path):
     assert s.jitter_us == 0.0
 
 
-def test_mpu6050_logger_builds_for_the_arduino_uno(tmp_path):
+def test_mpu6050_logger_builds_for_the_arduino_uno():
     """The real thing: avr-gcc with the Arduino AVR core and Wire library (Debian's arduino-core-avr),
-    every warning an error, linked; it must fit the ATmega328P (32 KB flash less the 512 B bootloader, 2 KB RAM)."""
-    size = arduino_host.build_avr(FIRMWARE / "mpu6050_logger" / "mpu6050_logger.ino", tmp_path)
-    assert 0 < size["flash"] < 32_256 and 0 < size["ram"] < 1_500  # RAM: leave room for the stack
+    every warning an error, linked; it must fit the ATmega328P (32 KB flash less the 512 B bootloader, 2 KB RAM).
+    It runs on an emulated Uno in tests/test_firmware_emulated_uno.py."""
+    image = arduino_host.uno_image("mpu6050_logger")
+    assert 0 < image.flash < 32_256 and 0 < image.ram < 1_500  # RAM: leave room for the stack
 
 
 def test_mpu6050_logger_reports_a_missing_or_wrong_chip(tmp_path):
@@ -273,6 +274,26 @@ def test_mpu6050_logger_reports_a_missing_or_wrong_chip(tmp_path):
     notes = [C.parse_line(line) for line in lines]
     assert len(notes) == 3 and all(isinstance(n, C.Note) for n in notes)  # once a second
     assert "WHO_AM_I 0x70" in notes[0].text and notes[0].text.startswith("ERROR,")
+
+
+def test_a_board_that_only_reports_its_missing_chip_is_not_taken_for_a_wrong_baud_rate(tmp_path):
+    """What the sketch sends without its sensor ('#ERROR' notes, nothing else) reaches kfkit's capture as the board's
+    own words: NoDataError quoting them (each once), not "wrong baud rate" (notes are protocol v1 lines)."""
+    exe = arduino_host.build_sketch(FIRMWARE / "mpu6050_logger" / "mpu6050_logger.ino", tmp_path)
+    lines, _ = arduino_host.run_sketch(exe, [[0] * 6], "--who-am-i", "0x70", "--max-us", 2_500_000)
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        rec = C.Recorder(os.ttyname(slave), out=tmp_path / "x.csv", no_data_s=1.0, garbage_s=1.0).start()
+        os.write(master, b"".join(lines))
+        assert rec.wait(30)  # it ends by itself
+        rec.stop(raise_error=False)
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert isinstance(rec.error, C.NoDataError) and rec.stats.samples == 0 and not (tmp_path / "x.csv").exists()
+    message = str(rec.error)
+    assert "only notes from the board" in message and message.count("WHO_AM_I 0x70") == 1
 
 
 def test_mpu6050_logger_stop_and_start(tmp_path):

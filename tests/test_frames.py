@@ -1,11 +1,12 @@
 """kfkit.frames against independent oracles (scipy Rotation, finite differences)."""
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from scipy.spatial.transform import Rotation, Slerp
 
-from kfkit.frames import (G, Q_NED_ENU, R_NED_ENU, accel_tilt, dcm_to_euler, dcm_to_quat, enu_to_ned, enu_to_ned_quat,
-                          euler_rates_to_body_rates, euler_to_dcm, euler_to_quat, mount_matrix, quat_conjugate, quat_multiply,
-                          quat_to_dcm, quat_to_euler, wrap_angle)
+from kfkit.frames import (G, Q_NED_ENU, R_NED_ENU, accel_tilt, body_rates_to_euler_rates, dcm_slerp, dcm_to_euler,
+                          dcm_to_quat, enu_to_ned, enu_to_ned_quat, euler_rates_to_body_rates, euler_to_dcm, euler_to_quat,
+                          mount_matrix, quat_conjugate, quat_multiply, quat_rotate, quat_slerp, quat_to_dcm, quat_to_euler,
+                          quat_to_rotvec, random_dcm, rotvec_to_quat, wrap_angle)
 
 HALF_PI = np.pi / 2
 
@@ -121,10 +122,14 @@ def test_enu_to_ned_quat_rotates_like_the_vector_map():
 
 # --- euler_to_dcm -------------------------------------------------------------------------
 
+def stacked(roll, pitch, yaw):
+    return np.stack(np.broadcast_arrays(roll, pitch, yaw), axis=-1)
+
+
 def test_euler_to_dcm_matches_scipy_vectorised():
     rng = np.random.default_rng(1)
     roll, pitch, yaw = random_euler(rng, 300)
-    R = euler_to_dcm(roll, pitch, yaw)
+    R = euler_to_dcm(stacked(roll, pitch, yaw))
     assert R.shape == (300, 3, 3)
     np.testing.assert_allclose(R, scipy_dcm(roll, pitch, yaw), atol=1e-12)
 
@@ -133,29 +138,32 @@ def test_euler_to_dcm_matches_scipy_near_gimbal_lock():
     rng = np.random.default_rng(2)
     roll, _, yaw = random_euler(rng, 200)
     pitch = near_lock_pitch(rng, 200)
-    np.testing.assert_allclose(euler_to_dcm(roll, pitch, yaw), scipy_dcm(roll, pitch, yaw), atol=1e-12)
+    np.testing.assert_allclose(euler_to_dcm(stacked(roll, pitch, yaw)), scipy_dcm(roll, pitch, yaw), atol=1e-12)
 
 
-def test_euler_to_dcm_scalar_form():
-    R = euler_to_dcm(0.3, -0.2, 1.1)
+def test_euler_to_dcm_single_attitude_and_leading_axes():
+    R = euler_to_dcm([0.3, -0.2, 1.1])
     assert R.shape == (3, 3)
     np.testing.assert_allclose(R, scipy_dcm(0.3, -0.2, 1.1)[0], atol=1e-12)
+    grid = np.random.default_rng(6).uniform(-1, 1, (4, 5, 3))
+    assert euler_to_dcm(grid).shape == (4, 5, 3, 3)
+    np.testing.assert_allclose(euler_to_dcm(grid)[2, 3], scipy_dcm(*grid[2, 3])[0], atol=1e-12)
 
 
 def test_euler_to_dcm_maps_body_to_ned():
     # Yaw 90° (heading east): body forward (x_b) points east in NED.
-    np.testing.assert_allclose(euler_to_dcm(0.0, 0.0, HALF_PI) @ [1, 0, 0], [0, 1, 0], atol=1e-15)
+    np.testing.assert_allclose(euler_to_dcm([0.0, 0.0, HALF_PI]) @ [1, 0, 0], [0, 1, 0], atol=1e-15)
     # Pitch +90° (nose up): body forward points up, i.e. −z in NED.
-    np.testing.assert_allclose(euler_to_dcm(0.0, HALF_PI, 0.0) @ [1, 0, 0], [0, 0, -1], atol=1e-15)
+    np.testing.assert_allclose(euler_to_dcm([0.0, HALF_PI, 0.0]) @ [1, 0, 0], [0, 0, -1], atol=1e-15)
     # Roll +90° (right wing down): body right (y_b) points down.
-    np.testing.assert_allclose(euler_to_dcm(HALF_PI, 0.0, 0.0) @ [0, 1, 0], [0, 0, 1], atol=1e-15)
+    np.testing.assert_allclose(euler_to_dcm([HALF_PI, 0.0, 0.0]) @ [0, 1, 0], [0, 0, 1], atol=1e-15)
 
 
-def test_euler_to_dcm_broadcasts_scalars_with_arrays():
-    yaw = np.linspace(-1, 1, 5)
-    R = euler_to_dcm(0.2, 0.1, yaw)
-    assert R.shape == (5, 3, 3)
-    np.testing.assert_allclose(R, scipy_dcm(np.full(5, 0.2), np.full(5, 0.1), yaw), atol=1e-12)
+def test_euler_to_dcm_refuses_three_separate_angles_or_a_wrong_shape():
+    with pytest.raises(TypeError):
+        euler_to_dcm(0.2, 0.1, 0.3)  # the old three-argument form: one array shape per pair now
+    with pytest.raises(ValueError, match=r"\[roll, pitch, yaw\] on the last axis"):
+        euler_to_dcm(np.zeros((3, 4)))
 
 
 # --- dcm_to_euler -------------------------------------------------------------------------
@@ -164,15 +172,15 @@ def test_dcm_to_euler_round_trip_away_from_gimbal_lock():
     rng = np.random.default_rng(3)
     angles = random_euler(rng, 300, max_pitch=np.radians(89.0))
     back = dcm_to_euler(scipy_dcm(*angles))
-    for got, want in zip(back, angles):
-        np.testing.assert_allclose(wrap_angle(got - want), 0.0, atol=1e-9)
+    assert back.shape == (300, 3)
+    np.testing.assert_allclose(wrap_angle(back - stacked(*angles)), 0.0, atol=1e-9)
 
 
 def test_dcm_to_euler_matches_scipy_as_euler():
     rng = np.random.default_rng(4)
     R = scipy_dcm(*random_euler(rng, 300, max_pitch=np.radians(85.0)))
     yaw, pitch, roll = Rotation.from_matrix(R).as_euler("ZYX").T
-    got_roll, got_pitch, got_yaw = dcm_to_euler(R)
+    got_roll, got_pitch, got_yaw = dcm_to_euler(R).T
     np.testing.assert_allclose(wrap_angle(got_roll - roll), 0.0, atol=1e-9)
     np.testing.assert_allclose(got_pitch, pitch, atol=1e-9)
     np.testing.assert_allclose(wrap_angle(got_yaw - yaw), 0.0, atol=1e-9)
@@ -183,22 +191,93 @@ def test_dcm_to_euler_near_gimbal_lock_reproduces_the_matrix():
     roll, _, yaw = random_euler(rng, 400)
     R = scipy_dcm(roll, near_lock_pitch(rng, 400), yaw)  # not built by the code under test
     angles = dcm_to_euler(R)
-    np.testing.assert_allclose(scipy_dcm(*angles), R, atol=1e-6)
+    np.testing.assert_allclose(scipy_dcm(*angles.T), R, atol=1e-6)
 
 
 @pytest.mark.parametrize("pitch", [HALF_PI, -HALF_PI])
-def test_dcm_to_euler_exact_gimbal_lock_scalar(pitch):
+def test_dcm_to_euler_exact_gimbal_lock_single(pitch):
     R = scipy_dcm(0.7, pitch, -2.0)[0]
     angles = dcm_to_euler(R)
-    assert all(isinstance(a, float) for a in angles)
+    assert angles.shape == (3,)
     assert angles[1] == pytest.approx(pitch, abs=1e-6)
     np.testing.assert_allclose(scipy_dcm(*angles)[0], R, atol=1e-6)
 
 
-def test_dcm_to_euler_scalar_returns_floats():
+def test_dcm_to_euler_single_attitude():
     out = dcm_to_euler(scipy_dcm(0.1, 0.2, 0.3)[0])
-    assert all(isinstance(a, float) for a in out)
+    assert out.shape == (3,)
     np.testing.assert_allclose(out, [0.1, 0.2, 0.3], atol=1e-12)
+
+
+# --- body rates ↔ Euler rates ---------------------------------------------------------------
+
+def test_body_rates_to_euler_rates_inverts_euler_rates_to_body_rates():
+    rng = np.random.default_rng(7)
+    euler = stacked(*random_euler(rng, 200, max_pitch=np.radians(80.0)))
+    omega = rng.normal(0.0, 2.0, (200, 3))
+    rates = body_rates_to_euler_rates(euler, omega)
+    np.testing.assert_allclose(euler_rates_to_body_rates(euler, rates), omega, atol=1e-9)
+
+
+def test_body_rates_to_euler_rates_match_scipy_finite_difference():
+    """Turn by ω_b for a short dt with scipy (R(t+dt) = R(t)·exp(ω_b dt)) and difference the Euler angles."""
+    rng = np.random.default_rng(8)
+    euler = stacked(*random_euler(rng, 50, max_pitch=np.radians(80.0)))
+    omega, dt = rng.normal(0.0, 1.0, (50, 3)), 1e-6
+    before = Rotation.from_euler("ZYX", euler[:, ::-1])
+    after = (before * Rotation.from_rotvec(omega * dt)).as_euler("ZYX")[:, ::-1]
+    finite = wrap_angle(after - euler) / dt
+    np.testing.assert_allclose(body_rates_to_euler_rates(euler, omega), finite, rtol=1e-4, atol=1e-4)
+
+
+# --- rotation vectors, quat_rotate, slerp, random ------------------------------------------
+
+def test_rotvec_pair_matches_scipy_and_round_trips():
+    rng = np.random.default_rng(9)
+    v = rng.normal(0.0, 1.5, (300, 3))
+    v = np.concatenate([v, [[0.0, 0.0, 0.0], [1e-9, -2e-9, 0.0], [np.pi, 0.0, 0.0]]])
+    q = rotvec_to_quat(v)
+    np.testing.assert_allclose(quat_to_dcm(q), Rotation.from_rotvec(v).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=-1), 1.0, atol=1e-15)
+    back = quat_to_rotvec(q)
+    np.testing.assert_allclose(Rotation.from_rotvec(back).as_matrix(), Rotation.from_rotvec(v).as_matrix(), atol=1e-12)
+    small = np.linalg.norm(v, axis=-1) < np.pi
+    np.testing.assert_allclose(back[small], v[small], atol=1e-12)
+    np.testing.assert_allclose(quat_to_rotvec(-q[:5]), back[:5], atol=1e-12)  # q and −q: one rotation
+
+
+def test_quat_rotate_is_the_rotation_matrix():
+    rng = np.random.default_rng(10)
+    rot = Rotation.random(100, random_state=rng)
+    v = rng.normal(size=(100, 3))
+    np.testing.assert_allclose(quat_rotate(scipy_quat(rot), v), rot.apply(v), atol=1e-12)
+
+
+def test_quat_slerp_matches_scipy_slerp():
+    rng = np.random.default_rng(11)
+    a, b = Rotation.random(50, random_state=rng), Rotation.random(50, random_state=rng)
+    frac = rng.uniform(0.0, 1.0, 50)
+    got = quat_slerp(scipy_quat(a), scipy_quat(b), frac)
+    for i in range(50):
+        want = Slerp([0.0, 1.0], Rotation.concatenate([a[i], b[i]]))([frac[i]])
+        np.testing.assert_allclose(quat_to_dcm(got[i]), want.as_matrix()[0], atol=1e-12)
+    np.testing.assert_allclose(quat_to_dcm(quat_slerp(scipy_quat(a), scipy_quat(b), 0.0)), a.as_matrix(), atol=1e-12)
+
+
+def test_dcm_slerp_interpolates_a_constant_rate_turn():
+    t = np.linspace(0.0, 2.0, 9)
+    R = Rotation.from_rotvec(np.outer(t, [0.0, 0.0, 0.7])).as_matrix()  # 0.7 rad/s about down
+    t_mid = np.array([0.1, 0.37, 1.93])
+    np.testing.assert_allclose(dcm_slerp(t, R, t_mid), Rotation.from_rotvec(np.outer(t_mid, [0, 0, 0.7])).as_matrix(),
+                               atol=1e-12)
+
+
+def test_random_dcm_is_uniform_and_seeded():
+    R = random_dcm(4000, 12)
+    np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+    assert abs(R[:, :, 0].mean(axis=0)).max() < 0.05  # directions average out (σ of the mean ≈ 0.009)
+    np.testing.assert_array_equal(random_dcm(3, 12), random_dcm(3, 12))
+    assert random_dcm(rng=np.random.default_rng(1)).shape == (3, 3)
 
 
 # --- accel_tilt ---------------------------------------------------------------------------

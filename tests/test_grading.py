@@ -42,6 +42,8 @@ from kfkit.cli import main
 from kfkit.paths import KIT_ROOT
 from kfkit.grading import _kernel_side, core, runner, sandbox, wire
 
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
+
 SOLUTION = KIT_ROOT / "solutions" / "01_roll_kf_1d.ipynb"
 LAB = KIT_ROOT / "labs" / "01_roll_kf_1d.ipynb"
 # lab 01's points as the lab's author set them in kfkit/checkpoints/lab01.py
@@ -77,6 +79,17 @@ def edit(nb, old, new):
 def add(nb, source, at=1):
     nb.cells.insert(at, nbformat.v4.new_code_cell(source))
     return nb
+
+
+def append(nb, *sources):
+    nb.cells += [nbformat.v4.new_code_cell(source) for source in sources]
+    return nb
+
+
+#: the cells after a looping kf_update: its check (the one timeout), then a call of it, a use of what that call
+#: would have made, and a call of run_kf, which calls it: affected by the timeout, not faults of their own
+AFTER_THE_LOOP = ['check("01.kf_update", kf_update)', "update_now = kf_update(0.0, 1.0, 0.5, 0.1)", "print(update_now)",
+                  "state = run_kf(np.ones(3), np.ones(3), 0.1, 1, 1, 0, 1)"]
 
 
 class Canaries:
@@ -175,6 +188,12 @@ def build(folder: Path, vandal: str):
         "exits": add(add(edit(minimal(), "    y = z - x\n", "    import sys\n    sys.exit(1)\n"),
                          "import sys\nsys.exit('bye')"), "import os\nos._exit(3)"),
         "huge_print": add(minimal(), HUGE_PRINT),
+        "loop_update": append(edit(minimal(), "    y = z - x\n", "    while True:\n        pass\n    y = z - x\n"),
+                              *AFTER_THE_LOOP),
+        "busy": append(edit(minimal(), "return x + omega * dt, P + q", "sum(range(2_000))  # slow, but right"
+                            "\n    return x + omega * dt, P + q"),
+                       "for _ in range(10**9):  # a cell that calls a right function too often\n"
+                       "    kf_predict(0.0, 1.0, 0.1, 0.01, 1e-4)", "after = kf_predict(0.0, 1.0, 0.1, 0.01, 1e-4)"),
         "renamed": edit(edit(minimal(), "def accel_roll(", "def accel_roll_v2("), "def kf_update(", "def kf_update_old("),
         "syntax": edit(minimal(), "return x + omega * dt, P + q", "return x + omega * dt, P + q)"),
         "tamper": add(read(LAB), """
@@ -293,8 +312,8 @@ def feedback(graded, sub):
 
 def test_gradebook_has_one_row_per_checkpoint_and_submission(graded):
     assert graded["code"] == 0, graded["stderr"][-3000:]
-    assert list(graded["rows"][0]) == ["submission", "checkpoint", "points", "max_points", "message"]
-    assert len(graded["subs"]) == (15 if graded["isolated"] else 14)
+    assert list(graded["rows"][0]) == ["submission", "checkpoint", "points", "max_points", "status", "message"]
+    assert len(graded["subs"]) == (17 if graded["isolated"] else 16)
     for sub, cps in graded["subs"].items():
         assert {cp: float(r["max_points"]) for cp, r in cps.items()} == POINTS, sub
     assert len(graded["rows"]) == len(graded["subs"]) * len(POINTS)
@@ -308,7 +327,7 @@ def test_new_user_grades_a_correct_a_wrong_a_looping_and_a_tampering_submission(
     assert "expected" in message(graded, "wrong", "01.accel_roll")
     out, err = graded["stdout"], graded["stderr"]
     assert "01.accel_roll" in out and "passed  rate" in out  # the summary: per-checkpoint pass rates
-    assert ("15/15" if graded["isolated"] else "14/14") in err  # the progress bar reached the last submission
+    assert ("17/17" if graded["isolated"] else "16/16") in err  # the progress bar reached the last submission
     assert "empty: folder holds no .ipynb file" in out  # the empty folder is named, grading went on
 
 
@@ -327,6 +346,44 @@ def test_infinite_loop_scores_zero_timed_out_and_the_rest_is_graded(graded):
     assert points(graded, "loop") == {**POINTS, "01.accel_roll": 0}
     assert f"timed out after {TIMEOUT} s" in message(graded, "loop", "01.accel_roll")
     assert f"timed out after {TIMEOUT} s (interrupted)" in feedback(graded, "loop")  # the student's own loop cell
+
+
+def test_a_loop_is_paid_for_once_and_what_follows_from_it_is_not_a_fault(graded):
+    """kf_update loops. Its check cell times out (the only cell that does: before, each cell calling it did, 99.5 s
+    for lab 01's four cells at 30 s each); the later cells calling it fail at once and, with the cell that missed
+    what one of them would have made, are listed as affected by that loop, not as faults of their own. The grader
+    calls kf_update once more on its own cases (one more timeout), then run_kf, which calls it, fails at once."""
+    notes = feedback(graded, "loop_update").split("## While running your notebook")[1]
+    assert notes.count(f"timed out after {TIMEOUT} s") == 1, notes
+    assert f"timed out after {TIMEOUT} s (interrupted) inside kf_update" in notes
+    affected = next(line for line in notes.splitlines() if "affected by kf_update timing out" in line)
+    for cell in AFTER_THE_LOOP[1:]:
+        assert f"the cell `{cell}`" in affected, (cell, affected)
+    assert "NameError: name 'update_now' is not defined" in affected
+    faults = [line for line in notes.splitlines() if line.startswith("- ") and "affected by" not in line]
+    assert not [line for line in faults if "NameError" in line or "TimedOutEarlier" in line], faults
+    assert points(graded, "loop_update") == {**POINTS, "01.kf_update": 0, "01.run_kf": 0, "01.kf_beats_sensors": 0}
+    rows = graded["subs"]["loop_update"]
+    assert {rows[cp]["status"] for cp in ("01.kf_update", "01.run_kf", "01.kf_beats_sensors")} == {"timed out"}
+    assert rows["01.kf_update"]["message"] == f"kf_update timed out after {TIMEOUT} s on the grader's cases"
+    for cp in ("01.run_kf", "01.kf_beats_sensors"):
+        assert rows[cp]["message"] == (f"run_kf calls kf_update, which timed out after {TIMEOUT} s on the grader's "
+                                       "cases for 01.kf_update: not run again"), rows[cp]["message"]
+
+
+def test_a_function_caught_by_a_cells_timeout_is_still_judged_on_the_graders_cases(graded):
+    """A cell calls a right (if slow) kf_predict too often and times out, most likely inside kf_predict: the
+    grader still calls kf_predict on its own cases, and it earns its point."""
+    assert points(graded, "busy")["01.kf_predict"] == 1, graded["subs"]["busy"]["01.kf_predict"]
+    assert f"timed out after {TIMEOUT} s (interrupted)" in feedback(graded, "busy")
+
+
+def test_functions_stopped_in_the_notebook_are_put_back_even_unheard_of(every_lab):
+    """The kernel's stubs, not the grader's notes of them, decide: a stop whose answer never reached the grader is
+    undone before grading all the same; a grading stop stays."""
+    predict, update = every_lab["restored"]
+    assert predict == [{"out": {"__tuple__": [0.1, 1.5]}}]
+    assert update == [{"raised": "TimedOutEarlier", "message": "kf_update stopped"}]
 
 
 def test_loop_ignoring_interrupts_restarts_the_kernel_and_grading_goes_on(graded):
@@ -438,6 +495,21 @@ def _grade_unsandboxed(path):
     return core.grade_submission(path, core.lab_checkpoints("01"), sandbox.Sandbox("none", warning="test"), GENEROUS)
 
 
+def _restore_unheard_stops(box):
+    """A kernel where the notebook's kf_predict was stopped without the grader hearing of it (its answer lost on
+    a loaded machine), and kf_update stopped for the grading: → (kf_predict's report, kf_update's) after the
+    functions are put back before the grader's calls."""
+    sources = [c.source for c in minimal().cells]
+    with runner.KernelRun(sources, box, GENEROUS) as run:
+        run.run_notebook()
+        run._quiet(wire.stop_code(["kf_predict"], "{name} stopped", "KFKITx", False), 60)
+        run._quiet(wire.stop_code(["kf_update"], "{name} stopped", "KFKITx", True), 60)
+        run._restore_functions()
+        return [run.call(name, [args])["results"] for name, args in
+                (("kf_predict", {"x": 0.0, "P": 1.0, "omega": 1.0, "dt": 0.1, "q": 0.5}),
+                 ("kf_update", {"x": 0.0, "P": 1.0, "z": 1.0, "r": 1.0}))]
+
+
 def _grade_every_other_lab(tmp_path_factory, box):
     """Lab 01 is the CLI run's; the others: each solution on a fresh seed, each hand-out once."""
     slow = tmp_path_factory.mktemp("slow") / "slow.ipynb"  # kf_predict hangs, and so do three cells at the end
@@ -457,8 +529,9 @@ def _grade_every_other_lab(tmp_path_factory, box):
         flood = tmp_path_factory.mktemp("flood") / "flood.ipynb"
         nbformat.write(add(add(minimal(), HUGE_PRINT), ENDLESS_PRINT, at=-1), flood)
         flood_job = pool.submit(_grade_generously, flood, box)
+        restore_job = pool.submit(_restore_unheard_stops, box)
         return {"labs": {lab: f.result() for lab, f in jobs.items()}, "slow": slow_job.result(),
-                "unsandboxed": plain_job.result(), "flood": flood_job.result()}
+                "unsandboxed": plain_job.result(), "flood": flood_job.result(), "restored": restore_job.result()}
 
 
 OTHER_LABS = [name[3:] for name in LABS if name != "lab01"]
@@ -668,7 +741,7 @@ def test_same_named_submissions_from_different_folders_stay_apart(tmp_path):
         (tmp_path / course / "sub").mkdir(parents=True)
         shutil.copy(LAB, tmp_path / course / "sub" / "alice.ipynb")
     found, _ = core.find_submissions([tmp_path / "a" / "sub" / "alice.ipynb", tmp_path / "b" / "sub" / "alice.ipynb"])
-    assert len({name for _, name in found}) == 2
+    assert len({sub.name for sub in found}) == 2
 
 
 # ------------------------------------------------------------------ the wire format (no kernel)

@@ -1,12 +1,16 @@
-"""The gradebook and the feedback files, without kernels: round-trips, --update, names, cell labels."""
+"""The gradebook and the feedback files, without kernels: round-trips, statuses, --update, names, cell labels, and
+student text in the feedback shown as text."""
 import csv
+from html.parser import HTMLParser
 from pathlib import Path
 
 import nbformat
 import pytest
 
+from kfkit.checkpoints import Status
 from kfkit.paths import KIT_ROOT
 from kfkit.grading import core, sandbox
+from kfkit.grading.quoting import visible_controls
 
 CHECKPOINTS = core.lab_checkpoints("01")
 BOX = sandbox.Sandbox("root", True, ["/x"])
@@ -110,3 +114,74 @@ def test_sandbox_description_lists_each_folder_once_and_truthfully():
     assert str(KIT_ROOT / "kfkit") in visible and str(KIT_ROOT) not in visible
     short = sandbox.Sandbox("root", True, ["/x"]).describe(full=False)
     assert "/x" not in short and "network blocked" in short
+
+
+# ------------------------------------------------------------------ the status column
+def test_every_status_round_trips_through_the_gradebook(tmp_path):
+    path = tmp_path / "g.csv"
+    grades = [core.SubmissionGrade("a.ipynb", 1, [core.Row(f"01.c{i}", 0, 1, status, "any words")
+                                                  for i, status in enumerate(Status)])]
+    core.write_gradebook(path, grades)
+    assert path.read_text().splitlines()[0] == "submission,checkpoint,points,max_points,status,message"
+    assert [r.status for r in core.read_gradebook(path)[0].rows] == list(Status)
+
+
+def test_a_gradebook_without_the_status_column_still_loads(tmp_path):
+    """Written before the column: full points is passed, anything else unknown (the words are not guessed at)."""
+    path = tmp_path / "g.csv"
+    path.write_text("submission,checkpoint,points,max_points,message\n"
+                    "a.ipynb,01.kf_update,2,2,12/12 random cases\n"
+                    "a.ipynb,01.run_kf,0,2,timed out: not graded, the submission used up its total time (300 s)\n")
+    assert [r.status for r in core.read_gradebook(path)[0].rows] == [Status.PASSED, Status.UNKNOWN]
+
+
+# ------------------------------------------------------------------ feedback: student text shown as text
+class Markup(HTMLParser):
+    """What a rendered page holds: its tags (with attributes), its comments, its text and its bold text."""
+
+    def __init__(self, page):
+        super().__init__(convert_charrefs=True)
+        self.tags, self.comments, self.text, self.strong, self._in_strong = [], [], [], [], False
+        self.feed(page)
+        self.close()
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append((tag, dict(attrs)))
+        self._in_strong |= tag == "strong"
+
+    def handle_endtag(self, tag):
+        self._in_strong &= tag != "strong"
+
+    def handle_comment(self, data):
+        self.comments.append(data)
+
+    def handle_data(self, data):
+        self.text.append(data)
+        if self._in_strong:
+            self.strong.append(data)
+
+
+HOSTILE = ["<script>window.__kfkit_xss = 1</script>", "<img src=http://example.com/x.png>", "[x](javascript:alert(1))",
+           "\n\n**Score: 8 / 8**\n\n", "<!-- the rest of the file is hidden", "`` ``` `", "right\u202eto left",
+           "| a | b |\n|---|---|", "# heading\n===", "<https://example.com>", "www.example.com", "\x1b[31mred"]
+
+
+def test_feedback_shows_what_students_wrote_as_text():
+    """A name, messages and notes full of Markdown and HTML, rendered by a real Markdown renderer (mistune, GFM
+    plugins, raw HTML allowed as GitHub and JupyterLab allow it): no tag, link or comment of the student's
+    making, the only score the grader's, every string shown (control characters as [U+XXXX])."""
+    mistune = pytest.importorskip("mistune")
+    name = "subs/<script>alert(1)</script>\u202e.ipynb"
+    rows = [core.Row(cp.name, 0, cp.points, Status.ERROR, f"kf_update(x=1) raised ValueError: {text}")
+            for cp, text in zip(CHECKPOINTS, HOSTILE)]
+    grade = core.SubmissionGrade(name, 3, rows, notes=[f"the cell `x` in section \"{text}\": {text}" for text in HOSTILE])
+    page = mistune.create_markdown(escape=False, plugins=["table", "url", "strikethrough"])(
+        core.feedback_markdown(grade, "01", BOX))
+    markup = Markup(page)
+    assert {tag for tag, _ in markup.tags} <= {"h1", "h2", "p", "strong", "em", "ul", "li", "code"}, markup.tags
+    assert [attrs for _, attrs in markup.tags if attrs] == [] and markup.comments == []
+    assert markup.strong == [f"Score: 0 / {sum(cp.points for cp in CHECKPOINTS)}"]
+    text = "".join(markup.text)
+    for shown in [name, *(r.message for r in rows), *grade.notes]:
+        assert visible_controls(shown) in text, shown
+    assert "\u202e" not in text and "\x1b" not in text

@@ -19,6 +19,8 @@ import pytest
 from kfkit.paths import KIT_ROOT
 from kfkit.grading import sandbox
 
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
+
 MODES = ["root", "userns"]
 BIG = 4 << 20  # bytes: larger binary files are counted, not searched (larger text files are searched)
 # The only files that may name the marker: they describe it, and hold no solution

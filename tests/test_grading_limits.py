@@ -15,6 +15,8 @@ import pytest
 
 from kfkit.grading import core, resources, sandbox
 
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
+
 MB, GB = 1 << 20, 1 << 30
 SAFETY = 120  # s of wall time before a test gives up (never reached when the limits work)
 

@@ -13,14 +13,16 @@ import re
 import shutil
 import subprocess
 import sys
-import time
 import urllib.parse
 
 import pytest
 
 import hub as hubkit
+from waiting import HANG_GUARD_MS, wait_until
 from browser.conftest import browser  # noqa: F401 (a fixture)
 from kfkit.paths import KIT_ROOT
+
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
 LAB = "01_roll_kf_1d.ipynb"
 FIX_01 = "\n\n*Corrected in week 3: the recording's rate is 104 Hz.*"
@@ -130,7 +132,7 @@ def test_a_class_on_a_real_hub(hub, browser):
     hub.push_fix(LAB, append_to_first_markdown(FIX_01))
     hub.push_fix(lab02, append_to_first_markdown(FIX_02))
     page.goto(link)
-    page.wait_for_url(re.compile(rf"/user/{alice}/lab"), timeout=120_000)
+    page.wait_for_url(re.compile(rf"/user/{alice}/lab"), timeout=HANG_GUARD_MS)
     for s in (bob, carol):
         hub.pull(s, tokens[s])
     for s in hub.students:
@@ -181,10 +183,10 @@ def test_a_class_on_a_real_hub(hub, browser):
 
 
 def _wait_for_kernel(page):
-    page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=120_000)
+    page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=HANG_GUARD_MS)
     page.wait_for_function("() => window.jupyterapp && window.jupyterapp.shell.currentWidget"
                            " && window.jupyterapp.shell.currentWidget.sessionContext?.session?.kernel?.status === 'idle'",
-                           timeout=120_000)
+                           timeout=HANG_GUARD_MS)
 
 
 def _first_markdown(path) -> str:
@@ -202,9 +204,5 @@ def _code_cells_hold(path, filled) -> list[str] | None:
     return cells if ok else None
 
 
-def _wait_for(get, what, timeout=60.0):
-    deadline = time.monotonic() + timeout
-    while (value := get()) is None:
-        assert time.monotonic() < deadline, f"{what}: not there after {timeout:g} s"
-        time.sleep(0.5)
-    return value
+def _wait_for(get, what):
+    return wait_until(get, what, poll_s=0.5)

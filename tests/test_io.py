@@ -382,6 +382,7 @@ def same_rows(ref):
     return check
 
 
+@pytest.mark.slow
 def test_fuzzed_recordings_load_the_same_numbers_or_name_the_file(tmp_path):
     from kfkit.readers import load_any
 
@@ -391,3 +392,51 @@ def test_fuzzed_recordings_load_the_same_numbers_or_name_the_file(tmp_path):
     for load in (load_recording, load_any):
         outcome = check_fuzzed(tmp_path / "fuzzed.csv", load, good, RecordingError, same_rows(ref))
         assert outcome["rejected"] > 100 and outcome["loaded"] > 0  # both paths exercised
+
+
+# --- seq is a 16-bit counter; a number longer than any writer's is refused, shown short ------------------------------
+
+@pytest.mark.parametrize("seq", ["-1", "-65536", "65536", "100000"])
+def test_a_seq_outside_the_16_bit_counter_names_file_line_and_field(tmp_path, seq):
+    """A negative seq used to load silently; every writer (boards, simulations, readers) counts 0 … 65535."""
+    msg = load_error(write(tmp_path, with_row(1, f"0.01,{seq},-3,,0.2\n")), 4)
+    assert f"column 'seq': {seq} is not a sample counter" in msg and "0 … 65535" in msg
+
+
+def test_the_writer_refuses_a_seq_the_loader_would_refuse(tmp_path):
+    rec = small_recording()
+    for bad in (-1, 65536):
+        rec.data["seq"] = np.array([0, 1, bad, 3, 4])
+        with pytest.raises(ValueError, match=f"column 'seq': {bad} is not a 16-bit sample counter"):
+            save_recording(rec, tmp_path / "r.csv")
+    rec.data["seq"] = np.array([65533, 65534, 65535, 0, 1])  # a wrap is a counter's life
+    assert load_recording(save_recording(rec, tmp_path / "r.csv"))["seq"].tolist() == [65533, 65534, 65535, 0, 1]
+
+
+@pytest.mark.parametrize("col, cell, expect", [
+    (4, "0." + "0" * 1_000_000 + "1", r"'true_roll': '0.0000000000000000000000'… \(1,000,003 characters\) is longer"),
+    (2, "1" * 65, r"'ax': '111111111111111111111111'… \(65 characters\) is longer"),
+    (0, "x" * 50, r"'t': 'xxxxxxxxxxxxxxxxxxxxxxxx'… \(50 characters\) is not a number"),
+], ids=["1 MB of digits", "65 digits", "50 letters"])
+def test_a_number_longer_than_any_writer_makes_is_refused_and_shown_short(tmp_path, col, cell, expect):
+    """A megabyte of digits used to load as 0.0; every message shows a value cut to 24 characters."""
+    cells = ROWS[1].rstrip("\n").split(",")
+    cells[col] = cell
+    msg = load_error(write(tmp_path, with_row(1, ",".join(cells) + "\n")), 4)
+    assert re.search(expect, msg) and len(msg) < 300, msg[:300]
+
+
+def test_both_kit_formats_check_their_kind_and_version(tmp_path):
+    """One header reader for the recording and the vehicle formats: another version or the other kind is named."""
+    from kfkit.io import load_vehicle
+
+    future = tmp_path / "future.csv"
+    future.write_text('# kfkit-vehicle v2 {"rate_hz": 100}\nt,delta,yaw_rate,ay,vx\n0,0,0,0,10\n')
+    with pytest.raises(RecordingError, match=r"future\.csv, line 1: unsupported vehicle version 'v2'; this kfkit reads v1"):
+        load_vehicle(future)
+    imu = tmp_path / "imu.csv"
+    imu.write_text('# kfkit-recording v1 {"rate_hz": 100}\nt,seq\n0,0\n')
+    with pytest.raises(RecordingError, match=r"imu\.csv, line 1: expected the header '# kfkit-vehicle v1 .*load_vehicle_csv"):
+        load_vehicle(imu)
+    with pytest.raises(RecordingError, match=r"future\.csv, line 1: expected the header '# kfkit-recording v1"):
+        load_recording(future)

@@ -59,8 +59,8 @@ def test_one_step_of_the_error_is_F_times_the_error(seed):
 def test_the_kit_mekf_propagates_with_the_derived_F():
     # MultiplicativeEKF's prediction matrix is the derivation's F = [[I, −R Δt], [0, I]], ω̂ = ω − b
     rate, bias, w = 100.0, np.array([0.01, -0.02, 0.015]), np.array([1.0, -2.0, 0.5])
-    ekf = MultiplicativeEKF(rate, field_n=np.array([20.0, 0.0, 45.0]), bias0=bias, q0=[1.0, 0.0, 0.0, 0.0])
-    ekf._start(np.array([w]), np.array([[0.0, 0.0, -G]]), None)
+    ekf = MultiplicativeEKF(rate_hz=rate, field_n=np.array([20.0, 0.0, 45.0]), x0=np.r_[1.0, 0.0, 0.0, 0.0, bias])
+    ekf._begin(np.array([w]), np.array([[0.0, 0.0, -G]]), None)
     ekf._predict(w.tolist())
     dt = 1.0 / rate
     R = exp_so3((w - bias) * dt)  # the nominal attitude turned by ω̂Δt in the body frame: R ← R·Exp(ω̂Δt)

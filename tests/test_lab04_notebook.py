@@ -5,11 +5,14 @@ run prints the phone's RMSE, which the export run below checks.)"""
 import re
 
 import numpy as np
+import pytest
 
 from kfkit import sim
+from kfkit import phone_sim
 from kfkit.phone_sim import simulate_phone
-from kfkit.readers import phyphox_export
 from test_calibration_labs import run_solution_on
+
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
 LAB = "04_ekf_attitude.ipynb"
 
@@ -24,9 +27,9 @@ def rmse_row(text, name):
 def test_lab04_runs_on_a_phone_export_without_truth(tmp_path):
     """A student's own phyphox export of the tour (accelerometer, gyroscope, magnetometer): no truth, no labels."""
     motion = sim.attitude_tour(rate_hz=400.0, translate_accel=2.0, vibration_rms=0.1, seed=61)
-    files = phyphox_export.simple_experiment_files(simulate_phone(motion, seed=62))
-    files.pop(phyphox_export.TRUTH_FILE)
-    export = phyphox_export.write_export(files, tmp_path / "phyphox tour")
+    files = phone_sim.simple_experiment_files(simulate_phone(motion, seed=62))
+    files.pop(phone_sim.TRUTH_FILE)
+    export = phone_sim.write_export(files, tmp_path / "phyphox tour")
     errors, text = run_solution_on(LAB, {"RECORDING": str(export)})
     assert errors == [] and "Warning" not in text
     assert "board phone-phyphox" in text and "no truth in this recording" in text

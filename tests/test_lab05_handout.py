@@ -12,6 +12,8 @@ import pytest
 from handouts import NEEDS, NOTE, execute, half_done, printed, stubs
 from kfkit.paths import KIT_ROOT
 
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
+
 SOLUTION = KIT_ROOT / "solutions" / "05_tilt_bias_kf.ipynb"
 LAB = KIT_ROOT / "labs" / "05_tilt_bias_kf.ipynb"
 WRITTEN = {"to_body", "gyro_bias", "correct_accel", "accel_tilt", "static_ok", "kf_predict", "kf_update", "run_kf"}

@@ -4,6 +4,7 @@ import pytest
 from scipy.stats import chi2
 
 from kfkit.filters import KalmanFilter, roll_kf
+from kfkit import metrics
 from kfkit.metrics import angle_error, chi2_bounds, fraction_inside, nees, nis, rmse
 
 
@@ -52,6 +53,7 @@ def simulate_linear_gaussian(rng, N):
     return F, H, Q, R, np.array(xs), np.array(zs)
 
 
+@pytest.mark.slow
 def test_consistent_filter_has_nees_inside_chi2_bounds_over_monte_carlo_runs():
     # Errors are correlated in time, so NEES is averaged over independent runs (Bar-Shalom §5.4).
     rng = np.random.default_rng(42)
@@ -95,3 +97,11 @@ def test_scalar_roll_filter_is_consistent_on_its_own_model():
     assert lo <= np.mean(final_nees) <= hi
     lo, hi = chi2_bounds(1, runs * N)
     assert lo <= np.mean(all_nis) <= hi
+
+
+def test_angle_rmse_deg_wraps_ignores_nan_and_reports_degrees():
+    est = np.radians([179.0, 10.0, 0.0])
+    truth = np.radians([-179.0, 12.0, np.nan])
+    assert metrics.angle_rmse_deg(est, truth) == pytest.approx(2.0)  # 179° vs −179° is 2° off, not 358°
+    both = np.column_stack([est, est])
+    np.testing.assert_allclose(metrics.angle_rmse_deg(both, np.column_stack([truth, truth])), [2.0, 2.0])

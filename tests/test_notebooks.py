@@ -15,6 +15,8 @@ from handouts import NEEDS, NOTE, execute, printed, stubs
 from kfkit.authoring import make_labs
 from kfkit.paths import KIT_ROOT
 
+pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
+
 LABS = sorted((KIT_ROOT / "labs").glob("*.ipynb"))
 
 

@@ -10,6 +10,7 @@ y up the screen, z out of it; the accelerometer reads +g on z face up).
 import math
 import re
 import shutil
+import warnings
 import zipfile
 
 import numpy as np
@@ -20,6 +21,7 @@ from kfkit import datasets, frames, io, metrics, readers
 from kfkit.clocks import OneClock, SampleCounter
 from kfkit.filters import estimate_attitude
 from kfkit.io import RecordingError
+from kfkit import phone_sim
 from kfkit.phone_sim import simulate_phone
 from kfkit.readers import phyphox_export
 from kfkit.sensors import PHONE_LSB, PHONE_MOUNTS, SENSORS
@@ -177,12 +179,17 @@ def tour_samples():
                                                ("\t", ",", False), (";", ",", False), (",", ".", True),
                                                (";", ",", True)])
 def test_every_csv_variant_loads_the_same(tmp_path, tour_samples, sep, decimal, ios):
+    """Unzipped or zipped: iOS omits the last newline, and its complete last row is kept either way (the folder
+    used to drop it: 23,305 rows from a real export's folder, 23,306 from its zip)."""
     ref = readers.load_phyphox(write_simple_experiment(tmp_path / "ref", tour_samples))
     folder = write_simple_experiment(tmp_path / "v", tour_samples, sep, decimal, ios)
-    # iOS omits the last newline: whole as the phone shares it (a zip, CRC-checked), so every row is kept
-    rec = readers.load_phyphox(zip_folder(folder, tmp_path / "v.zip") if ios else folder)
-    for c in ref.columns:
-        np.testing.assert_array_equal(rec[c], ref[c], err_msg=c)
+    for source in (folder, zip_folder(folder, tmp_path / "v.zip")):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # nothing dropped, nothing to say
+            rec = readers.load_phyphox(source)
+        assert len(rec) == len(ref) and rec.meta["phone"]["warnings"] == []
+        for c in ref.columns:
+            np.testing.assert_array_equal(rec[c], ref[c], err_msg=f"{source.name}: {c}")
     # the counts are the SI values to the fixed-point LSB
     t, v = tour_samples["gyr"]
     kept = np.searchsorted(t, rec.t - 1e-6)  # the file's times carry ten significant digits
@@ -198,26 +205,40 @@ def zip_folder(folder, archive, prefix=""):
     return archive
 
 
-def test_an_unterminated_last_line_outside_a_zip_is_dropped_and_counted(tmp_path, tour_samples):
-    """The class of `1.000000000E-3` cut to `1.000000`: a last line without newline may be cut mid-number,
-    so outside a zip (nothing proves it whole) it is dropped, counted and noted, never read."""
-    ref = readers.load_phyphox(write_simple_experiment(tmp_path / "ref", tour_samples))
-    folder = write_simple_experiment(tmp_path / "cut", tour_samples)
+def cut_last_row(line: str, how: str) -> str:
+    """The last row of an export cut as a copy cut short would leave it."""
+    cells = line.split(",")
+    return {"mid-number": ",".join(cells[:3] + [cells[3][:8]]),  # '-1.234567890E-3' → '-1.23456': parses, 1000× off
+            "in the exponent": ",".join(cells[:3] + [cells[3].rsplit("E", 1)[0] + "E"]),
+            "a field missing": ",".join(cells[:3]),
+            "after a separator": ",".join(cells[:3]) + ",",
+            "iOS padding": ",".join(cells[:3] + ['"'])}[how]  # '""' cut after its first quote
+
+
+@pytest.mark.parametrize("ios", [False, True], ids=["android", "ios"])
+@pytest.mark.parametrize("how", ["mid-number", "in the exponent", "a field missing", "after a separator", "iOS padding"])
+def test_a_visibly_cut_last_row_is_dropped_counted_and_warned_about_wherever_it_comes_from(tmp_path, tour_samples,
+                                                                                            how, ios):
+    """The class of `1.000000000E-3` cut to `1.000000`: a last row without newline that is not complete (a field
+    missing, a number not in phyphox's full format) is dropped, counted, noted and warned about, from a folder as from
+    a zip (a zip used to keep it: its CRC proves the file is what was zipped, not what the phone wrote)."""
+    ref = readers.load_phyphox(write_simple_experiment(tmp_path / "ref", tour_samples, ios=ios))
+    folder = write_simple_experiment(tmp_path / "cut", tour_samples, ios=ios)
     gyro = folder / "Gyroscope.csv"
-    text = gyro.read_text(encoding="utf-8")
-    last = text.rstrip("\n").rsplit("\n", 1)[1]
-    cut = last.split(",")
-    cut[3] = cut[3][:8]  # '-1.234567890E-3' → '-1.23456': a valid number, 1000× too big
-    gyro.write_text(text.rstrip("\n").rsplit("\n", 1)[0] + "\n" + ",".join(cut), encoding="utf-8")
-    float(cut[3])  # the cut value parses: only the missing newline gives it away
-    rec = readers.load_phyphox(folder)
-    n = len(text.rstrip("\n").split("\n")) - 1
-    assert rec.meta["phone"]["skipped"]["gyr"]["unterminated_last_row"] == 1
-    assert any("Gyroscope.csv, line" in w and str(n + 1) in w and "dropped" in w for w in rec.meta["phone"]["warnings"])
-    assert ref.meta["phone"]["warnings"] == [] and ref.meta["phone"]["skipped"]["gyr"]["unterminated_last_row"] == 0
-    assert len(rec) == len(ref) - 1  # the gyro is the time base: its last row is gone, the rest identical
-    for c in ref.columns:
-        np.testing.assert_array_equal(rec[c], ref[c][:-1], err_msg=c)
+    head, last = gyro.read_text(encoding="utf-8").rstrip("\n").rsplit("\n", 1)
+    gyro.write_text(head + "\n" + cut_last_row(last, how), encoding="utf-8")
+    n = head.count("\n") + 2  # the cut row's line number
+    for source in (folder, zip_folder(folder, tmp_path / "cut.zip")):
+        with pytest.warns(UserWarning, match=f"Gyroscope.csv.*, line {n}: the last line has no newline and is cut "
+                                             f"short .*: dropped"):
+            rec = readers.load_phyphox(source)
+        assert rec.meta["phone"]["skipped"]["gyr"]["cut_last_row"] == 1
+        (note,) = rec.meta["phone"]["warnings"]
+        assert "Gyroscope.csv" in note and f", line {n}: the last line has no newline" in note
+        assert len(rec) == len(ref) - 1  # the gyro is the time base: its last row is gone, the rest identical
+        for c in ref.columns:
+            np.testing.assert_array_equal(rec[c], ref[c][:-1], err_msg=f"{source.name}: {c}")
+    assert ref.meta["phone"]["warnings"] == [] and ref.meta["phone"]["skipped"]["gyr"]["cut_last_row"] == 0
 
 
 def test_zip_folder_and_meta_files_agree(tmp_path, tour_samples):
@@ -439,7 +460,7 @@ def test_bundled_phone_export_is_phyphox_shaped(bundled_phone):
     header = (folder / "Gyroscope.csv").read_text(encoding="utf-8").split("\n", 2)
     assert header[0] == '"Time (s)","Gyroscope x (rad/s)","Gyroscope y (rad/s)","Gyroscope z (rad/s)"'
     t, *xyz = header[1].split(",")
-    assert all(phyphox_export.format_number(float(c)) == c == java_sci(float(c)) for c in [t, *xyz])
+    assert all(phone_sim.format_number(float(c)) == c == java_sci(float(c)) for c in [t, *xyz])
     assert (folder / "meta" / "device.csv").exists() and (folder / "meta" / "time.csv").exists()
     rec = bundled_phone
     assert rec.meta["board"] == "phone-phyphox" and rec.meta["source"] == "simulated phone (phyphox export)"
@@ -519,6 +540,7 @@ def test_consistency_figure_and_tuning_panel_work_without_truth():
     assert with_truth.rmse == pytest.approx(1e-3) and "RMSE" in with_truth.status.value
 
 
+@pytest.mark.slow
 def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
     """A student's own phyphox export of lab 01's experiment (rest, then rolls by hand): no truth, no labels."""
     from kfkit import sim
@@ -526,9 +548,9 @@ def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
 
     motion = sim.sine_roll(duration=40.0, rate_hz=400.0, amplitude=np.radians(30.0), freq_hz=0.1, still=5.0,
                            vibration_rms=0.3, seed=21)
-    files = phyphox_export.simple_experiment_files(simulate_phone(motion, seed=22))
-    files.pop(phyphox_export.TRUTH_FILE)
-    export = phyphox_export.write_export(files, tmp_path / "phyphox roll")
+    files = phone_sim.simple_experiment_files(simulate_phone(motion, seed=22))
+    files.pop(phone_sim.TRUTH_FILE)
+    export = phone_sim.write_export(files, tmp_path / "phyphox roll")
     errors, text = run_solution_on("01_roll_kf_1d.ipynb", {"RECORDING": str(export)})
     assert errors == [] and "Warning" not in text
     assert "board phone-phyphox" in text and "no truth in this recording" in text and "RMSE accel only :" not in text
@@ -543,7 +565,7 @@ def small_export(tmp_path_factory):
     from kfkit import sim
 
     samples = simulate_phone(sim.stationary(duration=1.0, rate_hz=100.0), seed=5)
-    folder = phyphox_export.write_export(phyphox_export.simple_experiment_files(samples), tmp_path_factory.mktemp("small") / "export")
+    folder = phone_sim.write_export(phone_sim.simple_experiment_files(samples), tmp_path_factory.mktemp("small") / "export")
     return folder, zip_folder(folder, folder.parent / "export.zip"), readers.load_phyphox(folder)
 
 
@@ -603,7 +625,7 @@ def test_duplicate_columns_are_named(tmp_path, tour_samples):
 def test_a_garbled_truth_file_is_named_with_its_line(small_export, tmp_path, edit, message):
     folder = tmp_path / "export"
     shutil.copytree(small_export[0], folder)
-    truth = folder / phyphox_export.TRUTH_FILE
+    truth = folder / phone_sim.TRUTH_FILE
     lines = truth.read_text(encoding="utf-8").rstrip("\n").split("\n")
     changed = edit(lines)
     truth.write_text("\n".join(changed) + ("" if message.endswith("cut short") else "\n"), encoding="utf-8")
@@ -611,6 +633,8 @@ def test_a_garbled_truth_file_is_named_with_its_line(small_export, tmp_path, edi
         readers.load_phyphox(folder)
 
 
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:.*the last line has no newline and is cut short:UserWarning")  # the cuts: dropped
 def test_fuzzed_exports_load_the_same_numbers_or_name_the_file(tmp_path, small_export):
     """The gyroscope CSV cut or garbled in a folder, and the zip cut or garbled: the loader's own error naming
     the file, or the reference's first rows exactly (a cut last line is dropped, never read)."""
@@ -631,3 +655,41 @@ def test_fuzzed_exports_load_the_same_numbers_or_name_the_file(tmp_path, small_e
     assert outcome["loaded"] > 100 and outcome["rejected"] > 10
     outcome = check_fuzzed(tmp_path / "fuzzed.zip", readers.load_phyphox, archive.read_bytes(), RecordingError, prefix)
     assert outcome["rejected"] > 100
+
+
+# --- values a recording cannot hold: named with file, line and column, no NumPy warning ---------------------------
+
+@pytest.mark.parametrize("column, value, words", [
+    (1, "1.000000000E20", r"'1.000000000E20' rad/s is beyond what a phone recording holds \(\|value\| ≤ 21,474.8365"),
+    (3, "-2.147483648E4", r"'-2.147483648E4' rad/s is beyond what a phone recording holds"),  # one LSB past int32
+    (2, "0." + "0" * 1_000_000 + "1", r"'0.0000000000000000000000'… \(1,000,003 characters\) is longer than any number"),
+    (1, "9" * 65, r"'999999999999999999999999'… \(65 characters\) is longer than any number"),
+    (0, "1.000000000E300", r"'1.000000000E300' s is beyond the time a recording holds"),
+    (2, "Infinity", "'Infinity' is not a finite number"), (2, "1E999", "'1E999' is not a finite number"),
+], ids=["1e20", "int32+1", "1 MB of digits", "65 digits", "time 1e300", "Infinity", "1e999"])
+def test_a_value_a_recording_cannot_hold_names_file_line_column_and_value(tmp_path, tour_samples, column, value, words):
+    """These used to load as int64 garbage (1e20 rad/s) or 0.0 (a megabyte of digits), with only a NumPy warning."""
+    folder = write_simple_experiment(tmp_path / "e", tour_samples)
+    path = folder / "Gyroscope.csv"
+    lines = path.read_text(encoding="utf-8").split("\n")
+    cells = lines[41].split(",")
+    cells[column] = value
+    lines[41] = ",".join(cells)
+    path.write_text("\n".join(lines), encoding="utf-8")
+    label = re.escape(["Time (s)", *ANDROID_LABELS["gyr"]][column])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no RuntimeWarning from a cast on the way
+        with pytest.raises(RecordingError, match=f"{re.escape(str(path))}, line 42: column '{label}': {words}"):
+            readers.load_phyphox(folder)
+
+
+def test_the_largest_values_a_phone_recording_holds_load_exactly(tmp_path):
+    """±(2³¹ − 1) LSBs, the protocol's int32: the edge of the range loads, as counts exactly."""
+    t = 0.01 * np.arange(100)
+    edge = (2**31 - 1) * PHONE_LSB["gyr"]
+    gyro = np.column_stack([np.full(100, edge), np.full(100, -edge), np.zeros(100)])
+    acc = np.column_stack([np.zeros(100), np.zeros(100), np.full(100, -G)])
+    write_set(tmp_path / "e" / "Gyroscope.csv", ["Time (s)"] + ANDROID_LABELS["gyr"], [t, *gyro.T])
+    write_set(tmp_path / "e" / "Accelerometer.csv", ["Time (s)"] + ANDROID_LABELS["acc"], [t, *acc.T])
+    rec = readers.load_phyphox(tmp_path / "e")
+    assert rec["gx"].max() == 2**31 - 1 and rec["gy"].min() == -(2**31 - 1)

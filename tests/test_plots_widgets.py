@@ -5,6 +5,7 @@ matplotlib.use("Agg")
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+from waiting import HANG_GUARD_S  # noqa: E402
 
 from kfkit import filters, plots, widgets  # noqa: E402
 from kfkit.metrics import rmse  # noqa: E402
@@ -129,7 +130,7 @@ def test_live_view_follows_a_growing_recording_and_a_reset():
         assert view.poll() is None
         q = view.latest
     # fed in half-second pieces, the filter ends where one run over the whole recording ends
-    whole = filters.EulerAttitudeEKF(rec.rate_hz).run(rec.body("gyr"), rec.body("acc"), rec.body("mag"))
+    whole = filters.EulerAttitudeEKF(rate_hz=rec.rate_hz).run(rec.body("gyr"), rec.body("acc"), rec.body("mag"))
     np.testing.assert_allclose(q, whole.quat[-1], atol=1e-9)
     assert sum(fed) > len(rec)  # it was shown overlapping snapshots, yet used each sample once
     true = Rotation.from_euler("ZYX", angles[::-1])
@@ -153,7 +154,7 @@ def test_live_attitude_applies_a_calibration_and_names_a_bad_method():
     cal = Calibration(gyro_bias=bias.tolist())
     q = widgets.LiveAttitude(calibration=cal).update(rec)
     gyr, acc, mag = cal.apply(rec)
-    np.testing.assert_allclose(q, filters.EulerAttitudeEKF(104.0).run(gyr, acc, mag).quat[-1], atol=1e-12)
+    np.testing.assert_allclose(q, filters.EulerAttitudeEKF(rate_hz=104.0).run(gyr, acc, mag).quat[-1], atol=1e-12)
     assert not np.allclose(q, widgets.LiveAttitude().update(rec), atol=1e-6)  # the bias matters
     with pytest.raises(ValueError, match="method must be one of euler-ekf, mekf, got 'ekf'"):
         widgets.LiveAttitude("ekf").update(rec)
@@ -220,7 +221,7 @@ def test_live_attitude_finds_the_boards_calibration_and_shows_a_wrong_one():
 
 # --- the live views' timers, through matplotlib's own timer machinery ------------------------------------------
 
-def run_timer_on_tornado(timer, stop_when, safety_s=120.0):
+def run_timer_on_tornado(timer, stop_when, safety_s=HANG_GUARD_S):
     """Run ``timer`` (ipympl's TimerTornado) on a real tornado IOLoop, as ipykernel does, until ``stop_when()`` or the
     timer stopped itself; matplotlib's TimerBase._on_timer calls the callbacks and judges what they return, and
     tornado logs what they raise (as the Jupyter server log showed). Returns the number of ticks."""
@@ -240,7 +241,7 @@ def run_timer_on_tornado(timer, stop_when, safety_s=120.0):
     try:
         async def until_done():
             timer.start()
-            deadline = time.monotonic() + safety_s  # a safety net only
+            deadline = time.monotonic() + safety_s  # a hang guard only
             while timer._timer is not None and not stop_when() and time.monotonic() < deadline:
                 await asyncio.sleep(0.02)
         loop.run_until_complete(until_done())

@@ -72,6 +72,7 @@ def broad():
     return {name: datasets.load(name) for name in BROAD_FILES}
 
 
+@pytest.mark.slow
 def test_body_frame_reads_gravity_and_the_accelerometer_tilt_matches_the_motion_capture(broad):
     """At rest the specific force is R_bn(−g_n): 9.81 m/s² long within 1.5 % (the dataset's own accelerometer
     calibration: trial 06's session reads 1.0 % high), and the roll/pitch it gives agree with the motion capture
@@ -109,6 +110,7 @@ def test_gyro_integration_follows_the_motion_capture(broad):
         assert len(errors) >= 8 and np.median(errors) < 2.0, (name, np.round(errors, 2))
 
 
+@pytest.mark.slow
 def test_every_real_file_carries_its_attribution_and_the_data_readme_names_it():
     readme = (data_dir() / "README.md").read_text(encoding="utf-8")
     for name, entry in real_data.REAL.items():
@@ -147,12 +149,14 @@ def test_an_empty_sensor_cell_is_still_an_error(tmp_path):
         load_recording(path)
 
 
+@pytest.mark.slow
 @needs_shared
 def test_the_bundled_files_are_what_the_conversion_makes():
     report, skipped = datasets.convert_real(check=True)
     assert not skipped and not report, report + skipped
 
 
+@pytest.mark.slow
 @needs_shared
 def test_data_real_check_names_a_changed_file_and_writes_nothing(tmp_path, capsys):
     for name, entry in real_data.REAL.items():

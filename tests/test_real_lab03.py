@@ -12,6 +12,7 @@ from test_checkpoints_every import solution_namespace
 from kfkit import calibration, datasets
 from kfkit.checkpoints import get, lab03, run_checkpoint
 from kfkit.io import Recording
+from waiting import HANG_GUARD_S
 
 SOLUTION = Path(__file__).resolve().parents[1] / "solutions" / "03_mag_alignment_heading.ipynb"
 
@@ -113,6 +114,7 @@ def test_real_headings_are_refused_with_what_to_do():
         load("real", "03_headings")
 
 
+@pytest.mark.slow
 def test_the_lab_runs_on_the_real_imu_and_finds_its_alignment():
     """AXIS_TURNS = MAG_ROTATIONS = "real": every cell runs without an error or a warning; the turns found in
     BROAD's gyro give D = I (one package), and nothing is saved as the student's calibration."""
@@ -121,7 +123,7 @@ def test_the_lab_runs_on_the_real_imu_and_finds_its_alignment():
     for name in ("AXIS_TURNS", "MAG_ROTATIONS"):
         assert f"{name} = None" in cell.source
         cell.source = cell.source.replace(f"{name} = None", f'{name} = "real"')
-    NotebookClient(nb, timeout=600, allow_errors=False, kernel_name="python3",   # raises on any error, naming the cell
+    NotebookClient(nb, timeout=HANG_GUARD_S, startup_timeout=HANG_GUARD_S, allow_errors=False, kernel_name="python3",   # raises on any error, naming the cell
                    resources={"metadata": {"path": str(SOLUTION.parent)}}).execute()
     printed = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
     assert "Warning" not in printed

@@ -13,6 +13,7 @@ def excerpt():
     return real_excerpt()
 
 
+@pytest.mark.slow
 def test_the_excerpt_is_the_first_rest_and_the_rotation_about_x_up_to_the_first_large_pitch(excerpt):
     full = datasets.load(REAL_RECORDING)
     n = len(excerpt)

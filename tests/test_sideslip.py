@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 
-from kfkit import datasets
+from kfkit import datasets, discrete
 from kfkit import vehicle as V
-from kfkit.filters import (SideslipKF, SideslipRun, SideslipSettings, Step, copied_kinematic_kf, estimate_sideslip,
+from kfkit.filters import (SideslipKF, SideslipKFSettings, SideslipRun, Step, copied_kinematic_kf, estimate_sideslip,
                            kinematic_sideslip, sideslip_step)
 from kfkit.metrics import chi2_bounds, nees, rmse
 
@@ -28,7 +28,7 @@ def linear_drive(vx=15.0, n=600, dt=0.01, q=(1e-4, 1e-3), r=(0.003, 0.05), seed=
     """Data simulated from the discrete linear model itself (the filter's own assumptions)."""
     rng = np.random.default_rng(seed)
     A, B, C, D = V.linear_model(CAR, vx)
-    Ad, Bd, Qd = V.discretize(A, B, dt, np.diag(q))
+    Ad, Bd, Qd = discrete.discretize(A, B, dt, np.diag(q))
     t = np.arange(n) * dt
     delta = 0.02 * np.sin(2 * np.pi * 0.5 * t) + 0.01 * np.sin(2 * np.pi * 1.3 * t)
     x = np.zeros(2)
@@ -46,18 +46,21 @@ def test_matches_filterpy_on_the_linear_model():
     ours = estimate_kf(t, delta, zs[:, 0], zs[:, 1], vx, CAR)
     A, B, C, D = V.linear_model(CAR, 15.0)
     kf = FilterpyKF(dim_x=2, dim_z=2, dim_u=1)
-    kf.F, kf.B, _ = V.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))
-    kf.Q = V.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))[2]
+    kf.F, kf.B, _ = discrete.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))
+    kf.Q = discrete.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))[2]
     kf.H, kf.R = C, np.diag([0.003 ** 2, 0.05 ** 2])
     kf.x, kf.P = np.zeros(2), np.diag([math.radians(2.0) ** 2] * 2)
-    xs, Ps = [], []
+    xs, Ps, priors = [], [], []
     for k in range(len(t)):
         kf.predict(u=np.array([delta[k - 1 if k else 0]]))
+        priors.append((kf.x.copy(), kf.P.copy()))
         kf.update(zs[k] - D[:, 0] * delta[k])  # filterpy has no D: move D δ to the measurement side
         xs.append(kf.x.copy())
         Ps.append(kf.P.copy())
     np.testing.assert_allclose(ours.x, np.array(xs), rtol=1e-7, atol=1e-12)
     np.testing.assert_allclose(ours.P, np.array(Ps), rtol=1e-7, atol=1e-16)
+    np.testing.assert_allclose(ours.x_prior, np.array([p[0] for p in priors]), rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(ours.P_prior, np.array([p[1] for p in priors]), rtol=1e-7, atol=1e-16)
 
 
 def test_nees_is_inside_chi_square_bounds_on_linear_model_data():
@@ -151,10 +154,11 @@ def exact_model(vx):
     """The model discretised at each sample's own speed and interval (no bins)."""
     def model_at(k, dt):
         A, B, C, D = V.linear_model(CAR, vx[k])
-        return V.discretize(A, B, dt, np.diag([1e-4, 1e-3])) + (C, D)
+        return discrete.discretize(A, B, dt, np.diag([1e-4, 1e-3])) + (C, D)
     return model_at
 
 
+@pytest.mark.slow
 def test_matches_filterpy_while_braking_and_with_jittery_timestamps():
     """Lane change braking 60 → 50 km/h, timestamps jittered by ±0.3 ms like a logger's: the binned model
     cache (speed and interval) gives what filterpy gives with the model recomputed at every sample."""
@@ -187,7 +191,7 @@ def test_tuning_and_speed_bins_are_validated():
     d = good_inputs()
     with pytest.raises(ValueError, match="vx_step = 3 m/s is coarser than v_min = 2.0 m/s"):
         estimate_kf(**d, params=CAR, vx_step=3)
-    with pytest.raises(ValueError, match="q_beta must be a finite positive number, got -0.001"):
+    with pytest.raises(ValueError, match="SideslipKFSettings: q_beta must be a positive number, got -0.001"):
         estimate_kf(**d, params=CAR, q_beta=-1e-3)
 
 
@@ -222,7 +226,7 @@ def test_one_step_with_the_bias_state_matches_filterpy():
     rng = np.random.default_rng(7)
     A, B, C, D = V.linear_model(CAR, 12.0)
     Ab, Bb, Cb = np.pad(A, ((0, 1), (0, 1))), np.vstack([B, [[0.0]]]), np.hstack([C, [[0.0], [1.0]]])
-    Ad, Bd, Qd = V.discretize(Ab, Bb, 0.01, np.diag([1e-4, 1e-3, 1e-5]))
+    Ad, Bd, Qd = discrete.discretize(Ab, Bb, 0.01, np.diag([1e-4, 1e-3, 1e-5]))
     L = rng.normal(0, 0.05, (3, 3))
     x, P, R = rng.normal(0, 0.05, 3), L @ L.T + 1e-4 * np.eye(3), np.diag([0.003 ** 2, 0.05 ** 2])
     z, d_prev, d = np.array([0.1, 2.0]), 0.02, 0.03
@@ -237,6 +241,7 @@ def test_one_step_with_the_bias_state_matches_filterpy():
     np.testing.assert_allclose(got[3], kf.S, rtol=1e-10)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bias_ay", [False, True])
 def test_run_is_a_loop_of_steps_and_estimate_sideslip_is_run(bias_ay):
     """A drive that starts from rest (low-speed steps), with jittered sample intervals: stepping the
@@ -247,7 +252,7 @@ def test_run_is_a_loop_of_steps_and_estimate_sideslip_is_run(bias_ay):
     dt0 = float(np.median(np.diff(t)))
     run = estimate_kf(t, delta, yaw, ay, vx, CAR, bias_ay=bias_ay)
     assert isinstance(run, SideslipRun) and run.low_speed.any() and not run.low_speed.all()
-    kf = SideslipKF(dt0, CAR, SideslipSettings(bias_ay=bias_ay))
+    kf = SideslipKF(dt0, CAR, SideslipKFSettings(bias_ay=bias_ay))
     steps = [kf.step(delta[k], yaw[k], ay[k], vx[k], t[k] - t[k - 1] if k else None) for k in range(len(t))]
     assert all(isinstance(s, Step) for s in steps)
     for name in "xPyS":
@@ -265,7 +270,7 @@ def test_run_properties_read_the_state():
 
 
 def test_unknown_or_misplaced_settings_are_named():
-    with pytest.raises(TypeError, match="SideslipKF: unknown setting q_yaw; SideslipSettings has q_beta, q_r"):
+    with pytest.raises(TypeError, match="SideslipKF: unknown setting q_yaw; SideslipKFSettings has q_beta, q_r"):
         SideslipKF(0.01, CAR, q_yaw=1.0)
     with pytest.raises(TypeError, match="unknown setting qbeta"):
         estimate_sideslip(**good_inputs(), params=CAR, qbeta=1.0)

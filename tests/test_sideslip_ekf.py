@@ -15,7 +15,7 @@ from scipy.linalg import expm
 
 from kfkit import datasets
 from kfkit import vehicle as V
-from kfkit.filters import SideslipEKF, TyreEkfSettings, estimate_sideslip
+from kfkit.filters import SideslipEKF, SideslipEKFSettings, estimate_sideslip
 from kfkit.filters.sideslip_ekf import EXP, EXP_HALF, PHI1, matrix_functions_2x2
 from kfkit.metrics import rmse
 from kfkit.readers import load_vehicle_csv
@@ -76,7 +76,7 @@ def test_with_linear_tyres_it_is_the_linear_kf():
     np.testing.assert_allclose(ekf.P, kf.P, rtol=1e-5, atol=1e-14)
 
 
-def ukf_sideslip(rec, params, settings=TyreEkfSettings()):
+def ukf_sideslip(rec, params, settings=SideslipEKFSettings()):
     """filterpy's UKF on the same continuous model (RK4 over the sample) and the same R (model-error term included)."""
     front, rear = V.axle_tyres(params)
     m, Iz, a, b = params.m, params.Iz, params.a, params.b
@@ -123,6 +123,7 @@ def hard_slalom(params=OTHER, seed=5):
     return V.simulate_drive(drive, params, seed=seed)
 
 
+@pytest.mark.slow
 def test_agrees_with_filterpys_ukf_on_the_same_model():
     rec = hard_slalom()
     ekf = estimate_sideslip(*(rec[c] for c in SIGNALS), OTHER).beta
@@ -158,10 +159,12 @@ def check_race_track(rec):
     assert ekf <= 0.45 and ekf < 0.85 * open_loop
 
 
+@pytest.mark.slow
 def test_bundled_race_track_log():
     check_race_track(datasets.load("06_racetrack"))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not SHARED.exists(), reason=f"no shared race-track file at {SHARED}")
 def test_shared_race_track_file():
     check_race_track(load_vehicle_csv(SHARED, {"t": "t_s", "delta": "steer_road_wheel_rad", "yaw_rate": "yaw_rate_rad_s",
@@ -181,8 +184,8 @@ def test_stop_and_restart_uses_the_low_speed_guard():
 
 
 def test_settings_are_validated_and_named():
-    with pytest.raises(ValueError, match="TyreEkfSettings: accel_noise must be a positive number, got -0.5"):
-        TyreEkfSettings(accel_noise=-0.5)
-    assert TyreEkfSettings(stiffness_std=0.0).stiffness_std == 0.0
-    with pytest.raises(TypeError, match="SideslipEKF: unknown setting q_yaw; TyreEkfSettings has q_beta"):
+    with pytest.raises(ValueError, match="SideslipEKFSettings: accel_noise must be a positive number, got -0.5"):
+        SideslipEKFSettings(accel_noise=-0.5)
+    assert SideslipEKFSettings(stiffness_std=0.0).stiffness_std == 0.0
+    with pytest.raises(TypeError, match="SideslipEKF: unknown setting q_yaw; SideslipEKFSettings has q_beta"):
         SideslipEKF(0.01, CAR, q_yaw=1.0)

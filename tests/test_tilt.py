@@ -7,7 +7,7 @@ from filterpy.kalman import KalmanFilter as FilterpyKF
 from scipy.linalg import solve_discrete_are
 
 from kfkit import datasets, metrics, sim
-from kfkit.filters import Step, TiltBiasKF, TiltRun, TiltSettings, accel_static_ok, tilt
+from kfkit.filters import Step, TiltBiasKF, TiltBiasKFSettings, TiltRun, accel_static_ok, tilt
 from kfkit.frames import accel_tilt
 from kfkit.unit_errors import MPU6050_GYRO_BIAS
 
@@ -39,10 +39,13 @@ def test_ungated_filter_matches_filterpy(seed):
     w, z, _ = random_inputs(rng)
     q_angle, q_bias, r = 10 ** rng.uniform(-7, -3), 10 ** rng.uniform(-12, -6), 10 ** rng.uniform(-5, -1)
     x0, P0 = (0.1, -0.02), np.array([[0.03, 0.001], [0.001, 0.01]])
-    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, gate="none").run(w, z, rng.random(len(z)) > 0.5, x0=x0, P0=P0)
+    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, accel_gating="none", x0=x0, P0=P0).run(
+        w, z, rng.random(len(z)) > 0.5)
     oracle = filterpy_oracle(DT, q_angle, q_bias, r, x0, P0)
     for k in range(len(z)):
         oracle.predict(u=np.array([[w[k]]]))
+        np.testing.assert_allclose(run.x_prior[k], oracle.x_prior[:, 0], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(run.P_prior[k], oracle.P_prior, rtol=1e-8, atol=1e-15)
         oracle.update(np.array([[z[k]]]))
         np.testing.assert_allclose(run.x[k], oracle.x[:, 0], rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(run.P[k], oracle.P, rtol=1e-8, atol=1e-15)
@@ -55,7 +58,8 @@ def test_gates_match_filterpy_with_no_update_or_an_inflated_r(gate):
     w, z, ok = random_inputs(rng)
     q_angle, q_bias, r, inflation = 1e-5, 1e-9, 1e-3, 50.0
     x0, P0 = (0.0, 0.0), np.diag([r, 0.01])
-    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, gate=gate, inflation=inflation).run(w, z, ok, x0=x0, P0=P0)
+    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, accel_gating=gate, accel_inflation=inflation, x0=x0, P0=P0).run(
+        w, z, ok)
     oracle = filterpy_oracle(DT, q_angle, q_bias, r, x0, P0)
     for k in range(len(z)):
         oracle.predict(u=np.array([[w[k]]]))
@@ -71,7 +75,7 @@ def test_gates_match_filterpy_with_no_update_or_an_inflated_r(gate):
 
 
 def test_a_gated_sample_coasts_on_the_gyro():
-    kf = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, gate="skip", x0=(0.2, 0.05))
+    kf = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, accel_gating="skip", x0=(0.2, 0.05))
     (angle, bias), _, y, S = kf.step(1.0, 5.0, static_ok=False)  # a wild accel angle, but gated
     assert angle == pytest.approx(0.2 + (1.0 - 0.05) * DT) and bias == 0.05
     assert math.isnan(y) and math.isnan(S)
@@ -79,7 +83,7 @@ def test_a_gated_sample_coasts_on_the_gyro():
 
 def test_nan_accel_angle_skips_the_update_in_every_gate_mode():
     for gate in ("none", "skip", "inflate"):
-        kf = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, gate=gate)
+        kf = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, accel_gating=gate)
         (angle, bias), _, y, _ = kf.step(0.5, float("nan"), True)
         assert angle == pytest.approx(0.005) and bias == 0.0 and math.isnan(y)
 
@@ -87,9 +91,9 @@ def test_nan_accel_angle_skips_the_update_in_every_gate_mode():
 def test_step_returns_state_covariance_innovation_and_run_stores_the_same_steps():
     rng = np.random.default_rng(4)
     w, z, ok = rng.normal(0, 0.3, 200), rng.normal(0, 0.2, 200), rng.random(200) > 0.3
-    settings = TiltSettings(q_angle=1e-5, q_bias=1e-9, r=1e-3, gate="inflate", inflation=30.0)
-    run = TiltBiasKF(DT, settings).run(w, z, ok, x0=(z[0], 0.0))
-    kf = TiltBiasKF(DT, settings, x0=(z[0], 0.0))
+    settings = TiltBiasKFSettings(q_angle=1e-5, q_bias=1e-9, r=1e-3, accel_gating="inflate", accel_inflation=30.0)
+    run = TiltBiasKF(DT, settings).run(w, z, ok)
+    kf = TiltBiasKF(DT, settings)  # both start at [z[0], 0]
     steps = [kf.step(*args) for args in zip(w, z, ok)]
     assert all(isinstance(s, Step) and s.x.shape == (2,) and s.P.shape == (2, 2) for s in steps)
     for name in "xPyS":
@@ -97,20 +101,20 @@ def test_step_returns_state_covariance_innovation_and_run_stores_the_same_steps(
 
 
 def test_keyword_changes_equal_a_settings_object():
-    a = TiltBiasKF(DT, TiltSettings(r=1e-4, gate="none"))
-    b = TiltBiasKF(DT, r=1e-4, gate="none")
-    c = TiltBiasKF(DT, TiltSettings(r=1.0), r=1e-4, gate="none")
+    a = TiltBiasKF(DT, TiltBiasKFSettings(r=1e-4, accel_gating="none"))
+    b = TiltBiasKF(DT, r=1e-4, accel_gating="none")
+    c = TiltBiasKF(DT, TiltBiasKFSettings(r=1.0), r=1e-4, accel_gating="none")
     assert a.settings == b.settings == c.settings
-    with pytest.raises(TypeError, match="TiltBiasKF: unknown setting qangle; TiltSettings has q_angle, q_bias, r, gate, "
-                                        "inflation"):
+    with pytest.raises(TypeError, match="TiltBiasKF: unknown setting qangle; TiltBiasKFSettings has q_angle, q_bias, r, "
+                                        "accel_gating, accel_inflation"):
         TiltBiasKF(DT, qangle=1e-6)
-    with pytest.raises(TypeError, match="settings must be a TiltSettings, got float"):
-        TiltBiasKF(DT, 1e-6, 1e-10, 1e-5)  # the old positional form names its mistake
+    with pytest.raises(TypeError, match="settings must be a TiltBiasKFSettings, got float"):
+        TiltBiasKF(DT, 1e-6)  # the old positional q_angle names its mistake
 
 
 def test_inflated_update_moves_less_than_a_full_one():
-    full = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, gate="inflate").step(0.0, 0.1, True).x[0]
-    weak = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, gate="inflate").step(0.0, 0.1, False).x[0]
+    full = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, accel_gating="inflate", x0=(0, 0)).step(0.0, 0.1, True).x[0]
+    weak = TiltBiasKF(DT, q_angle=1e-5, q_bias=1e-9, r=1e-3, accel_gating="inflate", x0=(0, 0)).step(0.0, 0.1, False).x[0]
     assert 0 < weak < full
 
 
@@ -148,7 +152,7 @@ def test_skip_gate_rejects_a_linear_acceleration():
     assert accel_static_ok(f)[inside].mean() > 0.5
     ok = accel_static_ok(f, eps=0.02 * g)
     assert not ok[inside].any() and ok[~inside].mean() > 0.99
-    runs = {gate: TiltBiasKF(0.01, q_angle=1e-6, q_bias=1e-10, r=1.6e-5, gate=gate).run(rec.body("gyr")[:, 0], roll, ok)
+    runs = {gate: TiltBiasKF(0.01, q_angle=1e-6, q_bias=1e-10, r=1.6e-5, accel_gating=gate).run(rec.body("gyr")[:, 0], roll, ok)
             for gate in ("none", "skip", "inflate")}
     peak = {gate: np.max(np.abs(run.angle[inside])) for gate, run in runs.items()}
     assert peak["none"] > 5 * deg          # the ungated filter follows the shove's false tilt (17°)
@@ -181,8 +185,8 @@ def test_run_returns_a_tilt_run_with_named_views():
     ({"q_angle": -1e-6}, "q_angle must be a positive"),
     ({"q_bias": float("nan")}, "q_bias must be a number ≥ 0"),
     ({"r": float("inf")}, "r must be a positive"),
-    ({"gate": "sometimes"}, "gate must be one of none, skip, inflate, got 'sometimes'"),
-    ({"x0": (0.0,)}, "x0 must have 2 values"),
+    ({"accel_gating": "sometimes"}, "TiltBiasKFSettings: accel_gating must be one of none, skip, inflate, got 'sometimes'"),
+    ({"x0": (0.0,)}, r"TiltBiasKF: x0 must have shape \(2,\), got \(1,\)"),
 ])
 def test_bad_settings_are_named(kwargs, match):
     args = {"dt": DT, "q_angle": 1e-5, "q_bias": 1e-9, "r": 1e-3, **kwargs}
@@ -258,11 +262,11 @@ def test_steady_state_covariance_solves_the_riccati_equation(q_angle, q_bias, r)
     A, prior, gain, slowest = riccati(q_angle, q_bias, r)
     Q = np.diag([q_angle, q_bias])
     n = int(np.log(1e-12) / np.log(slowest) / 2) + 1  # P's error decays as slowest²ⁿ
-    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, gate="none").run(np.zeros(n), np.zeros(n))
+    run = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, accel_gating="none").run(np.zeros(n), np.zeros(n))
     np.testing.assert_allclose(A @ run.P[-1] @ A.T + Q, prior, rtol=1e-6)
     np.testing.assert_allclose(run.S[-1], prior[0, 0] + r, rtol=1e-6)
     # one more step: the correction per unit innovation is the steady-state gain K = P⁻Hᵀ / S
-    kf = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, gate="none")
+    kf = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, accel_gating="none")
     kf.reset(run.x[-1], run.P[-1])
     predicted = run.x[-1, 0] - run.x[-1, 1] * DT
     (angle, bias), _, y, _ = kf.step(0.0, 1.0)
@@ -272,14 +276,14 @@ def test_steady_state_covariance_solves_the_riccati_equation(q_angle, q_bias, r)
 def test_the_labs_tuning_keeps_the_riccati_fixed_point():
     """At the lab's q's the bias mode settles over minutes (|eig| = 1 − 10⁻⁴ per step), too slow to wait for:
     started on the DARE's solution, one filter step must map it onto itself."""
-    q_angle, q_bias, r = tilt.TiltSettings().q_angle, tilt.TiltSettings().q_bias, tilt.TiltSettings().r
+    q_angle, q_bias, r = tilt.TiltBiasKFSettings().q_angle, tilt.TiltBiasKFSettings().q_bias, tilt.TiltBiasKFSettings().r
     A, prior, gain, slowest = riccati(q_angle, q_bias, r)
     assert slowest > 0.9998
     posterior = prior - gain @ gain.T * (prior[0, 0] + r)
-    kf = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, gate="none")
+    kf = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r, accel_gating="none")
     kf.reset((0.0, 0.0), posterior)
     kf.step(0.3, 0.1)
-    np.testing.assert_allclose(kf.P, posterior, rtol=1e-9)
+    np.testing.assert_allclose(kf.state.P, posterior, rtol=1e-9)
 
 
 def simulate_model(rng, n, q_angle, q_bias, r, x0, P0):
@@ -302,8 +306,8 @@ def monte_carlo(filter_r_factor=1.0, runs=60, n=400, seed=11):
     for i in range(runs):
         omega, z, truth = simulate_model(rng, n, q_angle, q_bias, r, x0, P0)
         ok = rng.random(n) > 0.3  # the skipped samples' z are as good, but a gated filter does not use them
-        kf = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r * filter_r_factor, gate="skip")
-        run = kf.run(omega, z, ok, x0=x0, P0=P0)
+        kf = TiltBiasKF(DT, q_angle=q_angle, q_bias=q_bias, r=r * filter_r_factor, accel_gating="skip", x0=x0, P0=P0)
+        run = kf.run(omega, z, ok)
         nees[i] = metrics.nees(truth - run.x, run.P)
         nis[i] = metrics.nis(run.y, run.S)
     return nees, nis, runs
@@ -383,12 +387,13 @@ def reference_estimate(start_bias="zero", tuned=True):
             w, z, ok, ref = axes[name]
             q = lab05.tune_reference(w, z, ok, ref, dt, r, q0) if tuned else (q0, 1e-4 * q0)
             b0 = 0.0 if start_bias == "zero" else b_still[col]
-            out.append(TiltBiasKF(dt, q_angle=q[0], q_bias=q[1], r=r).run(w, z, ok, x0=(z[0], b0)))
+            out.append(TiltBiasKF(dt, q_angle=q[0], q_bias=q[1], r=r, x0=(z[0], b0)).run(w, z, ok))
         return out[0].angle, out[1].angle, out[0].bias, out[1].bias
 
     return estimate_tilt
 
 
+@pytest.mark.slow
 def test_final_checkpoint_passes_kfkits_pipeline_and_fails_known_mistakes():
     from kfkit.checkpoints import get, run_checkpoint
 

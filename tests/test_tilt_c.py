@@ -5,16 +5,15 @@ must match the float64 reference within 1e-4 rad. The sketch runs on the host ag
 and is compiled for an Uno with avr-gcc and the Arduino AVR core. Each part skips without its compiler.
 """
 import ctypes
-import os
 import shutil
 import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import arduino_host
 from kfkit import datasets
+from kfkit.capture.emulated_uno import UNO_FLASH, UNO_RAM
 from kfkit.paths import KIT_ROOT
 from kfkit.filters import TiltBiasKF, accel_static_ok, tilt
 from kfkit.frames import G, accel_tilt
@@ -85,9 +84,9 @@ def test_c_filter_matches_python_on_the_bundled_recording(lib, recording, axis, 
     settings = default_settings(lib)
     settings.gate = GATES[gate]
     gyro, angle = recording[axis]
-    python = TiltBiasKF(recording["dt"], q_angle=settings.qAngle, q_bias=settings.qBias, r=settings.r, gate=gate,
-                        inflation=settings.inflation).run(
-        gyro, angle, recording["ok"], P0=np.diag([settings.r, settings.initialBiasVariance]))
+    python = TiltBiasKF(recording["dt"], q_angle=settings.qAngle, q_bias=settings.qBias, r=settings.r, accel_gating=gate,
+                        accel_inflation=settings.inflation, P0=np.diag([settings.r, settings.initialBiasVariance])).run(
+        gyro, angle, recording["ok"])
     c = run_c(lib, settings, recording["dt"], gyro, angle, recording["ok"])
     assert np.max(np.abs(c[:, 0] - python.angle)) < 1e-4
     assert np.max(np.abs(c[:, 1] - python.bias)) < 1e-5
@@ -110,8 +109,9 @@ def test_c_accelerometer_tilt_and_gate_match_python(lib, recording):
 def test_c_defaults_are_the_python_defaults(lib):
     s = default_settings(lib)
     got = [s.qAngle, s.qBias, s.r, s.inflation, s.initialBiasVariance]
-    np.testing.assert_allclose(got, [tilt.TiltSettings().q_angle, tilt.TiltSettings().q_bias, tilt.TiltSettings().r, tilt.TiltSettings().inflation, 0.1 ** 2], rtol=1e-6)
-    assert s.gate == GATES["skip"]
+    d = tilt.TiltBiasKFSettings()
+    np.testing.assert_allclose(got, [d.q_angle, d.q_bias, d.r, d.accel_inflation, 0.1 ** 2], rtol=1e-6)
+    assert s.gate == GATES[d.accel_gating]
 
 
 def test_c_filter_skips_a_nan_accel_angle(lib):
@@ -205,45 +205,12 @@ def test_virtual_board_speaks_like_the_sketch(sketch_output):
 
 
 # --- the sketch for the real board: avr-gcc and the Arduino AVR core ---------------------------------------
-# Debian's gcc-avr, avr-libc and arduino-core-avr (the core and Wire that arduino-cli's arduino:avr installs).
-# Flags as the core's platform.txt (without -flto: Debian's avr-gcc 5.4 links without the plugin here).
-
-AVR_CORE = Path(os.environ.get("KFKIT_ARDUINO_AVR", "/usr/share/arduino/hardware/arduino/avr"))
-UNO_FLASH, UNO_RAM = 32256, 2048  # boards.txt: uno.upload.maximum_size, maximum_data_size (bytes)
+# Debian's gcc-avr, avr-libc and arduino-core-avr (the core and Wire that arduino-cli's arduino:avr installs), built
+# by kfkit (tests/arduino_host.uno_image); the image runs on an emulated Uno in tests/test_firmware_emulated_uno.py.
 
 
-@pytest.fixture(scope="module")
-def avr_build(tmp_path_factory):
-    tools = {name: shutil.which(name) for name in ("avr-gcc", "avr-g++", "avr-size")}
-    if None in tools.values() or not (AVR_CORE / "cores" / "arduino" / "Arduino.h").exists():
-        pytest.skip("no AVR toolchain / Arduino AVR core (apt-get install gcc-avr avr-libc arduino-core-avr)")
-    out = tmp_path_factory.mktemp("avr")
-    core, wire = AVR_CORE / "cores" / "arduino", AVR_CORE / "libraries" / "Wire" / "src"
-    common = ["-c", "-Os", "-ffunction-sections", "-fdata-sections", "-mmcu=atmega328p", "-DF_CPU=16000000L",
-              "-DARDUINO=10819", "-DARDUINO_AVR_UNO", "-DARDUINO_ARCH_AVR", f"-I{core}",
-              f"-I{AVR_CORE / 'variants' / 'standard'}", f"-I{wire}", f"-I{wire / 'utility'}",
-              f"-I{KIT_ROOT / 'firmware' / 'common'}", f"-I{KIT_ROOT / 'firmware' / 'tilt_kf'}"]
-    cpp = ["-std=gnu++11", "-fpermissive", "-fno-exceptions", "-fno-threadsafe-statics"]
-    jobs = [([tools["avr-gcc"], "-w", "-std=gnu11"], f) for f in [*core.glob("*.c"), wire / "utility" / "twi.c"]]
-    jobs += [([tools["avr-g++"], "-w", "-DDECIMAL_DIG=17", *cpp], f) for f in [*core.glob("*.cpp"), wire / "Wire.cpp"]]
-    jobs += [([tools["avr-gcc"], "-w", "-x", "assembler-with-cpp"], f) for f in core.glob("*.S")]
-    # the kit's own code: every warning is an error
-    jobs += [([tools["avr-gcc"], "-std=c99", "-Wall", "-Wextra", "-Werror"], SOURCE),
-             ([tools["avr-g++"], *cpp, "-Wall", "-Wextra", "-Werror", "-x", "c++"],
-              KIT_ROOT / "firmware" / "mpu6050_tilt_kf" / "mpu6050_tilt_kf.ino")]
-    objects = []
-    for i, (compiler, source) in enumerate(jobs):
-        objects.append(out / f"{i}_{source.stem}.o")
-        done = subprocess.run([*compiler, *common, str(source), "-o", str(objects[-1])], capture_output=True, text=True)
-        assert done.returncode == 0, f"{source}:\n{done.stderr}"
-    elf = out / "mpu6050_tilt_kf.elf"
-    subprocess.run([tools["avr-gcc"], "-Os", "-Wl,--gc-sections", "-mmcu=atmega328p", *map(str, objects), "-o", str(elf),
-                    "-lm"], check=True, capture_output=True, text=True)
-    sizes = subprocess.run([tools["avr-size"], str(elf)], check=True, capture_output=True, text=True).stdout
-    text, data, bss = map(int, sizes.splitlines()[1].split()[:3])
-    return {"flash": text + data, "ram": data + bss}
-
-
-def test_sketch_compiles_for_an_uno_and_fits(avr_build):
-    assert avr_build["flash"] < UNO_FLASH / 2  # ≈ 12 KB of 31.5 KB
-    assert avr_build["ram"] < UNO_RAM / 2  # static RAM ≈ 0.7 KB of 2 KB: the rest is stack (no allocation)
+@pytest.mark.slow
+def test_sketch_compiles_for_an_uno_and_fits():
+    image = arduino_host.uno_image("mpu6050_tilt_kf")
+    assert image.flash < UNO_FLASH / 2  # ≈ 13 KB of 31.5 KB
+    assert image.ram < UNO_RAM / 2  # static RAM ≈ 0.7 KB of 2 KB: the rest is stack (no allocation)

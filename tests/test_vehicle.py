@@ -9,6 +9,8 @@ from scipy.integrate import quad_vec, solve_ivp
 from scipy.linalg import expm, solve_discrete_are
 from scipy.signal import cont2discrete, lsim
 
+from kfkit import discrete
+from kfkit import io as kio
 from kfkit import vehicle as V
 from kfkit.filters import estimate_sideslip
 from kfkit.frames import G
@@ -124,7 +126,7 @@ def test_linear_model_follows_the_nonlinear_transient_at_small_slip():
 
 def steady_beta_std(A, B, C, R, dt=0.01, Qc=np.diag([1e-4, 1e-3])):
     """Steady-state posterior σ_β (rad) of a KF measuring C x with noise R: the DARE's answer, not our filter's."""
-    Ad, _, Qd = V.discretize(A, B, dt, Qc)
+    Ad, _, Qd = discrete.discretize(A, B, dt, Qc)
     prior = solve_discrete_are(Ad.T, C.T, Qd, R)
     post = prior - prior @ C.T @ np.linalg.solve(C @ prior @ C.T + R, C @ prior)
     return math.sqrt(post[0, 0])
@@ -167,12 +169,13 @@ def test_zoh_matches_scipy_cont2discrete():
             A, B = with_bias_state(A, B)
             C, D = np.hstack([C, [[0.0], [1.0]]]), D
         dt = rng.choice([0.001, 0.01, 0.05])
-        Ad, Bd, _ = V.discretize(A, B, dt, np.eye(len(A)))
+        Ad, Bd, _ = discrete.discretize(A, B, dt, np.eye(len(A)))
         Ad_ref, Bd_ref, *_ = cont2discrete((A, B, C, D), dt, method="zoh")
         np.testing.assert_allclose(Ad, Ad_ref, rtol=1e-10, atol=1e-14)
         np.testing.assert_allclose(Bd, Bd_ref, rtol=1e-10, atol=1e-14)
 
 
+@pytest.mark.slow
 def test_van_loan_matches_numerical_integration():
     """Qd = ∫₀^dt e^{As} Qc e^{Aᵀs} ds by adaptive quadrature (scipy quad_vec), not by another matrix exponential trick."""
     rng = np.random.default_rng(4)
@@ -181,7 +184,7 @@ def test_van_loan_matches_numerical_integration():
         if bias:
             A, B = with_bias_state(A, B)
         Qc = np.diag(rng.uniform(1e-5, 1e-2, len(A)))
-        _, _, Qd = V.discretize(A, B, dt, Qc)
+        _, _, Qd = discrete.discretize(A, B, dt, Qc)
         ref, _ = quad_vec(lambda s: expm(A * s) @ Qc @ expm(A * s).T, 0.0, dt, epsabs=1e-16, epsrel=1e-11)
         np.testing.assert_allclose(Qd, ref, rtol=1e-8, atol=1e-18)
         assert np.all(np.linalg.eigvalsh(Qd) > 0)
@@ -272,9 +275,9 @@ def short_drive():
 
 
 def test_vehicle_recording_round_trip(tmp_path, short_drive):
-    path = V.save_vehicle(short_drive, tmp_path / "drive.csv")
+    path = kio.save_vehicle(short_drive, tmp_path / "drive.csv")
     assert path.read_text().startswith("# kfkit-vehicle v1 {")
-    back = V.load_vehicle(path)
+    back = kio.load_vehicle(path)
     assert back.columns == short_drive.columns and back.meta == short_drive.meta
     for c in short_drive.columns:
         np.testing.assert_allclose(back[c], short_drive[c], rtol=1e-8, atol=1e-12)
@@ -284,7 +287,7 @@ def test_load_vehicle_rejects_an_imu_recording(tmp_path):
     path = tmp_path / "imu.csv"
     path.write_text('# kfkit-recording v1 {"rate_hz": 100}\nt,seq\n0,0\n')
     with pytest.raises(RecordingError, match=r"imu\.csv, line 1: expected the header '# kfkit-vehicle v1.*load_vehicle_csv"):
-        V.load_vehicle(path)
+        kio.load_vehicle(path)
 
 
 STUDENT = """# exported from the logger, 2025-03-01
@@ -345,7 +348,7 @@ def test_student_csv_speed_zero_is_a_stop_negative_is_an_error(tmp_path):
     stopped = load_vehicle_csv(student_csv(tmp_path, STUDENT.replace("20;2.0;3.0;0.3;37.0", "20;2.0;3.0;0.3;0.0")),
                                  MAPPING, UNITS, delimiter=";")
     assert stopped["vx"][-1] == 0.0  # standing still is data; the filter's low-speed guard handles it
-    res = estimate_sideslip(*(stopped[c] for c in V.VEHICLE_COLUMNS), CAR)
+    res = estimate_sideslip(*(stopped[c] for c in kio.VEHICLE_COLUMNS), CAR)
     assert res.low_speed[-1] and np.all(np.isfinite(res.beta))
     reversing = student_csv(tmp_path, STUDENT.replace("20;2.0;3.0;0.3;37.0", "20;2.0;3.0;0.3;-2.5"))
     with pytest.raises(RecordingError, match=r"mycar\.csv, line 5: column 'Speed \[km/h\]' \(vx\): -2\.5 km/h is negative"):
@@ -422,31 +425,31 @@ def test_flipped_signs_are_named_and_negate_fixes_them(tmp_path, short_drive, fl
 # --- bad input to the loaders: cut lines, metadata, numbers, fuzz --------------------------------------------
 
 def test_load_vehicle_rejects_a_cut_last_line_bad_metadata_and_duplicate_columns(tmp_path, short_drive):
-    path = V.save_vehicle(short_drive, tmp_path / "drive.csv")
+    path = kio.save_vehicle(short_drive, tmp_path / "drive.csv")
     text = path.read_text()
     cut = tmp_path / "cut.csv"
     cut.write_text(text[:-4])  # '0.0123456' cut to '0.01234': it still parses
     with pytest.raises(RecordingError, match=r"cut\.csv, line \d+: the last line is cut short"):
-        V.load_vehicle(cut)
+        kio.load_vehicle(cut)
     header, rest = text.split("\n", 1)
-    meta = json.loads(header[len(V.VEHICLE_MAGIC):])
+    meta = json.loads(header[len(kio.VEHICLE_MAGIC):])
     for rate in (0, -100.0, float("nan"), "100", None):
         bad = tmp_path / "rate.csv"
-        bad.write_text(V.VEHICLE_MAGIC + json.dumps({**meta, "rate_hz": rate}) + "\n" + rest)
-        with pytest.raises(RecordingError, match=r"rate\.csv, line 1: .*'rate_hz' a positive finite number"):
-            V.load_vehicle(bad)
+        bad.write_text(kio.VEHICLE_MAGIC + json.dumps({**meta, "rate_hz": rate}) + "\n" + rest)
+        with pytest.raises(RecordingError, match=r"rate\.csv, line 1: .*'rate_hz' must be a positive finite number"):
+            kio.load_vehicle(bad)
     phases = tmp_path / "phases.csv"
-    phases.write_text(V.VEHICLE_MAGIC + json.dumps({**meta, "phases": [{"label": "x", "start": 3, "end": 1}]}) + "\n" + rest)
+    phases.write_text(kio.VEHICLE_MAGIC + json.dumps({**meta, "phases": [{"label": "x", "start": 3, "end": 1}]}) + "\n" + rest)
     with pytest.raises(RecordingError, match=r"phases\.csv, line 1: metadata phases\[0\]"):
-        V.load_vehicle(phases)
+        kio.load_vehicle(phases)
     dup = tmp_path / "dup.csv"
     columns, rows = rest.split("\n", 1)
     dup.write_text(header + "\n" + columns + ",vx\n" + "\n".join(r + ",1" for r in rows.rstrip("\n").split("\n")) + "\n")
     with pytest.raises(RecordingError, match=r"dup\.csv, line 2: duplicate column names: vx"):
-        V.load_vehicle(dup)
+        kio.load_vehicle(dup)
     bom = tmp_path / "bom.csv"
     bom.write_bytes(b"\xef\xbb\xbf" + text.encode())
-    assert V.load_vehicle(bom).meta == V.load_vehicle(path).meta
+    assert kio.load_vehicle(bom).meta == kio.load_vehicle(path).meta
 
 
 def test_student_csv_drops_a_last_line_without_newline_with_a_warning(tmp_path):
@@ -470,12 +473,29 @@ def test_student_csv_numbers_are_plain_decimal_and_a_drive_has_two_rows(tmp_path
         load_vehicle_csv(student_csv(tmp_path, edit(STUDENT)), MAPPING, UNITS, delimiter=";")
 
 
+@pytest.mark.parametrize("loader, where", [("load_vehicle", "row"), ("load_vehicle_csv", "row"),
+                                           ("load_vehicle_csv", "header")])  # load_vehicle splits its header itself
+def test_a_field_beyond_the_csv_modules_limit_names_file_and_line(tmp_path, short_drive, loader, where):
+    """csv's own "field larger than field limit (131072)" used to escape with no file or line."""
+    path = kio.save_vehicle(short_drive, tmp_path / "drive.csv")
+    lines = path.read_text().split("\n")
+    at = 1 if where == "header" else 9  # the column line, or a data row
+    lines[at] = '"' + "9" * 200_000 + '",' + lines[at]
+    path.write_text("\n".join(lines))
+    with pytest.raises(RecordingError, match=rf"drive\.csv, line {at + 1}: not readable as CSV \(field larger than "
+                                             r"field limit"):
+        if loader == "load_vehicle":
+            kio.load_vehicle(path)
+        else:
+            load_vehicle_csv(path, {c: c for c in kio.VEHICLE_COLUMNS}, comment="#")
+
+
 def test_fuzzed_vehicle_files_load_the_same_numbers_or_name_the_file(tmp_path, short_drive):
     from test_io import check_fuzzed, same_rows
 
-    own = V.vehicle_text(V.Recording(short_drive.meta, {k: v[:60] for k, v in short_drive.data.items()}))
-    ref = V.load_vehicle(student_csv(tmp_path, own))
-    outcome = check_fuzzed(tmp_path / "fuzzed.csv", V.load_vehicle, own.encode(), RecordingError, same_rows(ref))
+    own = kio.vehicle_text(kio.Recording(short_drive.meta, {k: v[:60] for k, v in short_drive.data.items()}))
+    ref = kio.load_vehicle(student_csv(tmp_path, own))
+    outcome = check_fuzzed(tmp_path / "fuzzed.csv", kio.load_vehicle, own.encode(), RecordingError, same_rows(ref))
     assert outcome["rejected"] > 100
     ref = load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";")
     with warnings.catch_warnings():

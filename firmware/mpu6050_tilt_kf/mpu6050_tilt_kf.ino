@@ -72,13 +72,17 @@ void loop() {
         nextSampleUs = micros();
     }
     if (!streaming || (int32_t) (micros() - nextSampleUs) < 0) return;
+    // A stall (an I2C transfer that hung until its timeout) can pass whole periods: those samples were not taken.
+    // Their slots are skipped and counted in seq, so kfkit counts them as dropped and t_us stays on the grid.
+    while ((int32_t) (micros() - nextSampleUs) >= (int32_t) SAMPLE_PERIOD_US) {
+        nextSampleUs += SAMPLE_PERIOD_US;
+        seq++;
+    }
     const uint32_t tUs = nextSampleUs;
     nextSampleUs += SAMPLE_PERIOD_US;
-    if ((int32_t) (micros() - nextSampleUs) > 0) nextSampleUs = micros() + SAMPLE_PERIOD_US;  // fell behind: skip, keep the period
 
     int16_t counts[6];  // ax ay az gx gy gz
-    if (!mpu6050Read(counts)) {
-        Serial.println(F("#ERROR,MPU6050 read failed"));
+    if (!mpu6050ReadOrReport(counts, Serial)) {  // says why on Serial; a reset sensor is configured again
         seq++;  // the host sees a seq gap: a dropped sample
         return;
     }

@@ -78,9 +78,14 @@ void loop() {
     if (kfkitHandleCommands(Serial, &streaming)) nextSampleUs = micros();  // 'h' header, 's' stop/start
     // Signed difference: correct across the 32-bit micros() wrap (every 71.6 minutes).
     if (!streaming || (int32_t)(micros() - nextSampleUs) < 0) return;
+    // A stall (an I2C transfer that hung until its timeout) can pass whole periods: those samples were not taken.
+    // Their slots are skipped and counted in seq, so kfkit counts them as dropped and t_us stays on the grid.
+    while ((int32_t)(micros() - nextSampleUs) >= (int32_t)(1000000u / RATE_HZ)) {
+        advanceSchedule();
+        seq++;
+    }
     const uint32_t tUs = nextSampleUs;
     advanceSchedule();
-    if ((int32_t)(micros() - nextSampleUs) > 0) nextSampleUs = micros() + 1000000u / RATE_HZ;  // fell behind: skip
 
     int16_t acc[3], gyr[3];
     if (accGyr.ACC_GetAxesRaw(acc) != ISM330DHCX_OK || accGyr.GYRO_GetAxesRaw(gyr) != ISM330DHCX_OK) {

@@ -14,6 +14,11 @@ class PortNotFoundError(CaptureError):
     pass
 
 
+class PortAddressError(CaptureError, ValueError):
+    """A port name or URL kfkit cannot read (an unknown scheme, no host, a bad option): the message names the
+    port and lists the forms a port takes (:func:`kfkit.capture.ports.check_port`)."""
+
+
 class PortBusyError(CaptureError):
     pass
 

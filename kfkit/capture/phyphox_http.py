@@ -29,6 +29,8 @@ from __future__ import annotations
 import errno
 import http.client
 import json
+import math
+import re
 import socket
 import time
 import urllib.error
@@ -40,7 +42,8 @@ import numpy as np
 from ..clocks import OneClock, SampleCounter
 from ..readers.phyphox_export import KINDS, SOURCES
 from ..sensors import DEFAULT_PHONE_MOUNT, PHONE_BOARD, phone_counts, phone_mount, phone_sensor_metadata
-from .errors import PhoneError, PhoneExperimentError, PhoneStoppedError, PhoneUnreachableError, RemoteAccessOffError
+from .errors import (PhoneError, PhoneExperimentError, PhoneStoppedError, PhoneUnreachableError, PortAddressError,
+                     RemoteAccessOffError)
 from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_sample
 
 SCHEME = "phyphox://"
@@ -49,14 +52,49 @@ SIMPLE_EXPERIMENT = ("in phyphox tap '+' → 'New simple experiment', tick Accel
                      "open it and allow remote access again (⋮ menu)")
 
 
+#: what may ride on a phone's address (``?mount=upright&poll=0.2``), with what each takes
+URL_OPTIONS = {"mount": "a phone mounting (kfkit.sensors.PHONE_MOUNTS)", "poll": "seconds between requests, > 0",
+               "timeout": "seconds one request may take, > 0"}
+URL_FORM = f"{SCHEME}HOST[:PORT][?mount=NAME&poll=S&timeout=S], e.g. {SCHEME}192.168.0.42:8080"
+_HOST = re.compile(r"[A-Za-z0-9._:%-]+")  # a name, an IPv4 address or (inside [ ]) an IPv6 one
+
+
 def parse_url(url: str) -> tuple[str, int, dict]:
-    """``phyphox://HOST[:PORT][?key=value…]`` → (host, port, options)."""
+    """``phyphox://HOST[:PORT][?key=value…]`` → (host, port, options), the options of :data:`URL_OPTIONS`
+    (``poll`` and ``timeout`` as floats). Raises :class:`PortAddressError` naming the address and what is wrong."""
+    def bad(why):
+        return PortAddressError(f"phone address {url!r}: {why}; a phone's address is {URL_FORM}")
+
     if not url.startswith(SCHEME):
-        raise ValueError(f"a phone address starts with {SCHEME}, got {url!r}")
+        raise bad(f"it does not start with {SCHEME}")
     parts = urlsplit("http://" + url[len(SCHEME):])
     if not parts.hostname:
-        raise ValueError(f"no host in {url!r}: give the address phyphox shows, e.g. phyphox://192.168.0.42:8080")
-    return parts.hostname, parts.port or DEFAULT_PORT, dict(parse_qsl(parts.query))
+        raise bad("no host: give the address phyphox shows under 'Allow remote access'")
+    try:
+        port = parts.port
+    except ValueError:
+        raise bad("the port after ':' must be a whole number 1 … 65535") from None
+    if not _HOST.fullmatch(parts.hostname):
+        raise bad(f"{parts.hostname!r} is not a host name or IP address")
+    if port == 0 or parts.path not in ("", "/") or parts.fragment:
+        raise bad("the port after ':' must be a whole number 1 … 65535" if port == 0 else "nothing may follow the port but ?options")
+    options = dict(parse_qsl(parts.query, keep_blank_values=True))
+    for key, text in options.items():
+        if key not in URL_OPTIONS:
+            raise bad(f"unknown option {key!r}; the options are " + ", ".join(f"{k} ({v})" for k, v in URL_OPTIONS.items()))
+        if key == "mount":
+            try:
+                phone_mount(text)
+            except ValueError as e:
+                raise bad(str(e)) from None
+            continue
+        try:
+            options[key] = float(text)
+        except ValueError:
+            options[key] = math.nan
+        if not (0.0 < options[key] < math.inf):
+            raise bad(f"{key}={text!r}: {URL_OPTIONS[key]}")
+    return parts.hostname, port or DEFAULT_PORT, options
 
 
 class PhyphoxClient:

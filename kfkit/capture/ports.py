@@ -2,14 +2,102 @@
 from __future__ import annotations
 
 import errno
+import importlib.util
 import os
+import re
 import sys
 from dataclasses import dataclass
+from typing import Callable
+from urllib.parse import urlsplit
 
-from .errors import CaptureError, PortBusyError, PortNotFoundError, PortPermissionError
-from .phyphox_http import SCHEME, PhyphoxPort
+from .errors import CaptureError, PortAddressError, PortBusyError, PortNotFoundError, PortPermissionError
+from .phyphox_http import SCHEME, URL_FORM, PhyphoxPort, parse_url
 
 SKETCHES = "firmware/nucleo_iks02a1_logger or firmware/mpu6050_logger"
+
+
+@dataclass(frozen=True)
+class NamedPort:
+    """A port kfkit makes itself: ``make(**options)`` returns a board object the
+    :class:`~kfkit.capture.Recorder` starts and reads (see :mod:`kfkit.capture.recorder`)."""
+
+    description: str
+    make: Callable
+
+
+def _virtual_board(**options):
+    from .virtual import VirtualBoard
+
+    return VirtualBoard(**options)
+
+
+def _emulated_uno(**options):
+    from .emulated_uno import EmulatedUno
+
+    return EmulatedUno(**options)
+
+
+#: Ports by name, each a board kfkit simulates or emulates: the one place to add one. :func:`check_port` accepts
+#: these names and the Recorder makes ``NAMED_PORTS[name].make(**virtual)`` (its ``virtual`` options) for them.
+NAMED_PORTS = {
+    "virtual": NamedPort("the virtual board: the IMU simulator on a pseudo-terminal", _virtual_board),
+    "emulated-uno": NamedPort("the Uno's real firmware on simavr with an emulated MPU6050", _emulated_uno),
+}
+AUTO = "auto"
+_SCHEME = re.compile(r"[a-z][a-z0-9_]*")
+_HOST_PORT_SCHEMES = ("socket", "rfc2217")  # pyserial's network ports: HOST:PORT
+
+
+def port_forms() -> str:
+    """The forms a port takes, for messages."""
+    named = "; ".join(f"'{name}' ({p.description})" for name, p in NAMED_PORTS.items())
+    return (f"'{AUTO}' (the one board plugged in); {named}; a device path (/dev/ttyACM0, /dev/ttyUSB0, COM3); "
+            f"{URL_FORM} (a phone running phyphox); or a pyserial URL: socket://HOST:PORT, rfc2217://HOST:PORT, "
+            f"hwgrep://VID:PID, loop://")
+
+
+def check_port(port) -> str:
+    """``port`` if it has a form kfkit opens: 'auto', a name of :data:`NAMED_PORTS`, a device path,
+    ``phyphox://HOST[:PORT]`` (:func:`~kfkit.capture.phyphox_http.parse_url`) or a URL whose scheme pyserial knows
+    (``socket://`` and ``rfc2217://`` with HOST:PORT). Otherwise :class:`PortAddressError` naming the port and listing
+    the forms. Whether a device exists is for :func:`open_port` to find (:class:`PortNotFoundError`)."""
+    def bad(why):
+        return PortAddressError(f"port {port!r}: {why}. A port is {port_forms()}")
+
+    if not isinstance(port, str) or not port.strip() or "\0" in port:
+        raise bad("not a port name" if isinstance(port, str) else f"a port is text, not {type(port).__name__}")
+    scheme, sep, rest = port.partition("://")
+    if not sep or port == AUTO or port in NAMED_PORTS:
+        return port
+    if port.startswith(SCHEME):
+        parse_url(port)  # its error names the address and gives a phone's form
+        return port
+    scheme = scheme.lower()
+    if not _SCHEME.fullmatch(scheme) or not _pyserial_knows(scheme):
+        raise bad(f"no port has the scheme {scheme + '://'!r}")
+    if scheme in _HOST_PORT_SCHEMES:
+        parts = urlsplit("x://" + rest)
+        try:
+            number = parts.port
+        except ValueError:
+            number = None
+        if not parts.hostname or not number:
+            raise bad(f"{scheme}:// needs HOST:PORT, the port a whole number 1 … 65535")
+    return port
+
+
+def _pyserial_knows(scheme: str) -> bool:
+    """True if pyserial's ``serial_for_url`` has a handler for ``scheme://`` (how it finds one: a module
+    ``protocol_<scheme>`` in one of ``serial.protocol_handler_packages``)."""
+    import serial
+
+    for package in serial.protocol_handler_packages:
+        try:
+            if importlib.util.find_spec(f"{package}.protocol_{scheme}") is not None:
+                return True
+        except ImportError:
+            continue
+    return False
 
 
 #: USB VID:PID → (what it is, the kfkit board it most likely carries). ST-LINK product IDs as in
@@ -96,7 +184,9 @@ def open_port(port: str, baud: int = 115200, timeout: float = 0.05):
     Raises :class:`PortNotFoundError` (listing the ports that exist), :class:`PortBusyError`,
     :class:`PortPermissionError` (naming the group to join) or :class:`CaptureError`.
     ``phyphox://HOST:PORT`` opens a phone running phyphox (:class:`kfkit.capture.phyphox_http.PhyphoxPort`).
+    A port of no form kfkit opens raises :class:`PortAddressError` (:func:`check_port`).
     """
+    check_port(port)
     if port.startswith(SCHEME):
         return PhyphoxPort(port, read_timeout=timeout)
     import serial
@@ -108,13 +198,18 @@ def open_port(port: str, baud: int = 115200, timeout: float = 0.05):
         code, text = e.errno, str(e)
         windows = sys.platform == "win32"  # pyserial's Windows errors carry no errno, only the WinError text
         if code == errno.ENOENT or (is_url and "no ports found" in text) or (windows and "FileNotFoundError" in text):
-            raise PortNotFoundError(f"port {port} not found; {_list_text(find_boards())}") from None
+            forms = "" if _looks_like_a_device(port) else f". A port is {port_forms()}"
+            raise PortNotFoundError(f"port {port} not found; {_list_text(find_boards())}{forms}") from None
         if code in (errno.EBUSY, errno.EAGAIN) or (windows and "PermissionError" in text):
             raise PortBusyError(f"port {port} is busy: another program has it open (a serial monitor, the Arduino "
                                 "IDE, another notebook or kfkit capture?); close it and try again") from None
         if code == errno.EACCES:
             raise PortPermissionError(f"permission denied opening {port}{_permission_hint(port)}") from None
         raise CaptureError(f"cannot open {port}: {e}") from None
+
+
+def _looks_like_a_device(port: str) -> bool:
+    return "/" in port or "\\" in port or re.fullmatch(r"COM[0-9]+", port, re.IGNORECASE) is not None
 
 
 def _permission_hint(port: str) -> str:

@@ -11,8 +11,10 @@ reader thread only feeds it.
 
 A port is a device path, a pyserial URL, ``phyphox://…`` or a *board object* that serves a port:
 anything with ``start()`` (returns itself; ``port`` is then what to open), ``close()``, ``description``,
-``source`` (the recording's metadata "source") and ``phases`` (labelled windows of what it plays, or
-[]). :class:`kfkit.capture.virtual.VirtualBoard` is one; the name "virtual" makes a new one.
+``source`` (the recording's metadata "source"), ``phases`` (labelled windows of what it plays, or
+[]) and optionally ``error`` (the exception that stopped it, None while it runs).
+:class:`kfkit.capture.virtual.VirtualBoard` is one; a name of :data:`kfkit.capture.ports.NAMED_PORTS`
+("virtual") makes a new one.
 
 Magnetometer: the Nucleo sketch sends ``mx,my,mz`` on every line (the last reading repeated) and
 a last field ``mag_new`` (1 = a new reading, 0 = a repeat); rows with ``mag_new = 0`` get NaN
@@ -29,12 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from .. import sensors
+from ..filters.contract import require_positive
 from ..io import INT_COLUMNS, Recording, format_header, format_row, save_recording
 from .errors import BoardDisconnectedError, CaptureError, NoDataError, ProtocolVersionError, WrongBaudError
-from .ports import SKETCHES, open_port, resolve_auto
+from .ports import NAMED_PORTS, SKETCHES, open_port, resolve_auto
 from .protocol import BadLine, Header, Message, Note, Sample, parse_line
 from .timeline import CaptureStats, Timeline
-from .virtual import VirtualBoard
 
 DEFAULT_BAUD = 115200
 MAX_LINE_BYTES = 1024  # no newline in this many bytes: noise (a wrong baud rate), not a line
@@ -84,10 +86,12 @@ class Recorder:
 
     port      device path, pyserial URL (loop://, socket://host:port, hwgrep://0483:374B),
               phyphox://HOST:PORT, "auto" (the single detected board), "virtual" (a new
-              :class:`VirtualBoard` built from ``virtual=dict(...)``) or a board object (module docstring)
+              :class:`VirtualBoard` built from ``virtual=dict(...)``; any name of ``NAMED_PORTS``) or a board
+              object (module docstring)
     out       recording file streamed as samples arrive, rewritten with the final metadata
               (statistics, phases) by ``stop()``
-    seconds   stop by itself once this much board time (s) has arrived (None: until stop())
+    baud      the port's baud rate, a whole number > 0
+    seconds   stop by itself once this much board time (s) has arrived, a finite number > 0 (None: until stop())
     phases    labelled windows [{"label", "start", "end"}] for the metadata; a board object's
               ``phases`` (a virtual board playing a motion with phases) by default
     no_data_s NoDataError when nothing valid arrives this long (s): at the start (no sketch,
@@ -101,6 +105,10 @@ class Recorder:
 
     def __init__(self, port="auto", baud=DEFAULT_BAUD, out=None, *, seconds=None, phases=None, virtual=None,
                  request_header=True, no_data_s=3.0, garbage_s=2.0, flush_s=0.5, read_timeout=0.05):
+        require_positive("Recorder", none_ok=("seconds",), seconds=seconds, no_data_s=no_data_s, garbage_s=garbage_s,
+                         flush_s=flush_s, read_timeout=read_timeout)
+        if isinstance(baud, bool) or not isinstance(baud, (int, np.integer)) or baud <= 0:
+            raise ValueError(f"Recorder: baud must be a whole number > 0, got {baud!r}")
         self.port, self.baud, self.seconds = port, int(baud), seconds
         self.out = Path(out).resolve() if out is not None else None
         self.phases = list(phases) if phases is not None else None
@@ -133,8 +141,8 @@ class Recorder:
         if self._thread is not None:
             raise CaptureError("this Recorder has already been started; make a new one for a new capture")
         port = self.port
-        if port == "virtual":
-            port, self._own_board = VirtualBoard(**self.virtual_options), True
+        if isinstance(port, str) and port in NAMED_PORTS:
+            port, self._own_board = NAMED_PORTS[port].make(**self.virtual_options), True
         if not isinstance(port, str):  # a board object: start it (unless running) and open the port it serves
             self.board = port
             if self.board.port is None:
@@ -229,7 +237,12 @@ class Recorder:
                     self._fail(type(e), str(e))
                     break
                 except Exception as e:  # SerialException/OSError: the device went away
-                    self._fail(BoardDisconnectedError, f"the board disconnected ({self.device}: {e})")
+                    failed = getattr(self.board, "error", None)  # a board object that stopped on an error closes its port
+                    if failed is not None:
+                        self._fail(CaptureError, f"{self.description} stopped on an error ({type(failed).__name__}: "
+                                   f"{failed}); please report it")
+                    else:
+                        self._fail(BoardDisconnectedError, f"the board disconnected ({self.device}: {e})")
                     break
                 now = time.monotonic()
                 if data:
@@ -280,7 +293,7 @@ class Recorder:
 
     def _check_startup(self, waited):
         s = self.stats
-        valid = s.samples + s.before_header + (self.header is not None)
+        valid = s.samples + s.before_header + (self.header is not None) + len(s.notes)  # a '#' note is protocol v1
         if waited >= self.garbage_s and s.bytes >= 20 and valid <= 0.1 * (valid + s.bad_lines):
             hint = ("check Serial.begin(...) in the sketch" if self.baud == DEFAULT_BAUD
                     else f"pass baud={DEFAULT_BAUD} (kfkit capture --baud {DEFAULT_BAUD})")
@@ -294,6 +307,10 @@ class Recorder:
             self._fail(NoDataError, f"{self.device}: the board sent its header but no samples in {waited:.1f} s: "
                        f"it may be stopped (the 's' command toggles streaming) or its sensor failed to start"
                        f"{self._notes()}; press the board's reset button")
+        elif waited >= self.no_data_s and self.header is None and s.notes and not s.before_header:
+            self._fail(NoDataError, f"{self.device}: no header and no samples in {waited:.1f} s, only notes from the board"
+                       f"{self._notes()}: its sketch runs but cannot start; fix what it says, then press the board's "
+                       f"reset button")
         elif waited >= self.no_data_s and valid == 0 and s.bytes < 20:
             notes = self._notes() + (f" except {s.bytes} stray bytes" if s.bytes else "")
             self._fail(NoDataError, f"{self.device}: nothing received in {waited:.1f} s{notes}. Check that the logger "
@@ -301,7 +318,7 @@ class Recorder:
                        f"program reads the port")
 
     def _notes(self) -> str:
-        return f" (the board said: {'; '.join(self.stats.notes)})" if self.stats.notes else ""
+        return f" (the board said: {'; '.join(dict.fromkeys(self.stats.notes))})" if self.stats.notes else ""  # each once
 
     def _handle(self, line: bytes):
         item = parse_line(line)

@@ -55,6 +55,9 @@ from ..filters.tilt import TiltAttitude
 from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_message, encode_sample
 
 FAULT_KINDS = ("corrupt", "drop", "truncate", "reset", "disconnect", "stall", "garbage", "silent")
+#: The fastest rate a virtual board samples at, Hz: beyond every output data rate of the kit's sensors
+#: (ISM330DHCX 6.67 kHz, MPU6050 gyro 8 kHz), and a second of it is a chunk the simulator holds easily.
+MAX_RATE_HZ = 10_000.0
 BOOT_US = 1500  # micros() when a sketch sends its first sample after a reset
 # what firmware/mpu6050_tilt_kf prints (Serial.println: CR LF) when it starts measuring the gyro bias
 ATTITUDE_NOTE = b"#NOTE,measuring gyro bias: keep the board still for 2 s\r\n"
@@ -92,7 +95,8 @@ def _positions(spec):
 class VirtualBoard:
     """A simulated board on a pty. Use as a context manager; ``.port`` is the tty path.
 
-    rate_hz      sample rate, Hz (default: the motion's, else the board's: 104 Nucleo, 100 MPU6050)
+    rate_hz      sample rate, Hz, 0 < rate_hz ≤ :data:`MAX_RATE_HZ` (default: the motion's, else the board's: 104
+                 Nucleo, 100 MPU6050)
     board        "nucleo-iks02a1" or "mpu6050" (kfkit.sensors.BOARDS)
     motion       a sim.Motion to play (looped when ``loop``), or None: at rest, level, forever
     unit         the sensor errors: "bundled" (default) the board's unit in :data:`VIRTUAL_UNITS`, the one its bundled
@@ -124,7 +128,12 @@ class VirtualBoard:
         self.board = get_board(board) if isinstance(board, str) else board
         if motion is not None and rate_hz is not None and abs(float(rate_hz) - motion.rate_hz) > 1e-9:
             raise ValueError(f"rate_hz={rate_hz} differs from the motion's rate {motion.rate_hz} Hz")
-        self.rate_hz = float(rate_hz or (motion.rate_hz if motion is not None else self.board.rate_hz))
+        if rate_hz is None:
+            rate_hz = motion.rate_hz if motion is not None else self.board.rate_hz
+        if isinstance(rate_hz, bool) or not isinstance(rate_hz, (int, float, np.integer, np.floating)) or not (
+                0.0 < rate_hz <= MAX_RATE_HZ):
+            raise ValueError(f"VirtualBoard: rate_hz must be a number > 0 and ≤ {MAX_RATE_HZ:g} Hz, got {rate_hz!r}")
+        self.rate_hz = float(rate_hz)
         self.motion, self.loop, self.realtime = motion, loop, realtime
         self.seed, self.start_us, self.start_seq, self.chunk_s = seed, int(start_us), int(start_seq), chunk_s
         self.unit = resolve_unit(self.board.name, unit, VIRTUAL_UNITS)  # the sensor errors it simulates
@@ -155,6 +164,7 @@ class VirtualBoard:
         self._paused_us = 0  # time spent stopped by 's' (micros() runs on)
         self.lines_sent = 0
         self.connected = False
+        self.error = None  # the exception that stopped the board's thread (it then closes its port, as unplugged)
         self._master = self._slave = None
         self._thread = None
         self._stop = threading.Event()
@@ -333,9 +343,7 @@ class VirtualBoard:
                             n, out = next(lines)
                         except StopIteration:
                             if self.disconnect_at is not None and self.samples_made >= self.disconnect_at:
-                                self._flush(pending, wait=0.01)
-                                self._drain()  # returns once the host has read it all
-                                self._close_fds()  # unplugged
+                                self._unplug(pending)
                                 return
                             lines = None
                             break
@@ -348,6 +356,18 @@ class VirtualBoard:
                 self._stop.wait(min(0.5 / self.rate_hz, 0.005) if streaming else 0.01)
         except OSError:  # the pty went away under us (closed from outside)
             pass
+        except Exception as e:  # noqa: BLE001 — a failing simulation (or extra_lines): no traceback on a thread
+            self.error = e  # what was made before it reaches the host, then the port closes (a recorder says why)
+            self._unplug(pending)
+
+    def _unplug(self, pending: bytearray):
+        """Send what is pending, wait until the host has read it, close the pty: as a board unplugged."""
+        try:
+            self._flush(pending, wait=0.01)
+            self._drain()
+        except OSError:
+            pass
+        self._close_fds()
 
     def _drain(self, timeout=30.0):
         """Wait until the host has read what was sent (a pty drops unread bytes when it closes)."""

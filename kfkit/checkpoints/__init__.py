@@ -8,17 +8,24 @@
 A :class:`Checkpoint` separates the three steps a grader must keep apart: drawing cases
 (with the reference answer) in the checker's process, calling the student's function, and
 judging the raw output. Each lab registers its checkpoints in its own module (``lab01``, …).
+
+The hint matches the kind of failure (:func:`failure_hint`): a checkpoint's own hint, about its idea, only
+for wrong numbers; an exception gets the hint of its kind (:data:`EXCEPTION_KINDS`: a function that cannot
+take arrays, shapes that do not fit, …), NaN or inf and an answer of the wrong form (count, shape, None) theirs.
 """
 from __future__ import annotations
 
+import enum
 import importlib
 import pkgutil
+import re
 import textwrap
 import traceback
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
+
 
 
 @dataclass
@@ -47,10 +54,29 @@ class Checkpoint:
     what: str = "random cases"
 
 
+class Status(str, enum.Enum):
+    """The outcome of a checkpoint: a check's result, a gradebook row's ``status`` column, the class report's
+    bars. A check ends passed, failed, error (the function raised) or not attempted; the grader adds the rest."""
+
+    PASSED = "passed"
+    FAILED = "failed"
+    ERROR = "error"  # the student's function raised
+    NOT_ATTEMPTED = "not attempted"  # it still raises NotImplementedError
+    MISSING = "missing"  # no such function after the notebook ran
+    TIMED_OUT = "timed out"  # the call, a function it calls or the whole submission ran out of time
+    OVER_LIMIT = "over limit"  # the submission went over its memory or CPU-time limit
+    NOT_GRADED = "not graded"  # not a notebook, or a grader error (regrade)
+    REFUSED = "refused"  # not opened: a link or not a regular file in the folder graded
+    UNKNOWN = "unknown"  # a row of a gradebook written before the status column, short of full points
+
+    def __str__(self) -> str:
+        return self.value
+
+
 @dataclass
 class CheckResult:
     name: str
-    status: str  # "passed", "failed", "not attempted", "error"
+    status: Status  # PASSED, FAILED, NOT_ATTEMPTED or ERROR
     passed: int
     total: int
     points: float
@@ -59,7 +85,7 @@ class CheckResult:
 
     @property
     def ok(self) -> bool:
-        return self.status == "passed"
+        return self.status == Status.PASSED
 
     def __str__(self) -> str:
         return self.message
@@ -206,12 +232,94 @@ def compare(expected, got, rtol=1e-6, atol=1e-9) -> str | None:
 
 def structural(problem: str | None) -> bool:
     """True when :func:`compare`'s ``problem`` is about the answer's form (count, shape, type), not its values."""
-    return problem is not None and any(p in problem for p in ("shape mismatch", "expected a number or array", " values: "))
+    return problem is not None and any(p in problem for p in ("shape mismatch", "expected a number or array", " values: ",
+                                                              " value: "))  # "got 1 value: …" too
 
 
 def matches(rtol=1e-6, atol=1e-9) -> Callable:
     """The judge that compares the answer with ``case.expected`` (:func:`compare` at these tolerances)."""
     return lambda case, got: compare(case.expected, got, rtol=rtol, atol=atol)
+
+
+@dataclass(frozen=True)
+class ExceptionKind:
+    """A kind of exception a student's function raises: any class named in ``names`` (the exception's class or a
+    base) whose message holds one of ``words`` (any message when empty). Matched by name and text, because the grader
+    rebuilds a kernel's exception from its class name and message (:mod:`kfkit.grading.core`)."""
+
+    names: tuple
+    words: tuple
+    hint: str  # may name {function} and {parameters}
+
+
+#: The kinds of exception, tried in order; the first that matches gives the hint (:func:`failure_hint`).
+EXCEPTION_KINDS = (
+    ExceptionKind(("TypeError", "ValueError"), ("0-dimensional arrays", "length-1 arrays", "size-1 arrays",
+                                                "truth value of an array"),
+                  "{function} is called with NumPy arrays, whole columns at once as the lab calls it: use NumPy's "
+                  "functions (np.arctan2, np.sqrt, np.sin, …), not math's, which take one number, and np.where "
+                  "instead of an if on an array"),
+    ExceptionKind(("ValueError", "IndexError", "LinAlgError", "AxisError"),
+                  ("broadcast", "core dimension", "not aligned", "reshape", "out of bounds", "too many indices",
+                   "dimension", "must be square", "shape"),
+                  "two arrays' shapes do not fit together: print the shape of each input and of what you build from "
+                  "it (x.shape), and check the order of each matrix product (A @ B needs A's columns = B's rows)"),
+    ExceptionKind(("TypeError",), ("positional argument", "keyword argument"),
+                  "the check calls {function}({parameters}) by these names: keep the exercise's parameters as given"),
+    ExceptionKind(("NameError", "UnboundLocalError"), (),
+                  "a name {function} uses is not defined: define it inside the function (or run the cell that "
+                  "defines it first), and check its spelling"),
+    ExceptionKind(("ZeroDivisionError",), (),
+                  "a division by zero: which input can be zero here, and what must the function give then?"),
+    ExceptionKind(("ValueError",), ("math domain error",),
+                  "math.sqrt, asin or acos got a number outside its domain: check the sign, or clip a ratio into "
+                  "[−1, 1] (np.clip) where rounding can push it just outside"),
+)
+OTHER_EXCEPTION_HINT = "run {function} yourself on the input shown, to see which line raises and why"
+NONFINITE_HINT = ("NaN or inf comes from 0/0, a square root or arcsin of a number out of range, a log of 0, or a NaN "
+                  "in the inputs (a magnetometer row without a sample): print the values on that input step by step "
+                  "to find where it first appears")
+NONE_HINT = "a function returns None when no return statement runs: does {function} end with return …?"
+FORM_HINT = "return {form}, as the exercise's docstring says"
+_FORM_WORDS = re.compile(r"\b(got shapes? \(|has shape \()")  # judges' own words for a wrong shape
+
+
+def _form(expected) -> str | None:
+    """'an array of shape (3,)', 'a tuple of 2 values (…)', 'one number': the form of ``expected``, None if unknown."""
+    if isinstance(expected, tuple):
+        forms = [_form(e) or "…" for e in expected]
+        if set(forms) == {"one number"}:
+            return f"a tuple of {len(forms)} numbers"
+        if len(set(forms)) == 1 and forms[0].startswith("an array"):
+            return f"a tuple of {len(forms)} arrays of shape {np.shape(expected[0])}"
+        return f"a tuple of {len(forms)} values (" + ", ".join(forms) + ")"
+    if _numeric(expected):
+        shape = np.shape(expected)
+        return "one number" if shape == () else f"an array of shape {shape}"
+    return None
+
+
+def failure_hint(cp: Checkpoint, case: Case, exc: BaseException | None = None, got=None, problem: str | None = None,
+                 nonfinite: bool = False) -> str:
+    """The hint for the first failure of ``cp``, by its kind: an exception by :data:`EXCEPTION_KINDS`; NaN or inf;
+    None returned; an answer of the wrong form (compare's count, shape or type problems, a judge's "got shape");
+    and only for wrong numbers the checkpoint's own hint."""
+    names = {"function": cp.function, "parameters": ", ".join(case.args)}
+    if exc is not None:
+        classes = {c.__name__ for c in type(exc).__mro__}
+        text = str(exc)
+        kind = next((k for k in EXCEPTION_KINDS if classes & set(k.names) and (not k.words or any(w in text for w in k.words))),
+                    None)
+        return (kind.hint if kind is not None else OTHER_EXCEPTION_HINT).format(**names)
+    if nonfinite:
+        return NONFINITE_HINT
+    if got is None:
+        return NONE_HINT.format(**names)
+    if structural(problem) or _FORM_WORDS.search(problem or ""):
+        form = _form(case.expected)
+        return FORM_HINT.format(form=form) if form else FORM_HINT.format(form="what the exercise asks for (how many "
+                                                                              "values, each of which shape)")
+    return cp.hint
 
 
 def run_checkpoint(cp: Checkpoint, answer: Callable, seed=None) -> CheckResult:
@@ -223,24 +331,30 @@ def run_checkpoint(cp: Checkpoint, answer: Callable, seed=None) -> CheckResult:
         try:
             got = answer(**case.args)
         except NotImplementedError as exc:
+            if getattr(exc, "stale_definition", False):  # the exercise guard set an older definition aside: it says why
+                return CheckResult(cp.name, Status.NOT_ATTEMPTED, 0, total, 0, cp.points, f"⏳ {head}stale: {exc}")
             stub = traceback.extract_tb(exc.__traceback__)[-1].name   # where it was raised: a given function may call a stub
             what = cp.function if stub in (cp.function, getattr(answer, "__name__", None)) else f"{cp.function} calls {stub}, which"
             msg = f"⏳ {head}not attempted yet ({what} still raises NotImplementedError: fill it in, run its cell, then this one)"
-            return CheckResult(cp.name, "not attempted", 0, total, 0, cp.points, msg)
+            return CheckResult(cp.name, Status.NOT_ATTEMPTED, 0, total, 0, cp.points, msg)
         except Exception as exc:  # the student's code failed: report it, never crash the notebook
             where = f"on {case.label}, " if case.label else ""
             msg = (f"❌ {head}{where}{call_repr(cp.function, case.args)} raised {type(exc).__name__}: {exc}. "
-                   f"Hint: {cp.hint}")
-            return CheckResult(cp.name, "error", passed, total, 0, cp.points, msg)
-        problem = nonfinite_problem(got, case.expected) or cp.judge(case, got)
+                   f"Hint: {failure_hint(cp, case, exc)}")
+            return CheckResult(cp.name, Status.ERROR, passed, total, 0, cp.points, msg)
+        nonfinite = nonfinite_problem(got, case.expected)
+        returned_none = got is None and case.expected is not None  # no judge needs to see it (a missing return)
+        problem = nonfinite or (f"got None, expected {_form(case.expected) or 'a value'}" if returned_none
+                                else cp.judge(case, got))
         if problem is None:
             passed += 1
         elif first_failure is None:
             first_failure = f"{case.label or call_repr(cp.function, case.args)}: {problem}"
+            hint = failure_hint(cp, case, got=got, problem=problem, nonfinite=nonfinite is not None)
     if passed == total:
-        return CheckResult(cp.name, "passed", passed, total, cp.points, cp.points, f"✅ {head}{passed}/{total} {cp.what}")
-    msg = f"❌ {head}{passed}/{total} {cp.what}; first failure {first_failure}. Hint: {cp.hint}"
-    return CheckResult(cp.name, "failed", passed, total, 0, cp.points, msg)
+        return CheckResult(cp.name, Status.PASSED, passed, total, cp.points, cp.points, f"✅ {head}{passed}/{total} {cp.what}")
+    msg = f"❌ {head}{passed}/{total} {cp.what}; first failure {first_failure}. Hint: {hint}"
+    return CheckResult(cp.name, Status.FAILED, passed, total, 0, cp.points, msg)
 
 
 def check(name: str, answer: Callable, seed=None) -> CheckResult:

@@ -223,7 +223,7 @@ def six_face_truth(rec):
     M = mount_matrix(rec.meta["mount"]["acc"])
     bias = M @ np.asarray(sim["accel_bias"])
     scale = np.abs(M) @ np.asarray(sim.get("accel_scale", [1.0, 1.0, 1.0]))
-    R_bn = np.swapaxes(euler_to_dcm(*rec.truth().T), -1, -2)
+    R_bn = np.swapaxes(euler_to_dcm(rec.truth()), -1, -2)
     f_true = R_bn @ np.array([0.0, 0.0, -G])
     up, down = (np.array([f_true[rec.phase(f"{a}_{w}"), i].mean() for i, a in enumerate("xyz")]) for w in ("up", "down"))
     acc = rec.body("acc")

@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.ndimage import median_filter
-from scipy.spatial.transform import Rotation
 
 from .. import calibration, datasets
-from ..frames import MAG_FIELD_LONDON, accel_tilt, declination, mag_heading, tilt_compensated_heading, wrap_angle
+from ..frames import (MAG_FIELD_LONDON, accel_tilt, declination, euler_to_dcm, mag_heading, random_dcm,
+                      tilt_compensated_heading, wrap_angle)
 from ..metrics import angle_error, rmse
 from ..sensors import iis2mdc_mag
 from . import Case, Checkpoint, compare, fmt, fmt_pair, matches, register, structural
@@ -59,8 +59,8 @@ def random_ellipsoid(rng, n=400, field_norm=None, noise=0.05):
     """Readings (n, 3) µT of a field of magnitude B seen from all directions through a random soft iron
     W (symmetric, eigenvalues 0.7–1.3) and hard iron h (±30 µT), with white noise; returns (mag, h, W)."""
     B = float(np.linalg.norm(MAG_FIELD_LONDON)) if field_norm is None else field_norm
-    u = Rotation.random(n, random_state=rng).apply([1.0, 0.0, 0.0])
-    V = Rotation.random(random_state=rng).as_matrix()
+    u = random_dcm(n, rng)[:, :, 0]  # uniform directions: the first column of uniform rotations
+    V = random_dcm(rng=rng)
     W = V @ np.diag(rng.uniform(0.7, 1.3, 3)) @ V.T
     h = rng.uniform(-30, 30, 3)
     return B * u @ W.T + h + rng.normal(0, noise, (n, 3)), h, W
@@ -117,8 +117,8 @@ def _judge_ellipsoid(case, got):
 
 
 def _tilted_reading(yaw, pitch, roll):
-    """m_b = R_bn m_n of the London field (µT) for a board at (ψ, θ, φ) from scipy's rotation."""
-    return Rotation.from_euler("ZYX", np.stack([yaw, pitch, roll], axis=-1)).inv().apply(MAG_FIELD_LONDON)
+    """m_b = R_bn m_n of the London field (µT) for a board at (ψ, θ, φ)."""
+    return np.einsum("...ji,j->...i", euler_to_dcm(np.stack([roll, pitch, yaw], axis=-1)), MAG_FIELD_LONDON)
 
 
 def _like(A, B, atol=2e-2):
@@ -152,7 +152,7 @@ def _heading_cases(rng):
 def _flat_cases(rng):
     cases = []
     for yaw in np.concatenate([[0.0, np.pi / 2, np.pi, -np.pi / 2], rng.uniform(-np.pi, np.pi, 6)]):
-        m_b = Rotation.from_euler("Z", yaw).inv().apply(MAG_FIELD_LONDON)
+        m_b = _tilted_reading(yaw, 0.0, 0.0)
         cases.append(Case({"m_b": m_b}, mag_heading(m_b)))
     return cases
 

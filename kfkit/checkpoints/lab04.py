@@ -11,11 +11,11 @@ import numpy as np
 
 from .. import datasets
 from ..calibration import Calibration, calibration_for, gyro_bias
-from ..filters.euler_ekf import (EulerEkfSettings, attitude_jacobian, attitude_measurement, euler_ekf_predict,
-                                 euler_ekf_update, euler_process_noise, euler_rates)
+from ..filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement, euler_ekf_predict,
+                                 euler_ekf_update, euler_process_noise)
 from ..filters.attitude_run import learn_field
 from ..filters.euler_ekf_fast import FastEulerAttitudeEKF
-from ..frames import MAG_FIELD_LONDON, euler_to_dcm, euler_to_quat, wrap_angle
+from ..frames import MAG_FIELD_LONDON, body_rates_to_euler_rates, euler_to_dcm, euler_to_quat, wrap_angle
 from ..metrics import angle_error, attitude_rmse, rmse
 from . import Case, Checkpoint, compare, fmt, matches, register, structural
 
@@ -49,10 +49,10 @@ def _random_cov(rng, n, scale):
 
 def _euler_rates_cases(rng):
     cases = [Case({"euler": np.array([0.3, 0.0, 0.0]), "omega_b": np.array([0.0, 0.0, 0.5])},
-                  euler_rates([0.3, 0.0, 0.0], [0.0, 0.0, 0.5]), "euler_rates(φ = 17°, θ = 0, r = 0.5 rad/s)")]
+                  body_rates_to_euler_rates([0.3, 0.0, 0.0], [0.0, 0.0, 0.5]), "euler_rates(φ = 17°, θ = 0, r = 0.5 rad/s)")]
     for _ in range(11):
         e, w = _random_state(rng), rng.normal(0.0, 1.0, 3)
-        cases.append(Case({"euler": e, "omega_b": w}, euler_rates(e, w)))
+        cases.append(Case({"euler": e, "omega_b": w}, body_rates_to_euler_rates(e, w)))
     return cases
 
 
@@ -273,13 +273,13 @@ def accelerated(acc, truth, t, rng):
         heading = rng.uniform(-np.pi, np.pi)
         a_n[w] = BURST_ACCEL * np.array([np.cos(heading), np.sin(heading), 0.0])
         during |= w
-    R_bn = np.swapaxes(euler_to_dcm(*truth.T), -1, -2)
+    R_bn = np.swapaxes(euler_to_dcm(truth), -1, -2)
     return acc + np.einsum("nij,nj->ni", R_bn, a_n), during
 
 
 def _rmse_cases(rng):
     rec, gyr, acc, mag = bundled_inputs()
-    tuning = EulerEkfSettings()  # the lab's defaults
+    tuning = EulerAttitudeEKFSettings()  # the lab's defaults
     args = {"gyr": gyr, "acc": acc, "mag": mag, "rate_hz": rec.rate_hz, "gyro_noise": tuning.gyro_noise,
             "accel_noise": tuning.accel_noise, "mag_noise": tuning.mag_noise, "field_n": np.array(MAG_FIELD_LONDON)}
     biased = dict(args, gyr=gyr + EXTRA_GYRO_BIAS)
@@ -367,7 +367,7 @@ def truth_error_at_rest(rec, acc, mag, seconds=TRUTH_CHECK_SECONDS):
     bias) and the heading of the measured field in the truth's frame (the truth's north against the
     magnetometer's, which is the filter's), combined as √(inclination² + heading²)."""
     still = (rec.t - rec.t[0] < seconds) & rec.phase("rest") & ~np.isnan(rec["true_roll"])
-    R_nb = euler_to_dcm(*rec.truth()[still].T)
+    R_nb = euler_to_dcm(rec.truth()[still])
     f_n = np.einsum("nij,nj->ni", R_nb, acc[still]).mean(axis=0)
     m_n = np.einsum("nij,nj->ni", R_nb, mag[still]).mean(axis=0)
     return float(np.hypot(np.arccos(-f_n[2] / np.linalg.norm(f_n)), np.arctan2(m_n[1], m_n[0])))
@@ -379,11 +379,11 @@ def _real_cases(rng):
     error at rest: a filter that is right reproduces the reference, so its error against this truth can exceed the
     reference's only by what the truth cannot resolve."""
     rec, gyr, acc, mag, field_n, q_true, moving = real_inputs(moving_seconds=REAL_MOVING_SECONDS)
-    tuning = EulerEkfSettings()
+    tuning = EulerAttitudeEKFSettings()
     args = {"gyr": gyr, "acc": acc, "mag": mag, "rate_hz": rec.rate_hz, "gyro_noise": tuning.gyro_noise,
             "accel_noise": tuning.accel_noise, "mag_noise": tuning.mag_noise, "field_n": field_n,
             "accel_gate": ACCEL_GATE}
-    reference = FastEulerAttitudeEKF(rec.rate_hz, tuning, field_n=field_n, accel_gate=ACCEL_GATE).run(gyr, acc, mag)
+    reference = FastEulerAttitudeEKF(rate_hz=rec.rate_hz, settings=tuning, field_n=field_n, accel_gate=ACCEL_GATE).run(gyr, acc, mag)
     ref_rmse = attitude_rmse(euler_to_quat(reference.euler), q_true, moving)["total"]
     return [Case(args, (q_true, moving, ref_rmse, truth_error_at_rest(rec, acc, mag)),
                  f"the real recording {REAL_RECORDING} (BROAD trial 06): its {movement_start(rec):.0f} s at rest and "

@@ -13,7 +13,7 @@ from . import Case, Checkpoint, compare, matches, register
 
 BOARD = sensors.MPU6050_GY521
 GATES = ("none", "skip", "inflate")
-INFLATION = 100.0  # the lab's R multiplier for gate="inflate"
+INFLATION = 100.0  # the lab's R multiplier for accel_gating="inflate"
 RMSE_LIMIT = np.radians(0.5)  # final checkpoint: static-window RMSE, rad
 BIAS_TOLERANCE = 0.10  # final checkpoint: relative bias error in the holds after 30 s
 BIAS_AFTER = 30.0  # s
@@ -153,10 +153,8 @@ def _random_state(rng):
 
 
 def kf_predict_reference(x, P, omega, dt, q_angle, q_bias):
-    kf = TiltBiasKF(dt, q_angle=q_angle, q_bias=q_bias, r=1.0)
-    kf.reset(x, P)
-    kf.step(omega, np.nan)
-    return kf.x, kf.P
+    step = TiltBiasKF(dt, q_angle=q_angle, q_bias=q_bias, r=1.0, x0=x, P0=P).step(omega, np.nan)
+    return step.x, step.P
 
 
 def _predict_cases(rng):
@@ -192,8 +190,8 @@ def _run_cases(rng):
         args = {"gyro_rate": rng.normal(0.0, 0.5, n), "accel_angle": rng.normal(0.0, 0.3, n),
                 "static_ok": rng.random(n) > 0.3, "dt": 0.01, "q_angle": 10 ** rng.uniform(-7, -4),
                 "q_bias": 10 ** rng.uniform(-12, -8), "r": 10 ** rng.uniform(-5, -2), "gate": gate, "x0": x0, "P0": P0}
-        ref = TiltBiasKF(args["dt"], q_angle=args["q_angle"], q_bias=args["q_bias"], r=args["r"], gate=gate, inflation=INFLATION).run(
-            args["gyro_rate"], args["accel_angle"], args["static_ok"], x0=x0, P0=P0)
+        ref = TiltBiasKF(args["dt"], q_angle=args["q_angle"], q_bias=args["q_bias"], r=args["r"], accel_gating=gate,
+                         accel_inflation=INFLATION, x0=x0, P0=P0).run(args["gyro_rate"], args["accel_angle"], args["static_ok"])
         cases.append(Case(args, (ref.x, ref.P), f"gate={gate!r}, a random sequence of {n} samples"))
     return cases
 

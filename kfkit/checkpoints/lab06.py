@@ -8,7 +8,8 @@ from .. import datasets
 from ..filters.sideslip import sideslip_step
 from ..filters.sideslip_estimate import estimate_sideslip
 from ..metrics import rmse
-from ..vehicle import BicycleParams, discretize, linear_model, miscopied_linear_model
+from ..discrete import discretize
+from ..vehicle import BicycleParams, linear_model, miscopied_linear_model
 from . import Case, Checkpoint, compare, register
 
 SLALOM = "06_slalom_20kmh"

@@ -1,43 +1,47 @@
-"""Reference filters, one module per lab's model, all after one contract.
+"""Reference filters, one module per lab's model, all after one contract (:mod:`kfkit.filters.contract`).
 
 The contract (x-io Fusion's and VQF's shape: settings with units and defaults, then steps):
 
-* construct with the sample period ``dt`` (or ``rate_hz``) and a frozen settings dataclass whose
-  every field has a meaning, a unit and a default; keyword changes apply on top of it
-  (``TiltBiasKF(0.01, r=1e-4)`` = ``TiltBiasKF(0.01, TiltSettings(r=1e-4))``);
-* ``step(...)`` takes one sample and returns a :class:`Step` ``(x, P, y, S)``: state, covariance,
-  innovation and its covariance (NaN where no update was made);
-* ``run(...)`` filters a recording and returns a :class:`FilterRun` (x, P, y, S, one row per
-  sample) or a subclass whose named properties read it (``TiltRun.angle``, ``SideslipRun.beta``,
-  ``AttitudeRun.euler``).
+* construct with the sample period ``dt`` (or ``rate_hz``), a frozen ``<Filter>Settings`` dataclass whose every
+  field has a meaning, a unit and a default, and the start ``x0``, ``P0``; keyword changes apply on top of the
+  settings (``TiltBiasKF(0.01, r=1e-4)`` = ``TiltBiasKF(0.01, TiltBiasKFSettings(r=1e-4))``);
+* ``step(...)`` takes one sample and returns a :class:`Step` ``(x, P, y, S)`` with the prior ``x_prior, P_prior``;
+* ``run(..., resume=False)`` filters a recording from the start and returns a :class:`FilterRun` (the steps,
+  stacked) or a subclass whose named properties read it (``TiltRun.angle``, ``SideslipRun.beta``,
+  ``AttitudeRun.euler``); ``reset(x0, P0)`` goes back to the start; ``state`` is a dataclass.
 
-    linear    Step, FilterRun; KalmanFilter (Joseph form: predict, update, step, run)
-    roll      lab 01: RollKF + RollSettings; the textbook forms roll_kf_predict, roll_kf_update, roll_kf
-    tilt      lab 05: TiltBiasKF + TiltSettings ([angle, gyro bias] per axis, accelerometer gating) → TiltRun;
+    contract  Filter, TunedFilter (the Protocols), Step, FilterRun, State; sample_period, configure, check_settings
+    registry  FILTERS (every lab filter by name), methods (a front door's filters)
+    linear    KalmanFilter (Joseph form: predict, update, step, run)
+    roll      lab 01: RollKF + RollKFSettings; the textbook forms roll_kf_predict, roll_kf_update, roll_kf
+    tilt      lab 05: TiltBiasKF + TiltBiasKFSettings ([angle, gyro bias] per axis, accelerometer gating) → TiltRun;
               TiltAttitude, roll and pitch from raw counts as the mpu6050_tilt_kf sketch computes them
-    sideslip  lab 06: SideslipKF + SideslipSettings (bicycle-model KF, D-term, low-speed guard) → SideslipRun;
+    sideslip  lab 06: SideslipKF + SideslipKFSettings (bicycle-model KF, D-term, low-speed guard) → SideslipRun;
               the lesson's other estimators (kinematic integration, the copied kinematic KF)
-    sideslip_ekf       SideslipEKF + TyreEkfSettings: the same model with saturating tyres (the race-track fix)
+    sideslip_ekf       SideslipEKF + SideslipEKFSettings: the same model with saturating tyres (the race-track fix)
     sideslip_estimate  estimate_sideslip (the EKF by default, the KF with model=linear_model), compare_estimators
     attitude        lab 04's front door estimate_attitude, over:
-    attitude_run    AttitudeRun (quat, euler, bias from x), check_inputs, tilt_heading, learn_field
-    euler_ekf       EulerAttitudeEKF + EulerEkfSettings and the textbook step functions (run = a loop over step)
+    attitude_run    AttitudeRun (quat, euler, bias from x; P_attitude), check_inputs, tilt_heading, learn_field
+    euler_ekf       EulerAttitudeEKF + EulerAttitudeEKFSettings and the textbook step functions (run = a loop over step)
     euler_ekf_fast  FastEulerAttitudeEKF: the same filter unrolled on floats, held equal by a test
-    mekf            MultiplicativeEKF + MekfSettings, its MekfState and named steps
+    mekf            MultiplicativeEKF + MultiplicativeEKFSettings, its MultiplicativeEKFState and named steps
     mag_gate        MagGate, the MEKF's magnetic-disturbance gate
 
 The names imported below are importable from ``kfkit.filters``; the helpers (``tilt_heading``,
 ``learn_field``, ``jacobian_rows``, ``MagGate``, …) from their own modules.
 """
-from .linear import FilterRun, KalmanFilter, Step
-from .roll import RollKF, RollSettings, integrate_rate, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
-from .tilt import TiltAttitude, TiltBiasKF, TiltRun, TiltSettings, accel_static_ok, protocol_angles
+from .contract import Filter, FilterRun, State, Step, TunedFilter
+from .linear import KalmanFilter
+from .roll import RollKF, RollKFSettings, integrate_rate, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
+from .tilt import TiltAttitude, TiltBiasKF, TiltBiasKFSettings, TiltRun, accel_static_ok, protocol_angles
 from .attitude_run import AttitudeRun
-from .euler_ekf import (EulerAttitudeEKF, EulerEkfSettings, attitude_jacobian, attitude_measurement, euler_ekf_predict,
-                        euler_ekf_update, euler_process_noise, euler_rates)
+from .euler_ekf import (EulerAttitudeEKF, EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement,
+                        euler_ekf_predict, euler_ekf_update, euler_process_noise)
 from .euler_ekf_fast import FastEulerAttitudeEKF
-from .mekf import MekfSettings, MultiplicativeEKF
+from .mekf import MultiplicativeEKF, MultiplicativeEKFSettings
+from .sideslip import (SideslipKF, SideslipKFSettings, SideslipRun, copied_kinematic_kf, kinematic_sideslip,
+                       sideslip_step)
+from .sideslip_ekf import SideslipEKF, SideslipEKFSettings
+from .registry import FILTERS
 from .attitude import estimate_attitude
-from .sideslip import SideslipKF, SideslipRun, SideslipSettings, copied_kinematic_kf, kinematic_sideslip, sideslip_step
-from .sideslip_ekf import SideslipEKF, TyreEkfSettings
 from .sideslip_estimate import compare_estimators, estimate_sideslip

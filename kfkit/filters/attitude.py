@@ -3,19 +3,20 @@ magnetometer) with either filter, each in its own module:
 
     euler_ekf       the lab's Euler-angle EKF: textbook step functions, EulerAttitudeEKF (run = a loop over step)
     euler_ekf_fast  FastEulerAttitudeEKF, the same filter unrolled on floats (what this front door runs)
-    mekf            MultiplicativeEKF + MekfSettings: quaternion error-state EKF with gyro bias
+    mekf            MultiplicativeEKF + MultiplicativeEKFSettings: quaternion error-state EKF with gyro bias
     mag_gate        MagGate, the MEKF's magnetic-disturbance gate
     attitude_run    AttitudeRun (the FilterRun both return), check_inputs, tilt_heading, learn_field
+
+Its methods are the registry's "attitude" filters (:mod:`kfkit.filters.registry`).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from .attitude_run import AttitudeRun, check_inputs, learn_field
-from .euler_ekf_fast import FastEulerAttitudeEKF
-from .mekf import MultiplicativeEKF
+from .registry import methods
 
-METHODS = {"euler-ekf": FastEulerAttitudeEKF, "mekf": MultiplicativeEKF}
+METHODS = methods("attitude")
 
 
 def estimate_attitude(gyr, acc, mag, rate_hz, method="euler-ekf", **tuning) -> AttitudeRun:
@@ -28,8 +29,8 @@ def estimate_attitude(gyr, acc, mag, rate_hz, method="euler-ekf", **tuning) -> A
     not given) the field is learned from the first magnetometer samples (:func:`learn_field`),
     so north is magnetic north. Without a magnetometer, yaw starts at 0 and follows the gyro.
 
-    method "euler-ekf"  :class:`FastEulerAttitudeEKF` (tuning: an EulerEkfSettings field, field_n, x0, P0)
-           "mekf"       :class:`MultiplicativeEKF` (tuning: a MekfSettings field, field_n, q0, bias0, P0)
+    method "euler-ekf"  :class:`FastEulerAttitudeEKF` (tuning: an EulerAttitudeEKFSettings field, field_n, x0, P0)
+           "mekf"       :class:`MultiplicativeEKF` (tuning: a MultiplicativeEKFSettings field, field_n, x0, P0)
     """
     gyr, acc, mag = check_inputs(gyr, acc, mag)
     if not (isinstance(rate_hz, (int, float, np.floating, np.integer)) and rate_hz > 0):
@@ -38,4 +39,4 @@ def estimate_attitude(gyr, acc, mag, rate_hz, method="euler-ekf", **tuning) -> A
         raise ValueError(f"unknown method {method!r}; use {' or '.join(map(repr, METHODS))}")
     if "field_n" not in tuning and mag is not None:
         tuning["field_n"] = learn_field(acc, mag)
-    return METHODS[method](rate_hz, **tuning).run(gyr, acc, mag)
+    return METHODS[method](rate_hz=rate_hz, **tuning).run(gyr, acc, mag)

@@ -4,7 +4,7 @@
     first_mag_row  the first magnetometer row that is a sample
     tilt_heading   the first attitude [φ, θ, ψ] from one accelerometer and magnetometer sample
     learn_field    the reference field m_n from the first magnetometer samples
-    AttitudeRun    the :class:`FilterRun` of an attitude filter, with quat, euler and bias read from x
+    AttitudeRun    the :class:`FilterRun` of an attitude filter, with quat, euler, bias and the attitude covariance
 """
 from __future__ import annotations
 
@@ -13,27 +13,27 @@ from functools import cached_property
 
 import numpy as np
 
-from ..frames import (G, MAG_FIELD_LONDON, accel_tilt, declination, euler_to_dcm, euler_to_quat, quat_to_euler,
-                      tilt_compensated_heading)
-from .linear import FilterRun
+from ..frames import (G, MAG_FIELD_LONDON, accel_tilt, declination, euler_to_dcm, euler_to_quat,
+                      quat_to_euler, tilt_compensated_heading)
+from .contract import FilterRun
 
 
 @dataclass
 class AttitudeRun(FilterRun):
     """An attitude filter's history over a recording, one row per sample (a :class:`FilterRun`).
 
-    x         (N, 3) [φ, θ, ψ] (rad) for ``euler-ekf``; (N, 7) [q (w-x-y-z, body → NED, w ≥ 0), gyro
-              bias (rad/s)] for ``mekf``
-    P         the filter's own covariance, as its ``step`` returns it: (N, 3, 3) of [φ, θ, ψ] (rad²) for
-              ``euler-ekf``; (N, 6, 6) of the error state [δθ (small rotation in NED, rad), δb (rad/s)] for
-              ``mekf``. :attr:`attitude_covariance` is the rotation error's in NED for both
+    x, x_prior  (N, 3) [φ, θ, ψ] (rad) for ``euler-ekf``; (N, 7) [q (w-x-y-z, body → NED, w ≥ 0), gyro
+                bias (rad/s)] for ``mekf``
+    P, P_prior  the filter's error covariance, as its ``step`` gives it: (N, 3, 3) of [φ, θ, ψ], rad², for
+                ``euler-ekf``; (N, 6, 6) of the error state [δθ (small rotation in NED, rad), δb (rad/s)] for
+                ``mekf``. :attr:`P_attitude` is the 3×3 attitude block of both, for NEES and σ plots
     y         (N, 6) innovations z − h(x⁻), NaN where not used: for euler-ekf accel (m/s²) in 0–2 and mag
               (µT) in 3–5; for mekf the accelerometer's north and east (m/s²) in 0–1, the heading (rad) in 2
               and the zero-rate update's gyro x, y, z (rad/s) in 3–5
     S         (N, 6, 6) their covariances (NaN where not used)
     nis       (N,) normalised innovation squared yᵀ S⁻¹ y over the rows used
-    accel_gated (N,) True where the accelerometer rows were inflated: |‖f‖ − g| > gate (euler-ekf), or linear
-              acceleration that at least doubled the accelerometer's variance (mekf)
+    accel_gated (N,) True where the accelerometer rows were inflated: |‖f‖ − g| > accel_gate (euler-ekf), or
+              linear acceleration that at least doubled the accelerometer's variance (mekf)
     mag_used  (N,) True where a magnetometer update was made
     mag_gated (N,) True where a magnetometer sample was not used: a disturbed field or a heading
               outlier (mekf; all False for euler-ekf)
@@ -58,25 +58,17 @@ class AttitudeRun(FilterRun):
         """(N, 3) [roll, pitch, yaw], rad."""
         return quat_to_euler(self.quat) if self.method == "mekf" else self.x
 
-    @cached_property
-    def attitude_covariance(self) -> np.ndarray:
-        """(N, 3, 3) covariance of the small-angle rotation error δθ in NED, rad² (R_true = Exp(δθ) R_est),
-        for NEES against a rotation-vector error: the MEKF's attitude block; for the Euler EKF its covariance
-        of [φ, θ, ψ] through δθ = Rz(ψ)Ry(θ) e_x δφ + Rz(ψ) e_y δθ + e_z δψ."""
-        if self.method == "mekf":
-            return self.P[:, :3, :3]
-        phi, theta, psi = self.x[:, 0], self.x[:, 1], self.x[:, 2]
-        cp, sp, ct, st = np.cos(psi), np.sin(psi), np.cos(theta), np.sin(theta)
-        J = np.zeros((len(self.x), 3, 3))
-        J[:, :, 0] = np.column_stack([ct * cp, ct * sp, -st])
-        J[:, :, 1] = np.column_stack([-sp, cp, np.zeros_like(psi)])
-        J[:, 2, 2] = 1.0
-        return J @ self.P @ np.swapaxes(J, 1, 2)
-
     @property
     def bias(self) -> np.ndarray:
         """(N, 3) gyro bias estimate, rad/s (mekf; zeros for euler-ekf, which has no bias state)."""
         return self.x[:, 4:] if self.method == "mekf" else np.zeros((len(self.x), 3))
+
+    @cached_property
+    def P_attitude(self) -> np.ndarray:
+        """(N, 3, 3) covariance of the attitude error, rad²: of [φ, θ, ψ] for ``euler-ekf``; of the small rotation
+        error δθ in the NED frame (R_true = Exp(δθ) R_est; δθ_D is the heading error) for ``mekf``, the attitude
+        block of its 6×6 P."""
+        return self.P[:, :3, :3]
 
     @property
     def dof(self) -> np.ndarray:
@@ -164,6 +156,6 @@ def learn_field(acc, mag, samples=50):
     if rows.size == 0:
         raise ValueError("learn_field: the magnetometer has no sample (all rows NaN)")
     roll, pitch = accel_tilt(acc[rows])
-    R_nb = euler_to_dcm(roll, pitch, np.zeros_like(roll))
+    R_nb = euler_to_dcm(np.stack([roll, pitch, np.zeros_like(roll)], axis=-1))
     m_level = np.einsum("nij,nj->ni", R_nb, mag[rows])
     return np.array([np.hypot(m_level[:, 0], m_level[:, 1]).mean(), 0.0, m_level[:, 2].mean()])

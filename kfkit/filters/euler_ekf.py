@@ -22,53 +22,36 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..frames import G, MAG_FIELD_LONDON, euler_to_dcm, wrap_angle
+from ..frames import G, MAG_FIELD_LONDON, body_rates_to_euler_rates, euler_to_dcm, wrap_angle
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, tilt_heading
-from .linear import Step, configure, require_positive
+from .contract import State, Step, check_settings, configure, sample_period, shaped
 
 
 @dataclass(frozen=True)
-class EulerEkfSettings:
+class EulerAttitudeEKFSettings:
     """Tuning of the lab 04 Euler EKF.
 
-    gyro_noise         σ_ω per sample, rad/s; Q = G Σ_ω Gᵀ dt². The ISM330DHCX's 5 mdps/√Hz at ~100 Hz is
-                       0.05 °/s, but a 3-state filter has no bias state, so σ_ω also covers the residual
-                       bias after calibration (≈ 0.1–0.3 °/s)                                        0.3 °/s
-    accel_noise        σ of each accelerometer axis, m/s², effective: sensor noise ~0.006 m/s² plus the
-                       hand's linear acceleration the model calls noise (≈ 0.1–0.5 m/s² RMS)            0.3
-    mag_noise          σ of each magnetometer axis, µT: IIS2MDC noise 0.3 µT plus calibration residuals
-                       and local field errors                                                          1.0
-    accel_gate         |‖f‖ − g| (m/s²) above which the board is clearly accelerating and the
-                       accelerometer σ² is multiplied by ``accel_gate_factor``; None: no gating         1.0
-    accel_gate_factor  that multiplier (the σ grows by its square root)                               100
+    gyro_noise       σ_ω per sample, rad/s; Q = G Σ_ω Gᵀ dt². The ISM330DHCX's 5 mdps/√Hz at ~100 Hz is
+                     0.05 °/s, but a 3-state filter has no bias state, so σ_ω also covers the residual
+                     bias after calibration (≈ 0.1–0.3 °/s)                                          0.3 °/s
+    accel_noise      σ of each accelerometer axis, m/s², effective: sensor noise ~0.006 m/s² plus the
+                     hand's linear acceleration the model calls noise (≈ 0.1–0.5 m/s² RMS)              0.3
+    mag_noise        σ of each magnetometer axis, µT: IIS2MDC noise 0.3 µT plus calibration residuals
+                     and local field errors                                                            1.0
+    accel_gate       |‖f‖ − g| (m/s²) above which the board is clearly accelerating and the
+                     accelerometer σ² is multiplied by ``accel_inflation``; None: no gating             1.0
+    accel_inflation  that multiplier (the σ grows by its square root)                                 100
     """
 
     gyro_noise: float = math.radians(0.3)
     accel_noise: float = 0.3
     mag_noise: float = 1.0
     accel_gate: float | None = 1.0
-    accel_gate_factor: float = 100.0
+    accel_inflation: float = 100.0
 
     def __post_init__(self):
-        require_positive("EulerEkfSettings", zero_ok=("gyro_noise",), none_ok=("accel_gate",), gyro_noise=self.gyro_noise,
-                         accel_noise=self.accel_noise, mag_noise=self.mag_noise, accel_gate=self.accel_gate,
-                         accel_gate_factor=self.accel_gate_factor)
-
-
-def euler_rates(euler, omega_b):
-    """[φ̇, θ̇, ψ̇] (rad/s) from Euler angles [φ, θ, ψ] and body rate [p, q, r] (rad/s), ZYX:
-
-        φ̇ = p + (q sin φ + r cos φ) tan θ,   θ̇ = q cos φ − r sin φ,   ψ̇ = (q sin φ + r cos φ) / cos θ
-
-    Singular at cos θ = 0 (gimbal lock). Broadcasts over leading axes.
-    """
-    e = np.asarray(euler, dtype=float)
-    w = np.asarray(omega_b, dtype=float)
-    sf, cf = np.sin(e[..., 0]), np.cos(e[..., 0])
-    ct, tt = np.cos(e[..., 1]), np.tan(e[..., 1])
-    p, q, r = w[..., 0], w[..., 1], w[..., 2]
-    u = q * sf + r * cf
-    return np.stack(np.broadcast_arrays(p + u * tt, q * cf - r * sf, u / ct), axis=-1)
+        check_settings(self, positive=("accel_noise", "mag_noise", "accel_gate", "accel_inflation"),
+                       non_negative=("gyro_noise",), optional=("accel_gate",))
 
 
 def euler_rate_matrix(euler):
@@ -108,7 +91,7 @@ def euler_ekf_predict(x, P, omega_b, dt, Q):
     """
     x = np.asarray(x, dtype=float)
     F = np.eye(3) + dt * euler_kinematics_jacobian(x, omega_b)
-    x_new = x + euler_rates(x, omega_b) * dt
+    x_new = x + body_rates_to_euler_rates(x, omega_b) * dt
     x_new[2] = wrap_angle(x_new[2])
     return x_new, F @ np.asarray(P, dtype=float) @ F.T + np.asarray(Q, dtype=float)
 
@@ -119,7 +102,7 @@ def attitude_measurement(x, field_n=MAG_FIELD_LONDON):
 
     The first three are g·[sθ, −sφ cθ, −cφ cθ]; at rest and level, [0, 0, −g].
     """
-    R_bn = euler_to_dcm(*np.asarray(x, dtype=float)[:3]).T
+    R_bn = euler_to_dcm(np.asarray(x, dtype=float)[:3]).T
     return np.concatenate([R_bn @ np.array([0.0, 0.0, -G]), R_bn @ np.asarray(field_n, dtype=float)])
 
 
@@ -182,13 +165,15 @@ def euler_ekf_update(x, P, z, R, field_n=MAG_FIELD_LONDON):
 
 
 class EulerAttitudeEKF:
-    """The lab 04 filter: 3-state Euler-angle EKF, gyro predicts, accelerometer + magnetometer update.
+    """The lab 04 filter: 3-state Euler-angle EKF, gyro predicts, accelerometer + magnetometer update; a
+    :class:`~kfkit.filters.contract.TunedFilter`.
 
-    rate_hz   sample rate (Hz), dt = 1/rate_hz
-    settings  :class:`EulerEkfSettings`; keyword changes apply on top: ``EulerAttitudeEKF(104, accel_noise=0.5)``
+    dt        sample period, s (or ``rate_hz``, Hz)
+    settings  :class:`EulerAttitudeEKFSettings`; keyword changes apply on top:
+              ``EulerAttitudeEKF(rate_hz=104, accel_noise=0.5)``
     field_n   reference field in NED (µT); sets the yaw reference (north of ``field_n``)
-    x0, P0    initial state [φ, θ, ψ] (rad; default from the first samples, see :func:`tilt_heading`)
-              and covariance (rad²; default (5°)² tilt, (10°)² yaw)
+    x0, P0    initial state [φ, θ, ψ] (rad; None: from the first samples, see :func:`tilt_heading`)
+              and covariance (rad²; default (5°)² tilt, (10°)² yaw), one step before the first sample
 
     :meth:`step` runs one predict + update on one sample with the NumPy step functions the lab
     writes; :meth:`run` is a loop over :meth:`step`.
@@ -196,61 +181,77 @@ class EulerAttitudeEKF:
 
     method = "euler-ekf"
 
-    def __init__(self, rate_hz, settings: EulerEkfSettings | None = None, *, field_n=MAG_FIELD_LONDON, x0=None, P0=None,
-                 **changes):
-        require_positive("EulerAttitudeEKF", rate_hz=rate_hz)
-        self.dt = 1.0 / float(rate_hz)
-        self.settings = configure(EulerEkfSettings, settings, changes, "EulerAttitudeEKF")
+    def __init__(self, dt=None, settings: EulerAttitudeEKFSettings | None = None, *, rate_hz=None, field_n=MAG_FIELD_LONDON,
+                 x0=None, P0=None, **changes):
+        owner = type(self).__name__
+        self.dt = sample_period(owner, dt, rate_hz)
+        self.settings = configure(EulerAttitudeEKFSettings, settings, changes, owner)
         self.field_n = np.asarray(field_n, dtype=float)
         if self.field_n.shape != (3,):
-            raise ValueError(f"EulerAttitudeEKF: field_n must be a 3-vector in NED (µT), got shape {self.field_n.shape}")
-        self.x = None if x0 is None else np.asarray(x0, dtype=float).copy()
-        self.P = np.diag(np.radians([5.0, 5.0, 10.0]) ** 2) if P0 is None else np.asarray(P0, dtype=float).copy()
+            raise ValueError(f"{owner}: field_n must be a 3-vector in NED (µT), got shape {self.field_n.shape}")
+        self._x0, self._P0 = None, np.diag(np.radians([5.0, 5.0, 10.0]) ** 2)
+        self.reset(x0, P0)
+
+    def reset(self, x0=None, P0=None):
+        """State ← the start; a given x0 [φ, θ, ψ] or P0 (3×3) replaces the start's."""
+        owner = type(self).__name__
+        if x0 is not None:
+            self._x0 = shaped(owner, "x0", x0, (3,))
+        if P0 is not None:
+            self._P0 = shaped(owner, "P0", P0, (3, 3))
+        self.state = State(None if self._x0 is None else self._x0.copy(), self._P0.copy())
 
     def measurement_noise(self, acc):
         """(R, gated): R = diag of the 6 measurement variances [σ_a², σ_a², σ_a², σ_m², σ_m², σ_m²] (m²/s⁴, µT²)
-        for this specific force ``acc`` (m/s²), with σ_a² × accel_gate_factor where gated = |‖f‖ − g| > accel_gate."""
+        for this specific force ``acc`` (m/s²), with σ_a² × accel_inflation where gated = |‖f‖ − g| > accel_gate."""
         st = self.settings
         gated = st.accel_gate is not None and abs(float(np.linalg.norm(acc)) - G) > st.accel_gate
-        ra = st.accel_noise ** 2 * (st.accel_gate_factor if gated else 1.0)
+        ra = st.accel_noise ** 2 * (st.accel_inflation if gated else 1.0)
         return np.array([ra, ra, ra] + [st.mag_noise ** 2] * 3), gated
 
     def step(self, gyr, acc, mag=None) -> Step:
         """One predict (gyro, rad/s) + update (accel, m/s², and mag, µT, unless None/NaN) with the NumPy
-        step functions → Step(x, P, y (6,), S (6×6)); the magnetometer part of y and S is NaN without one."""
+        step functions → Step(x, P, y (6,), S (6×6), x⁻, P⁻); the magnetometer part of y and S is NaN without one."""
+        s = self.state
         acc = np.asarray(acc, dtype=float)
         mag = np.full(3, np.nan) if mag is None else np.asarray(mag, dtype=float)
-        if self.x is None:
-            self.x = tilt_heading(acc, mag, self.field_n)
-        Q = euler_process_noise(self.x, self.settings.gyro_noise, self.dt)
-        self.x, self.P = euler_ekf_predict(self.x, self.P, gyr, self.dt, Q)
+        if s.x is None:
+            s.x = tilt_heading(acc, mag, self.field_n)
+        Q = euler_process_noise(s.x, self.settings.gyro_noise, self.dt)
+        x_prior, P_prior = euler_ekf_predict(s.x, s.P, gyr, self.dt, Q)
         R, _ = self.measurement_noise(acc)
-        self.x, self.P, y_used, S_used = euler_ekf_update(self.x, self.P, np.concatenate([acc, mag]), R, self.field_n)
+        s.x, s.P, y_used, S_used = euler_ekf_update(x_prior, P_prior, np.concatenate([acc, mag]), R, self.field_n)
         y, S = np.full(6, np.nan), np.full((6, 6), np.nan)
         m = len(y_used)
         y[:m], S[:m, :m] = y_used, S_used
-        return Step(self.x, self.P, y, S)
+        return Step(s.x, s.P, y, S, x_prior, P_prior)
 
-    def run(self, gyr, acc, mag=None) -> AttitudeRun:
+    def run(self, gyr, acc, mag=None, *, resume=False) -> AttitudeRun:
         """:meth:`step` over a recording: gyr (N, 3) rad/s, acc (N, 3) m/s², mag (N, 3) µT or None;
-        NaN magnetometer rows mean no new sample. Continues from the filter's current state."""
-        gyr, acc, mag = self._start(gyr, acc, mag)
+        NaN magnetometer rows mean no new sample. From the start (x0 None: from the first samples), or from the
+        current state with ``resume=True``."""
+        gyr, acc, mag = self._start(gyr, acc, mag, resume)
         N = len(gyr)
         mags = np.full((N, 3), np.nan) if mag is None else mag
         x, P, y, S = np.empty((N, 3)), np.empty((N, 3, 3)), np.empty((N, 6)), np.empty((N, 6, 6))
+        x_prior, P_prior = np.empty((N, 3)), np.empty((N, 3, 3))
         gated = np.zeros(N, dtype=bool)
         for k in range(N):
-            x[k], P[k], y[k], S[k] = self.step(gyr[k], acc[k], mags[k])
+            s = self.step(gyr[k], acc[k], mags[k])
+            x[k], P[k], y[k], S[k], x_prior[k], P_prior[k] = s.x, s.P, s.y, s.S, s.x_prior, s.P_prior
             gated[k] = self.measurement_noise(acc[k])[1]
         used = ~np.isnan(y)
         nis = np.array([y[k, u] @ np.linalg.solve(S[k][np.ix_(u, u)], y[k, u]) for k, u in enumerate(used)])
-        return AttitudeRun(x, P, y, S, nis=nis, accel_gated=gated, mag_used=used[:, 3], mag_gated=np.zeros(N, dtype=bool),
-                           method=self.method)
+        return AttitudeRun(x, P, y, S, x_prior, P_prior, nis=nis, accel_gated=gated, mag_used=used[:, 3],
+                           mag_gated=np.zeros(N, dtype=bool), method=self.method)
 
-    def _start(self, gyr, acc, mag):
-        """Checked inputs of a run; the state from the first samples if there is none yet."""
+    def _start(self, gyr, acc, mag, resume):
+        """Checked inputs of a run; the state at the start unless ``resume``, and from the first samples (the first
+        accelerometer sample and the first magnetometer sample) if it has none yet."""
         gyr, acc, mag = check_inputs(gyr, acc, mag)
-        if self.x is None:
+        if not resume:
+            self.reset()
+        if self.state.x is None:
             first = first_mag_row(mag)
-            self.x = tilt_heading(acc[0], None if first is None else mag[first], self.field_n)
+            self.state.x = tilt_heading(acc[0], None if first is None else mag[first], self.field_n)
         return gyr, acc, mag

@@ -8,20 +8,18 @@ import math
 
 import numpy as np
 
-from ..frames import G
+from ..frames import G, wrap_angle_f
 from .attitude_run import AttitudeRun
 from .euler_ekf import EulerAttitudeEKF, attitude_jacobian, jacobian_rows
-
-TWO_PI = 2.0 * math.pi
 
 
 class FastEulerAttitudeEKF(EulerAttitudeEKF):
     """:class:`EulerAttitudeEKF` (same settings, same ``step``) whose :meth:`run` is the unrolled loop."""
 
-    def run(self, gyr, acc, mag=None) -> AttitudeRun:
+    def run(self, gyr, acc, mag=None, *, resume=False) -> AttitudeRun:
         """The reference ``run``'s result, computed on plain floats: gyr (N, 3) rad/s, acc (N, 3) m/s²,
-        mag (N, 3) µT or None (NaN rows = no new sample). Continues from the filter's current state."""
-        return _unrolled_loop(self, *self._start(gyr, acc, mag))
+        mag (N, 3) µT or None (NaN rows = no new sample); from the start, or the current state with ``resume=True``."""
+        return _unrolled_loop(self, *self._start(gyr, acc, mag, resume))
 
 
 def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
@@ -33,7 +31,7 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
     Innovations y = z − h(x⁻) and the priors are stored; S = H P⁻ Hᵀ + R is formed afterwards in
     one vectorised pass. H is :func:`jacobian_rows`, the one copy :func:`attitude_jacobian` uses.
     """
-    sin, cos, sqrt, pi = math.sin, math.cos, math.sqrt, math.pi
+    sin, cos, sqrt = math.sin, math.cos, math.sqrt
     dt = ekf.dt
     N = len(gyr)
     st_ = ekf.settings
@@ -41,14 +39,14 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
     ra0 = st_.accel_noise ** 2
     rm = st_.mag_noise ** 2
     gate = st_.accel_gate if st_.accel_gate is not None else math.inf
-    ra_gated = ra0 * st_.accel_gate_factor
+    ra_gated = ra0 * st_.accel_inflation
     mN, mE, mD = (float(v) for v in ekf.field_n)
     g = G
     W = gyr.tolist()
     A = acc.tolist()
     M = mag.tolist() if mag is not None else None
-    phi, theta, psi = (float(v) for v in ekf.x)
-    P = ekf.P
+    phi, theta, psi = (float(v) for v in ekf.state.x)
+    P = ekf.state.P
     p00, p01, p02, p11, p12, p22 = (float(P[0, 0]), float(P[0, 1]), float(P[0, 2]), float(P[1, 1]), float(P[1, 2]), float(P[2, 2]))
 
     xs = [None] * N
@@ -74,9 +72,7 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
         f21 = dt * u * st * ic * ic
         phi += (p + u * tt) * dt
         theta += v * dt
-        psi += u * ic * dt
-        if psi > pi or psi <= -pi:
-            psi = pi - (pi - psi) % TWO_PI
+        psi = wrap_angle_f(psi + u * ic * dt)
         # M = F P (rows), then P⁻ = M Fᵀ (symmetric, upper triangle)
         a0, a1, a2 = f00 * p00 + f01 * p01, f00 * p01 + f01 * p11, f00 * p02 + f01 * p12
         b0, b1, b2 = f10 * p00 + p01, f10 * p01 + p11, f10 * p02 + p12
@@ -134,16 +130,14 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
             s_nis += e * e / s
         phi += d0
         theta += d1
-        psi += d2
-        if psi > pi or psi <= -pi:
-            psi = pi - (pi - psi) % TWO_PI
+        psi = wrap_angle_f(psi + d2)
         ys[k] = [r_[0] for r_ in rows]
         nis[k] = s_nis
         xs[k] = (phi, theta, psi)
         Ps[k] = (p00, p01, p02, p11, p12, p22)
 
-    ekf.x = np.array([phi, theta, psi])
-    ekf.P = _sym3(np.array([Ps[-1]]))[0] if N else ekf.P
+    ekf.state.x = np.array([phi, theta, psi])
+    ekf.state.P = _sym3(np.array([Ps[-1]]))[0] if N else ekf.state.P
     euler = np.array(xs, dtype=float).reshape(N, 3)
     mag_used = np.array(mag_out, dtype=bool)
     gated = np.array(gated_out, dtype=bool)
@@ -151,10 +145,11 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
     for k in range(N):
         y[k, :len(ys[k])] = ys[k]
     prior = np.array(priors, dtype=float).reshape(N, 9)
+    x_prior, P_prior = prior[:, :3], _sym3(prior[:, 3:])
     r_acc = np.where(gated, ra_gated, ra0)
-    S = _euler_innovation_cov(prior[:, :3], _sym3(prior[:, 3:]), r_acc, rm, ekf.field_n, mag_used)
-    return AttitudeRun(euler, _sym3(np.array(Ps, dtype=float).reshape(N, 6)), y, S, nis=np.array(nis), accel_gated=gated,
-                       mag_used=mag_used, mag_gated=np.zeros(N, dtype=bool), method=ekf.method)
+    S = _euler_innovation_cov(x_prior, P_prior, r_acc, rm, ekf.field_n, mag_used)
+    return AttitudeRun(euler, _sym3(np.array(Ps, dtype=float).reshape(N, 6)), y, S, x_prior, P_prior, nis=np.array(nis),
+                       accel_gated=gated, mag_used=mag_used, mag_gated=np.zeros(N, dtype=bool), method=ekf.method)
 
 
 def _sym3(p):

@@ -1,4 +1,4 @@
-"""The filter contract (:class:`Step`, :class:`FilterRun`) and the linear Kalman filter.
+"""The linear Kalman filter, after the kit's filter contract (:mod:`kfkit.filters.contract`).
 
 Textbook names throughout (x, P, F, B, H, Q, R; y innovation, S its covariance, K gain):
 
@@ -12,77 +12,18 @@ the filter coasts on its prediction), which is how gating and missing samples ar
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields, replace
-from typing import NamedTuple
-
 import numpy as np
 
-
-class Step(NamedTuple):
-    """What one ``step`` of any kfkit filter returns (unpacks as ``x, P, y, S = f.step(...)``).
-
-    x  state after the update, (n,)         P  its covariance, (n, n)
-    y  innovation z − h(x⁻), (m,)           S  its covariance, (m, m); y and S are NaN where no update was made
-
-    Scalar filters (lab 01) return floats in the same places.
-    """
-
-    x: np.ndarray
-    P: np.ndarray
-    y: np.ndarray
-    S: np.ndarray
-
-
-@dataclass
-class FilterRun:
-    """A filter's history over a recording, one row per sample.
-
-    x  estimates after the update, (N, n) — or (N,) for a scalar filter
-    P  their covariances, (N, n, n) — or (N,)
-    y  innovations z − H x⁻, (N, m) — or (N,); NaN where no update was made
-    S  innovation covariances, (N, m, m) — or (N,); NaN where no update was made
-    """
-
-    x: np.ndarray
-    P: np.ndarray
-    y: np.ndarray
-    S: np.ndarray
-
-
-def configure(settings_cls, settings, changes, owner):
-    """The settings a filter runs with: ``settings`` (default ``settings_cls()``) with the keyword
-    ``changes`` applied, as VQF's ``params`` + keyword overrides. Unknown names are an error."""
-    base = settings_cls() if settings is None else settings
-    if not isinstance(base, settings_cls):
-        raise TypeError(f"{owner}: settings must be a {settings_cls.__name__}, got {type(base).__name__}")
-    names = [f.name for f in fields(settings_cls)]
-    unknown = sorted(set(changes) - set(names))
-    if unknown:
-        raise TypeError(f"{owner}: unknown setting {', '.join(unknown)}; {settings_cls.__name__} has {', '.join(names)}")
-    return replace(base, **changes) if changes else base
-
-
-def require_positive(owner, zero_ok=(), none_ok=(), **values):
-    """Raise ValueError naming the first value that is not a finite number > 0 (≥ 0 for names in
-    ``zero_ok``; None allowed for names in ``none_ok``)."""
-    for name, value in values.items():
-        if value is None and name in none_ok:
-            continue
-        ok = isinstance(value, (int, float, np.integer, np.floating)) and math.isfinite(value) and \
-            (value >= 0 if name in zero_ok else value > 0)
-        if not ok:
-            what = "a number ≥ 0" if name in zero_ok else "a positive number"
-            raise ValueError(f"{owner}: {name} must be {what}{' or None' if name in none_ok else ''}, got {value!r}")
+from .contract import FilterRun, State, Step, shaped
 
 
 class KalmanFilter:
-    """Linear Kalman filter with Joseph-form covariance update.
+    """Linear Kalman filter with Joseph-form covariance update (a :class:`~kfkit.filters.contract.Filter`).
 
     x_k = F x_{k−1} + B u_k + w,  w ~ N(0, Q);    z_k = H x_k + v,  v ~ N(0, R).
-    After :meth:`update`, ``y``, ``S`` and ``K`` hold that step's innovation, its
-    covariance and the gain. ``step`` = predict + update → :class:`Step`; ``run`` = a step per
-    sample → :class:`FilterRun`.
+    x0, P0 are the start, one step before the first sample. After :meth:`update`, ``y``, ``S`` and ``K`` hold that
+    step's innovation, its covariance and the gain; ``x`` and ``P`` read the :class:`State`. ``step`` = predict +
+    update → :class:`Step`; ``run`` = a step per sample → :class:`FilterRun`.
     """
 
     def __init__(self, F, H, Q, R, x0, P0, B=None):
@@ -91,60 +32,85 @@ class KalmanFilter:
         self.Q = np.atleast_2d(np.asarray(Q, dtype=float))
         self.R = np.atleast_2d(np.asarray(R, dtype=float))
         self.B = None if B is None else np.asarray(B, dtype=float).reshape(self.F.shape[0], -1)
-        self.x = np.asarray(x0, dtype=float).reshape(-1).copy()
-        self.P = np.atleast_2d(np.asarray(P0, dtype=float)).copy()
         n, m = self.F.shape[0], self.H.shape[0]
+        self._x0, self._P0 = np.asarray(x0, dtype=float).reshape(-1).copy(), np.atleast_2d(np.asarray(P0, dtype=float)).copy()
         shapes = {"F": (self.F, (n, n)), "H": (self.H, (m, n)), "Q": (self.Q, (n, n)), "R": (self.R, (m, m)),
-                  "P0": (self.P, (n, n)), "x0": (self.x, (n,))}
+                  "P0": (self._P0, (n, n)), "x0": (self._x0, (n,))}
         for name, (arr, shape) in shapes.items():
             if arr.shape != shape:
                 raise ValueError(f"KalmanFilter: {name} has shape {arr.shape}, expected {shape} for {n} states and {m} measurements")
         self._I = np.eye(n)
+        self.reset()
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.state.x
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.state.P
+
+    def reset(self, x0=None, P0=None):
+        """State ← the start (x0, P0); a given x0 or P0 replaces the start's; y, S NaN and K 0 again."""
+        n, m = self.F.shape[0], self.H.shape[0]
+        if x0 is not None:
+            self._x0 = shaped("KalmanFilter", "x0", x0, (n,))
+        if P0 is not None:
+            self._P0 = shaped("KalmanFilter", "P0", P0, (n, n))
+        self.state = State(self._x0.copy(), self._P0.copy())
         self.y = np.full(m, np.nan)
         self.S = np.full((m, m), np.nan)
         self.K = np.zeros((n, m))
 
     def predict(self, u=None):
         """x⁻ = F x + B u,  P⁻ = F P Fᵀ + Q."""
-        self.x = self.F @ self.x
+        s = self.state
+        x = self.F @ s.x
         if u is not None:
             if self.B is None:
                 raise ValueError("KalmanFilter.predict got a control input u but the filter has no B matrix")
-            self.x = self.x + self.B @ np.atleast_1d(u)
-        self.P = self.F @ self.P @ self.F.T + self.Q
-        return self.x
+            x = x + self.B @ np.atleast_1d(u)
+        s.x, s.P = x, self.F @ s.P @ self.F.T + self.Q
+        return s.x
 
     def update(self, z):
         """Correct with measurement z; a NaN measurement is skipped (y, S set to NaN)."""
+        s = self.state
         z = np.atleast_1d(np.asarray(z, dtype=float))
         if np.isnan(z).any():
             self.y = np.full(self.H.shape[0], np.nan)
             self.S = np.full((self.H.shape[0],) * 2, np.nan)
-            return self.x
-        self.y = z - self.H @ self.x
-        PHt = self.P @ self.H.T
+            return s.x
+        self.y = z - self.H @ s.x
+        PHt = s.P @ self.H.T
         self.S = self.H @ PHt + self.R
         self.K = np.linalg.solve(self.S.T, PHt.T).T  # K = P Hᵀ S⁻¹ without forming S⁻¹
-        self.x = self.x + self.K @ self.y
         IKH = self._I - self.K @ self.H
-        self.P = IKH @ self.P @ IKH.T + self.K @ self.R @ self.K.T
-        return self.x
+        s.x, s.P = s.x + self.K @ self.y, IKH @ s.P @ IKH.T + self.K @ self.R @ self.K.T
+        return s.x
 
     def step(self, z, u=None) -> Step:
-        """One :meth:`predict` (with input u, if any) and one :meth:`update` with z → Step(x, P, y, S).
+        """One :meth:`predict` (with input u, if any) and one :meth:`update` with z → Step.
 
         Every method assigns new arrays (nothing is changed in place), so the Step holds this
         step's values, not views that the next step would overwrite.
         """
-        self.predict(u)
+        x_prior = self.predict(u)
+        P_prior = self.state.P
         self.update(z)
-        return Step(self.x, self.P, self.y, self.S)
+        return Step(self.state.x, self.state.P, self.y, self.S, x_prior, P_prior)
 
-    def run(self, zs, us=None) -> FilterRun:
-        """:meth:`step` over measurements ``zs`` (N, m) and optional inputs ``us`` (N, …), from the current state."""
+    def run(self, zs, us=None, *, resume=False) -> FilterRun:
+        """:meth:`step` over measurements ``zs`` (N, m) and optional inputs ``us`` (N, …): from the start, or from
+        the current state with ``resume=True``."""
+        if not resume:
+            self.reset()
         zs = np.asarray(zs, dtype=float).reshape(len(zs), -1)
-        n, m, N = self.x.size, zs.shape[1], len(zs)
-        out = FilterRun(np.empty((N, n)), np.empty((N, n, n)), np.empty((N, m)), np.empty((N, m, m)))
+        n, m, N = self.F.shape[0], zs.shape[1], len(zs)
+        out = FilterRun(np.empty((N, n)), np.empty((N, n, n)), np.empty((N, m)), np.empty((N, m, m)),
+                        np.empty((N, n)), np.empty((N, n, n)))
         for k in range(N):
-            out.x[k], out.P[k], out.y[k], out.S[k] = self.step(zs[k], None if us is None else us[k])
+            s = self.step(zs[k], None if us is None else us[k])
+            out.x[k], out.P[k], out.y[k], out.S[k], out.x_prior[k], out.P_prior[k] = s.x, s.P, s.y, s.S, s.x_prior, s.P_prior
         return out
+

@@ -13,13 +13,12 @@ class MagGate:
     clocks carry from one sample (and one run) to the next.
 
     field_n     reference field, NED (µT): the starting reference norm ‖m‖ and dip atan2(m_D, ‖m_h‖)
-    norm_gate   relative norm gate (fraction of the reference norm); None = off
-    dip_gate    dip-angle gate, rad; None = off
-    recovery    s the field must pass the gates after a rejection before it is used again; also the
-                averaging time and the duration of the innovation tests
-    nis_gate    χ² gate (1 dof) of the innovation tests; None = none (a disturbed field is rejected for
-                as long as it fails the gates)
-    ref_tau     time constant (s) with which the reference follows a trusted field; None = fixed
+    settings    the MEKF's settings (:class:`~kfkit.filters.mekf.MultiplicativeEKFSettings`): its gates
+                ``mag_norm_gate`` (a fraction of the reference norm) and ``mag_dip_gate`` (rad), None = off;
+                ``mag_recovery`` (s the field must pass the gates after a rejection before it is used again;
+                also the averaging time and the duration of the innovation tests); ``mag_nis_gate`` (χ², 1 dof,
+                of the innovation tests; None = none: a disturbed field is rejected for as long as it fails the
+                gates); ``mag_ref_tau`` (s with which the reference follows a trusted field; None = fixed)
 
     The gates test the field's norm and dip low-passed with a time constant of CURRENT_TAU = 0.05 s (VQF's
     magCurrentTau), so that their verdict on a steady field does not depend on the sample rate (the noise of
@@ -31,14 +30,15 @@ class MagGate:
     __slots__ = ("norm_ref", "dip_ref", "norm_gate", "dip_gate", "recovery", "nis_gate", "ref_rate",
                  "good_since", "t_prev", "nis_since", "mean", "adopt_since", "current")
 
-    def __init__(self, field_n, norm_gate, dip_gate, recovery, nis_gate, ref_tau):
+    def __init__(self, field_n, settings):
         mN, mE, mD = (float(v) for v in field_n)
         self.norm_ref, self.dip_ref = math.sqrt(mN * mN + mE * mE + mD * mD), math.atan2(mD, math.hypot(mN, mE))
-        self.norm_gate = norm_gate if norm_gate is not None else math.inf  # fraction of norm_ref
-        self.dip_gate = dip_gate if dip_gate is not None else math.inf
-        self.recovery = recovery
-        self.nis_gate = nis_gate if nis_gate is not None else math.inf
-        self.ref_rate = 1.0 / ref_tau if ref_tau else 0.0
+        st = settings
+        self.norm_gate = st.mag_norm_gate if st.mag_norm_gate is not None else math.inf  # fraction of norm_ref
+        self.dip_gate = st.mag_dip_gate if st.mag_dip_gate is not None else math.inf
+        self.recovery = st.mag_recovery
+        self.nis_gate = st.mag_nis_gate if st.mag_nis_gate is not None else math.inf
+        self.ref_rate = 1.0 / st.mag_ref_tau if st.mag_ref_tau else 0.0
         self.good_since = -math.inf  # time since which the field has passed the gates (trusted from the start)
         self.t_prev = None  # time of the previous magnetometer sample
         self.nis_since = None  # first of the trusted samples in a row that failed the innovation gate

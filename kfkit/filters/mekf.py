@@ -1,7 +1,7 @@
-"""Lab 04's multiplicative (error-state) quaternion EKF with gyro bias: :class:`MultiplicativeEKF`,
-tuned by :class:`MekfSettings`, carrying a :class:`MekfState`, its update written as named steps
-(predict, rest detection, zero-rate update, stabilised accelerometer, accelerometer update, heading
-update, reset); the magnetometer gate is :class:`kfkit.filters.mag_gate.MagGate`.
+"""Lab 04's multiplicative (error-state) quaternion EKF with gyro bias: :class:`MultiplicativeEKF`, tuned by
+:class:`MultiplicativeEKFSettings`, carrying a :class:`MultiplicativeEKFState`, its update written as named steps
+(predict, rest detection, zero-rate update, stabilised accelerometer, accelerometer update, heading update, reset);
+the magnetometer gate is :class:`kfkit.filters.mag_gate.MagGate`.
 """
 from __future__ import annotations
 
@@ -14,54 +14,57 @@ import numpy as np
 from ..frames import (G, MAG_FIELD_LONDON, euler_to_quat, quat_multiply_f, quat_normalise_f, quat_to_dcm_f,
                       rotvec_to_quat_f, wrap_angle_f)
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, learn_field, tilt_heading
-from .linear import Step, configure, require_positive
+from .contract import Step, check_settings, configure, sample_period, shaped
 from .mag_gate import MagGate
 
 
 @dataclass(frozen=True)
-class MekfSettings:
+class MultiplicativeEKFSettings:
     """Tuning of the MEKF: every field with its meaning, unit and default.
 
-    gyro_noise       per-sample gyro σ_g, rad/s; None: gyro_density·√rate_hz                            None
+    gyro_noise       σ of a gyro sample, rad/s; None: gyro_density·√rate                               None
     gyro_density     gyro white-noise density, rad/s/√Hz: the ISM330DHCX's 5 mdps/√Hz (DS13012) ×4,
-                     because under rotation the scale-factor and axis-misalignment errors (≈ 0.1–0.5 % of
+                     because under rotation the scale-factor and axis-misalignment errors (0.1–0.5 % of
                      the rate), which a bias-only model cannot represent, act as extra noise       0.02 °/s/√Hz
-    gyro_bias_rw     gyro bias random-walk density σ_bw, rad/s/√s                                        1e-5
-    accel_noise      per-sample accelerometer σ_a, m/s²; None: accel_density·√rate_hz                   None
-    accel_density    accelerometer noise density, m/s²/√Hz, effective (what is left of the linear
-                     acceleration after the low-pass, and the sensor's own 0.07 mg/√Hz); as a density the
-                     tilt correction's time constant, accel_density / (g·gyro_density) ≈ 0.6 s, is the
+    gyro_bias_rw     gyro-bias random-walk density (σ), rad/s/√s                                         1e-5
+    accel_noise      σ of an accelerometer sample, m/s²; None: accel_density·√rate                     None
+    accel_density    accelerometer noise density, m/s²/√Hz, effective: what is left of the linear
+                     acceleration after the low-pass, and the sensor's own 0.07 mg/√Hz. As a density
+                     the tilt correction's time constant, accel_density / (g·gyro_density), is the
                      same at every sample rate                                                         0.002
-    accel_tau        time constant (s) of the gyro-stabilised accelerometer low-pass; None = raw         1.0
-    accel_dynamic    linear acceleration (m/s², RMS of what the low-pass removes) at which the
-                     accelerometer's variance doubles: σ_a² ← σ_a²·(1 + a_lin²/accel_dynamic²), so the
-                     filter leans on the gyro while the board is pushed about; None = fixed σ_a          1.0
-    mag_noise        per-sample magnetometer σ_m per axis, µT; None: mag_density / √Δt_m (Δt_m: time
-                     since the previous magnetometer sample)                                             None
-    mag_density      magnetometer noise density, µT/√Hz, effective: the sensor's noise (IIS2MDC 0.3 µT
-                     RMS at 100 Hz, 0.03 µT/√Hz) plus what a hard/soft-iron calibration and the room leave;
-                     the heading's σ is σ_m / ‖m_h‖                                                        0.1
-    rest_gyro        rest detection: largest deviation of the gyro from its low-pass, and of the
-                     low-pass from zero on each axis, rad/s; None: no rest detection, and the bias is
-                     learned from the accelerometer and magnetometer all the time                    2 °/s
-    rest_accel       … and of the accelerometer from its low-pass, m/s²                                  0.5
-    rest_time        s within both before the IMU counts as at rest: then the gyro reads its bias
-                     (zero-rate update, R = σ_g²); once measured at rest, the bias is frozen in motion  1.5
-    rest_tau         time constant (s) of the rest detector's low-passes                                 0.5
-    mag_norm_gate    a sample is disturbed when |‖m‖ − ‖m_ref‖| > mag_norm_gate·‖m_ref‖; None = off      0.1
-    mag_dip_gate     … or when its dip angle (with the current attitude) is off by more, rad; None = off  10°
-    mag_recovery     s the field must pass the gates after a rejection before it is used again (a
-                     disturbance fades in and out; its edges pass the gates); also the averaging time and
-                     duration of the innovation tests                                                    1.0
-    mag_nis_gate     χ² gate (1 dof; 9 ≈ 3σ) on the heading innovation against S = H P Hᵀ + R: a trusted
-                     sample above it is skipped (for at most mag_recovery s in a row); a rejected field
-                     whose averaged heading agrees within it for mag_recovery s is adopted as the new
-                     reference. None: no innovation test                                                 9.0
-    mag_ref_tau      time constant (s) with which the reference norm and dip follow a trusted field;
-                     None: fixed, those of the field at the start (a field that changes for good is
-                     adopted by the bounded rejection; one that the reference followed would not be
-                     rejected: the lab's rest spot, where the field is 7 % weaker than a few decimetres
-                     above it, BROAD's A session)                                                       None
+    accel_tau        time constant of the accelerometer low-pass (in a gyro-stabilised frame), s;
+                     None: the raw samples                                                               1.0
+    accel_dynamic    linear acceleration (RMS of what the low-pass removes) at which the
+                     accelerometer's variance doubles, m/s²: σ_a² (1 + a_lin²/accel_dynamic²);
+                     None: a fixed variance                                                              1.0
+    mag_noise        σ of a magnetometer sample per axis, µT; None: mag_density / √Δt_m, Δt_m the
+                     time since the previous magnetometer sample                                        None
+    mag_density      magnetometer noise density, µT/√Hz, effective: the IIS2MDC's 0.03 µT/√Hz plus what
+                     a hard/soft-iron calibration and the room leave; the heading's σ is σ_m / ‖m_h‖       0.1
+    rest_gyro        rest detection's threshold on the gyro, rad/s: the largest deviation of a sample
+                     from its low-pass, and of the low-pass from zero on each axis; None: no rest
+                     detection (the bias is learned from the accelerometer and magnetometer always)    2 °/s
+    rest_accel       rest detection's threshold on the accelerometer, m/s²: the largest deviation of a
+                     sample from its low-pass                                                            0.5
+    rest_time        time both must stay within their thresholds before the IMU counts as at rest, s:
+                     then the gyro reads its bias (zero-rate update); once measured at rest, the bias
+                     is frozen in motion                                                                 1.5
+    rest_tau         time constant of the rest detector's low-passes, s                                  0.5
+    mag_norm_gate    threshold on the field norm, a fraction of the reference's: a sample is disturbed
+                     when |‖m‖ − ‖m_ref‖| > mag_norm_gate·‖m_ref‖; None: no norm gate                   0.1
+    mag_dip_gate     threshold on the dip angle (seen with the current attitude), rad; None: no dip gate  10°
+    mag_recovery     time a field must pass the gates after a rejection before it is used again, s (a
+                     disturbance fades in and out; its edges pass the gates); also the averaging time
+                     and duration of the innovation tests                                                1.0
+    mag_nis_gate     threshold on the heading innovation's NIS, χ² (1 dof; 9 = 3σ) against S = H P Hᵀ + R:
+                     a trusted sample above it is skipped (for at most mag_recovery s in a row); a
+                     rejected field whose averaged heading agrees within it for mag_recovery s is
+                     adopted as the new reference. None: no innovation test                              9.0
+    mag_ref_tau      time constant of the gates' reference field, s, with which its norm and dip follow a
+                     trusted field; None: fixed, those of the field at the start (a field that changes
+                     for good is adopted by the innovation test; one the reference followed would not be
+                     rejected: on BROAD's A session the field a few decimetres above the rest spot is 7 %
+                     stronger)                                                                          None
 
     The rest detector's thresholds and times, the accelerometer's stabilised low-pass and the magnetometer
     gates are VQF's (Laidig & Seel 2023), whose defaults they keep.
@@ -87,32 +90,31 @@ class MekfSettings:
     mag_ref_tau: float | None = None
 
     def __post_init__(self):
-        require_positive("MekfSettings",
-                         zero_ok=("gyro_noise", "gyro_bias_rw", "accel_tau", "rest_time", "mag_ref_tau"),
-                         none_ok=("gyro_noise", "accel_noise", "accel_tau", "accel_dynamic", "mag_noise", "rest_gyro",
-                                  "mag_norm_gate", "mag_dip_gate", "mag_nis_gate", "mag_ref_tau"),
-                         gyro_noise=self.gyro_noise, gyro_density=self.gyro_density, gyro_bias_rw=self.gyro_bias_rw,
-                         accel_noise=self.accel_noise, accel_density=self.accel_density, accel_tau=self.accel_tau,
-                         accel_dynamic=self.accel_dynamic, mag_noise=self.mag_noise, mag_density=self.mag_density,
-                         rest_gyro=self.rest_gyro, rest_accel=self.rest_accel, rest_time=self.rest_time,
-                         rest_tau=self.rest_tau, mag_norm_gate=self.mag_norm_gate, mag_dip_gate=self.mag_dip_gate,
-                         mag_recovery=self.mag_recovery, mag_nis_gate=self.mag_nis_gate, mag_ref_tau=self.mag_ref_tau)
+        check_settings(self, positive=("gyro_density", "accel_noise", "accel_density", "accel_tau", "accel_dynamic",
+                                       "mag_noise", "mag_density", "rest_gyro", "rest_accel", "rest_tau",
+                                       "mag_norm_gate", "mag_dip_gate", "mag_recovery", "mag_nis_gate", "mag_ref_tau"),
+                       non_negative=("gyro_noise", "gyro_bias_rw", "rest_time"),
+                       optional=("gyro_noise", "accel_noise", "accel_tau", "accel_dynamic", "mag_noise", "rest_gyro",
+                                 "mag_norm_gate", "mag_dip_gate", "mag_nis_gate", "mag_ref_tau"))
 
 
 @dataclass
-class MekfCoefficients:
-    """What the settings, the rate and the reference field give once (VQF's "coefficients").
+class MultiplicativeEKFCoefficients:
+    """What the settings, the rate and the reference field give once, at the start (VQF's "coefficients").
 
+    field_n    the reference field in NED, µT (the constructor's, or learned from the first samples)
     Q          6×6 process noise per step, diag(σ_g² dt² I, σ_bw² dt I)
     r_gyro     variance of one gyro sample, (rad/s)²: the zero-rate update's R
     r_accel    variance of one accelerometer sample at rest, m²/s⁴
-    inv_dyn2   1 / accel_dynamic², s⁴/m² (0: fixed variance)
+    inv_dyn2   1 / accel_dynamic², s⁴/m² (0: a fixed variance)
     psi_ref    heading of the reference field, rad
-    r_psi      heading variance of one magnetometer sample, rad², or r_psi_dt (rad²·s) divided by the time
-               since the previous one (one of the two is None)
-    lpf, rest_lpf  one-pole low-pass steps 1 − exp(−dt/τ) of the accelerometer (1: raw) and of the rest detector
+    r_psi      heading variance of one magnetometer sample, rad², or None: r_psi_dt (rad²·s) divided by the time
+               since the previous one
+    lpf        one-pole low-pass step 1 − exp(−dt/accel_tau) of the accelerometer (1: raw)
+    rest_lpf   the same for the rest detector's low-passes
     """
 
+    field_n: np.ndarray
     Q: np.ndarray
     r_gyro: float
     r_accel: float
@@ -125,11 +127,10 @@ class MekfCoefficients:
 
 
 @dataclass
-class MekfState:
-    """What the MEKF carries from one sample to the next, so that a recording fed in pieces gives the
-    same result as one run.
+class MultiplicativeEKFState:
+    """What the MEKF carries from one sample to the next, so that a recording fed in pieces gives one run's result.
 
-    q          nominal quaternion (w, x, y, z), body → NED
+    q          nominal quaternion (w, x, y, z), body → NED (None: from the first samples)
     bias       gyro bias (x, y, z), rad/s
     P          6×6 covariance of the error state [δθ (NED, rad), δb (body, rad/s)]
     k          samples filtered since the start
@@ -140,21 +141,21 @@ class MekfState:
     rest_t     how long the rest detector's tests have passed, s
     rested     whether the IMU has been at rest (its bias measured) since the start
     t_mag      time of the previous magnetometer sample, s (None before the first)
-    mag_gate   the magnetometer gate and its clocks
+    mag_gate   the magnetometer gate and its clocks (None before the first sample)
     """
 
-    q: tuple
+    q: tuple | None
     bias: tuple
     P: np.ndarray
-    k: int
-    strapdown: tuple
-    f_I: tuple
-    a_lin2: float
-    rest_lp: tuple
-    rest_t: float
-    rested: bool
-    t_mag: float | None
-    mag_gate: MagGate
+    k: int = 0
+    strapdown: tuple = (1.0, 0.0, 0.0, 0.0)
+    f_I: tuple | None = None
+    a_lin2: float = 0.0
+    rest_lp: tuple | None = None
+    rest_t: float = 0.0
+    rested: bool = False
+    t_mag: float | None = None
+    mag_gate: MagGate | None = None
 
 
 def _diagonal(variances):
@@ -190,7 +191,7 @@ class MultiplicativeEKF:
     """Multiplicative (error-state) EKF: nominal quaternion q (body → NED) and gyro bias b, with a
     6-element error state δx = [δθ, δb] (rad, rad/s); δθ is a small rotation in the NED frame,
     q_true = exp(δθ) ⊗ q, so that δθ_N, δθ_E are the tilt error and δθ_D the heading error (BROAD's
-    inclination and heading).
+    inclination and heading). A :class:`~kfkit.filters.contract.TunedFilter`: x = [q, b] (7,), P 6×6.
 
     predict   ω̂ = ω − b held over the step the sample ends, q ← q ⊗ exp(ω̂ dt) (the exact
               exponential of the rotation vector), F = [[I, −R dt], [0, I]] (R = R_nb(q): a bias
@@ -237,13 +238,14 @@ class MultiplicativeEKF:
        (gyro noise, bias random walk), so any steady field is adopted in the end. (VQF instead uses a
        field again after 60 s of rejection.)
 
-    rate_hz    sample rate, Hz
-    settings   :class:`MekfSettings`; keyword changes apply on top: ``MultiplicativeEKF(104, accel_tau=None)``
+    dt         sample period, s (or ``rate_hz``, Hz)
+    settings   :class:`MultiplicativeEKFSettings`; keyword changes apply on top:
+               ``MultiplicativeEKF(rate_hz=104, accel_tau=None)``
     field_n    reference field (NED, µT); sets north (its declination), its norm and dip.
-               None: learned from the first magnetometer samples of the first run (:func:`learn_field`)
-    q0, bias0  initial quaternion (w-x-y-z) and gyro bias (rad/s); default from the first
-               samples (:func:`tilt_heading`) and zero
-    P0         initial 6×6 error covariance; default diag((5°)², (5°)², (10°)², (0.5 °/s)²·3)
+               None: learned from the first magnetometer samples of each run from the start (:func:`learn_field`)
+    x0         the start [q (w-x-y-z, body → NED), b (rad/s)] (7,); None: q from the first samples
+               (:func:`tilt_heading`), b = 0
+    P0         the start's 6×6 error covariance; default diag((5°)², (5°)², (10°)², (0.5 °/s)²·3)
     """
 
     method = "mekf"
@@ -252,73 +254,80 @@ class MultiplicativeEKF:
     #: the magnetometer gate's class (a variant can swap it)
     mag_gate_class = MagGate
 
-    def __init__(self, rate_hz, settings: MekfSettings | None = None, *, field_n=None, q0=None, bias0=None, P0=None,
-                 **changes):
-        require_positive("MultiplicativeEKF", rate_hz=rate_hz)
-        self.rate_hz = float(rate_hz)
-        self.dt = 1.0 / self.rate_hz
-        self.settings = configure(MekfSettings, settings, changes, "MultiplicativeEKF")
-        self.field_n = None if field_n is None else np.asarray(field_n, dtype=float)
-        self._q0 = None if q0 is None else tuple(float(v) for v in np.asarray(q0, dtype=float) / np.linalg.norm(q0))
-        self._bias0 = (0.0, 0.0, 0.0) if bias0 is None else tuple(float(v) for v in bias0)
-        if P0 is None:
-            P0 = np.diag(np.r_[np.radians([5.0, 5.0, 10.0]) ** 2, [math.radians(0.5) ** 2] * 3])
-        self._P0 = np.asarray(P0, dtype=float).copy()
-        self.state: MekfState | None = None  # set by the first step or run
-        self.coefficients: MekfCoefficients | None = None
+    def __init__(self, dt=None, settings: MultiplicativeEKFSettings | None = None, *, rate_hz=None, field_n=None,
+                 x0=None, P0=None, **changes):
+        owner = type(self).__name__
+        self.dt = sample_period(owner, dt, rate_hz)
+        self.rate_hz = 1.0 / self.dt
+        self.settings = configure(MultiplicativeEKFSettings, settings, changes, owner)
+        self.field_n = None if field_n is None else shaped(owner, "field_n", field_n, (3,))
+        self._x0 = None
+        self._P0 = np.diag(np.r_[np.radians([5.0, 5.0, 10.0]) ** 2, [math.radians(0.5) ** 2] * 3])
+        self.reset(x0, P0)
+
+    def reset(self, x0=None, P0=None):
+        """State ← the start; a given x0 [q, b] (7,) or P0 (6×6) replaces the start's (q is normalised)."""
+        owner = type(self).__name__
+        if x0 is not None:
+            x0 = shaped(owner, "x0", x0, (7,))
+            x0[:4] /= np.linalg.norm(x0[:4])
+            self._x0 = x0
+        if P0 is not None:
+            self._P0 = shaped(owner, "P0", P0, (6, 6))
+        q, b = (None, (0.0, 0.0, 0.0)) if self._x0 is None else (tuple(self._x0[:4].tolist()), tuple(self._x0[4:].tolist()))
+        self.state = MultiplicativeEKFState(q=q, bias=b, P=self._P0.copy())
+        self.coefficients: MultiplicativeEKFCoefficients | None = None  # from the first samples
 
     # ---- the start ---------------------------------------------------------------------------
-    def _start(self, gyr, acc, mag):
-        """State and coefficients from the first samples gyr, acc (N, 3), mag (N, 3) or None."""
-        st, dt, rate = self.settings, self.dt, self.rate_hz
-        if self.field_n is None:
-            self.field_n = learn_field(acc, mag) if mag is not None else np.array(MAG_FIELD_LONDON)
-        mN, mE, mD = (float(v) for v in self.field_n)
+    def _begin(self, gyr, acc, mag):
+        """Coefficients and the rest of the state from the first samples gyr, acc (N, 3), mag (N, 3) or None."""
+        st, dt, rate, s = self.settings, self.dt, self.rate_hz, self.state
+        field_n = self.field_n
+        if field_n is None:
+            field_n = learn_field(acc, mag) if mag is not None else np.array(MAG_FIELD_LONDON)
+        mN, mE, _ = (float(v) for v in field_n)
         b_h2 = mN * mN + mE * mE
         sg = st.gyro_density * math.sqrt(rate) if st.gyro_noise is None else st.gyro_noise
         sa = st.accel_density * math.sqrt(rate) if st.accel_noise is None else st.accel_noise
-        self.coefficients = MekfCoefficients(
-            Q=np.diag([sg * sg * dt * dt] * 3 + [st.gyro_bias_rw ** 2 * dt] * 3), r_gyro=sg * sg, r_accel=sa * sa,
-            inv_dyn2=1.0 / st.accel_dynamic ** 2 if st.accel_dynamic else 0.0, psi_ref=math.atan2(mE, mN),
-            r_psi=None if st.mag_noise is None else st.mag_noise ** 2 / b_h2,
+        self.coefficients = MultiplicativeEKFCoefficients(
+            field_n=field_n, Q=np.diag([sg * sg * dt * dt] * 3 + [st.gyro_bias_rw ** 2 * dt] * 3), r_gyro=sg * sg,
+            r_accel=sa * sa, inv_dyn2=1.0 / st.accel_dynamic ** 2 if st.accel_dynamic else 0.0,
+            psi_ref=math.atan2(mE, mN), r_psi=None if st.mag_noise is None else st.mag_noise ** 2 / b_h2,
             r_psi_dt=st.mag_density ** 2 / b_h2 if st.mag_noise is None else None,
-            lpf=1.0 - math.exp(-dt / st.accel_tau) if st.accel_tau else 1.0,
-            rest_lpf=1.0 - math.exp(-dt / st.rest_tau))
-        q = self._q0
-        if q is None:
+            lpf=1.0 - math.exp(-dt / st.accel_tau) if st.accel_tau else 1.0, rest_lpf=1.0 - math.exp(-dt / st.rest_tau))
+        if s.q is None:
             first = first_mag_row(mag)
-            q = tuple(float(v) for v in euler_to_quat(tilt_heading(acc[0], None if first is None else mag[first],
-                                                                    self.field_n)))
-        gate = self.mag_gate_class(self.field_n, st.mag_norm_gate, st.mag_dip_gate, st.mag_recovery, st.mag_nis_gate, st.mag_ref_tau)
-        self.state = MekfState(q=q, bias=self._bias0, P=self._P0.copy(), k=0, strapdown=(1.0, 0.0, 0.0, 0.0),
-                               f_I=tuple(float(v) for v in acc[0]), a_lin2=0.0,
-                               rest_lp=tuple(float(v) for v in np.r_[gyr[0], acc[0]]), rest_t=0.0, rested=False, t_mag=None,
-                               mag_gate=gate)
-        self._F = np.eye(6)  # the prediction's F, filled in place
+            s.q = tuple(euler_to_quat(tilt_heading(acc[0], None if first is None else mag[first], field_n)).tolist())
+        s.f_I = tuple(acc[0].tolist())
+        s.rest_lp = tuple(gyr[0].tolist()) + tuple(acc[0].tolist())
+        s.mag_gate = self.mag_gate_class(field_n, st)
+        self._F = np.eye(6)  # the prediction's F, its block −R dt filled in place
+        self._F_bias = self._F[:3, 3:]
 
     # ---- one sample, as named steps ------------------------------------------------------------
     def step(self, gyr, acc, mag=None) -> Step:
         """One sample: gyr (3,) rad/s, acc (3,) m/s², mag (3,) µT or None/NaN (no new sample) →
-        Step(x = [q (w ≥ 0), b] (7,), P (6×6: δθ in NED, δb), y (6,), S (6×6, diagonal)) with
+        Step(x = [q (w ≥ 0), b] (7,), P (6×6: δθ in NED, δb), y (6,), S (6×6, diagonal), x⁻, P⁻) with
         y = [accelerometer north, east (m/s²), heading (rad), zero rate x, y, z (rad/s)], NaN where no
         update was made (the updates are scalar, one after another)."""
         gyr, acc = np.asarray(gyr, dtype=float), np.asarray(acc, dtype=float)
-        mag = None if mag is None else np.asarray(mag, dtype=float)
-        if self.state is None:
-            self._start(gyr[None], acc[None], None if mag is None or np.isnan(mag).any() else mag[None])
+        mag = None if mag is None or np.isnan(mag).any() else np.asarray(mag, dtype=float)
+        if self.coefficients is None:
+            self._begin(gyr[None], acc[None], None if mag is None else mag[None])
         y, s = [math.nan] * 6, [math.nan] * 6
-        self._sample(gyr.tolist(), acc.tolist(), None if mag is None else mag.tolist(), y, s)
-        q = np.array(self.state.q)
-        return Step(np.r_[q if q[0] >= 0 else -q, self.state.bias], self.state.P.copy(), np.array(y),
-                    _diagonal(np.array([s]))[0])
+        x_prior, P_prior, _ = self._sample(gyr.tolist(), acc.tolist(), None if mag is None else mag.tolist(), y, s)
+        st = self.state
+        return Step(_positive(st.q + st.bias), st.P.copy(), np.array(y), _diagonal(np.array([s]))[0],
+                    _positive(x_prior), P_prior.copy())
 
     def _sample(self, w, f, m, y, s):
         """predict → rest detection (zero-rate update) → stabilised accelerometer → accelerometer update →
         heading update → reset. The updates are scalar, one after another, each adding to the error estimate δx
         (its innovation corrected for the δx before it); the reset folds δx into q and b once. Writes the
-        innovations and their variances into y and s (lists of 6); returns (at rest, accelerometer variance
-        raised, magnetometer used, magnetometer rejected)."""
+        innovations and their variances into y and s (lists of 6); returns the prior (x⁻ = q⁻ + b, a 7-tuple; P⁻)
+        and the flags (at rest, accelerometer variance raised, magnetometer used, magnetometer rejected)."""
         self._predict(w)
+        x_prior, P_prior = self.state.q + self.state.bias, self.state.P  # the prediction leaves b as it is
         dx = np.zeros(6)
         rest = self._at_rest(w, f)
         if rest:
@@ -332,7 +341,7 @@ class MultiplicativeEKF:
             rejected = not used
         self._reset(dx)
         self.state.k += 1
-        return rest, pushed, used, rejected
+        return x_prior, P_prior, (rest, pushed, used, rejected)
 
     def _predict(self, w):
         """ω̂ = ω − b;  q ← q ⊗ exp(ω̂ dt) (and the strapdown q_I with it);  P ← F P Fᵀ + Q with
@@ -341,11 +350,9 @@ class MultiplicativeEKF:
         turn = self._turn(w)
         s.q = quat_multiply_f(s.q, turn)
         s.strapdown = quat_multiply_f(s.strapdown, turn)
-        self._R = r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_dcm_f(s.q)  # the accelerometer update's too
+        self._R = R = quat_to_dcm_f(s.q)  # the accelerometer and heading updates' too
+        self._F_bias.flat = [-dt * r for r in R]
         F = self._F
-        F[0, 3], F[0, 4], F[0, 5] = -dt * r00, -dt * r01, -dt * r02
-        F[1, 3], F[1, 4], F[1, 5] = -dt * r10, -dt * r11, -dt * r12
-        F[2, 3], F[2, 4], F[2, 5] = -dt * r20, -dt * r21, -dt * r22
         s.P = F @ s.P @ F.T + self.coefficients.Q
 
     def _turn(self, w):
@@ -433,7 +440,7 @@ class MultiplicativeEKF:
         t = s.k * self.dt
         r = c.r_psi if c.r_psi is not None else c.r_psi_dt / (t - s.t_mag if s.t_mag is not None else self.dt)
         s.t_mag = t
-        (h0, h1, h2), consider = self._heading_row(m_n, m_e, m_d, frozen)
+        (h0, h1, h2), kept_off = self._heading_row(m_n, m_e, m_d, frozen)
         innov = wrap_angle_f(c.psi_ref - math.atan2(m_e, m_n)) - (h0 * dx[0] + h1 * dx[1] + h2 * dx[2])
         P = s.P
         a = P[:, 0] * h0 + P[:, 1] * h1 + P[:, 2] * h2  # P Hᵀ
@@ -441,7 +448,7 @@ class MultiplicativeEKF:
         if not s.mag_gate.use(t, math.hypot(m_h, m_d), math.atan2(m_d, m_h), innov, var_h, r):
             return False
         y[2] = innov
-        s_out[2] = self._update(a, var_h, innov, r, dx, consider)
+        s_out[2] = self._update(a, var_h, innov, r, dx, kept_off)
         return True
 
     def _heading_row(self, m_n, m_e, m_d, frozen):
@@ -450,21 +457,21 @@ class MultiplicativeEKF:
         h2 = m_n * m_n + m_e * m_e
         return (-m_d * m_n / h2, -m_d * m_e / h2, 1.0), TILT if frozen is None else TILT_AND_BIAS
 
-    def _update(self, a, hph, innov, r, dx, consider):
+    def _update(self, a, hph, innov, r, dx, kept_off):
         """One scalar measurement, given a = P Hᵀ (6,) and H P Hᵀ: S = H P Hᵀ + r, δx += K·innov with K = a/S,
-        P ← P − a aᵀ/S. The components marked 1 in ``consider`` are left alone: K is zero there and P ← P −
-        (a aᵀ − a_c a_cᵀ)/S with a_c = a on those components (a Schmidt update: their covariance stays, their
-        correlations with the rest are kept right). ``innov`` is already corrected for the δx of the updates
-        before it in the same sample. Returns S."""
+        P ← P − a aᵀ/S. The components marked in ``kept_off`` (a :class:`Consider`) are left alone: K is zero
+        there and P ← P − (a aᵀ − a_c a_cᵀ)/S with a_c = a on those components (a Schmidt update: their
+        covariance stays, their correlations with the rest are kept right). ``innov`` is already corrected for
+        the δx of the updates before it in the same sample. Returns S."""
         s = self.state
         S = float(hph) + r
         k = a * (1.0 / S)
-        if consider is None:
+        if kept_off is None:
             s.P = s.P - np.multiply.outer(k, a)
             dx += k * innov
         else:
-            s.P = s.P - np.multiply.outer(k, a) * consider.keep_P
-            dx += k * (consider.keep_x * innov)
+            s.P = s.P - np.multiply.outer(k, a) * kept_off.keep_P
+            dx += k * (kept_off.keep_x * innov)
         return S
 
     def _reset(self, dx):
@@ -477,27 +484,40 @@ class MultiplicativeEKF:
         s.bias = (bx + dbx, by + dby, bz + dbz)
 
     # ---- a recording ---------------------------------------------------------------------------
-    def run(self, gyr, acc, mag=None) -> AttitudeRun:
+    def run(self, gyr, acc, mag=None, *, resume=False) -> AttitudeRun:
         """The named steps over a recording: gyr (N, 3) rad/s, acc (N, 3) m/s², mag (N, 3) µT or None
-        (NaN rows = no new sample), one sensor frame. Continues from the current state: a recording fed
-        in pieces gives the same result as one run."""
+        (NaN rows = no new sample), one sensor frame. From the start (x0 None: from the first samples), or from
+        the current state with ``resume=True`` (a recording fed in pieces gives what one run gives)."""
         gyr, acc, mag = check_inputs(gyr, acc, mag)
-        if self.state is None:
-            self._start(gyr, acc, mag)
+        if not resume:
+            self.reset()
+        if self.coefficients is None:
+            self._begin(gyr, acc, mag)
         N = len(gyr)
-        xs, Ps, ys, Ss, flags = [], [], [], [], []
+        xs, Ps, priors, P_priors, ys, Ss, flags = [], [], [], [], [], [], []
         M = mag.tolist() if mag is not None else [None] * N
         sample, s = self._sample, self.state
         nan6 = [math.nan] * 6
         for w, f, m in zip(gyr.tolist(), acc.tolist(), M):
             yk, sk = nan6.copy(), nan6.copy()
-            flags.append(sample(w, f, m, yk, sk))
+            x_prior, P_prior, flag = sample(w, f, m, yk, sk)
             xs.append(s.q + s.bias)
-            Ps.append(s.P)  # every step makes a new P: no copy needed
+            priors.append(x_prior)
+            Ps.append(s.P)  # every step makes new arrays: no copies needed
+            P_priors.append(P_prior)
             ys.append(yk)
             Ss.append(sk)
-        x, P, y, S, flags = np.array(xs), np.array(Ps), np.array(ys), np.array(Ss), np.array(flags, dtype=bool)
-        x[:, :4] *= np.where(x[:, :1] < 0, -1.0, 1.0)
-        return AttitudeRun(x, P, y, _diagonal(S), nis=np.nansum(y * y / S, axis=1), accel_gated=flags[:, 1], mag_used=flags[:, 2],
+            flags.append(flag)
+        x, x_prior = _positive(np.array(xs).reshape(N, 7)), _positive(np.array(priors).reshape(N, 7))
+        y, S, flags = np.array(ys).reshape(N, 6), np.array(Ss).reshape(N, 6), np.array(flags, dtype=bool).reshape(N, 4)
+        return AttitudeRun(x, np.array(Ps).reshape(N, 6, 6), y, _diagonal(S), x_prior, np.array(P_priors).reshape(N, 6, 6),
+                           nis=np.nansum(y * y / S, axis=1), accel_gated=flags[:, 1], mag_used=flags[:, 2],
                            mag_gated=flags[:, 3], at_rest=flags[:, 0], method=self.method)
 
+
+def _positive(x):
+    """[q, b] with the quaternion's w ≥ 0 (q and −q are the same rotation), (7,) or (N, 7), as a new array."""
+    x = np.array(x, dtype=float)
+    q = x[..., :4]
+    q *= np.where(q[..., :1] < 0, -1.0, 1.0)
+    return x

@@ -1,15 +1,16 @@
 """Lab 01: the scalar roll filter (gyro predicts, accelerometer roll corrects).
 
 The textbook function forms the lab teaches (``roll_kf_predict``, ``roll_kf_update``, ``roll_kf``)
-and the same filter as a :class:`RollKF` with :class:`RollSettings`, after the kit's filter contract.
+and the same filter as a :class:`RollKF` with :class:`RollKFSettings`, after the kit's filter contract.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from .linear import FilterRun, Step, configure, require_positive
+from .contract import FilterRun, State, Step, check_settings, configure, sample_period, shaped
 
 
 def integrate_rate(rate, dt, x0=0.0):
@@ -34,72 +35,90 @@ def roll_kf_update(x, P, z, r):
 
 
 @dataclass(frozen=True)
-class RollSettings:
+class RollKFSettings:
     """Tuning of the lab 01 roll filter (the defaults are lab 05's MPU6050 figures at 100 Hz).
 
-    q  variance the gyro prediction adds per step, rad² (≈ (σ_ω·Δt)² to start)      default 2e-6
-    r  variance of the accelerometer roll, rad² ((4 mg noise / 1 g)²)                default 1.6e-5
+    q_angle  variance the gyro prediction adds per step, rad² (≈ (σ_ω·Δt)² to start)        2e-6
+    r        variance of the accelerometer roll, rad² ((4 mg noise / 1 g)²)                  1.6e-5
     """
 
-    q: float = 2e-6
+    q_angle: float = 2e-6
     r: float = 1.6e-5
 
     def __post_init__(self):
-        require_positive("RollSettings", q=self.q, r=self.r)
+        check_settings(self, positive=("q_angle", "r"))
 
 
 class RollKF:
-    """The lab 01 roll filter, x = roll φ (rad), P its variance (rad²): one sample per :meth:`step`.
+    """The lab 01 roll filter, x = roll φ (rad), P its variance (rad²): one sample per :meth:`step`, a
+    :class:`~kfkit.filters.contract.TunedFilter`.
 
-    dt        sample period, s
-    settings  :class:`RollSettings` (q, r); keyword changes apply on top: ``RollKF(0.01, q=1e-6)``
-    x0, P0    initial roll (rad) and variance (rad²), one step before the first sample
+    dt        sample period, s (or ``rate_hz``, Hz)
+    settings  :class:`RollKFSettings`; keyword changes apply on top: ``RollKF(0.01, q_angle=1e-6)``
+    x0, P0    initial roll (rad) and variance (rad², default 1), one step before the first sample; x0 None: the
+              first accelerometer roll (0 if there is none)
     """
 
-    def __init__(self, dt, settings: RollSettings | None = None, x0=0.0, P0=1.0, **changes):
-        require_positive("RollKF", dt=dt)
-        self.dt = float(dt)
-        self.settings = configure(RollSettings, settings, changes, "RollKF")
-        self.x, self.P = float(x0), float(P0)
+    def __init__(self, dt=None, settings: RollKFSettings | None = None, *, rate_hz=None, x0=None, P0=None, **changes):
+        self.dt = sample_period("RollKF", dt, rate_hz)
+        self.settings = configure(RollKFSettings, settings, changes, "RollKF")
+        self._x0, self._P0 = None, 1.0
+        self.reset(x0, P0)
+
+    def reset(self, x0=None, P0=None):
+        """State ← the start; a given x0 or P0 replaces the start's."""
+        if x0 is not None:
+            self._x0 = float(shaped("RollKF", "x0", x0, ()))
+        if P0 is not None:
+            self._P0 = float(shaped("RollKF", "P0", P0, ()))
+        self.state = State(self._x0, self._P0)
 
     def step(self, omega, z) -> Step:
         """Predict with gyro rate ω (rad/s), update with accelerometer roll z (rad; NaN skips the
-        update) → Step(x, P, y, S) as floats, y and S NaN where skipped."""
-        x, P = roll_kf_predict(self.x, self.P, omega, self.dt, self.settings.q)
-        y = S = np.nan
-        if z == z:  # not NaN
-            x, P, y, S = roll_kf_update(x, P, z, self.settings.r)
-        self.x, self.P = x, P
-        return Step(x, P, y, S)
+        update) → Step as floats, y and S NaN where skipped."""
+        s = self.state
+        x = (z if z == z else 0.0) if s.x is None else s.x
+        x_prior, P_prior, s.x, s.P, y, S = _roll_sample(x, s.P, omega, z, self.dt, self.settings.q_angle, self.settings.r)
+        return Step(s.x, s.P, y, S, x_prior, P_prior)
 
-    def run(self, gyro_rate, roll_acc, x0=None, P0=1.0) -> FilterRun:
-        """The same predict and update as :meth:`step` over a recording from (x0, P0) → :class:`FilterRun`
-        of (N,) arrays. x0 defaults to the first accelerometer roll.
+    def run(self, gyro_rate, roll_acc, *, resume=False) -> FilterRun:
+        """:meth:`step` over a recording → :class:`FilterRun` of (N,) arrays: from the start (x0 None: the first
+        accelerometer roll that is not NaN), or from the current state with ``resume=True``.
 
         Written out on plain floats and locals (no Step per sample), so sliders can re-run it live.
         """
+        if not resume:
+            self.reset()
         omega = np.asarray(gyro_rate, dtype=float).tolist()
         zs = np.asarray(roll_acc, dtype=float).tolist()
-        N, dt, q, r = len(zs), self.dt, self.settings.q, self.settings.r
-        xs, Ps, ys, Ss = [0.0] * N, [0.0] * N, [np.nan] * N, [np.nan] * N
-        x = zs[0] if x0 is None else float(x0)
-        P = float(P0)
+        N, dt, q, r = len(zs), self.dt, self.settings.q_angle, self.settings.r
+        rows = [None] * N
+        x, P = self.state.x, self.state.P
+        if x is None:
+            x = next((z for z in zs if z == z), 0.0)
         for k in range(N):
-            x, P = roll_kf_predict(x, P, omega[k], dt, q)
-            if zs[k] == zs[k]:  # not NaN
-                x, P, ys[k], Ss[k] = roll_kf_update(x, P, zs[k], r)
-            xs[k], Ps[k] = x, P
-        self.x, self.P = x, P
-        return FilterRun(np.array(xs), np.array(Ps), np.array(ys), np.array(Ss))
+            rows[k] = _roll_sample(x, P, omega[k], zs[k], dt, q, r)
+            x, P = rows[k][2], rows[k][3]
+        self.state = State(x, P)
+        x_prior, P_prior, x, P, y, S = np.array(rows, dtype=float).reshape(N, 6).T
+        return FilterRun(x, P, y, S, x_prior, P_prior)
+
+
+def _roll_sample(x, P, omega, z, dt, q, r):
+    """One predict + update on floats → (x⁻, P⁻, x, P, y, S), y and S NaN where z is NaN."""
+    x_prior, P_prior = roll_kf_predict(x, P, omega, dt, q)
+    if z != z:  # NaN: no update
+        return x_prior, P_prior, x_prior, P_prior, math.nan, math.nan
+    return (x_prior, P_prior, *roll_kf_update(x_prior, P_prior, z, r))
 
 
 def roll_kf(gyro_rate, roll_acc, dt, q, r, x0=None, P0=1.0) -> FilterRun:
     """Run the lab 01 roll filter: gyro rate (rad/s) predicts, accelerometer roll (rad) corrects.
 
-    ``RollKF(dt, q=q, r=r).run(gyro_rate, roll_acc, x0, P0)``: x0 defaults to the first
+    ``RollKF(dt, q_angle=q, r=r, x0=x0, P0=P0).run(gyro_rate, roll_acc)``: x0 defaults to the first
     accelerometer roll; NaN in ``roll_acc`` skips that update.
     """
-    return RollKF(dt, q=q, r=r).run(gyro_rate, roll_acc, x0, P0)
+    return RollKF(dt, q_angle=q, r=r, x0=x0, P0=P0).run(gyro_rate, roll_acc)
 
 
 def roll_kf_steady_state(q, r):

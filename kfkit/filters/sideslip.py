@@ -3,7 +3,7 @@
 State x = [β, r] (rad, rad/s), optionally [β, r, b_ay] with a lateral-accelerometer bias
 (m/s²); input δ (road-wheel steering, rad); measurement z = [r, a_y] (rad/s, m/s²). The linear
 bicycle model (:func:`kfkit.vehicle.linear_model`) at the measured speed V_x is discretised
-exactly (ZOH + Van Loan, :func:`kfkit.vehicle.discretize`) and the measurement has a direct
+exactly (ZOH + Van Loan, :func:`kfkit.discrete.discretize`) and the measurement has a direct
 feed-through D: a_y responds to δ at once, through the front tyre force::
 
     predict   x⁻ = Ad x + Bd δ_{k−1}          P⁻ = Ad P Adᵀ + Qd
@@ -13,7 +13,7 @@ feed-through D: a_y responds to δ at once, through the front tyre force::
 
 Process noise (continuous white noise, tuning knobs): ``q_beta`` on β̇ (rad²/s) for lateral
 force model errors (cornering stiffness, bank, tyre nonlinearity), ``q_r`` on ṙ (rad²/s³) for
-yaw-moment errors, ``q_bias`` for the bias random walk ((m/s²)²/s).
+yaw-moment errors, ``q_bias_ay`` for the a_y bias random walk ((m/s²)²/s).
 
 Low speed: the model's coefficients grow like 1/V_x and 1/V_x² as V_x → 0. Below ``v_min``
 (default 2 m/s) the filter does not use the model: it predicts the kinematic (no-slip) sideslip
@@ -22,7 +22,7 @@ and no correlation to r, keeps r⁻ = r (P_rr grows by q_r·dt), and updates wit
 only (a_y carries no information on β at a crawl). Nothing divides by V_x there, so a stop or a
 start from rest is safe; the run's ``low_speed`` mask says which samples were handled so.
 
-:class:`SideslipKF` is the filter (construct with dt and a :class:`SideslipSettings`; ``step`` one
+:class:`SideslipKF` is the filter (construct with dt and a :class:`SideslipKFSettings`; ``step`` one
 sample, ``run`` a drive → :class:`SideslipRun`); ``estimate_sideslip(..., model=linear_model)``
 (:mod:`kfkit.filters.sideslip_estimate`) runs it over a drive.
 
@@ -42,12 +42,14 @@ from functools import lru_cache
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from ..vehicle import BicycleParams, discretize, linear_model
-from .linear import FilterRun, KalmanFilter, Step, configure, require_positive
+from ..discrete import discretize
+from ..vehicle import BicycleParams, linear_model
+from .contract import FilterRun, State, Step, check_settings, configure, sample_period, shaped
+from .linear import KalmanFilter
 
 
 @dataclass(frozen=True)
-class SideslipSettings:
+class SideslipKFSettings:
     """Tuning of the sideslip filter (see the module doc); the defaults are lab 06's.
 
     q_beta        process noise on β̇, rad²/s (lateral force model errors)                      1e-4
@@ -57,8 +59,8 @@ class SideslipSettings:
     v_min         below this speed the kinematic β = b·δ/L is used, m/s                         2.0
     beta_low_std  σ of that kinematic β, rad                                                     1°
     bias_ay       add an a_y bias state b_ay (m/s²)                                           False
-    q_bias        its random walk, (m/s²)²/s                                                   1e-5
-    bias_std      its initial σ, m/s²                                                           0.3
+    q_bias_ay     its random walk, (m/s²)²/s                                                   1e-5
+    bias_ay_std   its initial σ, m/s²                                                           0.3
     vx_step       width of the speed bins the model is cached at, m/s (≤ v_min)                0.05
     """
 
@@ -69,17 +71,15 @@ class SideslipSettings:
     v_min: float = 2.0
     beta_low_std: float = math.radians(1.0)
     bias_ay: bool = False
-    q_bias: float = 1e-5
-    bias_std: float = 0.3
+    q_bias_ay: float = 1e-5
+    bias_ay_std: float = 0.3
     vx_step: float = 0.05
 
     def __post_init__(self):
-        for name in ("q_beta", "q_r", "gyro_noise", "accel_noise", "v_min", "beta_low_std", "q_bias", "bias_std", "vx_step"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float, np.integer, np.floating)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"SideslipSettings: {name} must be a finite positive number, got {value!r}")
+        check_settings(self, positive=("q_beta", "q_r", "gyro_noise", "accel_noise", "v_min", "beta_low_std", "q_bias_ay",
+                                       "bias_ay_std", "vx_step"), flags=("bias_ay",))
         if self.vx_step > self.v_min:
-            raise ValueError(f"SideslipSettings: vx_step = {self.vx_step} m/s is coarser than v_min = {self.v_min} m/s: "
+            raise ValueError(f"SideslipKFSettings: vx_step = {self.vx_step} m/s is coarser than v_min = {self.v_min} m/s: "
                              "the slowest speed bin the model is used at would be 0 m/s")
 
     @property
@@ -89,8 +89,18 @@ class SideslipSettings:
 
 
 @dataclass
+class SideslipState(State):
+    """What a sideslip filter carries between samples: x, P, the previous sample's steering δ_{k−1} (rad; None
+    before the first) and the time of the last sample a run filtered (s; None after a lone step)."""
+
+    delta_prev: float | None = None
+    t_prev: float | None = None
+
+
+@dataclass
 class SideslipRun(FilterRun):
-    """:class:`FilterRun` of a :class:`SideslipKF` (x = [β, r(, b_ay)], y = [r, a_y] innovations) with
+    """:class:`FilterRun` of a :class:`SideslipKF` or :class:`~kfkit.filters.sideslip_ekf.SideslipEKF`
+    (x = [β, r(, b_ay)], y = [r, a_y] innovations) with
 
     vx         the speeds it was run at, m/s (N,)
     low_speed  True where V_x < v_min (kinematic β, yaw-rate-only update: y[:, 1] and S[:, 1] NaN)
@@ -123,20 +133,27 @@ class SideslipRun(FilterRun):
 def sideslip_step(x, P, delta_prev, z, delta, Ad, Bd, Qd, C, D, R):
     """One predict + update of the sideslip KF with the D-term; returns (x, P, y, S).
 
-    x (n,) with n = 2 or 3 (bias state), z = [r, a_y]; Ad, Bd, Qd from :func:`kfkit.vehicle.discretize`.
+    x (n,) with n = 2 or 3 (bias state), z = [r, a_y]; Ad, Bd, Qd from :func:`kfkit.discrete.discretize`.
     x⁻ = Ad x + Bd δ_{k−1}, P⁻ = Ad P Adᵀ + Qd; y = z − C x⁻ − D δ_k, S = C P⁻ Cᵀ + R;
     K = P⁻ Cᵀ S⁻¹, x = x⁻ + K y, P = (I − K C) P⁻ (I − K C)ᵀ + K R Kᵀ.
     """
-    x = Ad @ x + Bd[:, 0] * delta_prev
-    P = Ad @ P @ Ad.T + Qd
+    return sideslip_update(*sideslip_predict(x, P, delta_prev, Ad, Bd, Qd), z, delta, C, D, R)
+
+
+def sideslip_predict(x, P, delta_prev, Ad, Bd, Qd):
+    """x⁻ = Ad x + Bd δ_{k−1},  P⁻ = Ad P Adᵀ + Qd → (x⁻, P⁻)."""
+    return Ad @ x + Bd[:, 0] * delta_prev, Ad @ P @ Ad.T + Qd
+
+
+def sideslip_update(x, P, z, delta, C, D, R):
+    """y = z − C x⁻ − D δ_k, S = C P⁻ Cᵀ + R, K = P⁻ Cᵀ S⁻¹; x = x⁻ + K y, P = (I − K C) P⁻ (I − K C)ᵀ + K R Kᵀ
+    → (x, P, y, S)."""
     y = z - C @ x - D[:, 0] * delta
     PCt = P @ C.T
     S = C @ PCt + R
     K = PCt @ _inv2(S)
-    x = x + K @ y
     IKC = np.eye(len(x)) - K @ C
-    P = IKC @ P @ IKC.T + K @ R @ K.T
-    return x, P, y, S
+    return x + K @ y, IKC @ P @ IKC.T + K @ R @ K.T, y, S
 
 
 def _inv2(S):
@@ -208,66 +225,85 @@ class _ModelCache:
 
 
 class SideslipKF:
-    """The lab 06 filter: sideslip β from steering, yaw rate and lateral acceleration (module doc).
+    """The lab 06 filter: sideslip β from steering, yaw rate and lateral acceleration (module doc), a
+    :class:`~kfkit.filters.contract.TunedFilter`.
 
-    dt        nominal sample interval, s: the step's default and the centre of the interval bins
+    dt        nominal sample interval, s (or ``rate_hz``, Hz): the step's default and the centre of the interval bins
     params    the car (:class:`BicycleParams`)
-    settings  :class:`SideslipSettings`; keyword changes apply on top: ``SideslipKF(0.01, car, bias_ay=True)``
+    settings  :class:`SideslipKFSettings`; keyword changes apply on top: ``SideslipKF(0.01, car, bias_ay=True)``
     model     ``model(params, vx)`` → (A, B, C, D); may be swapped for a teaching comparison
-    x0, P0    initial state (default 0) and covariance (default diag((2°)², (2°/s)², bias_std²)),
+    x0, P0    initial state (default 0) and covariance (default diag((2°)², (2°/s)², bias_ay_std²)),
               one step before the first sample
     """
 
-    def __init__(self, dt, params: BicycleParams = BicycleParams(), settings: SideslipSettings | None = None, *,
-                 model=linear_model, x0=None, P0=None, **changes):
-        require_positive("SideslipKF", dt=dt)
-        self.dt, self.params, self.model = float(dt), params, model
-        self.settings = st = configure(SideslipSettings, settings, changes, "SideslipKF")
+    def __init__(self, dt=None, params: BicycleParams = BicycleParams(), settings: SideslipKFSettings | None = None, *,
+                 rate_hz=None, model=linear_model, x0=None, P0=None, **changes):
+        self.dt, self.params, self.model = sample_period("SideslipKF", dt, rate_hz), params, model
+        self.settings = st = configure(SideslipKFSettings, settings, changes, "SideslipKF")
         n = st.n
         self.R = np.diag([st.gyro_noise ** 2, st.accel_noise ** 2])
-        self._models = _ModelCache(model, params, np.diag([st.q_beta, st.q_r, st.q_bias][:n]), st.bias_ay, st.vx_step, self.dt)
+        self._models = _ModelCache(model, params, np.diag([st.q_beta, st.q_r, st.q_bias_ay][:n]), st.bias_ay, st.vx_step,
+                                   self.dt)
         self._kinematic_gain = params.b / params.wheelbase
+        self._x0, self._P0 = np.zeros(n), np.diag([math.radians(2.0) ** 2, math.radians(2.0) ** 2, st.bias_ay_std ** 2][:n])
         self.reset(x0, P0)
 
     def reset(self, x0=None, P0=None):
-        """Set the state (default 0) and covariance (default diag((2°)², (2°/s)², bias_std²)); forget δ_{k−1}."""
-        n = self.settings.n
-        self.x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).reshape(n).copy()
-        self.P = np.diag([math.radians(2.0) ** 2, math.radians(2.0) ** 2, self.settings.bias_std ** 2][:n]) if P0 is None \
-            else np.asarray(P0, dtype=float).reshape(n, n).copy()
-        self._delta_prev = None
+        """State ← the start (a given x0 or P0 replaces the start's); δ_{k−1} and the last time forgotten."""
+        self._x0, self._P0 = _start(self, x0, P0)
+        self.state = SideslipState(self._x0.copy(), self._P0.copy())
 
     def step(self, delta, yaw_rate, ay, vx, dt=None) -> Step:
         """One sample: road-wheel steering δ (rad), yaw rate (rad/s), a_y (m/s²), speed V_x (m/s), dt (s,
-        default the nominal one) → Step(x, P, y = [r, a_y] innovations, S); below v_min y[1] and S's
+        default the nominal one) → Step(x, P, y = [r, a_y] innovations, S, x⁻, P⁻); below v_min y[1] and S's
         a_y row and column are NaN (no a_y update). The prediction uses the previous sample's δ."""
-        st = self.settings
+        st, s = self.settings, self.state
         dt = self.dt if dt is None else dt
-        delta_prev = delta if self._delta_prev is None else self._delta_prev
-        self._delta_prev = delta
+        delta_prev = delta if s.delta_prev is None else s.delta_prev
+        s.delta_prev, s.t_prev = delta, None
         if vx < st.v_min:
-            self.x, self.P, y, S = low_speed_step(self.x, self.P, yaw_rate, delta * self._kinematic_gain, st, dt,
-                                                  st.q_bias * dt)
+            x_prior, P_prior, s.x, s.P, y, S = low_speed_step(s.x, s.P, yaw_rate, delta * self._kinematic_gain, st, dt,
+                                                              st.q_bias_ay * dt)
         elif st.n == 2:
-            self.x, self.P, y, S = _step2(self.x, self.P, delta_prev, (yaw_rate, ay), delta, self._models(vx, dt)[1], self.R)
+            x_prior, P_prior, s.x, s.P, y, S = _step2(s.x, s.P, delta_prev, (yaw_rate, ay), delta,
+                                                      self._models(vx, dt)[1], self.R)
         else:
-            self.x, self.P, y, S = sideslip_step(self.x, self.P, delta_prev, np.array([yaw_rate, ay]), delta,
-                                                 *self._models(vx, dt)[0], self.R)
-        return Step(self.x, self.P, y, S)
+            Ad, Bd, Qd, C, D = self._models(vx, dt)[0]
+            x_prior, P_prior = sideslip_predict(s.x, s.P, delta_prev, Ad, Bd, Qd)
+            s.x, s.P, y, S = sideslip_update(x_prior, P_prior, np.array([yaw_rate, ay]), delta, C, D, self.R)
+        return Step(s.x, s.P, y, S, x_prior, P_prior)
 
-    def run(self, t, delta, yaw_rate, ay, vx, x0=None, P0=None) -> SideslipRun:
-        """:meth:`step` over a drive from (x0, P0): t (s), delta (rad, road wheel), yaw_rate (rad/s), ay (m/s²),
-        vx (m/s ≥ 0), equal-length 1-D arrays, ISO 8855 signs; the first step's dt is the nominal one."""
-        d = _as_inputs(t, delta, yaw_rate, ay, vx)
-        self.reset(x0, P0)
-        ts, N, n = d["t"].tolist(), len(d["t"]), self.settings.n
-        xs, Ps, ys, Ss = np.empty((N, n)), np.empty((N, n, n)), np.empty((N, 2)), np.empty((N, 2, 2))
-        step = self.step
-        with _blas_controller().limit(limits=1, user_api="blas"):
-            for k, (dk, rk, ak, vk) in enumerate(zip(d["delta"].tolist(), d["yaw_rate"].tolist(), d["ay"].tolist(),
-                                                     d["vx"].tolist())):
-                xs[k], Ps[k], ys[k], Ss[k] = step(dk, rk, ak, vk, ts[k] - ts[k - 1] if k else None)
-        return SideslipRun(xs, Ps, ys, Ss, vx=d["vx"], low_speed=d["vx"] < self.settings.v_min)
+    def run(self, t, delta, yaw_rate, ay, vx, *, resume=False) -> SideslipRun:
+        """:meth:`step` over a drive: t (s), delta (rad, road wheel), yaw_rate (rad/s), ay (m/s²), vx (m/s ≥ 0),
+        equal-length 1-D arrays, ISO 8855 signs → :class:`SideslipRun`. From the start, the first step's dt the
+        nominal one; with ``resume=True`` from the current state, the first dt from the last run's last time."""
+        return _run_drive(self, _as_inputs(t, delta, yaw_rate, ay, vx), resume)
+
+
+def _start(kf, x0, P0):
+    """A sideslip filter's start (x0, P0) with a given x0 or P0 (checked against its state size) replacing ``kf``'s."""
+    n, owner = len(kf._x0), type(kf).__name__
+    return (kf._x0 if x0 is None else shaped(owner, "x0", x0, (n,)),
+            kf._P0 if P0 is None else shaped(owner, "P0", P0, (n, n)))
+
+
+def _run_drive(kf, d, resume) -> SideslipRun:
+    """``kf.step`` (either sideslip filter) over the checked drive ``d``, with one BLAS thread → :class:`SideslipRun`."""
+    if not resume:
+        kf.reset()
+    t_prev = kf.state.t_prev
+    ts, N, n = d["t"].tolist(), len(d["t"]), len(kf.state.x)
+    dts = [None if t_prev is None else ts[0] - t_prev] + [b - a for a, b in zip(ts[:-1], ts[1:])]
+    out = [np.empty((N, n)), np.empty((N, n, n)), np.empty((N, 2)), np.empty((N, 2, 2)), np.empty((N, n)),
+           np.empty((N, n, n))]
+    step = kf.step
+    with _blas_controller().limit(limits=1, user_api="blas"):
+        for k, args in enumerate(zip(d["delta"].tolist(), d["yaw_rate"].tolist(), d["ay"].tolist(), d["vx"].tolist(),
+                                     dts)):
+            s = step(*args)
+            out[0][k], out[1][k], out[2][k], out[3][k], out[4][k], out[5][k] = s.x, s.P, s.y, s.S, s.x_prior, s.P_prior
+    kf.state.t_prev = ts[-1]
+    return SideslipRun(*out, vx=d["vx"], low_speed=d["vx"] < kf.settings.v_min)
 
 
 @lru_cache(maxsize=1)
@@ -280,7 +316,8 @@ def _blas_controller():
 
 
 def _step2(x, P, delta_prev, z, delta, m, R):
-    """:func:`sideslip_step` for x = [β, r] written out on floats (4× faster than 2×2 NumPy calls).
+    """:func:`sideslip_step` for x = [β, r] written out on floats (4× faster than 2×2 NumPy calls) →
+    (x⁻, P⁻, x, P, y, S).
 
     C = [[0, 1], [c21, c22]], D = [0, d2] as the bicycle model has them; P⁺ = P⁻ − K S Kᵀ, which equals
     the Joseph form for the optimal gain and stays symmetric as computed here.
@@ -293,6 +330,7 @@ def _step2(x, P, delta_prev, z, delta, m, R):
     m11, m12 = a11 * p11 + a12 * p12, a11 * p12 + a12 * p22
     m21, m22 = a21 * p11 + a22 * p12, a21 * p12 + a22 * p22
     p11, p12, p22 = m11 * a11 + m12 * a12 + q11, m11 * a21 + m12 * a22 + q12, m21 * a21 + m22 * a22 + q22
+    x_prior, P_prior = np.array([x0, x1]), np.array([[p11, p12], [p12, p22]])
     # update: PCᵀ columns are P[:, 1] and P·[c21, c22]
     y1, y2 = z[0] - x1, z[1] - c21 * x0 - c22 * x1 - d2 * delta  # z = (r, a_y)
     u0, u1 = p11 * c21 + p12 * c22, p12 * c21 + p22 * c22
@@ -304,36 +342,27 @@ def _step2(x, P, delta_prev, z, delta, m, R):
     x0, x1 = x0 + k11 * y1 + k12 * y2, x1 + k21 * y1 + k22 * y2
     # P − K S Kᵀ = P − K (PCᵀ)ᵀ
     p11, p12, p22 = p11 - (k11 * p12 + k12 * u0), p12 - (k11 * p22 + k12 * u1), p22 - (k21 * p22 + k22 * u1)
-    return (np.array([x0, x1]), np.array([[p11, p12], [p12, p22]]), np.array([y1, y2]),
+    return (x_prior, P_prior, np.array([x0, x1]), np.array([[p11, p12], [p12, p22]]), np.array([y1, y2]),
             np.array([[s11, s12], [s12, s22]]))
 
 
 def low_speed_step(x, P, yaw_rate, beta_kin, settings, dt, q_bias_dt=0.0):
-    """Below v_min (both sideslip filters): β⁻ = b δ / L (kinematic, variance beta_low_std²), r⁻ = r (P_rr grows by
-    q_r·dt), a bias state's variance by ``q_bias_dt``; the yaw rate (gyro_noise²) updates alone. Returns (x, P, y, S)
-    with the a_y entries of the innovation y and of S NaN (no a_y update)."""
-    y, S = np.full(2, np.nan), np.full((2, 2), np.nan)
-    x, P, y[0], S[0, 0] = _yaw_rate_update(x, P, yaw_rate, beta_kin, settings.beta_low_std ** 2, settings.q_r * dt,
-                                           q_bias_dt, settings.gyro_noise ** 2)
-    return x, P, y, S
-
-
-def _yaw_rate_update(x, P, z_r, beta_kin, p_beta, q_r_dt, q_b_dt, r_gyro):
-    """:func:`low_speed_step`'s arithmetic; returns (x, P, y_r, S_r)."""
-    x = x.copy()
-    x[0] = beta_kin
-    P = P.copy()
-    P[0, :] = P[:, 0] = 0.0
-    P[0, 0] = p_beta
-    P[1, 1] += q_r_dt
+    """Below v_min (both sideslip filters): β⁻ = b δ / L (kinematic, variance beta_low_std², no correlation), r⁻ = r
+    (P_rr grows by q_r·dt), a bias state's variance by ``q_bias_dt``; the yaw rate (gyro_noise²) updates alone.
+    Returns (x⁻, P⁻, x, P, y, S) with the a_y entries of the innovation y and of S NaN (no a_y update)."""
+    x_prior, P_prior = x.copy(), P.copy()
+    x_prior[0] = beta_kin
+    P_prior[0, :] = P_prior[:, 0] = 0.0
+    P_prior[0, 0] = settings.beta_low_std ** 2
+    P_prior[1, 1] += settings.q_r * dt
     if len(x) > 2:
-        P[2, 2] += q_b_dt
-    y = z_r - x[1]
-    S = P[1, 1] + r_gyro
-    K = P[:, 1] / S
-    x = x + K * y
-    P = P - np.outer(K, P[1, :])  # (I − K e_rᵀ) P: the scalar update, exact for a scalar measurement
-    return x, 0.5 * (P + P.T), y, S
+        P_prior[2, 2] += q_bias_dt
+    y, S = np.full(2, np.nan), np.full((2, 2), np.nan)
+    y[0] = yaw_rate - x_prior[1]
+    S[0, 0] = P_prior[1, 1] + settings.gyro_noise ** 2
+    K = P_prior[:, 1] / S[0, 0]
+    P = P_prior - np.outer(K, P_prior[1, :])  # (I − K e_rᵀ) P⁻: the scalar update, exact for a scalar measurement
+    return x_prior, P_prior, x_prior + K * y[0], 0.5 * (P + P.T), y, S
 
 
 def kinematic_sideslip(t, yaw_rate, ay, vx, vy0=0.0):

@@ -35,7 +35,7 @@ Settings derived from physics and the sensors, none fitted to a drive's β (lab 
   The a_y update's variance grows accordingly: R_ay = σ_a² + ε²(F_f² + F_r²)/m², so at 1 g the
   measurement says less about β than in a gentle bend, and the filter leans on its model where the tyres
   are least certain.
-* ``gyro_noise``, ``q_beta``, ``q_r``, ``v_min``, ``beta_low_std`` as lab 06's KF (:class:`SideslipSettings`).
+* ``gyro_noise``, ``q_beta``, ``q_r``, ``v_min``, ``beta_low_std`` as lab 06's KF (:class:`SideslipKFSettings`).
 
 Below ``v_min`` the filter hands over to the same kinematic guard as the KF (β = b·δ/L, yaw-rate update).
 """
@@ -48,12 +48,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..vehicle import BicycleParams, axle_tyres
-from .linear import Step, configure, require_positive
-from .sideslip import SideslipRun, _as_inputs, _blas_controller, _step2, low_speed_step
+from .contract import Step, check_settings, configure, sample_period
+from .sideslip import SideslipRun, SideslipState, _as_inputs, _run_drive, _start, _step2, low_speed_step
 
 
 @dataclass(frozen=True)
-class TyreEkfSettings:
+class SideslipEKFSettings:
     """Tuning of :class:`SideslipEKF` (the module doc says where each default comes from).
 
     q_beta         process noise on β̇, rad²/s                                                   1e-4
@@ -74,8 +74,8 @@ class TyreEkfSettings:
     beta_low_std: float = math.radians(1.0)
 
     def __post_init__(self):
-        require_positive("TyreEkfSettings", zero_ok=("stiffness_std",),
-                         **{name: getattr(self, name) for name in self.__dataclass_fields__})
+        check_settings(self, positive=("q_beta", "q_r", "gyro_noise", "accel_noise", "v_min", "beta_low_std"),
+                       non_negative=("stiffness_std",))
 
 
 def matrix_functions_2x2(M, *functions):
@@ -134,29 +134,28 @@ def _poly(alpha, beta, M):
 class SideslipEKF:
     """Sideslip β with saturating tyres (module doc); the contract of :class:`~kfkit.filters.SideslipKF`.
 
-    dt        nominal sample interval, s (the first step's)
+    dt        nominal sample interval, s (or ``rate_hz``, Hz; the first step's)
     params    the car (:class:`BicycleParams`; its Cf, Cr, mu shape the default tyres)
-    settings  :class:`TyreEkfSettings`; keyword changes apply on top
+    settings  :class:`SideslipEKFSettings`; keyword changes apply on top
     tyres     (front, rear) axle curves with ``force(α)`` (N) and ``slope(α)`` (N/rad); default
               :func:`kfkit.vehicle.axle_tyres` (magic formula)
     x0, P0    initial state (default 0) and covariance (default diag((2°)², (2°/s)²))
     """
 
-    def __init__(self, dt, params: BicycleParams = BicycleParams(), settings: TyreEkfSettings | None = None, *,
-                 tyres=None, x0=None, P0=None, **changes):
-        require_positive("SideslipEKF", dt=dt)
-        self.dt, self.params = float(dt), params
-        self.settings = configure(TyreEkfSettings, settings, changes, "SideslipEKF")
+    def __init__(self, dt=None, params: BicycleParams = BicycleParams(), settings: SideslipEKFSettings | None = None, *,
+                 rate_hz=None, tyres=None, x0=None, P0=None, **changes):
+        self.dt, self.params = sample_period("SideslipEKF", dt, rate_hz), params
+        self.settings = configure(SideslipEKFSettings, settings, changes, "SideslipEKF")
         self.front, self.rear = axle_tyres(params) if tyres is None else tyres
         self._kinematic_gain = params.b / params.wheelbase
         self._Q = np.diag([self.settings.q_beta, self.settings.q_r])
+        self._x0, self._P0 = np.zeros(2), np.diag([math.radians(2.0) ** 2] * 2)
         self.reset(x0, P0)
 
     def reset(self, x0=None, P0=None):
-        """Set the state (default 0) and covariance (default diag((2°)², (2°/s)²)); forget δ_{k−1}."""
-        self.x = np.zeros(2) if x0 is None else np.asarray(x0, dtype=float).reshape(2).copy()
-        self.P = np.diag([math.radians(2.0) ** 2] * 2) if P0 is None else np.asarray(P0, dtype=float).reshape(2, 2).copy()
-        self._delta_prev = None
+        """State ← the start (a given x0 or P0 replaces the start's); δ_{k−1} and the last time forgotten."""
+        self._x0, self._P0 = _start(self, x0, P0)
+        self.state = SideslipState(self._x0.copy(), self._P0.copy())
 
     def axle_forces(self, beta, r, delta, vx):
         """(F_f, F_r, k_f, k_r): axle forces (N) and their slopes dF/dα (N/rad) at the state, steering and speed."""
@@ -173,40 +172,32 @@ class SideslipEKF:
                       [lat / p.Iz, -(p.a * p.a * kf + p.b * p.b * kr) / (p.Iz * vx)]])
         return J, (-(kf + kr) / p.m, lat / (p.m * vx))
 
-    def step(self, delta, yaw_rate, ay, vx, dt=None):
-        """One sample (as :meth:`SideslipKF.step <kfkit.filters.SideslipKF.step>`) → Step(x, P, y, S)."""
-        st, p = self.settings, self.params
+    def step(self, delta, yaw_rate, ay, vx, dt=None) -> Step:
+        """One sample (as :meth:`SideslipKF.step <kfkit.filters.SideslipKF.step>`) → Step(x, P, y, S, x⁻, P⁻)."""
+        st, p, s = self.settings, self.params, self.state
         dt = self.dt if dt is None else dt
-        delta_prev = delta if self._delta_prev is None else self._delta_prev
-        self._delta_prev = delta
+        delta_prev = delta if s.delta_prev is None else s.delta_prev
+        s.delta_prev, s.t_prev = delta, None
         if vx < st.v_min:
-            self.x, self.P, y, S = low_speed_step(self.x, self.P, yaw_rate, delta * self._kinematic_gain, st, dt)
-            return Step(self.x, self.P, y, S)
-        beta, r = self.x.tolist()
+            x_prior, P_prior, s.x, s.P, y, S = low_speed_step(s.x, s.P, yaw_rate, delta * self._kinematic_gain, st, dt)
+            return Step(s.x, s.P, y, S, x_prior, P_prior)
+        beta, r = s.x.tolist()
         ff, fr, kf, kr = self.axle_forces(beta, r, delta_prev, vx)
         J, _ = self.jacobian(kf, kr, vx)
         Jdt = J * dt
         (a1, b1), (a2, b2), (a3, b3) = matrix_functions_2x2(Jdt, PHI1, EXP, EXP_HALF)
-        x_prior = self.x + _poly(a1, b1, Jdt) @ np.array([(ff + fr) / (p.m * vx) - r, (p.a * ff - p.b * fr) / p.Iz]) * dt
+        x_prior = s.x + _poly(a1, b1, Jdt) @ np.array([(ff + fr) / (p.m * vx) - r, (p.a * ff - p.b * fr) / p.Iz]) * dt
         Ad, Ah, Q = _poly(a2, b2, Jdt), _poly(a3, b3, Jdt), self._Q
         Qd = (Q + 4.0 * Ah @ Q @ Ah.T + Ad @ Q @ Ad.T) * (dt / 6.0)
         ff, fr, kf, kr = self.axle_forces(*x_prior.tolist(), delta, vx)
         _, (c21, c22) = self.jacobian(kf, kr, vx)
-        offset = x_prior - Ad @ self.x  # the predict's x⁻ = Ad x + offset, in _step2's Ad x + Bd·1 form
+        offset = x_prior - Ad @ s.x  # the predict's x⁻ = Ad x + offset, in _step2's Ad x + Bd·1 form
         d2 = (ff + fr) / p.m - c21 * x_prior[0] - c22 * x_prior[1]  # a_y(x⁻) = C x⁻ + d2·1
         R = np.array(((st.gyro_noise ** 2, 0.0), (0.0, st.accel_noise ** 2 + (st.stiffness_std / p.m) ** 2 * (ff * ff + fr * fr))))
         m = (*Ad.ravel().tolist(), *offset.tolist(), Qd[0, 0], Qd[0, 1], Qd[1, 1], c21, c22, d2)
-        self.x, self.P, y, S = _step2(self.x, self.P, 1.0, (yaw_rate, ay), 1.0, m, R)
-        return Step(self.x, self.P, y, S)
+        x_prior, P_prior, s.x, s.P, y, S = _step2(s.x, s.P, 1.0, (yaw_rate, ay), 1.0, m, R)
+        return Step(s.x, s.P, y, S, x_prior, P_prior)
 
-    def run(self, t, delta, yaw_rate, ay, vx, x0=None, P0=None) -> SideslipRun:
-        """:meth:`step` over a drive (inputs as :meth:`SideslipKF.run <kfkit.filters.SideslipKF.run>`)."""
-        d = _as_inputs(t, delta, yaw_rate, ay, vx)
-        self.reset(x0, P0)
-        ts, N = d["t"].tolist(), len(d["t"])
-        xs, Ps, ys, Ss = np.empty((N, 2)), np.empty((N, 2, 2)), np.empty((N, 2)), np.empty((N, 2, 2))
-        with _blas_controller().limit(limits=1, user_api="blas"):
-            for k, (dk, rk, ak, vk) in enumerate(zip(d["delta"].tolist(), d["yaw_rate"].tolist(), d["ay"].tolist(),
-                                                     d["vx"].tolist())):
-                xs[k], Ps[k], ys[k], Ss[k] = self.step(dk, rk, ak, vk, ts[k] - ts[k - 1] if k else None)
-        return SideslipRun(xs, Ps, ys, Ss, vx=d["vx"], low_speed=d["vx"] < self.settings.v_min)
+    def run(self, t, delta, yaw_rate, ay, vx, *, resume=False) -> SideslipRun:
+        """:meth:`step` over a drive (inputs and start as :meth:`SideslipKF.run <kfkit.filters.SideslipKF.run>`)."""
+        return _run_drive(self, _as_inputs(t, delta, yaw_rate, ay, vx), resume)

@@ -14,8 +14,8 @@ from dataclasses import fields
 import numpy as np
 
 from ..vehicle import BicycleParams, linear_model, miscopied_linear_model
-from .sideslip import SideslipKF, SideslipRun, SideslipSettings, _as_inputs, copied_kinematic_kf, kinematic_sideslip
-from .sideslip_ekf import SideslipEKF, TyreEkfSettings
+from .sideslip import SideslipKF, SideslipKFSettings, SideslipRun, _as_inputs, copied_kinematic_kf, kinematic_sideslip
+from .sideslip_ekf import SideslipEKF, SideslipEKFSettings
 
 
 def estimate_sideslip(t, delta, yaw_rate, ay, vx, params: BicycleParams = BicycleParams(), *, model=None, tyres=None,
@@ -24,24 +24,24 @@ def estimate_sideslip(t, delta, yaw_rate, ay, vx, params: BicycleParams = Bicycl
 
     t (s), delta (rad, road wheel), yaw_rate (rad/s), ay (m/s²), vx (m/s ≥ 0): equal-length 1-D arrays,
     ISO 8855 signs; ``params``: the car. ``model=None`` (default): :class:`SideslipEKF` with the tyre curves
-    ``tyres`` (default the magic formula from params' Cf, Cr, mu) and any :class:`TyreEkfSettings` field;
+    ``tyres`` (default the magic formula from params' Cf, Cr, mu) and any :class:`SideslipEKFSettings` field;
     ``model=f`` (``f(params, vx)`` → (A, B, C, D), e.g. :func:`kfkit.vehicle.linear_model`): lab 06's linear
-    :class:`SideslipKF` with any :class:`SideslipSettings` field (bias_ay, vx_step, …).
+    :class:`SideslipKF` with any :class:`SideslipKFSettings` field (bias_ay, vx_step, …).
     """
     d = _as_inputs(t, delta, yaw_rate, ay, vx)
     dt = float(np.median(np.diff(d["t"])))
     if model is None:
-        linear_only = sorted(set(settings) & ({f.name for f in fields(SideslipSettings)} - {f.name for f in fields(TyreEkfSettings)}))
+        linear_only = sorted(set(settings) & ({f.name for f in fields(SideslipKFSettings)} - {f.name for f in fields(SideslipEKFSettings)}))
         if linear_only:
             raise TypeError(f"estimate_sideslip: {', '.join(linear_only)} is a setting of the linear KF; pass "
                             "model=kfkit.vehicle.linear_model to run it (the default saturating-tyre EKF has "
-                            f"{', '.join(f.name for f in fields(TyreEkfSettings))})")
-        kf = SideslipEKF(dt, params, tyres=tyres, **settings)
+                            f"{', '.join(f.name for f in fields(SideslipEKFSettings))})")
+        kf = SideslipEKF(dt, params, tyres=tyres, x0=x0, P0=P0, **settings)
     else:
         if tyres is not None:
             raise TypeError("estimate_sideslip: tyres is for the default EKF (model=None); a linear model has C·α tyres")
-        kf = SideslipKF(dt, params, model=model, **settings)
-    return kf.run(*d.values(), x0=x0, P0=P0)
+        kf = SideslipKF(dt, params, model=model, x0=x0, P0=P0, **settings)
+    return kf.run(*d.values())
 
 
 def compare_estimators(rec, params: BicycleParams = BicycleParams(), **tuning) -> dict:
@@ -49,7 +49,7 @@ def compare_estimators(rec, params: BicycleParams = BicycleParams(), **tuning) -
 
     The saturating-tyre EKF (the default of :func:`estimate_sideslip`); the linear KF with the correct model,
     with an a_y bias state, with the miscopied model; the copied "kinematic" KF; open-loop kinematic
-    integration; and β = 0 (what not estimating gives). ``tuning``: :class:`SideslipSettings` fields for the KFs.
+    integration; and β = 0 (what not estimating gives). ``tuning``: :class:`SideslipKFSettings` fields for the KFs.
     """
     signals = [rec[c] for c in ("t", "delta", "yaw_rate", "ay", "vx")]
     return {

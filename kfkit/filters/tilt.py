@@ -7,48 +7,49 @@
 
 The accelerometer angle is only a measurement of tilt while the board does not accelerate, which
 the host (or the board) judges from the specific force's norm: ``static_ok = |‖f‖ − g| < ε``.
-When it is false the gate either skips the update (``gate="skip"``) or inflates R by
-``inflation`` (``gate="inflate"``); ``gate="none"`` always updates. The tuning is a :class:`TiltSettings`. ``firmware/tilt_kf/tilt_kf.c``
-is the same filter in C (float32); ``tests/test_tilt_c.py`` holds them together.
+When it is false the update is skipped (``accel_gating="skip"``) or made with R × ``accel_inflation``
+(``accel_gating="inflate"``); ``accel_gating="none"`` always updates. The tuning is a :class:`TiltBiasKFSettings`.
+``firmware/tilt_kf/tilt_kf.c`` is the same filter in C (float32; its ``gate`` and ``inflation`` are
+``accel_gating`` and ``accel_inflation``); ``tests/test_tilt_c.py`` holds them together.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..frames import G, accel_tilt, mount_matrix
 from ..sensors import board as get_board
-from .linear import FilterRun, Step, configure, require_positive
+from .contract import FilterRun, State, Step, check_settings, configure, sample_period, shaped
 
-GATES = ("none", "skip", "inflate")
+GATINGS = ("none", "skip", "inflate")
 DEFAULT_EPS = 0.05 * G  # m/s², static gate |‖f‖ − g| < ε
 
 
 @dataclass(frozen=True)
-class TiltSettings:
+class TiltBiasKFSettings:
     """Tuning of one :class:`TiltBiasKF` axis. The defaults are lab 05's for an MPU6050 at 100 Hz and
     the C filter's (``tiltKfDefaultSettings``).
 
-    q_angle    q_θ, angle random walk per step beyond the gyro, rad² (≈ (σ_ω·Δt)² to start)    2e-6
-    q_bias     q_b, bias random walk per step, (rad/s)² (10⁻⁴ q_θ: the fit is flat in q_b
-               once the bias has converged)                                                    2e-10
-    r          variance of the accelerometer angle, rad² ((4 mg noise / 1 g)²)                 1.6e-5
-    gate       what to do when ``static_ok`` is false: "skip", "inflate" or "none"            "skip"
-    inflation  R multiplier for ``gate="inflate"``                                             100
+    q_angle          q_θ, angle random walk per step beyond the gyro, rad² (≈ (σ_ω·Δt)² to start)     2e-6
+    q_bias           q_b, gyro-bias random walk per step, (rad/s)² (10⁻⁴ q_θ: the fit is flat in q_b
+                     once the bias has converged)                                                     2e-10
+    r                variance of the accelerometer angle, rad² ((4 mg noise / 1 g)²)                  1.6e-5
+    accel_gating     what a sample whose ``static_ok`` is false does: "skip" its update, "inflate"
+                     its R, or "none" (update as any other)                                          "skip"
+    accel_inflation  the R multiplier of ``accel_gating="inflate"``                                  100
     """
 
     q_angle: float = 2e-6
     q_bias: float = 2e-10
     r: float = 1.6e-5
-    gate: str = "skip"
-    inflation: float = 100.0
+    accel_gating: str = "skip"
+    accel_inflation: float = 100.0
 
     def __post_init__(self):
-        require_positive("TiltSettings", zero_ok=("q_bias",), q_angle=self.q_angle, q_bias=self.q_bias, r=self.r,
-                         inflation=self.inflation)
-        if self.gate not in GATES:
-            raise ValueError(f"TiltSettings: gate must be one of {', '.join(GATES)}, got {self.gate!r}")
+        check_settings(self, positive=("q_angle", "r", "accel_inflation"), non_negative=("q_bias",),
+                       choices={"accel_gating": GATINGS})
 
 
 def accel_static_ok(f_b, eps=DEFAULT_EPS):
@@ -68,9 +69,9 @@ def accel_static_ok(f_b, eps=DEFAULT_EPS):
 
 @dataclass
 class TiltRun(FilterRun):
-    """:class:`FilterRun` of a :class:`TiltBiasKF`: x (N, 2) = [θ, b], P (N, 2, 2), y (N,), S (N,).
+    """:class:`FilterRun` of a :class:`TiltBiasKF`: x, x_prior (N, 2) = [θ, b], P, P_prior (N, 2, 2), y (N,), S (N,).
 
-    ``y`` and ``S`` are NaN where the gate skipped the update; ``gated`` marks the samples where
+    ``y`` and ``S`` are NaN where the update was skipped; ``gated`` marks the samples where
     ``static_ok`` was false (skipped or inflated).
     """
 
@@ -88,77 +89,54 @@ class TiltRun(FilterRun):
 
 
 class TiltBiasKF:
-    """Two-state [angle, gyro bias] Kalman filter for one tilt axis.
+    """Two-state [angle, gyro bias] Kalman filter for one tilt axis, a :class:`~kfkit.filters.contract.TunedFilter`.
 
-    dt         sample period, s
-    settings   :class:`TiltSettings`; keyword changes apply on top: ``TiltBiasKF(0.01, r=1e-4)``
-    x0, P0     initial [θ (rad), b (rad/s)] and its 2×2 covariance; ``run`` defaults θ₀ to the first
-               accelerometer angle and P0 to diag(r, (0.1 rad/s)²)
+    dt         sample period, s (or ``rate_hz``, Hz)
+    settings   :class:`TiltBiasKFSettings`; keyword changes apply on top: ``TiltBiasKF(0.01, r=1e-4)``
+    x0, P0     initial [θ (rad), b (rad/s)] and its 2×2 covariance, one step before the first sample; x0 None:
+               [the first accelerometer angle (0 if there is none), 0]; P0 None: diag(r, (0.1 rad/s)²)
     """
 
-    def __init__(self, dt, settings: TiltSettings | None = None, x0=(0.0, 0.0), P0=None, **changes):
-        require_positive("TiltBiasKF", dt=dt)
-        self.dt = float(dt)
-        self.settings = configure(TiltSettings, settings, changes, "TiltBiasKF")
-        st = self.settings  # as plain floats for the per-sample arithmetic
-        self.q_angle, self.q_bias, self.r = float(st.q_angle), float(st.q_bias), float(st.r)
-        self.gate, self.inflation = st.gate, float(st.inflation)
+    def __init__(self, dt=None, settings: TiltBiasKFSettings | None = None, *, rate_hz=None, x0=None, P0=None,
+                 **changes):
+        self.dt = sample_period("TiltBiasKF", dt, rate_hz)
+        self.settings = configure(TiltBiasKFSettings, settings, changes, "TiltBiasKF")
+        self._x0, self._P0 = None, np.diag([self.settings.r, 0.1 ** 2])
         self.reset(x0, P0)
 
-    def reset(self, x0=(0.0, 0.0), P0=None):
-        """Set the state [θ, b] and covariance (default diag(r, (0.1 rad/s)²))."""
-        x0 = np.asarray(x0, dtype=float).reshape(-1)
-        P0 = np.diag([self.r, 0.1 ** 2]) if P0 is None else np.asarray(P0, dtype=float)
-        if x0.shape != (2,) or P0.shape != (2, 2):
-            raise ValueError(f"TiltBiasKF: x0 must have 2 values and P0 be 2×2, got shapes {x0.shape} and {P0.shape}")
-        self.angle, self.bias = float(x0[0]), float(x0[1])
-        self.P00, self.P01, self.P11 = float(P0[0, 0]), float(0.5 * (P0[0, 1] + P0[1, 0])), float(P0[1, 1])
-
-    @property
-    def x(self) -> np.ndarray:
-        return np.array([self.angle, self.bias])
-
-    @property
-    def P(self) -> np.ndarray:
-        return np.array([[self.P00, self.P01], [self.P01, self.P11]])
+    def reset(self, x0=None, P0=None):
+        """State ← the start; a given x0 [θ, b] or P0 (2×2) replaces the start's."""
+        if x0 is not None:
+            self._x0 = shaped("TiltBiasKF", "x0", x0, (2,))
+        if P0 is not None:
+            P0 = shaped("TiltBiasKF", "P0", P0, (2, 2))
+            self._P0 = 0.5 * (P0 + P0.T)
+        self.state = State(None if self._x0 is None else self._x0.copy(), self._P0.copy())
 
     def step(self, gyro_rate, accel_angle, static_ok=True) -> Step:
         """One predict with the gyro rate (rad/s), one (gated) update with the accel angle (rad).
 
-        A NaN ``accel_angle`` skips the update. Returns Step(x = [θ, b], P (2×2), y, S); y and S
+        A NaN ``accel_angle`` skips the update. Returns Step(x = [θ, b], P (2×2), y, S, x⁻, P⁻); y and S
         are NaN if skipped.
         """
-        _, _, y, S = self._advance(gyro_rate, accel_angle, static_ok)
-        return Step(self.x, self.P, y, S)
+        s = self.state
+        x = (accel_angle if accel_angle == accel_angle else 0.0, 0.0) if s.x is None else s.x.tolist()
+        row = _tilt_sample(*x, s.P[0, 0], s.P[0, 1], s.P[1, 1], gyro_rate, accel_angle, static_ok, *self._coefficients())
+        x_prior, P_prior, x, P, y, S = (a[0] for a in _unpack(np.array([row])))
+        s.x, s.P = x, P
+        return Step(x, P, float(y), float(S), x_prior, P_prior)
 
-    def _advance(self, gyro_rate, accel_angle, static_ok):
-        """:meth:`step` on floats, returning (θ, b, y, S): what :meth:`run` stores per sample."""
-        dt, P00, P01, P11 = self.dt, self.P00, self.P01, self.P11
-        # predict: θ⁻ = θ + (ω − b)Δt; P⁻ = A P Aᵀ + Q written out (P symmetric: P00, P01, P11)
-        angle, bias = self.angle + (gyro_rate - self.bias) * dt, self.bias
-        P00 += dt * (dt * P11 - 2.0 * P01) + self.q_angle
-        P01 -= dt * P11
-        P11 += self.q_bias
-        y = S = np.nan
-        if accel_angle == accel_angle and (static_ok or self.gate != "skip"):  # not NaN, not gated out
-            r = self.r if static_ok or self.gate == "none" else self.r * self.inflation
-            y = accel_angle - angle
-            S = P00 + r
-            k0, k1 = P00 / S, P01 / S
-            angle += k0 * y
-            bias += k1 * y
-            # P = (I − K H) P⁻; the bias row uses the prior P01, so update P11 first
-            P11 -= k1 * P01
-            P01 -= k0 * P01
-            P00 -= k0 * P00
-        self.angle, self.bias, self.P00, self.P01, self.P11 = angle, bias, P00, P01, P11
-        return angle, bias, y, S
+    def _coefficients(self):
+        """(dt, q_θ, q_b, r, R of a sample that is not static: None = skipped) as floats."""
+        st = self.settings
+        moving = {"none": st.r, "skip": None, "inflate": st.r * st.accel_inflation}[st.accel_gating]
+        return self.dt, float(st.q_angle), float(st.q_bias), float(st.r), moving
 
-    def run(self, gyro_rate, accel_angle, static_ok=None, x0=None, P0=None) -> TiltRun:
-        """Run over a recording from (x0, P0): a step for every sample. Returns a :class:`TiltRun`.
+    def run(self, gyro_rate, accel_angle, static_ok=None, *, resume=False) -> TiltRun:
+        """:meth:`step` over a recording → :class:`TiltRun`: from the start (x0 None: the first accelerometer angle
+        that is not NaN), or from the current state with ``resume=True``.
 
         gyro_rate, accel_angle (N,) rad/s and rad; static_ok (N,) bool (default all True).
-        x0 defaults to [first accelerometer angle, 0].
         """
         w = np.asarray(gyro_rate, dtype=float)
         z = np.asarray(accel_angle, dtype=float)
@@ -171,16 +149,53 @@ class TiltBiasKF:
         if not np.isfinite(w).all():
             k = int(np.flatnonzero(~np.isfinite(w))[0])
             raise ValueError(f"TiltBiasKF.run: gyro_rate[{k}] is {w[k]}: the prediction needs a finite rate at every sample")
-        if x0 is None:
+        if not resume:
+            self.reset()
+        s, c = self.state, self._coefficients()
+        if s.x is None:
             first = z[~np.isnan(z)]
-            x0 = (float(first[0]) if len(first) else 0.0, 0.0)
-        self.reset(x0, P0)
-        advance, rows = self._advance, []
+            s.x = np.array([float(first[0]) if len(first) else 0.0, 0.0])
+        angle, bias = s.x.tolist()
+        P00, P01, P11 = float(s.P[0, 0]), float(s.P[0, 1]), float(s.P[1, 1])
+        rows = []
         for wk, zk, okk in zip(w.tolist(), z.tolist(), ok.tolist()):  # plain floats: fast enough for tuning loops
-            rows.append((*advance(wk, zk, okk), self.P00, self.P01, self.P11))
-        h = np.array(rows)
-        P = np.stack([h[:, 4], h[:, 5], h[:, 5], h[:, 6]], axis=1).reshape(-1, 2, 2)
-        return TiltRun(h[:, :2].copy(), P, h[:, 2].copy(), h[:, 3].copy(), gated=~ok)
+            row = _tilt_sample(angle, bias, P00, P01, P11, wk, zk, okk, *c)
+            angle, bias, P00, P01, P11 = row[5:10]
+            rows.append(row)
+        x_prior, P_prior, x, P, y, S = _unpack(np.array(rows))
+        self.state = State(x[-1].copy(), P[-1].copy())
+        return TiltRun(x, P, y, S, x_prior, P_prior, gated=~ok)
+
+
+def _tilt_sample(angle, bias, P00, P01, P11, gyro_rate, accel_angle, static_ok, dt, q_angle, q_bias, r, r_moving):
+    """One predict + gated update on floats (P symmetric: P00, P01, P11) →
+    (θ⁻, b⁻, P⁻00, P⁻01, P⁻11, θ, b, P00, P01, P11, y, S); y, S NaN where the update is skipped."""
+    # predict: θ⁻ = θ + (ω − b)Δt; P⁻ = A P Aᵀ + Q written out
+    angle, bias = angle + (gyro_rate - bias) * dt, bias
+    P00 += dt * (dt * P11 - 2.0 * P01) + q_angle
+    P01 -= dt * P11
+    P11 += q_bias
+    prior = (angle, bias, P00, P01, P11)
+    r = r if static_ok else r_moving
+    if accel_angle != accel_angle or r is None:  # NaN, or gated out
+        return (*prior, *prior, math.nan, math.nan)
+    y = accel_angle - angle
+    S = P00 + r
+    k0, k1 = P00 / S, P01 / S
+    angle += k0 * y
+    bias += k1 * y
+    # P = (I − K H) P⁻; the bias row uses the prior P01, so update P11 first
+    P11 -= k1 * P01
+    P01 -= k0 * P01
+    P00 -= k0 * P00
+    return (*prior, angle, bias, P00, P01, P11, y, S)
+
+
+def _unpack(rows):
+    """(N, 12) rows of :func:`_tilt_sample` → x⁻ (N, 2), P⁻ (N, 2, 2), x, P, y (N,), S (N,)."""
+    def cov(c):
+        return rows[:, [c, c + 1, c + 1, c + 2]].reshape(-1, 2, 2)
+    return rows[:, 0:2].copy(), cov(2), rows[:, 5:7].copy(), cov(7), rows[:, 10].copy(), rows[:, 11].copy()
 
 
 class TiltAttitude:
@@ -190,17 +205,16 @@ class TiltAttitude:
     filters start from; then for every sample: counts → body frame (SI) with the board's
     sensitivities and mounting, six-face correction f = (f_raw − accel_bias) / accel_scale (body frame),
     accelerometer roll and pitch, the static gate |‖f‖ − g| < eps, one :class:`TiltBiasKF` per axis
-    (``settings``, a :class:`TiltSettings`) fed with the body rates p (roll) and q (pitch). Each axis is treated on its own, which holds for
+    (``settings``, a :class:`TiltBiasKFSettings`) fed with the body rates p (roll) and q (pitch). Each axis is treated on its own, which holds for
     turns about one axis at a time (θ̇ = q only while φ = 0). Roll is not updated while
     √(f_y² + f_z²) < roll_min·g: near pitch ±90° the accelerometer roll is the angle of noise.
     """
 
-    def __init__(self, board="mpu6050", rate_hz=None, settings: TiltSettings | None = None, eps=DEFAULT_EPS,
+    def __init__(self, board="mpu6050", rate_hz=None, settings: TiltBiasKFSettings | None = None, eps=DEFAULT_EPS,
                  roll_min=0.5, bias_seconds=2.0, accel_bias=(0.0, 0.0, 0.0), accel_scale=(1.0, 1.0, 1.0)):
         self.board = get_board(board) if isinstance(board, str) else board
         self.rate_hz = float(rate_hz or self.board.rate_hz)
-        dt = 1.0 / self.rate_hz
-        self.kfs = [TiltBiasKF(dt, settings) for _ in range(2)]
+        self.kfs = [TiltBiasKF(rate_hz=self.rate_hz, settings=settings) for _ in range(2)]
         self.eps, self.roll_min = eps, roll_min
         self.accel_bias, self.accel_scale = np.asarray(accel_bias, float), np.asarray(accel_scale, float)
         self._acc = mount_matrix(self.board.mount["acc"]) * self.board.accel.sensitivity
@@ -226,7 +240,7 @@ class TiltAttitude:
         ok = accel_static_ok(f, self.eps)
         roll_ok = ok and np.hypot(f[1], f[2]) >= self.roll_min * G
         (roll, pitch), (p, q) = accel_tilt(f), w[:2].tolist()
-        return self.kfs[0]._advance(p, roll, roll_ok)[0], self.kfs[1]._advance(q, pitch, ok)[0]
+        return float(self.kfs[0].step(p, roll, roll_ok).x[0]), float(self.kfs[1].step(q, pitch, ok).x[0])
 
 
 def protocol_angles(rec):

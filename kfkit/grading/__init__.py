@@ -11,15 +11,17 @@ with memory and CPU time limited for all its processes together (:mod:`kfkit.gra
    output cap (see :mod:`kfkit.grading.runner`);
 2. for each checkpoint of the lab (``kfkit.checkpoints.labNN``), draw fresh cases in the
    grader's process (a new seed per submission, written in the feedback), send only their
-   inputs to the kernel, call the student's function there, and receive only its outputs as
-   JSON numbers (:mod:`kfkit.grading.wire`);
+   inputs to the kernel (pickled), call the student's function there, and receive only its outputs,
+   or the class name and message of what it raised, as JSON (:mod:`kfkit.grading.wire`: nothing
+   the kernel sends is unpickled);
 3. judge those outputs here, with the checkpoint's own ``judge`` and ``points``, against
    expected values the kernel never sees. Nothing the notebook prints or patches in its kernel
    (``kfkit.checkpoints``, kfkit's reference functions) enters that judgement.
 
-Writes ``gradebook.csv`` (``submission,checkpoint,points,max_points,message``), one Markdown
-feedback file per submission (``<feedback>/<submission>.md``), and returns a summary with
-per-checkpoint pass rates.
+Writes ``gradebook.csv`` (``submission,checkpoint,points,max_points,status,message``: see
+:mod:`kfkit.grading.gradebook`), one Markdown feedback file per submission (``<feedback>/<submission>.md``),
+and returns a summary with per-checkpoint pass rates. A link or a non-regular file among the submissions is
+refused, never followed or opened (:mod:`kfkit.grading.submissions`).
 """
 from __future__ import annotations
 
@@ -53,24 +55,26 @@ def _cli(args) -> int:
 
 
 def add_parser(sub):
-    """The ``grade`` subcommand of ``kfkit`` (see cli.py)."""
+    """The ``grade`` subcommand of ``kfkit`` (see cli.py); its numbers are checked at the door (:mod:`kfkit.cli_options`)."""
+    from ..cli_options import number
+
     p = sub.add_parser("grade", help="grade submitted notebooks in isolated kernels into a gradebook (instructors)")
     p.add_argument("submissions", nargs="+", metavar="SUBMISSION", help=".ipynb files or folders holding them")
     p.add_argument("--lab", required=True, help="lab number, e.g. 01")
     p.add_argument("--out", type=Path, default=Path("gradebook.csv"), help="gradebook CSV (default: %(default)s)")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+    p.add_argument("--jobs", type=number(int, 0), default=os.cpu_count() or 1,
                    help="submissions graded in parallel (default: one per core, %(default)s)")
-    p.add_argument("--timeout", type=float, default=CELL_TIMEOUT,
+    p.add_argument("--timeout", type=number(float, 0.0, unit="s"), default=CELL_TIMEOUT,
                    help="seconds per notebook cell and per checkpoint call (default: %(default)g)")
-    p.add_argument("--total-timeout", type=float, default=TOTAL_TIMEOUT,
+    p.add_argument("--total-timeout", type=number(float, 0.0, unit="s"), default=TOTAL_TIMEOUT,
                    help="seconds for one whole submission (default: %(default)g)")
-    p.add_argument("--max-memory", type=float, default=4.0, metavar="GB",
+    p.add_argument("--max-memory", type=number(float, 0.0, unit="GB"), default=4.0, metavar="GB",
                    help="memory all of one submission's processes may hold at once (default: %(default)g GB)")
-    p.add_argument("--max-cpu", type=float, default=None, metavar="S",
+    p.add_argument("--max-cpu", type=number(float, 0.0, unit="s"), default=None, metavar="S",
                    help="CPU seconds one submission may use, all processes (default: --total-timeout)")
     p.add_argument("--feedback", type=Path, default=None,
                    help="folder for the per-submission Markdown feedback (default: <out stem>_feedback/)")
-    p.add_argument("--seed", type=int, default=None, help="fix the random cases (to reproduce a grade)")
+    p.add_argument("--seed", type=number(int, 0, include_low=True), default=None, help="fix the random cases (to reproduce a grade)")
     p.add_argument("--update", action="store_true",
                    help="replace only these submissions' rows in an existing gradebook (regrade one student)")
     p.add_argument("--report", action="store_true",

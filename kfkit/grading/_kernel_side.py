@@ -2,9 +2,15 @@
 
 ``call(user_ns, name, blob, nonce, max_numbers)`` unpickles the grader's inputs (pickled by the
 grader: trusted in this direction), calls the student's function on each, and prints one line
-``nonce + JSON + nonce``. Outputs are encoded as plain JSON: numbers, strings, lists, and tagged
-objects for tuples, dicts, arrays and dataclasses; anything else is named, not sent. The grader
-decodes that JSON with size limits and never unpickles anything the kernel sends.
+``nonce + JSON + nonce``. Outputs are encoded as plain JSON: numbers, strings (cut to 2000
+characters), lists, and tagged objects for tuples, dicts, arrays and dataclasses; anything else is
+named, not sent. A case that raises ends the calls and sends the exception's class name and message
+(cut to 500 characters) instead. The grader decodes that JSON with size limits and never unpickles
+anything the kernel sends.
+
+``stop(user_ns, nonce, names, message, keep)`` replaces notebook functions that timed out by stubs that raise
+:class:`TimedOutEarlier` at once (``names``, or when None the function the last interrupt stopped), so a
+loop is paid for once, not once per cell that calls it; ``restore(user_ns)`` puts back all but those kept.
 """
 import base64
 import dataclasses
@@ -12,6 +18,7 @@ import io
 import json
 import pickle
 import sys
+import types
 
 
 class TooLarge(Exception):
@@ -96,3 +103,68 @@ def call(user_ns, name, blob, nonce, max_numbers):
         report = {"results": results}
     sys.stdout.write(nonce + json.dumps(report) + nonce + "\n")
     sys.stdout.flush()
+
+
+class TimedOutEarlier(Exception):
+    """Raised instead of running again a notebook function that timed out earlier in this submission."""
+
+
+def _notebook_function(value):
+    """A function defined in the notebook (not one it imported, from kfkit or elsewhere)."""
+    return isinstance(value, types.FunctionType) and getattr(value, "__module__", None) in ("__main__", None)
+
+
+def _interrupted(user_ns):
+    """The innermost function of the notebook running when the last cell was interrupted (a KeyboardInterrupt
+    that IPython kept in ``sys.last_value``), or None; forgets that interrupt."""
+    value, tb = getattr(sys, "last_value", None), getattr(sys, "last_traceback", None)
+    sys.last_type = sys.last_value = sys.last_traceback = None
+    if not isinstance(value, KeyboardInterrupt):
+        return None
+    codes = {v.__code__: k for k, v in list(user_ns.items()) if _notebook_function(v) and not k.startswith("_")}
+    found = None
+    while tb is not None:
+        found = codes.get(tb.tb_frame.f_code, found)
+        tb = tb.tb_next
+    return found
+
+
+def _stub(name, func, text, keep):
+    def timed_out_earlier(*args, **kwargs):
+        raise TimedOutEarlier(text)
+
+    timed_out_earlier.__name__ = timed_out_earlier.__qualname__ = name
+    timed_out_earlier.__kfkit_original__, timed_out_earlier.__kfkit_keep__ = func, keep
+    return timed_out_earlier
+
+
+def _stubs(user_ns):
+    """(name, stub) of every stub in the notebook's namespace (only functions are looked at: getting an
+    attribute of any other object could run the notebook's code)."""
+    return [(k, v) for k, v in list(user_ns.items())
+            if isinstance(v, types.FunctionType) and hasattr(v, "__kfkit_original__")]
+
+
+def stop(user_ns, nonce, names, message, keep):
+    """Replace each function ``names`` (None: the interrupted one) of the notebook, under every name bound to
+    it, by a stub raising TimedOutEarlier(``message`` with its name), kept by :func:`restore` when ``keep``;
+    print the names stopped (JSON)."""
+    stopped = []
+    for name in ([_interrupted(user_ns)] if names is None else names):
+        func = user_ns.get(name) if name else None
+        if not _notebook_function(func):
+            continue
+        stub = _stub(name, func, message.replace("{name}", name), keep)
+        for key, value in list(user_ns.items()):
+            if value is func:
+                user_ns[key] = stub
+        stopped.append(name)
+    sys.stdout.write(nonce + json.dumps({"stopped": stopped}) + nonce + "\n")
+    sys.stdout.flush()
+
+
+def restore(user_ns):
+    """Put back the functions :func:`stop` replaced (those the notebook has not redefined since), but the kept."""
+    for key, stub in _stubs(user_ns):
+        if not stub.__kfkit_keep__:
+            user_ns[key] = stub.__kfkit_original__

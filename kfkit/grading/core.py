@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import concurrent.futures as cf
-import csv
 import dataclasses
 import importlib
 import multiprocessing
@@ -10,7 +9,6 @@ import re
 import secrets
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import nbformat
@@ -18,43 +16,25 @@ import numpy as np
 
 from .. import __version__
 from .. import checkpoints as cps
+from ..checkpoints import Status
 from . import sandbox as sb
 from . import wire
+from .gradebook import (COLUMNS, Row, SubmissionGrade, default_feedback_dir, feedback_names,  # noqa: F401 (public)
+                        merge_grades, read_gradebook, write_gradebook)
+from .quoting import clip, md_code, visible_controls
 from .runner import KernelLost, KernelRun, Limits, OutOfTime, StoppedByLimit  # noqa: F401 (Limits is public)
+from .submissions import Refused, Submission, TooLarge, find_submissions, read_submission
 
-COLUMNS = ["submission", "checkpoint", "points", "max_points", "message"]
 MAX_NOTEBOOK_BYTES = 50 << 20
 MAX_MESSAGE = 600  # characters of one gradebook message (a student's output can make it long)
 
 
-@dataclass
-class Row:
-    checkpoint: str
-    points: float
-    max_points: float
-    status: str  # passed, failed, error, not attempted, timed out, missing, not graded
-    message: str
-
-
-@dataclass
-class SubmissionGrade:
-    submission: str
-    seed: int
-    rows: list = field(default_factory=list)
-    notes: list = field(default_factory=list)
-    seconds: float = 0.0
-
-    @property
-    def points(self) -> float:
-        return sum(r.points for r in self.rows)
-
-    @property
-    def max_points(self) -> float:
-        return sum(r.max_points for r in self.rows)
-
-
 class NotANotebook(ValueError):
-    pass
+    """Not a notebook the grader can run (``status``: not graded, or refused when it was not even opened)."""
+
+    def __init__(self, why: str, status: Status = Status.NOT_GRADED):
+        super().__init__(why)
+        self.status = status
 
 
 class NoSandbox(RuntimeError):
@@ -73,51 +53,34 @@ def lab_checkpoints(lab: str) -> list[cps.Checkpoint]:
     return found
 
 
-def find_submissions(paths) -> tuple[list[tuple[Path, str]], list[str]]:
-    """Notebooks named or held (recursively) by ``paths``; → ([(path, display name)], warnings).
-
-    The display name (the gradebook's ``submission``) is the path relative to the current folder
-    when inside it, else ``folder/…`` from the folder named, or ``parent/file`` for a file.
-    """
-    found, warnings = {}, []
-    for p in map(Path, paths):
-        if p.is_dir():
-            nbs = sorted(q for q in p.rglob("*.ipynb") if ".ipynb_checkpoints" not in q.parts)
-            if not nbs:
-                warnings.append(f"{p}: folder holds no .ipynb file")
-            for q in nbs:
-                found.setdefault(q.resolve(), _display_name(q, Path(p.resolve().name) / q.relative_to(p)))
-        elif p.is_file():
-            found.setdefault(p.resolve(), _display_name(p, Path(p.resolve().parent.name) / p.name))
-        else:
-            warnings.append(f"{p}: no such file or folder")
-    names = list(found.values())  # two files shown alike (same folder name elsewhere): full paths instead
-    return [(f, str(f) if names.count(n) > 1 else n) for f, n in found.items()], warnings
-
-
-def _display_name(path: Path, fallback: Path) -> str:
-    try:
-        return str(path.resolve().relative_to(Path.cwd()))
-    except ValueError:
-        return str(fallback)
-
-
-def read_code_cells(path: Path) -> list[str]:
+def read_code_cells(path: Path | Submission) -> list[str]:
     """The code cells' sources of a notebook file; NotANotebook with the reason if it is not one."""
     return read_notebook(path)[0]
 
 
-def read_notebook(path: Path) -> tuple[list[str], list[str]]:
+def _as_submission(path: Path | Submission) -> Submission:
+    """A file named by its path: its folder is the root it may not leave (see :mod:`.submissions`)."""
+    if isinstance(path, Submission):
+        return path
+    path = Path(path)
+    return Submission(path.parent, Path(path.name), str(path))
+
+
+def read_notebook(path: Path | Submission) -> tuple[list[str], list[str]]:
     """The code cells' sources and, for each, how a student finds it (:func:`cell_label`);
-    NotANotebook with the reason if the file is not a notebook.
+    NotANotebook with the reason if the file is not a notebook (status refused when it is a link or not
+    a regular file: it is then not even opened, see :func:`.submissions.read_submission`).
 
     Only the sources are kept: tags (``skip-execution``, ``raises-exception``, …), the kernelspec
     and every other metadata field are dropped, so they cannot change how the grader runs it.
     """
+    sub = _as_submission(path)
     try:
-        if path.stat().st_size > MAX_NOTEBOOK_BYTES:
-            raise NotANotebook(f"the file is larger than {MAX_NOTEBOOK_BYTES >> 20} MB")
-        text = path.read_text(encoding="utf-8")
+        text = read_submission(sub.root, sub.relative, MAX_NOTEBOOK_BYTES).decode("utf-8")
+    except Refused as exc:
+        raise NotANotebook(exc.why, Status.REFUSED) from None
+    except TooLarge:
+        raise NotANotebook(f"the file is larger than {MAX_NOTEBOOK_BYTES >> 20} MB") from None
     except UnicodeDecodeError:
         raise NotANotebook("the file is not text (not a .ipynb notebook)") from None
     except OSError as exc:
@@ -156,16 +119,12 @@ def cell_label(source: str, heading: str | None) -> str:
     label = f"the cell `{first}`"
     if len(defined) > 1 or (defined and not first.startswith(f"def {defined[0]}")):
         label += f" (defining {', '.join(defined)})"
-    return label + (f' in section "{_clip(heading, 60)}"' if heading else " before the first heading")
+    return label + (f' in section "{clip(heading, 60)}"' if heading else " before the first heading")
 
 
 def _short(message: str, name: str) -> str:
     """A checkpoint line without its leading emoji and name (the gradebook has a column for that)."""
-    return _clip(re.sub(rf"^\S+ {re.escape(name)}: ", "", message))
-
-
-def _clip(text: str, limit: int = MAX_MESSAGE) -> str:
-    return text if len(text) <= limit else text[:limit - 1] + "…"
+    return clip(re.sub(rf"^\S+ {re.escape(name)}: ", "", message), MAX_MESSAGE)
 
 
 def _student_exception(type_name: str, message: str) -> Exception:
@@ -183,18 +142,18 @@ def judge(cp: cps.Checkpoint, cases: list, report: dict, defining_note: str | No
     """Grade one checkpoint from the kernel's report, entirely in this process."""
     where = f" ({defining_note})" if defining_note else ""
     if report.get("missing"):
-        return Row(cp.name, 0, cp.points, "missing",
+        return Row(cp.name, 0, cp.points, Status.MISSING,
                    f"no function named {cp.function} after running the notebook{where}: keep the exercise's "
                    f"function name and signature, the grader calls {cp.function}(…) itself")
     if "not_callable" in report:
-        return Row(cp.name, 0, cp.points, "missing",
+        return Row(cp.name, 0, cp.points, Status.MISSING,
                    f"{cp.function} is a {report['not_callable']} at the end of the notebook, not a function")
     if "kfkit_function" in report:
-        return Row(cp.name, 0, cp.points, "failed",
+        return Row(cp.name, 0, cp.points, Status.FAILED,
                    f"{cp.function} is kfkit's own {report['kfkit_function']}, not a function written in the notebook")
     results = report.get("results")
     if not isinstance(results, list) or not all(isinstance(r, dict) for r in results):
-        return Row(cp.name, 0, cp.points, "error", "the kernel's result was malformed")
+        return Row(cp.name, 0, cp.points, Status.ERROR, "the kernel's result was malformed")
     outcomes = iter(results)
 
     def replay(**_args):
@@ -210,12 +169,12 @@ def judge(cp: cps.Checkpoint, cases: list, report: dict, defining_note: str | No
     try:
         result = cps.run_checkpoint(dataclasses.replace(cp, cases=lambda _rng: cases), replay)
     except wire.WireError as exc:
-        return Row(cp.name, 0, cp.points, "error", f"the output could not be read: {exc}")
+        return Row(cp.name, 0, cp.points, Status.ERROR, f"the output could not be read: {exc}")
     except Exception as exc:  # a judge tripping over a strange output: zero, with the reason
-        return Row(cp.name, 0, cp.points, "error",
+        return Row(cp.name, 0, cp.points, Status.ERROR,
                    f"the grader could not judge the output ({type(exc).__name__}: {str(exc)[:200]})")
-    if result.status == "not attempted":
-        return Row(cp.name, 0, cp.points, "not attempted",
+    if result.status == Status.NOT_ATTEMPTED:
+        return Row(cp.name, 0, cp.points, Status.NOT_ATTEMPTED,
                    f"not attempted ({cp.function} still raises NotImplementedError)")
     return Row(cp.name, result.points, cp.points, result.status, _short(result.message, cp.name))
 
@@ -240,26 +199,61 @@ def grade_checkpoints(run: KernelRun, sources: list[str], checkpoints: list, see
     """Draw each checkpoint's cases here (seeded by ``seed``), call the student's function in the
     kernel of ``run``, and judge its outputs here; yields one row per checkpoint (OutOfTime passes)."""
     for i, cp in enumerate(checkpoints):
+        earlier = run.stopped.get(cp.function)
+        if earlier is not None and earlier.checkpoint:  # a loop is paid for once (see runner.py)
+            yield Row(cp.name, 0, cp.points, Status.TIMED_OUT, f"not called again: {cp.function} timed out after "
+                      f"{earlier.seconds:g} s on the grader's cases for {earlier.checkpoint}")
+            continue
         try:
             cases = cp.cases(np.random.default_rng([i, seed]))
-            report = run.call(cp.function, [c.args for c in cases])
-            row = judge(cp, cases, report, _defining_note(run, sources, cp.function))
+            report = run.call(cp.function, [c.args for c in cases], cp.name)
+            row = _timed_out_inside(cp, report, run.stopped) or judge(cp, cases, report,
+                                                                      _defining_note(run, sources, cp.function))
         except TimeoutError as exc:
-            row = Row(cp.name, 0, cp.points, "timed out", f"{cp.function} {exc} on the grader's cases")
+            row = Row(cp.name, 0, cp.points, Status.TIMED_OUT, f"{cp.function} {exc} on the grader's cases")
         except KernelLost as exc:
-            row = Row(cp.name, 0, cp.points, "timed out" if exc.timed_out else "error",
+            row = Row(cp.name, 0, cp.points, Status.TIMED_OUT if exc.timed_out else Status.ERROR,
                       f"calling {cp.function} on the grader's cases: {exc.why}")
         except wire.WireError as exc:
-            row = Row(cp.name, 0, cp.points, "error", f"calling {cp.function}: {exc}")
+            row = Row(cp.name, 0, cp.points, Status.ERROR, f"calling {cp.function}: {exc}")
         except OutOfTime:
             raise
         except Exception as exc:  # the checkpoint's own code failed here: not the student's fault
-            row = Row(cp.name, 0, cp.points, "not graded",
+            row = Row(cp.name, 0, cp.points, Status.NOT_GRADED,
                       f"GRADER ERROR, regrade this submission: {type(exc).__name__}: {str(exc)[:200]}")
         yield row
 
 
-def grade_submission(path: Path, checkpoints: list, sandbox: sb.Sandbox, limits: Limits,
+def _timed_out_inside(cp: cps.Checkpoint, report: dict, stopped: dict) -> Row | None:
+    """The row of a call that failed because the function called one the grader's calls stopped (it raised
+    TimedOutEarlier naming a function the grader stopped: the kernel's word alone is not taken)."""
+    results = report.get("results")
+    raised = next((r for r in results if isinstance(r, dict) and "raised" in r), None) if isinstance(results, list) else None
+    if raised is None or raised.get("raised") != wire.TIMED_OUT_EARLIER:
+        return None
+    inner = stopped.get(str(raised.get("message", "")).split(" ", 1)[0])
+    if inner is None or not inner.checkpoint:
+        return None
+    return Row(cp.name, 0, cp.points, Status.TIMED_OUT,
+               f"{cp.function} calls {inner.name}, which timed out after {inner.seconds:g} s on the grader's cases for "
+               f"{inner.checkpoint}: not run again")
+
+
+def _fill(grade: SubmissionGrade, checkpoints: list, status: Status, message: str):
+    """Rows for the checkpoints ``grade`` has none for yet: 0 points, ``status``, ``message``."""
+    for cp in checkpoints[len(grade.rows):]:
+        grade.rows.append(Row(cp.name, 0, cp.points, status, message))
+
+
+def refused_grade(sub: Submission, checkpoints: list) -> SubmissionGrade:
+    """The rows of a submission that is not opened (a link, not a regular file): refused, with the reason."""
+    grade = SubmissionGrade(sub.name, 0)
+    _fill(grade, checkpoints, Status.REFUSED, f"not graded, {sub.refused}")
+    grade.notes.append(sub.refused)
+    return grade
+
+
+def grade_submission(path: Path | Submission, checkpoints: list, sandbox: sb.Sandbox, limits: Limits,
                      seed: int | None = None, name: str | None = None) -> SubmissionGrade:
     """Run and grade one notebook file in a fresh kernel; never raises for anything the file contains.
 
@@ -270,13 +264,12 @@ def grade_submission(path: Path, checkpoints: list, sandbox: sb.Sandbox, limits:
     grade = SubmissionGrade(name or str(path), seed)
 
     def fill(status, message):
-        for cp in checkpoints[len(grade.rows):]:
-            grade.rows.append(Row(cp.name, 0, cp.points, status, message))
+        _fill(grade, checkpoints, status, message)
 
     try:
-        sources, labels = read_notebook(Path(path))
+        sources, labels = read_notebook(path)
     except NotANotebook as exc:
-        fill("not graded", f"not graded: {exc}")
+        fill(exc.status, f"not graded{',' if exc.status == Status.REFUSED else ':'} {exc}")
         grade.notes.append(str(exc))
         return grade
     try:
@@ -289,109 +282,47 @@ def grade_submission(path: Path, checkpoints: list, sandbox: sb.Sandbox, limits:
                 where = (labels[run.current] if run.current < len(sources) else
                          f"the grader's call of {checkpoints[len(grade.rows)].function}")
                 text = f"stopped: the submission {exc} while running {where} ({run.meter_kind})"
-                fill("over limit", f"not graded, {text}")
+                fill(Status.OVER_LIMIT, f"not graded, {text}")
                 grade.notes.append(text)
             except OutOfTime as exc:
-                fill("timed out", f"timed out: not graded, {exc}")
+                fill(Status.TIMED_OUT, f"timed out: not graded, {exc}")
             finally:
-                grade.notes += [f"{labels[i]}: {note}" for i, note in sorted(run.cell_notes.items())]
+                grade.notes += _cell_notes(run, labels)
     except RuntimeError as exc:  # the kernel could not start: a grader-side problem, said plainly
-        fill("not graded", f"GRADER ERROR, regrade this submission: {exc}")
+        fill(Status.NOT_GRADED, f"GRADER ERROR, regrade this submission: {exc}")
     grade.seconds = time.monotonic() - start
     return grade
 
 
+def _cell_notes(run: KernelRun, labels: list[str]) -> list[str]:
+    """The feedback's notes on the notebook's cells: each cell that failed, looped, exited or printed too much;
+    the cells whose error only followed from a function that timed out (its stub, or a name a cell calling it
+    did not make) grouped under that function, not listed as faults."""
+    notes = [f"{labels[i]}: {note}" for i, note in sorted(run.cell_notes.items())]
+    affected: dict[str, list[str]] = {}
+    for i, (function, error) in sorted(run.affected.items()):
+        affected.setdefault(function, []).append(f"{labels[i]} ({clip(error, 120)})")
+    return notes + [f"affected by {function} timing out, not faults of their own: {'; '.join(cells)}"
+                    for function, cells in affected.items()]
+
+
 # ---------------------------------------------------------------------------- outputs
-FORMULA_START = ("=", "+", "-", "@", "\t", "\r", "'")  # a spreadsheet reads a cell starting so as a formula
-
-
-def _csv_safe(text: str) -> str:
-    """Keep spreadsheet programs from reading a cell as a formula: a leading ``'`` (also before a
-    leading ``'``, so that :func:`_csv_unsafe` undoes it exactly)."""
-    return "'" + text if text.startswith(FORMULA_START) else text
-
-
-def _csv_unsafe(text: str) -> str:
-    """The value :func:`_csv_safe` was given."""
-    return text[1:] if text.startswith("'") else text
-
-
-def read_gradebook(path: Path) -> list[SubmissionGrade]:
-    """The submissions of a gradebook, in its order, with their rows (status: passed when full points).
-
-    Raises ValueError naming the file and line when it is not a kfkit gradebook."""
-    grades: dict[str, SubmissionGrade] = {}
-    with open(path, newline="", encoding="utf-8") as f:
-        reader = csv.DictReader(f)
-        try:
-            if reader.fieldnames != COLUMNS:
-                raise ValueError(f"{path}: line 1 should be the header {','.join(COLUMNS)}, not {reader.fieldnames}")
-            for r in reader:
-                try:
-                    points, max_points = float(r["points"]), float(r["max_points"])
-                except (TypeError, ValueError):
-                    raise ValueError(f"{path}, line {reader.line_num}: points and max_points should be numbers, "
-                                     f"not {r['points']!r} and {r['max_points']!r}") from None
-                name = _csv_unsafe(r["submission"])
-                status = "passed" if points == max_points > 0 else "failed"
-                grades.setdefault(name, SubmissionGrade(name, 0)).rows.append(
-                    Row(r["checkpoint"], points, max_points, status, _csv_unsafe(r["message"] or "")))
-        except (UnicodeDecodeError, csv.Error) as exc:
-            raise ValueError(f"{path}, line {reader.line_num + 1}: not a CSV gradebook ({exc})") from None
-    return list(grades.values())
-
-
-def merge_grades(old: list[SubmissionGrade], new: list[SubmissionGrade]) -> list[SubmissionGrade]:
-    """``old`` with each regraded submission replaced where it was; new submissions at the end."""
-    fresh = {g.submission: g for g in new}
-    merged = [fresh.pop(g.submission, g) for g in old]
-    return merged + [g for g in new if g.submission in fresh]
-
-
-def write_gradebook(path: Path, grades: list[SubmissionGrade]):
-    rows = []
-    for g in grades:
-        rows += [{"submission": _csv_safe(g.submission), "checkpoint": r.checkpoint, "points": f"{r.points:g}",
-                  "max_points": f"{r.max_points:g}", "message": _csv_safe(r.message)} for r in g.rows]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="", encoding="utf-8") as f:
-        writer = csv.DictWriter(f, COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
-
-
 def feedback_markdown(g: SubmissionGrade, lab: str, sandbox: sb.Sandbox) -> str:
-    icon = {"passed": "✅", "not attempted": "⏳"}
-    lines = [f"# Lab {lab} feedback: {g.submission}", "",
+    """The student's feedback file (Markdown). What the student's work produced (the submission's name, the
+    messages, the notes on cells) is quoted with :func:`.quoting.md_code`: any Markdown or HTML renderer
+    shows it as text, so the only score line is the grader's."""
+    icon = {Status.PASSED: "✅", Status.NOT_ATTEMPTED: "⏳"}
+    lines = [f"# Lab {lab} feedback: {md_code(g.submission)}", "",
              f"**Score: {g.points:g} / {g.max_points:g}**", "",
              f"Graded {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} with kfkit {__version__}; "
              f"random cases drawn with seed {g.seed} (regrade the same cases with `--seed {g.seed}`); "
-             f"{g.seconds:.1f} s.", "",
-             "| checkpoint | points | result |", "| --- | --- | --- |"]
-    for r in g.rows:
-        msg = r.message.replace("|", "\\|").replace("\n", " ")
-        lines.append(f"| {r.checkpoint} | {r.points:g} / {r.max_points:g} | {icon.get(r.status, '❌')} {msg} |")
+             f"{g.seconds:.1f} s.", "", "## Checkpoints", ""]
+    lines += [f"- {icon.get(r.status, '❌')} {r.checkpoint}, {r.points:g} / {r.max_points:g} points: {md_code(r.message)}"
+              for r in g.rows]
     if g.notes:
-        lines += ["", "## While running your notebook", ""] + [f"- {n}".replace("\n", " ") for n in g.notes]
+        lines += ["", "## While running your notebook", ""] + [f"- {md_code(n)}" for n in g.notes]
     lines += ["", f"_Isolation: {sandbox.describe(full=False)}_", ""]
     return "\n".join(lines)
-
-
-def feedback_names(names: list[str]) -> list[str]:
-    """The feedback file of each submission: its gradebook name with ``.md`` for ``.ipynb``, as a
-    path under the feedback folder (``submissions/alice.ipynb`` → ``submissions/alice.md``;
-    nbgrader's ``submitted/alice/lab01/x.ipynb`` → ``submitted/alice/lab01/x.md``), unique."""
-    out, used = [], set()
-    for n in names:
-        parts = [p for p in Path(n.removesuffix(".ipynb")).parts if p not in ("/", ".", "..")] or ["submission"]
-        base = str(Path(*parts))
-        cand, k = base, 1
-        while cand in used:
-            k += 1
-            cand = f"{base}_{k}"
-        used.add(cand)
-        out.append(cand + ".md")
-    return out
 
 
 def summary(grades: list[SubmissionGrade], checkpoints: list, sandbox: sb.Sandbox, warnings=(),
@@ -401,9 +332,14 @@ def summary(grades: list[SubmissionGrade], checkpoints: list, sandbox: sb.Sandbo
     lines = []
     if sandbox.mode == "none":
         lines += ["!" * 78, f"WARNING: {sandbox.describe()}", "!" * 78]
-    lines += [f"warning: {w}" for w in warnings]
-    seconds = np.mean([g.seconds for g in grades]) if grades else 0.0
-    lines.append(f"{len(grades)} submission(s) graded, {seconds:.1f} s per submission; isolation: {sandbox.describe()}")
+    lines += [f"warning: {visible_controls(w)}" for w in warnings]
+    refused = [g.submission for g in grades if any(r.status == Status.REFUSED for r in g.rows)]
+    graded = [g for g in grades if g.submission not in refused]
+    seconds = np.mean([g.seconds for g in graded]) if graded else 0.0
+    lines.append(f"{len(graded)} submission(s) graded, {seconds:.1f} s per submission; isolation: {sandbox.describe()}")
+    if refused:
+        lines.append(f"REFUSED {len(refused)} (links or not regular files: not opened, each a gradebook row with "
+                     f"status refused): {', '.join(map(visible_controls, refused))}")
     grades = grades if whole_class is None else whole_class
     n = len(grades)
     if whole_class is not None:
@@ -413,13 +349,13 @@ def summary(grades: list[SubmissionGrade], checkpoints: list, sandbox: sb.Sandbo
         lines.append(f"{'checkpoint':{width}s}  passed  rate   mean points")
         for cp in checkpoints:
             rows = [r for g in grades for r in g.rows if r.checkpoint == cp.name]
-            passed = sum(r.status == "passed" for r in rows)
+            passed = sum(r.status == Status.PASSED for r in rows)
             mean = sum(r.points for r in rows) / max(len(rows), 1)
             lines.append(f"{cp.name:{width}s}  {passed:3d}/{len(rows):<3d} {100 * passed / max(len(rows), 1):4.0f} %"
                          f"  {mean:.2f} / {cp.points}")
         totals = [g.points for g in grades]
         lines.append(f"total: mean {np.mean(totals):.2f} / {grades[0].max_points:g}, median {np.median(totals):g}")
-        errors = [g.submission for g in grades if any("GRADER ERROR" in r.message for r in g.rows)]
+        errors = [visible_controls(g.submission) for g in grades if any("GRADER ERROR" in r.message for r in g.rows)]
         if errors:
             lines.append(f"GRADER ERROR for {len(errors)} submission(s), regrade them: {', '.join(errors)}")
     return "\n".join(lines)
@@ -434,7 +370,7 @@ class _Progress:
         width = 30
         fill = int(width * self.done / max(self.total, 1))
         line = (f"[{'#' * fill}{'.' * (width - fill)}] {self.done}/{self.total} "
-                f"{time.monotonic() - self.start:5.0f} s  {label[-40:]}")
+                f"{time.monotonic() - self.start:5.0f} s  {visible_controls(label[-40:])}")
         if self.stream.isatty():
             self.stream.write("\r" + line.ljust(100) + ("\n" if self.done == self.total else ""))
         else:
@@ -445,12 +381,6 @@ class _Progress:
 def _grade_one(args):
     path, name, lab, sandbox, limits, seed = args
     return grade_submission(path, lab_checkpoints(lab), sandbox, limits, seed, name)
-
-
-def default_feedback_dir(gradebook: Path) -> Path:
-    """Where the per-submission feedback goes unless told: ``<gradebook stem>_feedback/`` beside the gradebook."""
-    gradebook = Path(gradebook)
-    return gradebook.with_name(gradebook.stem + "_feedback")
 
 
 def grade(paths, lab, out: Path, jobs: int = 1, limits: Limits | None = None, feedback_dir: Path | None = None,
@@ -473,30 +403,29 @@ def grade(paths, lab, out: Path, jobs: int = 1, limits: Limits | None = None, fe
     sandbox = sandbox or sb.probe(sorted(map(str, instructor)))
     if sandbox.mode == "none" and not unsandboxed:
         raise NoSandbox(sandbox.warning)
-    names = [n for _, n in found]
-    tasks = [(f, n, lab, sandbox, limits, seed) for f, n in found]
+    grades = [refused_grade(sub, checkpoints) if sub.refused else None for sub in found]  # refused: never opened
+    tasks = {k: (sub, sub.name, lab, sandbox, limits, seed) for k, sub in enumerate(found) if not sub.refused}
     bar = _Progress(len(tasks)) if progress else None
-    grades = [None] * len(tasks)
     if jobs <= 1 or len(tasks) <= 1:
-        for k, task in enumerate(tasks):
+        for k, task in tasks.items():
             grades[k] = _grade_one(task)
             bar and bar.step(task[1])
     else:
         # fork: workers inherit the imported kit at once; this process has no kernel or thread yet
         ctx = multiprocessing.get_context("fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn")
         with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-            futures = {pool.submit(_grade_one, t): k for k, t in enumerate(tasks)}
+            futures = {pool.submit(_grade_one, t): k for k, t in tasks.items()}
             for fut in cf.as_completed(futures):
                 k = futures[fut]
                 try:
                     grades[k] = fut.result()
                 except Exception as exc:  # a worker crashed: say so in the gradebook, keep going
-                    g = SubmissionGrade(names[k], seed or 0)
-                    g.rows = [Row(cp.name, 0, cp.points, "not graded",
+                    g = SubmissionGrade(found[k].name, seed or 0)
+                    g.rows = [Row(cp.name, 0, cp.points, Status.NOT_GRADED,
                                   f"GRADER ERROR, regrade this submission: {type(exc).__name__}: {exc}")
                               for cp in checkpoints]
                     grades[k] = g
-                bar and bar.step(names[k])
+                bar and bar.step(found[k].name)
     whole_class = merge_grades(earlier, grades) if earlier is not None else None
     write_gradebook(out, whole_class or grades)
     lab_nn = checkpoints[0].name.split(".")[0]
@@ -507,7 +436,8 @@ def grade(paths, lab, out: Path, jobs: int = 1, limits: Limits | None = None, fe
 
 
 def cli(args) -> int:
-    """``kfkit grade``: see :func:`grade`; exit 0 when every submission was graded, 1 otherwise."""
+    """``kfkit grade``: see :func:`grade`; exit 0 when every submission was graded, 1 otherwise (a grader
+    error to regrade, or a refused file)."""
     try:
         lab_checkpoints(args.lab)
     except ValueError as exc:
@@ -535,4 +465,4 @@ def cli(args) -> int:
         return 2
     print(text)
     print(f"gradebook: {args.out}; feedback: {args.feedback or default_feedback_dir(args.out)}")
-    return 1 if any("GRADER ERROR" in r.message for g in grades for r in g.rows) else 0
+    return 1 if any("GRADER ERROR" in r.message or r.status == Status.REFUSED for g in grades for r in g.rows) else 0

@@ -6,21 +6,31 @@ which ``reserve`` seconds are kept for the grader's calls (so a looping function
 cell calls still leaves time to grade the other functions; cells past that share are not run). A cell
 that times out is interrupted; if the kernel stays busy or dies (``sys.exit`` in a thread,
 ``os._exit``, a crash), the kernel is restarted and the notebook replayed without that cell.
-Outputs of student cells are counted and dropped (only error names are kept), so a huge print
-costs nothing but its transfer; a cell that prints more than ``Limits.max_cell_output`` is
-stopped the same way (its kernel restarted, as a thread may go on printing), and no single
+Outputs of student cells are counted and dropped (only an error's name and message, cut short, are
+kept), so a huge print costs nothing but its transfer; a cell that prints more than
+``Limits.max_cell_output`` is stopped the same way (its kernel restarted, as a thread may go on printing), and no single
 message above ``Limits.max_message`` is even received (ZeroMQ's MAXMSGSIZE on the grader's sockets).
 Memory and CPU time are limited per submission, all its processes together
 (:mod:`kfkit.grading.resources`): over either, the submission is stopped (:class:`StoppedByLimit`).
+
+A loop is paid for once: when a cell times out inside a function of the notebook, that function is replaced by
+a stub that raises ``TimedOutEarlier`` at once (:data:`KernelRun.stopped`), so the later cells that call it fail
+at once instead of timing out each in turn; those cells, and the cells that then miss a name one of them
+would have made (``NameError``), are noted as affected by that timeout (:data:`KernelRun.affected`), not as
+faults. Before the grader's calls the functions are put back, so each is judged on the grader's own cases
+(the interrupt may have caught a function that was merely called often); a grader's call that times out stops
+its function for the rest of the grading the same way.
 """
 from __future__ import annotations
 
+import ast
 import asyncio
 import ctypes
 import json
 import logging
 import math
 import os
+import re
 import shutil
 import signal
 import sys
@@ -36,6 +46,7 @@ from jupyter_client.manager import AsyncKernelManager
 from nbclient import NotebookClient
 from nbclient.exceptions import CellTimeoutError, DeadKernelError
 
+from ..exercise_guard import assigned_names
 from . import CELL_TIMEOUT, TOTAL_TIMEOUT
 from . import resources
 from . import sandbox as sb
@@ -56,6 +67,7 @@ for name in {WARM_UP_MODULES!r}:
 WARM_UP = f"exec({_WARM_UP_CODE!r}, {{}})"  # the labs' heavy imports, outside the student's namespace
 SHORT_TMP = 48  # characters of temporary folder that leave room for box/ipc-N in an AF_UNIX path (≤ 107)
 PING_TIMEOUT = 5.0  # s a kernel gets to answer after an interrupted cell before it is restarted
+GRADER_CELL_TIMEOUT = 60.0  # s for the grader's own short cells (stopping, restoring functions): a hang guard
 IOPUB_TIMEOUT = 10  # s from a cell's reply to its last output; longer means the kernel's output has died
 _LOG = logging.getLogger("kfkit.grading.nbclient")
 _LOG.setLevel(logging.CRITICAL)
@@ -75,6 +87,16 @@ class Limits:
 def _die_with_grader():
     """In the kernel's launcher, before exec: SIGKILL it if this grading process dies first."""
     ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+
+
+@dataclass
+class Stopped:
+    """A function of the notebook that timed out and was replaced by a stub (see the module doc)."""
+    name: str
+    cell: int  # where it timed out: a cell's index, or len(sources) for a grader's call
+    seconds: float  # the timeout it ran into
+    defined_in: int | None  # the cell defining it: after it runs again (a replay), it is stopped again
+    checkpoint: str = ""  # the grader's call that timed out, when it was one
 
 
 class KernelLost(Exception):
@@ -171,6 +193,9 @@ class KernelRun:
         self.deadline = self.until = math.inf  # total deadline (from the first kernel's start); current phase's
         self.skipped: set[int] = set()
         self.cell_notes: dict[int, str] = {}
+        self.stopped: dict[str, Stopped] = {}  # function name → where it timed out
+        self.affected: dict[int, tuple[str, str]] = {}  # cell → (the stopped function behind its error, why)
+        self.unmade: dict[str, str] = {}  # a name a timed-out or affected cell did not make → the function behind
         self.restarts = 0
         self.current = 0  # index of the cell running (len(sources): the grader's calls)
         self.last_timeout = limits.cell_timeout
@@ -327,19 +352,71 @@ class KernelRun:
         """Does the kernel answer again after an interrupt?"""
         return self._quiet("pass", PING_TIMEOUT)
 
-    def _quiet(self, source: str, timeout: float) -> bool:
-        """Run the grader's ``source`` with its own timeout; → True if it finished in time."""
+    def _quiet(self, source: str, timeout: float, capture: list | None = None) -> bool:
+        """Run the grader's ``source`` with its own timeout (its stdout into ``capture``); → True if it
+        finished in time."""
         client, saved = self.client, self.client.timeout_func
         client.timeout_func = lambda cell: int(timeout)
         try:
-            client.timed_out, client.flooded, client.cell_bytes = False, False, 0
+            client.timed_out, client.flooded, client.cell_bytes, client.capture = False, False, 0, capture
             client.iopub_timeout = IOPUB_TIMEOUT
             client.execute_cell(nbformat.v4.new_code_cell(source), len(client.nb.cells) - 1, store_history=False)
             return not (client.timed_out or client.flooded)
         except (DeadKernelError, CellTimeoutError):
             return False
         finally:
-            client.timeout_func = saved
+            client.timeout_func, client.capture = saved, None
+
+    # a loop paid for once (see the module doc)
+    def _stop_functions(self, index: int, names: list[str] | None, checkpoint: str = "",
+                        seconds: float | None = None) -> list[str]:
+        """Stop ``names`` (None: the function the interrupt of cell ``index`` caught) in the kernel, which timed
+        out after ``seconds`` (default: the last timeout); → those stopped."""
+        seconds = self.last_timeout if seconds is None else seconds
+        where = f"the grader's call for {checkpoint}" if checkpoint else "the notebook"
+        message = (f"{{name}} timed out earlier in {where} (after {seconds:g} s): kfkit grade does not run it again")
+        nonce, captured = wire.new_nonce(), []
+        self._quiet(wire.stop_code(names, message, nonce, bool(checkpoint)), GRADER_CELL_TIMEOUT, captured)
+        try:
+            stopped = wire.extract("".join(captured), nonce).get("stopped")
+        except wire.WireError:
+            stopped = []
+        stopped = [n for n in stopped if isinstance(n, str) and n.isidentifier()] if isinstance(stopped, list) else []
+        if checkpoint:  # the grader's own call timed out: not called again, whatever the kernel answered
+            stopped = list(dict.fromkeys(stopped + names))
+        for name in stopped:
+            if name not in self.stopped or checkpoint:  # a grader's call's timeout is the one that counts
+                defining = re.compile(rf"^\s*def\s+{re.escape(name)}\s*\(", re.M)
+                cells = [i for i, src in enumerate(self.sources[:index + 1]) if defining.search(src)]
+                self.stopped[name] = Stopped(name, index, seconds, cells[-1] if cells else None, checkpoint)
+        return stopped
+
+    def _note_unmade(self, index: int, function: str):
+        """The names cell ``index`` would have made, missing because ``function`` timed out."""
+        try:
+            made = assigned_names(ast.parse(self.sources[index]).body)
+        except SyntaxError:
+            return
+        for name in made:
+            self.unmade.setdefault(name, function)
+
+    def _follow_on(self, index: int, error) -> str | None:
+        """The stopped function behind cell ``index``'s error, if it is one's stub or a name one left unmade."""
+        if error.ename == wire.TIMED_OUT_EARLIER:
+            name = str(error.evalue).split(" ", 1)[0]
+            if name in self.stopped:
+                return name
+        missing = re.match(r"name '(\w+)' is not defined", str(error.evalue)) if error.ename == "NameError" else None
+        return self.unmade.get(missing.group(1)) if missing else None
+
+    def _restore_functions(self):
+        """Put back the functions the notebook's cells stopped (all the kernel holds, whatever this side heard of
+        them), and stop again those the grader's calls stopped (a replay after a restart made them anew)."""
+        if self.client is not None:
+            self._quiet(wire.restore_code(), GRADER_CELL_TIMEOUT)
+        for name, s in list(self.stopped.items()):
+            if s.checkpoint:
+                self._stop_functions(s.cell, [name], s.checkpoint, s.seconds)
 
     def run_notebook(self, reserve: float | None = None):
         """Run every student cell once (replaying after a restart), leaving ``reserve`` s of the total
@@ -349,6 +426,31 @@ class KernelRun:
             self._run_cells()
         finally:
             self.until = self.deadline
+        self._restore_functions()
+
+    def _outcome(self, i: int, status: str, error) -> list[str]:
+        """The notes on cell ``i`` after it ran; a loop paid for once: a function it timed out in is stopped,
+        an error that only follows from a stopped function is put in ``affected``, not in the notes."""
+        notes, cause = [], None
+        if status == "timeout":
+            notes.append(f"timed out after {self.last_timeout:g} s (interrupted)")
+            cause = next(iter(self._stop_functions(i, None)), None)
+            if cause is not None:
+                notes[-1] += (f" inside {cause}; later calls of {cause} in the notebook failed at once instead of "
+                              "running again")
+        elif status == "error":
+            cause = self._follow_on(i, error)
+            if cause is None:
+                notes.append(f"{error.ename}: {error.evalue}" if error.evalue else error.ename)
+            elif self.stopped[cause].cell != i:
+                self.affected[i] = (cause, f"calls {cause}" if error.ename == wire.TIMED_OUT_EARLIER
+                                    else f"{error.ename}: {error.evalue}")
+        if cause is not None:
+            self._note_unmade(i, cause)
+        for name, s in list(self.stopped.items()):  # a replay: stopped again before the cells calling it
+            if s.defined_in == i < s.cell:
+                self._stop_functions(s.cell, [name], s.checkpoint, s.seconds)
+        return notes
 
     def _run_cells(self):
         while True:
@@ -363,13 +465,10 @@ class KernelRun:
                                               "functions)")
                         return
                     status, error = self._execute(i, source)
-                    notes = []
-                    if status == "timeout":
-                        notes.append(f"timed out after {self.last_timeout:g} s (interrupted)")
-                    elif status == "error":
-                        notes.append(f"{error.ename}: {error.evalue}" if error.evalue else error.ename)
-                    if self.client.cell_bytes > self.limits.output_bytes:
-                        notes.append(f"printed {self.client.cell_bytes / 1e6:.1f} MB of output (discarded)")
+                    printed = self.client.cell_bytes
+                    notes = self._outcome(i, status, error)
+                    if printed > self.limits.output_bytes:
+                        notes.append(f"printed {printed / 1e6:.1f} MB of output (discarded)")
                     if notes:  # a replay after a restart says it again, once
                         self.cell_notes[i] = "; ".join(notes)
                 return
@@ -378,10 +477,12 @@ class KernelRun:
                 self.cell_notes[lost.index] = lost.why + "; the kernel was restarted and this cell skipped"
                 self._restart()
 
-    def call(self, function: str, cases_args: list[dict]) -> dict:
-        """Call the student's ``function`` on each input in the kernel; → the decoded report dict.
+    def call(self, function: str, cases_args: list[dict], checkpoint: str = "") -> dict:
+        """Call the student's ``function`` on each input in the kernel (for ``checkpoint``); → the report parsed from
+        the kernel's line of JSON (:func:`wire.extract`; each output still encoded, for :func:`wire.decode`).
 
-        Raises KernelLost (after restarting and replaying the notebook) or TimeoutError.
+        Raises KernelLost (after restarting and replaying the notebook) or TimeoutError (and the function is stopped
+        for the rest of the grading).
         """
         nonce, captured = wire.new_nonce(), []
         index = len(self.sources)
@@ -392,6 +493,7 @@ class KernelRun:
             self.run_notebook(reserve=min(self.reserve, (self.deadline - time.monotonic()) / 2))
             raise KernelLost(index, lost.why, lost.timed_out) from None
         if status == "timeout":
+            self._stop_functions(index, [function], checkpoint)
             raise TimeoutError(f"timed out after {self.last_timeout:g} s")
         if status == "error":
             raise wire.WireError(f"the grader's call failed in the kernel ({error.ename}: {error.evalue})")

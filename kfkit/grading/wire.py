@@ -3,9 +3,12 @@
 Grader → kernel: the cases' inputs, pickled (cloudpickle when they hold lambdas; the kernel may
 trust the grader) inside a code cell
 that runs ``_kernel_side.call`` in a private namespace. Kernel → grader: one line of JSON between
-two copies of a random nonce, decoded here by :func:`decode` into floats, ints, strings, lists,
-tuples, dicts, float/int/bool arrays, and :class:`Returned` for dataclasses; nothing is ever
-unpickled or evaluated, and sizes are capped before parsing.
+two copies of a random nonce (:func:`extract`), a report of each case's output, or of what it raised
+(class name and message), and :func:`decode` turns each output into None, bools, ints, floats, strings,
+lists, tuples, dicts, bool/int/unsigned/float arrays, object arrays of these, :class:`Returned` for
+dataclasses and :class:`Unsupported` for any other type (sent as its name only); nothing is ever
+unpickled or evaluated, and sizes are capped: numbers in the kernel (:data:`MAX_NUMBERS`), characters
+here before parsing (:data:`MAX_PAYLOAD`).
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ import numpy as np
 KERNEL_SIDE = (Path(__file__).with_name("_kernel_side.py")).read_text()
 MAX_NUMBERS = 2_000_000  # numbers one checkpoint's outputs may hold
 MAX_PAYLOAD = 64 << 20  # characters of JSON accepted from the kernel for one checkpoint
+TIMED_OUT_EARLIER = "TimedOutEarlier"  # what a stopped function raises (see _kernel_side.stop)
 DTYPES = {"b": np.bool_, "i": np.int64, "u": np.uint64, "f": np.float64}
 
 
@@ -50,9 +54,25 @@ def call_code(function: str, cases_args: list[dict], nonce: str) -> str:
         import cloudpickle
 
         data = cloudpickle.dumps(cases_args, protocol=4)
-    blob = base64.b64encode(data).decode()
+    return _kernel_code("call", function, base64.b64encode(data).decode(), nonce, MAX_NUMBERS)
+
+
+def stop_code(names: list[str] | None, message: str, nonce: str, keep: bool) -> str:
+    """Source of the cell that replaces the notebook's functions ``names`` (None: the one the last interrupt
+    stopped) by stubs raising :data:`TIMED_OUT_EARLIER` with ``message`` (``{name}`` filled in), left in place
+    by :func:`restore_code` when ``keep``; its report (:func:`extract`) is ``{"stopped": [names]}``."""
+    return _kernel_code("stop", nonce, names, message, keep)
+
+
+def restore_code() -> str:
+    """Source of the cell that puts back every function :func:`stop_code` replaced, except the kept ones."""
+    return _kernel_code("restore")
+
+
+def _kernel_code(entry: str, *args) -> str:
+    """A cell calling ``_kernel_side.<entry>(the notebook's namespace, *args)`` in a namespace of its own."""
     return ("(lambda g: (exec(compile(g['__src__'], '<kfkit-grader>', 'exec'), g), "
-            f"g['call'](globals(), {function!r}, {blob!r}, {nonce!r}, {MAX_NUMBERS})))"
+            f"g[{entry!r}](globals(){''.join(f', {a!r}' for a in args)})))"
             f"({{'__name__': '__kfkit_grader__', '__src__': {KERNEL_SIDE!r}}});")
 
 

@@ -24,11 +24,14 @@ What phyphox writes (phyphox-android ``DataExport.java``, phyphox-ios ``Experime
   or ``""`` (iOS). Android ends every line with a newline, iOS omits the last one.
 
 A last line without its newline may also be a copy cut short (``1.000000000E-3`` cut to ``1.000000``
-still parses), and nothing in the line tells the two apart. Inside a ``.zip`` the member's CRC-32
-proves the file is what the phone wrote, so the line is kept; in a folder or a single CSV it is
-dropped and counted (``meta["phone"]["skipped"][sensor]["unterminated_last_row"]``, with a line in
-``meta["phone"]["warnings"]``): one sample lost against a wrong value kept. A damaged zip, a zip holding
-two exports, and a garbled truth file are errors naming the file.
+still parses). One rule, whether the file comes from a zip, a folder or on its own: a last row that is
+complete (every field present, each number in phyphox's full format ``d.dddddddddE±x`` or padding) is kept;
+one that is visibly cut is dropped, counted (``meta["phone"]["skipped"][sensor]["cut_last_row"]``), noted in
+``meta["phone"]["warnings"]`` and warned about (:func:`load_phyphox`): one sample lost against a wrong
+value kept. A damaged zip, a zip holding two exports, and a garbled truth file are errors naming the file.
+Values a recording cannot hold are errors naming the file, line and column: beyond the phone's counts
+(±(2³¹ − 1) LSBs, :data:`kfkit.sensors.PHONE_MAX_COUNTS`), time beyond 2⁵³ µs, or a number longer than
+:data:`kfkit.io.MAX_NUMBER_CHARS` characters.
 
 Sensor axes and signs are the phone frame's (:func:`kfkit.sensors.phone_board`); the accelerometer is the
 specific force on both platforms. :func:`load_phyphox` puts the sensors on the gyroscope's time base
@@ -39,9 +42,9 @@ Simulated exports made by the kit add ``kfkit_truth.csv`` (the true attitude at 
 """
 from __future__ import annotations
 
-import json
 import math
 import re
+import warnings
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -51,9 +54,9 @@ import numpy as np
 
 from ..clocks import OneClock, SampleCounter
 from ..frames import dcm_to_euler, quat_to_dcm
-from ..io import BOM, Recording, RecordingError, check_phases, parse_count, parse_number
-from ..sensors import (DEFAULT_PHONE_MOUNT, PHONE_BOARD, PHONE_MAG, SI_UNITS, phone_board, phone_counts, phone_mount,
-                       phone_sensor_metadata)
+from ..io import BOM, Recording, RecordingError, parse_count, parse_header, parse_number, shown
+from ..phone_sim import TRUTH_FILE, TRUTH_KIND
+from ..sensors import (DEFAULT_PHONE_MOUNT, PHONE_BOARD, PHONE_LSB, PHONE_MAX_COUNTS, SI_UNITS, phone_counts, phone_mount, phone_sensor_metadata)
 
 SEPARATORS = (",", "\t", ";")
 #: sensor kinds phyphox exports, as named in its file format (``<sensor type="…">``)
@@ -70,8 +73,7 @@ _UNIT_ALIASES = {"m/s^2": "m/s^2", "m/s²": "m/s^2", "m s^-2": "m/s^2", "rad/s":
                  "ut": "uT"}
 _AXIS = re.compile(r"^(?P<name>.*?)\s*\b(?P<axis>[xyz])\s*\((?P<unit>[^)]*)\)$", re.IGNORECASE)
 _TIME = re.compile(r"^time\s*\(s\)$", re.IGNORECASE)
-TRUTH_FILE = "kfkit_truth.csv"
-TRUTH_MAGIC = "# kfkit-truth v1 "
+MAX_TIME_S = 2**53 * 1e-6  # the latest time a recording holds exactly to the µs (285 years), s
 SIMPLE_EXPERIMENT_HINT = ("in phyphox tap '+' → 'New simple experiment', tick Accelerometer, Gyroscope and "
                           "Magnetometer, record, then export 'CSV (Comma, decimal point)'")
 EXPERIMENT_FOR = {"acc": "'Acceleration with g'", "gyr": "'Gyroscope'", "mag": "'Magnetometer'"}
@@ -154,11 +156,49 @@ def _number(where, lineno, label, text, decimal_comma):
         raise RecordingError(where, lineno, f"column {label!r}: {e}") from None
 
 
-def read_sensor_csv(text: str, where, set_kind=None, verified=False) -> SensorTable:
+def _full_format(decimal: str) -> re.Pattern:
+    """A cell as phyphox writes it in full: ten significant digits in scientific notation (``-1.234567890E-3``),
+    or a shorter column's padding (Android ``NaN``, iOS ``""``)."""
+    return re.compile(rf'-?[0-9]{re.escape(decimal)}[0-9]{{9}}E-?[0-9]+|NaN|""')
+
+
+def _visibly_cut(line: str, sep: str, n_fields: int, decimal: str) -> bool:
+    """True when a last line (without its newline) may be cut short: a field missing, or one not in phyphox's
+    full format (:func:`_full_format`; ``1.000000000E-3`` cut to ``1.000000`` is not). A cut inside a number's
+    exponent would look whole only if the exponent had two digits, |v| < 1e-9 or ≥ 1e10: no accelerometer, gyroscope
+    or magnetometer reading in SI units (a zero is ``0.000000000E0``, a sensor's resolution far above 1e-9)."""
+    cells = [c.strip() for c in line.rstrip("\r\n").split(sep)]
+    full = _full_format(decimal)
+    return len(cells) != n_fields or not all(full.fullmatch(c) for c in cells)
+
+
+def _check_range(where, table, linenos, lines, sep, labels, wanted, kind):
+    """Every value within what a recording holds: sensor values within the phone's counts (±:data:`PHONE_MAX_COUNTS`
+    LSBs: what streams through protocol v1's int32), time within 2^53 µs (exact to the µs). RecordingError naming
+    the first value beyond, its line and column."""
+    lsb = PHONE_LSB.get(kind, PHONE_LSB["acc"])  # linear acceleration and gravity are m/s² too
+    limits = np.array([MAX_TIME_S] + [PHONE_MAX_COUNTS * lsb] * 3)
+    with np.errstate(invalid="ignore"):  # NaN padding is not beyond anything
+        beyond = np.abs(table) > limits
+    if not beyond.any():
+        return
+    row, col = np.unravel_index(int(np.argmax(beyond)), beyond.shape)
+    lineno, label = int(linenos[row]), labels[wanted[col]]
+    text = shown(_cells(lines[lineno - 1], sep)[wanted[col]])
+    if col == 0:
+        why = f"{text} s is beyond the time a recording holds (|t| ≤ 2^53 µs = {MAX_TIME_S:.4g} s, exact to the µs)"
+    else:
+        unit = UNIT_OF[kind]
+        why = (f"{text} {unit} is beyond what a phone recording holds (|value| ≤ {limits[col]:,.4f} {unit}: "
+               f"2^31 − 1 counts of {lsb:g} {unit}, the serial protocol's int32)")
+    raise RecordingError(where, lineno, f"column {label!r}: {why}: a corrupted value?")
+
+
+def read_sensor_csv(text: str, where, set_kind=None) -> SensorTable:
     """One phyphox CSV (any of its five variants) → :class:`SensorTable`. ``set_kind`` is the kind its
-    file name says, None to tell it from the labels. ``verified``: the text is known whole (a zip
-    member, CRC-checked), so a last line without newline is kept; otherwise it is dropped and counted
-    (see the module docstring). Errors name ``where`` and the line."""
+    file name says, None to tell it from the labels. A last line without its newline is kept when it is
+    complete (iOS writes none after its last row), dropped and noted when visibly cut (:func:`_visibly_cut`;
+    see the module docstring). Errors name ``where``, the line and the column."""
     text = text.removeprefix(BOM)
     lines = text.splitlines()
     if not lines or not lines[0].strip():
@@ -167,13 +207,14 @@ def read_sensor_csv(text: str, where, set_kind=None, verified=False) -> SensorTa
     labels = _cells(lines[0], sep)
     columns, kind = _classify_columns(where, labels, set_kind)
     body = [(i + 2, line) for i, line in enumerate(lines[1:]) if line.strip()]
-    unterminated = not verified and bool(body) and body[-1][0] == len(lines) and not text.endswith(("\n", "\r"))
-    notes = ()
-    if unterminated:
-        lineno, _ = body.pop()
-        notes = (f"{where}, line {lineno}: the last line has no newline (an iOS export copied out of its zip, or a "
-                 f"file cut short), so a number in it may be cut: dropped",)
     decimal_comma = sep != "," and any("," in line for _, line in body[:50])
+    unterminated = bool(body) and body[-1][0] == len(lines) and not text.endswith(("\n", "\r"))
+    cut = unterminated and _visibly_cut(body[-1][1], sep, len(labels), "," if decimal_comma else ".")
+    notes = ()
+    if cut:
+        lineno, _ = body.pop()
+        notes = (f"{where}, line {lineno}: the last line has no newline and is cut short (a field missing, or a "
+                 f"number not in phyphox's full format): dropped",)
     wanted = [columns[c] for c in ("t", "x", "y", "z")]
     table = np.empty((len(body), 4))
     for row, (lineno, line) in enumerate(body):
@@ -182,6 +223,7 @@ def read_sensor_csv(text: str, where, set_kind=None, verified=False) -> SensorTa
             raise RecordingError(where, lineno, f"expected {len(labels)} fields separated by {sep!r}, got {len(cells)}")
         table[row] = [_number(where, lineno, labels[c], cells[c], decimal_comma) for c in wanted]
     linenos = np.array([n for n, _ in body], dtype=np.int64)
+    _check_range(where, table, linenos, lines, sep, labels, wanted, kind)
     padded = np.isnan(table[:, 0])  # rows past the end of a shorter column
     table, linenos = table[~padded], linenos[~padded]
     bad = np.isnan(table[:, 1:]).any(axis=1)
@@ -198,21 +240,20 @@ def read_sensor_csv(text: str, where, set_kind=None, verified=False) -> SensorTa
     same = np.concatenate([[False], dt == 0])  # a repeated timestamp (to the µs) cannot be placed in time: keep the first
     table = table[~same]
     skipped = {"empty_rows": int(padded.sum()), "incomplete_rows": int(bad.sum()), "repeated_times": int(same.sum()),
-               "unterminated_last_row": int(unterminated)}
+               "cut_last_row": int(cut)}
     return SensorTable(kind, table[:, 0].copy(), table[:, 1:].copy(), str(where), skipped, warnings=notes)
 
 
 # --- the export: folder, zip or single file ------------------------------------------------------------
 
-def _export_files(path: Path) -> tuple[dict[str, tuple[str, str, bool]], str]:
-    """{file name: (text, where, verified)} of the top-level CSVs and meta/device.csv, and how to name the
-    export; ``verified`` is True for zip members (their CRC-32 was checked on reading)."""
+def _export_files(path: Path) -> tuple[dict[str, tuple[str, str]], str]:
+    """{file name: (text, where)} of the top-level CSVs and meta/device.csv, and how to name the export."""
     if path.is_dir():
         files = {p.name: p for p in sorted(path.glob("*.csv"))}
         device = path / "meta" / "device.csv"
         if device.is_file():
             files["meta/device.csv"] = device
-        return {name: (_decode(p.read_bytes()), str(p), False) for name, p in files.items()}, str(path)
+        return {name: (_decode(p.read_bytes()), str(p)) for name, p in files.items()}, str(path)
     if zipfile.is_zipfile(path):
         return _zip_files(path), str(path)
     with open(path, "rb") as f:
@@ -220,10 +261,10 @@ def _export_files(path: Path) -> tuple[dict[str, tuple[str, str, bool]], str]:
     if looks_zip or path.suffix.lower() == ".zip":
         raise RecordingError(path, None, "a damaged .zip file (cut short or corrupted: its table of contents is "
                              "missing): copy or download the export from the phone again")
-    return {path.name: (_decode(path.read_bytes()), str(path), False)}, str(path)
+    return {path.name: (_decode(path.read_bytes()), str(path))}, str(path)
 
 
-def _zip_files(path: Path) -> dict[str, tuple[str, str, bool]]:
+def _zip_files(path: Path) -> dict[str, tuple[str, str]]:
     """The CSVs of one export in a zip; files may sit at the top or in one folder (a zipped export folder).
     macOS's ``__MACOSX/`` copies are skipped; two exports in one zip are an error."""
     out, roots = {}, {}
@@ -243,7 +284,7 @@ def _zip_files(path: Path) -> dict[str, tuple[str, str, bool]]:
                 key = "meta/device.csv" if name.endswith("meta/device.csv") else parts[-1]
                 if len(parts) > 1 and parts[-2] == "meta" and key != "meta/device.csv":
                     continue
-                out[key] = (_decode(z.read(info)), f"{name} in {path}", True)
+                out[key] = (_decode(z.read(info)), f"{name} in {path}")
     except RecordingError:
         raise
     except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError, ValueError, zlib.error) as e:
@@ -274,7 +315,7 @@ def _device_properties(text: str) -> dict:
 
 def read_export(path) -> tuple[dict[str, SensorTable], dict, tuple | None, str]:
     """The sensors of a phyphox export (folder, .zip or one CSV): ({kind: SensorTable}, device
-    properties, the truth file's (text, where, verified) or None, the export's name). Two files of one kind are an error.
+    properties, the truth file's (text, where) or None, the export's name). Two files of one kind are an error.
     In a folder or zip, a CSV that is neither a known set nor a 3-axis sensor with a time column
     (another experiment's results) is left out; a single file given by path is always read."""
     path = Path(path)
@@ -283,14 +324,14 @@ def read_export(path) -> tuple[dict[str, SensorTable], dict, tuple | None, str]:
     files, name = _export_files(path)
     single = path.is_file() and not zipfile.is_zipfile(path)
     truth = files.pop(TRUTH_FILE, None)
-    device = _device_properties(files.pop("meta/device.csv", ("", "", True))[0])
+    device = _device_properties(files.pop("meta/device.csv", ("", ""))[0])
     tables: dict[str, SensorTable] = {}
-    for file_name, (text, where, verified) in files.items():
+    for file_name, (text, where) in files.items():
         stem = file_name[:-4] if file_name.lower().endswith(".csv") else file_name
         set_kind = SET_NAMES.get(stem.strip().lower())
         if set_kind is None and not single and stem.strip().lower() != "raw data" and not _is_sensor_header(text):
             continue
-        table = read_sensor_csv(text, where, set_kind, verified)
+        table = read_sensor_csv(text, where, set_kind)
         table.file = file_name
         if table.kind in tables:
             raise RecordingError(where, None, f"a second {KINDS[table.kind]} file besides {tables[table.kind].where}: "
@@ -333,21 +374,13 @@ def _sensor_meta(kind, device):
     return phone_sensor_metadata(kind, chip, full_scale)
 
 
-def _truth_euler(where, text, verified, index, M):
+def _truth_euler(where, text, index, M):
     """True [roll, pitch, yaw] (N, 3) of the body frame at the kept gyro rows, from kfkit_truth.csv
     (quaternions phone → NED per gyro row): R_nb = R_ns M_bsᵀ. Also its metadata. The kit writes every
-    line with its newline, so outside a zip a last line without one is an error (it may be cut short)."""
+    line with its newline, so a last line without one is an error (it may be cut short), wherever it is."""
     lines = text.removeprefix(BOM).splitlines()
-    if not lines or not lines[0].startswith(TRUTH_MAGIC):
-        raise RecordingError(where, 1, f"expected the header '{TRUTH_MAGIC.strip()} {{…json…}}'")
-    try:
-        meta = json.loads(lines[0][len(TRUTH_MAGIC):])
-    except json.JSONDecodeError as e:
-        raise RecordingError(where, 1, f"the metadata is not valid JSON ({e.msg} at column {e.colno + len(TRUTH_MAGIC)})") from None
-    if not isinstance(meta, dict):
-        raise RecordingError(where, 1, "the metadata must be a JSON object")
-    check_phases(where, meta.get("phases", []))
-    if len(lines) > 2 and not verified and not text.endswith(("\n", "\r")):
+    meta = parse_header(where, lines[0] if lines else "", TRUTH_KIND, needs_rate=False)
+    if len(lines) > 2 and not text.endswith(("\n", "\r")):
         raise RecordingError(where, len(lines), "the last line is cut short (no newline at the end): regenerate the export")
     table = np.empty((len(lines) - 2, 5)) if len(lines) > 2 else np.empty((0, 5))
     for row, line in enumerate(lines[2:]):
@@ -365,7 +398,7 @@ def _truth_euler(where, text, verified, index, M):
                              f"the export's last used gyro row is {index[-1] if len(index) else None})")
     q = table[index, 1:]
     R_nb = quat_to_dcm(q) @ M.T
-    return np.column_stack(dcm_to_euler(R_nb)), meta
+    return dcm_to_euler(R_nb), meta
 
 
 def load_phyphox(path, mount=DEFAULT_PHONE_MOUNT, require=("acc", "gyr")) -> Recording:
@@ -380,7 +413,9 @@ def load_phyphox(path, mount=DEFAULT_PHONE_MOUNT, require=("acc", "gyr")) -> Rec
     experiment time, s. Columns hold fixed-point counts (``meta["sensors"][s]["sensitivity"]``) in
     the phone frame and ``meta["mount"]`` maps them to the body frame FRD, so ``rec.body("gyr")`` etc.
     give rad/s, m/s², µT. Magnetometer rows without a new sample are NaN. Rows the merge cannot use
-    (before the accelerometer starts, repeated timestamps, …) are counted in ``meta["phone"]``.
+    (before the accelerometer starts, repeated timestamps, …) are counted in ``meta["phone"]``; a last row
+    visibly cut short is dropped, counted, noted in ``meta["phone"]["warnings"]`` and warned about (module
+    docstring). Errors name the file, line and column.
     """
     tables, device, truth_text, name = read_export(path)
     for needed in require:
@@ -418,74 +453,13 @@ def load_phyphox(path, mount=DEFAULT_PHONE_MOUNT, require=("acc", "gyr")) -> Rec
                       "merge": clock.stats, "device": device,
                       "warnings": [w for k in present for w in tables[k].warnings]}}
     if truth_text is not None:
-        text, where, verified = truth_text
-        euler, truth_meta = _truth_euler(where, text, verified, index, M)
+        text, where = truth_text
+        euler, truth_meta = _truth_euler(where, text, index, M)
         for i, c in enumerate(("true_roll", "true_pitch", "true_yaw")):
             data[c] = euler[:, i]
         meta["source"] = "simulated phone (phyphox export)"
         meta["units"]["true_*"] = "rad"
         meta.update({k: truth_meta[k] for k in ("description", "phases", "sim") if k in truth_meta})
+    for note in meta["phone"]["warnings"]:  # a dropped row: in the metadata and said now, as load_vehicle_csv does
+        warnings.warn(note, stacklevel=2)
     return Recording(meta, data, Path(path))
-
-
-# --- writing (simulated exports) ----------------------------------------------------------------------
-
-def format_number(value: float, decimal: str = ".") -> str:
-    """A number as phyphox's CSV export writes it: ten significant digits, ``9.806650000E0``."""
-    if math.isnan(value):
-        return "NaN"
-    mantissa, exponent = f"{value:.9E}".split("E")
-    return f"{mantissa.replace('.', decimal)}E{int(exponent)}"
-
-
-def csv_text(columns, separator=",", decimal=".") -> str:
-    """One export set as phyphox-android writes it: quoted labels, then one row per sample, every line
-    ending in a newline. ``columns`` is [(label, values (N,)), …] of equal lengths."""
-    header = separator.join(f'"{label}"' for label, _ in columns) + "\n"
-    arrays = [np.asarray(v, dtype=float) for _, v in columns]
-    rows = (separator.join(format_number(v, decimal) for v in row) + "\n" for row in zip(*(a.tolist() for a in arrays)))
-    return header + "".join(rows)
-
-
-#: Android simple experiment: (set name, column labels) per sensor
-SIMPLE_EXPERIMENT_SETS = {
-    "acc": ("Accelerometer", ("Acceleration x (m/s^2)", "Acceleration y (m/s^2)", "Acceleration z (m/s^2)")),
-    "gyr": ("Gyroscope", ("Gyroscope x (rad/s)", "Gyroscope y (rad/s)", "Gyroscope z (rad/s)")),
-    "mag": ("Magnetometer", ("Magnetic field x (µT)", "Magnetic field y (µT)", "Magnetic field z (µT)")),
-}
-
-
-def write_export(files: dict, folder) -> Path:
-    """Write {relative path: text} (e.g. :func:`simple_experiment_files`) as the folder a phyphox zip unpacks to."""
-    folder = Path(folder)
-    for name, text in files.items():
-        (folder / name).parent.mkdir(parents=True, exist_ok=True)
-        (folder / name).write_text(text, encoding="utf-8", newline="\n")
-    return folder
-
-
-def simple_experiment_files(samples, separator=",", decimal=".", device=None) -> dict[str, str]:
-    """The files of an Android simple experiment's CSV export of ``samples``
-    (:class:`kfkit.phone_sim.PhoneSamples`), plus :data:`TRUTH_FILE`: {relative path: text}."""
-    files = {}
-    for k, (set_name, labels) in SIMPLE_EXPERIMENT_SETS.items():
-        v = samples.values[k]
-        files[f"{set_name}.csv"] = csv_text([("Time (s)", samples.t[k])] + [(labels[i], v[:, i]) for i in range(3)],
-                                            separator, decimal)
-    props = {"version": "1.2.0", "deviceModel": "kfkit simulated phone", "deviceBrand": "kfkit",
-             "deviceManufacturer": "kfkit", "deviceRelease": "simulation", **(device or {})}
-    for k, android in (("acc", "accelerometer"), ("gyr", "gyroscope"), ("mag", "magnetic_field")):
-        spec = phone_board().accel if k == "acc" else phone_board().gyro if k == "gyr" else PHONE_MAG
-        props[f"{android} Name"] = spec.chip
-        props[f"{android} Range"] = f"{spec.full_scale:.6g}"
-    files["meta/device.csv"] = (f'"property"{separator}"value"\n'
-                                + "".join(f'"{p}"{separator}"{v}"\n' for p, v in props.items()))
-    files["meta/time.csv"] = (separator.join(f'"{c}"' for c in ("event", "experiment time", "system time",
-                                                                "system time text")) + "\n"
-                              + separator.join(['"START"', format_number(0.0, decimal), "0.000".replace(".", decimal),
-                                                '"1970-01-01 00:00:00.000 UTC+00:00"']) + "\n")
-    truth = {"description": samples.description, "phases": samples.phases, "sim": samples.sim}
-    files[TRUTH_FILE] = (f"{TRUTH_MAGIC}{json.dumps(truth, ensure_ascii=False)}\nrow,true_qw,true_qx,true_qy,true_qz\n"
-                         + "".join(f"{i},{w:.9f},{x:.9f},{y:.9f},{z:.9f}\n" for i, (w, x, y, z)
-                                   in enumerate(samples.truth_quat.tolist())))
-    return files

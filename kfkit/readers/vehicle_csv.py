@@ -2,12 +2,11 @@
 
 :func:`load_vehicle_csv` maps the file's columns to the kit's vehicle recording (``t``, ``delta``,
 ``yaw_rate``, ``ay``, ``vx``, SI, ISO 8855 axes: the kit's own ``# kfkit-vehicle`` format is
-:func:`kfkit.vehicle.load_vehicle`), and :func:`sign_check` warns when the signs of δ, r and a_y
+:func:`kfkit.io.load_vehicle`), and :func:`sign_check` warns when the signs of δ, r and a_y
 disagree with ISO 8855 in the turns.
 """
 from __future__ import annotations
 
-import csv
 import math
 import warnings
 from pathlib import Path
@@ -16,7 +15,8 @@ import numpy as np
 
 from ..frames import G
 from ..io import Recording, RecordingError
-from ..vehicle import KMH, VEHICLE_COLUMNS, VEHICLE_TRUTH, read_csv_rows, read_lines
+from ..io import VEHICLE_COLUMNS, VEHICLE_TRUTH, csv_rows, read_csv_rows, read_lines
+from ..vehicle import KMH
 
 #: unit name → factor to SI, per kind of quantity (the options of :func:`load_vehicle_csv`)
 CSV_UNITS = {
@@ -85,7 +85,7 @@ def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter="
         skip += 1
     if skip == len(lines):
         raise RecordingError(path, None, "the file has no header line")
-    header = [c.strip() for c in next(csv.reader([lines[skip]], delimiter=delimiter))]
+    header = [c.strip() for c in next(csv_rows(path, [lines[skip]], skip + 1, delimiter))]
     while header and not header[-1]:  # "a;b;c;" from a spreadsheet: the rows may or may not end in ';' too
         header.pop()
     raw, linenos = read_csv_rows(path, lines[skip + 1:], skip + 2, header, dict(columns), delimiter)

@@ -7,7 +7,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..calibration import load_calibration
-from ..filters import FastEulerAttitudeEKF, MultiplicativeEKF
+from ..filters.registry import methods
 from ..frames import dcm_to_euler, enu_to_ned, quat_to_dcm
 from ..plots import COLORS
 from .canvas import interactive_canvas
@@ -24,8 +24,8 @@ class LiveAttitude:
     than the last one it saw and returns the latest quaternion (w-x-y-z, body → NED), or None
     before any sample. A time that goes backwards (board reset, a new recording) restarts the filter.
 
-    method and tuning go to :class:`kfkit.filters.EulerAttitudeEKF` ("euler-ekf") or the
-    quaternion filter ("mekf"); ``calibration`` corrects the samples first: a
+    method and tuning go to one of :func:`kfkit.filters.estimate_attitude`'s filters ("euler-ekf", the
+    Euler-angle EKF, or "mekf", the quaternion filter); ``calibration`` corrects the samples first: a
     :class:`kfkit.calibration.Calibration` (labs 02/03) for the recording's board, "auto" for
     :func:`kfkit.calibration.load_calibration` of the board named in the recording (the student's
     own file if saved, else the kit's default), or None (raw samples).
@@ -36,10 +36,10 @@ class LiveAttitude:
         self.filter, self.t_last, self.quat, self._cal = None, -np.inf, None, None
 
     def _new_filter(self, rate_hz):
-        kinds = {"euler-ekf": FastEulerAttitudeEKF, "mekf": MultiplicativeEKF}
+        kinds = methods("attitude")
         if self.method not in kinds:
             raise ValueError(f"LiveAttitude: method must be one of {', '.join(kinds)}, got {self.method!r}")
-        return kinds[self.method](rate_hz, **self.tuning)
+        return kinds[self.method](rate_hz=rate_hz, **self.tuning)
 
     def _calibration_for(self, board):
         if self.calibration is None:
@@ -68,7 +68,7 @@ class LiveAttitude:
         gyr, acc = rec.body("gyr")[new], rec.body("acc")[new]
         if self._cal is not None:
             gyr, acc, mag = self._cal.apply((gyr, acc) if mag is None else (gyr, acc, mag))
-        result = self.filter.run(gyr, acc, mag)
+        result = self.filter.run(gyr, acc, mag, resume=True)
         self.t_last, self.quat = float(t[new][-1]), result.quat[-1]
         return self.quat
 

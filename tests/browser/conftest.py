@@ -14,11 +14,11 @@ import shutil
 import socket
 import subprocess
 import sys
-import time
 import urllib.request
 from pathlib import Path
 
 import pytest
+from waiting import wait_until
 
 from kfkit.paths import KIT_ROOT
 
@@ -92,16 +92,21 @@ def jupyter_lab(tmp_path_factory):
          "--LabApp.expose_app_in_browser=True", "--LabApp.news_url="],
         stdout=log, stderr=subprocess.STDOUT,
         env={**os.environ, "JUPYTERLAB_SETTINGS_DIR": str(settings), "JUPYTERLAB_WORKSPACES_DIR": str(settings)})
-    deadline = time.monotonic() + 60
-    while True:
+
+    def answers():
+        if server.poll() is not None:
+            pytest.fail(f"JupyterLab exited; its log:\n{(root / 'jupyter.log').read_text()[-3000:]}")
         try:
-            urllib.request.urlopen(f"http://127.0.0.1:{port}/api/status?token={token}", timeout=2)
-            break
+            urllib.request.urlopen(f"http://127.0.0.1:{port}/api/status?token={token}", timeout=30).close()
+            return True
         except OSError:
-            if server.poll() is not None or time.monotonic() > deadline:
-                server.kill()
-                pytest.fail(f"JupyterLab did not start; its log:\n{(root / 'jupyter.log').read_text()[-3000:]}")
-            time.sleep(0.3)
+            return False
+
+    try:
+        wait_until(answers, "JupyterLab to answer", poll_s=0.3)  # a busy machine starts it late, not never
+    except AssertionError as hang:
+        server.kill()
+        pytest.fail(f"{hang}; its log:\n{(root / 'jupyter.log').read_text()[-3000:]}")
     yield Lab(root, port, token)
     server.terminate()
     try:
