@@ -1,8 +1,8 @@
 """Attitude filters: accuracy (BROAD total / heading / inclination RMSE) and speed vs peers, one run.
 
     python benchmarks/bench_attitude.py                      # everything (full BROAD trials if present)
-    python benchmarks/bench_attitude.py --quick              # skip the full BROAD trials (the bundled excerpts always run)
-    python benchmarks/bench_attitude.py --jobs 2 --out FILE  # worker processes for the accuracy runs; a copy of the tables
+    python benchmarks/bench_attitude.py --quick              # skip the full BROAD trials (bundled excerpts always run)
+    python benchmarks/bench_attitude.py --jobs 2 --out FILE  # worker processes for accuracy runs; a copy of the tables
 
 Filters: kfkit's euler-ekf and mekf (defaults), ahrs 0.4.0's EKF and Madgwick, imufusion 1.3.3
 (x-io Fusion) and VQF 2.1.2 (the best published filter on BROAD; offline=False, i.e. causal),
@@ -38,6 +38,7 @@ setting of TUNING_GRID with the best geometric mean ratio to VQF on the *other* 
 scored on this one (its excerpt too). The grid is run once per trial and reused across folds. The
 ablation table takes one mechanism at a time out of the MEKF (ABLATIONS).
 """
+
 import argparse
 import contextlib
 import glob
@@ -52,27 +53,46 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from timing import best_of
 
 from kfkit import datasets
 from kfkit.filters import EulerAttitudeEKF, MultiplicativeEKF, estimate_attitude
 from kfkit.filters.attitude_run import learn_field, tilt_heading
-from kfkit.filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement,
-                                     euler_kinematics_jacobian, euler_process_noise)
+from kfkit.filters.euler_ekf import (
+    EulerAttitudeEKFSettings,
+    attitude_jacobian,
+    attitude_measurement,
+    euler_kinematics_jacobian,
+    euler_process_noise,
+)
 from kfkit.filters.mag_gate import MagGate
 from kfkit.filters.registry import methods
-from kfkit.frames import (G, body_rates_to_euler_rates, declination, enu_to_ned_quat, euler_to_quat, quat_conjugate,
-                          quat_multiply, quat_normalise_f, quat_to_dcm, wrap_angle)
+from kfkit.frames import (
+    G,
+    body_rates_to_euler_rates,
+    declination,
+    enu_to_ned_quat,
+    euler_to_quat,
+    quat_conjugate,
+    quat_multiply,
+    quat_normalise_f,
+    quat_to_dcm,
+    wrap_angle,
+)
 from kfkit.metrics import attitude_rmse
 from kfkit.readers import load_broad
 from kfkit.real_data import resample, shared_dir, slerp_at
 
-from timing import best_of
-
 BROAD_DIR = shared_dir() / "broad"  # $KFKIT_SHARED_DATA/broad, or ../shared/data/broad beside the kit
 SIMULATIONS = ("04_attitude_tour", "04_gimbal_lock", "04_mag_disturbance")
 #: the bundled BROAD excerpts with a movement phase (02_broad_rest is a rest only), and the trial each is cut from
-BUNDLED_REAL = {"01_broad_slow_rotation": "02", "03_broad_attached_magnet": "34", "04_broad_fast_rotation": "06",
-                "04_broad_stationary_magnet": "28", "05_broad_rotation_breaks": "04"}
+BUNDLED_REAL = {
+    "01_broad_slow_rotation": "02",
+    "03_broad_attached_magnet": "34",
+    "04_broad_fast_rotation": "06",
+    "04_broad_stationary_magnet": "28",
+    "05_broad_rotation_breaks": "04",
+}
 BOARD_RATE = 100.0  # Hz: the full trials are also run resampled to the rate of the kit's boards
 Q_NED_NWU = np.array([0.0, 1.0, 0.0, 0.0])  # 180° about x: NWU → NED
 PEERS = ("mekf", "VQF", "imufusion", "ahrs EKF")  # the columns of the full-trial tables
@@ -81,6 +101,7 @@ PEERS = ("mekf", "VQF", "imufusion", "ahrs EKF")  # the columns of the full-tria
 # ---- peers -----------------------------------------------------------------------------------
 def run_ahrs_ekf(gyr, acc, mag, rate):
     from ahrs.filters import EKF
+
     field = learn_field(acc, mag)
     dip = math.degrees(math.atan2(field[2], field[0]))
     mag = _fill_mag(mag)
@@ -89,11 +110,13 @@ def run_ahrs_ekf(gyr, acc, mag, rate):
 
 def run_ahrs_madgwick(gyr, acc, mag, rate):
     from ahrs.filters import Madgwick
+
     return quat_multiply(Q_NED_NWU, Madgwick(gyr=gyr, acc=acc, mag=_fill_mag(mag), frequency=rate).Q)
 
 
 def run_imufusion(gyr, acc, mag, rate):
     import imufusion
+
     ahrs = imufusion.Ahrs()
     s = imufusion.AhrsSettings()
     s.convention, s.gain, s.gyroscope_range = imufusion.CONVENTION_NED, 0.5, 2000.0
@@ -110,6 +133,7 @@ def run_imufusion(gyr, acc, mag, rate):
 
 def run_vqf(gyr, acc, mag, rate):
     from vqf import VQF
+
     c = np.ascontiguousarray
     return enu_to_ned_quat(VQF(1.0 / rate).updateBatch(c(gyr), c(acc), c(_fill_mag(mag)))["quat9D"])
 
@@ -220,6 +244,7 @@ TUNING_GRID = {"accel_dynamic": (0.5, 1.0, 2.0), "mag_ref_tau": (None, 20.0)}
 # ---- data ------------------------------------------------------------------------------------
 def simulated_cases():
     from kfkit.calibration import Calibration, bundled_calibration_path
+
     cal = Calibration.load(bundled_calibration_path("nucleo-iks02a1"))
     for name in SIMULATIONS:
         try:
@@ -238,8 +263,15 @@ def bundled_real_cases():
     Euler angles as quaternions (NaN rows where the markers were not seen), BROAD's movement phases."""
     for name in BUNDLED_REAL:
         rec = datasets.load(name)
-        yield name, rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz, euler_to_quat(rec.truth()), \
-            rec.phase("movement")
+        yield (
+            name,
+            rec.body("gyr"),
+            rec.body("acc"),
+            rec.body("mag"),
+            rec.rate_hz,
+            euler_to_quat(rec.truth()),
+            rec.phase("movement"),
+        )
 
 
 def broad_cases(rate=None, cache=None):
@@ -249,8 +281,11 @@ def broad_cases(rate=None, cache=None):
     version = _decoder_version()
     for path in sorted(BROAD_DIR.glob("*.mat")):
         stat = path.stat()
-        stored = None if cache is None else \
-            cache / f"{path.stem}_{rate or 'native'}_{stat.st_size}_{stat.st_mtime_ns}_{version}.npz"
+        stored = (
+            None
+            if cache is None
+            else cache / f"{path.stem}_{rate or 'native'}_{stat.st_size}_{stat.st_mtime_ns}_{version}.npz"
+        )
         if stored is not None and stored.exists():
             d = np.load(stored)
             yield str(d["trial"]), d["gyr"], d["acc"], d["mag"], float(d["rate"]), d["q"], d["moving"]
@@ -274,6 +309,7 @@ def _decoder_version():
     """A hash of the code that reads and resamples a trial (kfkit.readers.broad, kfkit.real_data)."""
     import kfkit.readers.broad
     import kfkit.real_data
+
     digest = hashlib.sha1()
     for module in (kfkit.readers.broad, kfkit.real_data):
         digest.update(Path(module.__file__).read_bytes())
@@ -348,14 +384,17 @@ def leave_one_out(grid_results, vqf, training):
     chosen = {}
     for trial in trials:
         others = [c for c in training if trial_of(c) != trial]
-        chosen[trial] = min(grid_results, key=lambda s: geometric_mean(
-            [grid_results[s][c]["total"] / vqf[c] for c in others]))
+        chosen[trial] = min(
+            grid_results, key=lambda s: geometric_mean([grid_results[s][c]["total"] / vqf[c] for c in others])
+        )
     return chosen
 
 
 def print_goal_table(title, rows, loo, chosen):
     """Totals of the peers, the MEKF's ratio to VQF, its leave-one-out total and ratio; the geometric means."""
-    print(f"\n{title}: total RMSE (°), MEKF / VQF, and leave-one-trial-out (LOO: settings chosen on the other trials)\n")
+    print(
+        f"\n{title}: total RMSE (°), MEKF / VQF, and leave-one-trial-out (LOO: settings chosen on the other trials)\n"
+    )
     print("| trial | " + " | ".join(PEERS) + " | mekf / VQF | LOO mekf | LOO / VQF | LOO setting |")
     print("|---|" + "---:|" * (len(PEERS) + 3) + "---|")
     ratios, loo_ratios = [], []
@@ -364,11 +403,15 @@ def print_goal_table(title, rows, loo, chosen):
         ratios.append(row["mekf"]["total"] / v)
         loo_ratios.append(loo[trial]["total"] / v)
         cells = [f"{row[n]['total']:.2f}" for n in PEERS]
-        print(f"| {trial} | " + " | ".join(cells) + f" | {ratios[-1]:.2f} | {loo[trial]['total']:.2f} | "
-              f"{loo_ratios[-1]:.2f} | {chosen[trial_of(trial)]} |")
-    print(f"| geometric mean |" + " |" * len(PEERS) + f" **{geometric_mean(ratios):.3f}** | | "
-          f"**{geometric_mean(loo_ratios):.3f}** | |")
-    print(f"| worst |" + " |" * len(PEERS) + f" {max(ratios):.2f} | | {max(loo_ratios):.2f} | |")
+        print(
+            f"| {trial} | " + " | ".join(cells) + f" | {ratios[-1]:.2f} | {loo[trial]['total']:.2f} | "
+            f"{loo_ratios[-1]:.2f} | {chosen[trial_of(trial)]} |"
+        )
+    print(
+        "| geometric mean |" + " |" * len(PEERS) + f" **{geometric_mean(ratios):.3f}** | | "
+        f"**{geometric_mean(loo_ratios):.3f}** | |"
+    )
+    print("| worst |" + " |" * len(PEERS) + f" {max(ratios):.2f} | | {max(loo_ratios):.2f} | |")
 
 
 def print_ablation(results, vqf, groups):
@@ -376,29 +419,43 @@ def print_ablation(results, vqf, groups):
     inclination RMSE, and the totals per trial at the board's rate."""
     board = groups[f"{BOARD_RATE:g} Hz"]
     where = {c: g for g, cases in groups.items() for c in cases}
-    print("\nAblation: the MEKF without one mechanism at a time (geometric mean of total RMSE / VQF's; worst row; "
-          f"mean heading / inclination RMSE over all rows; total RMSE (°) per trial at {BOARD_RATE:g} Hz)\n")
-    print("| variant | " + " | ".join(f"gmean {g}" for g in groups) + " | worst (row) | heading / incl. (°) | "
-          + " | ".join(c[:2] for c in board) + " |")
+    print(
+        "\nAblation: the MEKF without one mechanism at a time (geometric mean of total RMSE / VQF's; worst row; "
+        f"mean heading / inclination RMSE over all rows; total RMSE (°) per trial at {BOARD_RATE:g} Hz)\n"
+    )
+    print(
+        "| variant | "
+        + " | ".join(f"gmean {g}" for g in groups)
+        + " | worst (row) | heading / incl. (°) | "
+        + " | ".join(c[:2] for c in board)
+        + " |"
+    )
     print("|---|" + "---:|" * (len(groups) + 2 + len(board)))
     every = [c for cases in groups.values() for c in cases]
     for label, res in results.items():
         gm = [geometric_mean([res[c]["total"] / vqf[c] for c in cases]) for cases in groups.values()]
         worst = max(every, key=lambda c: res[c]["total"] / vqf[c])
         h, i = (np.mean([res[c][m] for c in every]) for m in ("heading", "inclination"))
-        print(f"| {label} | " + " | ".join(f"{g:.3f}" for g in gm) +
-              f" | {res[worst]['total'] / vqf[worst]:.2f} ({worst[:2]}, {where[worst]}) | {h:.2f} / {i:.2f} | "
-              + " | ".join(f"{res[c]['total']:.2f}" for c in board) + " |")
+        print(
+            f"| {label} | "
+            + " | ".join(f"{g:.3f}" for g in gm)
+            + f" | {res[worst]['total'] / vqf[worst]:.2f} ({worst[:2]}, {where[worst]}) | {h:.2f} / {i:.2f} | "
+            + " | ".join(f"{res[c]['total']:.2f}" for c in board)
+            + " |"
+        )
 
 
 def print_signed_heading(rows, names=("mekf", "ahrs EKF", "imufusion", "VQF")):
-    print("\nBROAD: mean signed heading error (°), at rest / in motion — a constant offset, unlike noise, "
-          "shows which north a filter followed\n")
+    print(
+        "\nBROAD: mean signed heading error (°), at rest / in motion — a constant offset, unlike noise, "
+        "shows which north a filter followed\n"
+    )
     print("| trial | " + " | ".join(names) + " |")
     print("|---|" + "---:|" * len(names))
     for trial, row in rows.items():
-        cells = [f"{row[n]['heading at rest']:+.1f} / {row[n]['heading in motion']:+.1f}" if n in row else "–"
-                 for n in names]
+        cells = [
+            f"{row[n]['heading at rest']:+.1f} / {row[n]['heading in motion']:+.1f}" if n in row else "–" for n in names
+        ]
         print(f"| {trial} | " + " | ".join(cells) + " |")
 
 
@@ -408,14 +465,16 @@ def print_field_in_truth_frame(cases):
     print("\nBROAD: the measured field in the truth's frame (how far the truth's north is from the magnetometer's)\n")
     print("| trial | heading of the field at rest (°) | in motion: mean ± std (°) | norm in motion / at rest |")
     print("|---|---:|---:|---:|")
-    for name, gyr, acc, mag, rate, q_true, mask in cases:
+    for name, _gyr, _acc, mag, _rate, q_true, mask in cases:
         ok = ~np.isnan(q_true[:, 0])
         m_n = np.einsum("nij,nj->ni", quat_to_dcm(q_true[ok]), mag[ok])
         heading = np.degrees(np.arctan2(m_n[:, 1], m_n[:, 0]))
         norm = np.linalg.norm(mag[ok], axis=1)
         rest, moving = ~mask[ok], mask[ok]
-        print(f"| {name} | {heading[rest].mean():+.1f} | {heading[moving].mean():+.1f} ± {heading[moving].std():.1f} | "
-              f"{norm[moving].mean() / norm[rest].mean():.3f} |")
+        print(
+            f"| {name} | {heading[rest].mean():+.1f} | {heading[moving].mean():+.1f} ± {heading[moving].std():.1f} | "
+            f"{norm[moving].mean() / norm[rest].mean():.3f} |"
+        )
 
 
 # ---- speed -----------------------------------------------------------------------------------
@@ -445,7 +504,7 @@ def filterpy_euler_ekf(gyr, acc, mag, rate):
         ekf.Q = euler_process_noise(ekf.x, st.gyro_noise, dt)
         ekf.predict(u=gyr[k])
         gated = abs(np.linalg.norm(acc[k]) - G) > st.accel_gate
-        R6 = np.diag([st.accel_noise ** 2 * (st.accel_inflation if gated else 1.0)] * 3 + [st.mag_noise ** 2] * 3)
+        R6 = np.diag([st.accel_noise**2 * (st.accel_inflation if gated else 1.0)] * 3 + [st.mag_noise**2] * 3)
         if np.isnan(mag[k, 0]):
             ekf.update(acc[k], hj3, hx3, R=R6[:3, :3])
         else:
@@ -457,13 +516,15 @@ def filterpy_euler_ekf(gyr, acc, mag, rate):
 
 def speed():
     from kfkit.calibration import Calibration, bundled_calibration_path
+
     rec = datasets.load("04_attitude_tour")
     gyr, acc, mag = Calibration.load(bundled_calibration_path("nucleo-iks02a1")).apply(rec)
     rate, n = rec.rate_hz, len(rec)
     contenders = {
         **{f"kfkit {name}": (lambda name=name: estimate_attitude(gyr, acc, mag, rate, method=name)) for name in KFKIT},
-        "kfkit euler-ekf, reference (a loop over step)": lambda: EulerAttitudeEKF(rate_hz=rate, field_n=learn_field(acc, mag)).run(
-            gyr, acc, mag),
+        "kfkit euler-ekf, reference (a loop over step)": lambda: EulerAttitudeEKF(
+            rate_hz=rate, field_n=learn_field(acc, mag)
+        ).run(gyr, acc, mag),
         "filterpy EKF (same Euler model)": lambda: filterpy_euler_ekf(gyr, acc, mag, rate),
         "ahrs EKF": lambda: run_ahrs_ekf(gyr, acc, mag, rate),
     }
@@ -472,12 +533,16 @@ def speed():
         warnings.simplefilter("ignore")
         for name, fn in contenders.items():  # CPU time of this process: other processes on the machine do not count
             times[name] = best_of(fn, repeats=3, clock=time.process_time)
-        same = np.abs(wrap_angle(filterpy_euler_ekf(gyr, acc, mag, rate) - estimate_attitude(gyr, acc, mag, rate).euler))
+        same = np.abs(
+            wrap_angle(filterpy_euler_ekf(gyr, acc, mag, rate) - estimate_attitude(gyr, acc, mag, rate).euler)
+        )
     if same.max() > 1e-8:
         raise SystemExit(f"filterpy's EKF and kfkit's euler-ekf differ by {same.max():.2e} rad: not the same model")
     base, ahrs = times["kfkit euler-ekf"], times["ahrs EKF"]
-    print(f"\nSpeed on 04_attitude_tour ({n} samples, {n / rate:.0f} s at {rate:g} Hz), best of 3 (process CPU time); "
-          f"filterpy's estimates equal kfkit euler-ekf's to {same.max():.0e} rad\n")
+    print(
+        f"\nSpeed on 04_attitude_tour ({n} samples, {n / rate:.0f} s at {rate:g} Hz), best of 3 (process CPU time); "
+        f"filterpy's estimates equal kfkit euler-ekf's to {same.max():.0e} rad\n"
+    )
     print("| filter | steps/s | time for 60 s at 100 Hz (ms) | time vs kfkit euler-ekf | speed vs ahrs EKF |")
     print("|---|---:|---:|---:|---:|")
     for name, t in times.items():
@@ -494,10 +559,15 @@ def full_trials(jobs, cache=None):
     renamed = {g: [(f"{c[0]} @ {g}", *c[1:]) for c in cases] for g, cases in groups.items()}
     runs = score_all([c for cases in renamed.values() for c in cases] + excerpts, FILTERS, jobs)
     vqf = {name: row["VQF"]["total"] for name, row in runs.items()}
-    grid = {", ".join(f"{k}={v}" for k, v in zip(TUNING_GRID, values)): dict(zip(TUNING_GRID, values))
-            for values in itertools.product(*TUNING_GRID.values())}
-    tuned = score_all([c for cases in renamed.values() for c in cases] + excerpts,
-                      {label: _Mekf(**settings) for label, settings in grid.items()}, jobs)
+    grid = {
+        ", ".join(f"{k}={v}" for k, v in zip(TUNING_GRID, values)): dict(zip(TUNING_GRID, values))
+        for values in itertools.product(*TUNING_GRID.values())
+    }
+    tuned = score_all(
+        [c for cases in renamed.values() for c in cases] + excerpts,
+        {label: _Mekf(**settings) for label, settings in grid.items()},
+        jobs,
+    )
     grid_results = {label: {name: tuned[name][label] for name in tuned} for label in grid}
     training = [c[0] for cases in renamed.values() for c in cases]
     chosen = leave_one_out(grid_results, vqf, training)
@@ -512,10 +582,16 @@ def full_trials(jobs, cache=None):
     print("\nLeave-one-trial-out: the setting chosen without each trial\n")
     for trial, label in chosen.items():
         print(f"- trial {trial}: {label}")
-    ablation = score_all([c for cases in renamed.values() for c in cases],
-                         {label: _Mekf(kind, **settings) for label, (kind, settings) in ABLATIONS.items()}, jobs)
-    print_ablation({label: {name: ablation[name][label] for name in ablation} for label in ABLATIONS}, vqf,
-                   {g: [c[0] for c in cases] for g, cases in renamed.items()})
+    ablation = score_all(
+        [c for cases in renamed.values() for c in cases],
+        {label: _Mekf(kind, **settings) for label, (kind, settings) in ABLATIONS.items()},
+        jobs,
+    )
+    print_ablation(
+        {label: {name: ablation[name][label] for name in ablation} for label in ABLATIONS},
+        vqf,
+        {g: [c[0] for c in cases] for g, cases in renamed.items()},
+    )
     print_signed_heading({f"{c} @ native": runs[f"{c} @ native"] for c in names["native"]})
     print_field_in_truth_frame(groups["native"])
 
@@ -533,13 +609,17 @@ def main():
         print_accuracy("Bundled lab 04 simulations", sims, list(FILTERS))
         if args.quick:
             rows = score_all(list(bundled_real_cases()), FILTERS, args.jobs)
-            print_accuracy("Bundled BROAD excerpts (100 Hz, real IMU, optical truth; movement phases)", rows, list(FILTERS))
+            print_accuracy(
+                "Bundled BROAD excerpts (100 Hz, real IMU, optical truth; movement phases)", rows, list(FILTERS)
+            )
         elif BROAD_DIR.exists() and glob.glob(str(BROAD_DIR / "*.mat")):
             full_trials(args.jobs, args.cache)
         else:
             print(f"\n(no BROAD trials in {BROAD_DIR}: the full trials, leave-one-out and the ablation are skipped)")
             rows = score_all(list(bundled_real_cases()), FILTERS, args.jobs)
-            print_accuracy("Bundled BROAD excerpts (100 Hz, real IMU, optical truth; movement phases)", rows, list(FILTERS))
+            print_accuracy(
+                "Bundled BROAD excerpts (100 Hz, real IMU, optical truth; movement phases)", rows, list(FILTERS)
+            )
         speed()
     if args.out:
         args.out.write_text(printed.getvalue(), encoding="utf-8")

@@ -8,6 +8,7 @@ refreshes (here the capture panel's own figure, rendered with Agg on the main th
 the reader thread for the GIL as in a notebook). The serial link's line-rate ceilings at 115,200 and
 921,600 baud (8N1: 10 bits a byte) for each board's line length are printed beside them.
 """
+
 import argparse
 import os
 import re
@@ -101,12 +102,16 @@ def main():
     print("| parser | lines/s | ratio |\n| --- | --- | --- |")
     print(f"| kfkit.capture.parse_line | {kfkit_rate:,.0f} | 1.0× |")
     print(f"| regex + per-byte XOR loop | {naive_rate:,.0f} | {naive_rate / kfkit_rate:.2f}× |")
-    print(f"\nbudget ≥ 50,000 lines/s: {'met' if kfkit_rate >= 50_000 else 'NOT met'} "
-          f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)\n")
+    print(
+        f"\nbudget ≥ 50,000 lines/s: {'met' if kfkit_rate >= 50_000 else 'NOT met'} "
+        f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)\n"
+    )
 
     print("Serial link ceilings (8N1: 10 bits a byte) for protocol v1 lines:\n")
-    print("| board (fields) | header | mean line | longest line | lines/s at 115,200 baud (mean / longest) "
-          "| lines/s at 921,600 baud (mean / longest) |")
+    print(
+        "| board (fields) | header | mean line | longest line | lines/s at 115,200 baud (mean / longest) "
+        "| lines/s at 921,600 baud (mean / longest) |"
+    )
     print("| --- | --- | --- | --- | --- | --- |")
     for name, lines_of_board in (("nucleo-iks02a1", lines), ("mpu6050", mpu6050_lines())):
         b = board(name)
@@ -116,23 +121,34 @@ def main():
         values[-1] = 1 if b.mag is not None else values[-1]
         worst = len(encode_sample((4294967295, 65535, *values)))
         ceilings = [f"{baud / 10 / mean_len:,.0f} / {baud / 10 / worst:,.0f}" for baud in (115_200, 921_600)]
-        print(f"| {name} ({n_fields}) | {len(board_header(b, b.rate_hz))} B once | {mean_len:.1f} B | {worst} B | "
-              f"{ceilings[0]} | {ceilings[1]} |")
-    print("\n(The boards stream 104 and 100 Hz: inside the 115,200 baud ceiling. 1 kHz of 12-field lines needs\n"
-          "≈ 0.5 Mbaud: over a real UART use 921,600 baud. The virtual board is a pty: no baud limit.)\n")
+        print(
+            f"| {name} ({n_fields}) | {len(board_header(b, b.rate_hz))} B once | {mean_len:.1f} B | {worst} B | "
+            f"{ceilings[0]} | {ceilings[1]} |"
+        )
+    print(
+        "\n(The boards stream 104 and 100 Hz: inside the 115,200 baud ceiling. 1 kHz of 12-field lines needs\n"
+        "≈ 0.5 Mbaud: over a real UART use 921,600 baud. The virtual board is a pty: no baud limit.)\n"
+    )
 
     stats, polls, draws = live_capture(seconds)
     made = int(round(seconds * 1000.0))  # samples the board made with t < seconds: all should arrive
     lost = made - stats.samples
-    print(f"Virtual board at 1 kHz for {seconds:g} s; the live figure redrawn (Agg) from recording(last_seconds=5) "
-          f"at 10 Hz on the main thread:\n")
-    print("| samples made | received | lost lines | bad lines | dropped (seq) | effective rate | redraws | "
-          "redraw time mean / max |")
+    print(
+        f"Virtual board at 1 kHz for {seconds:g} s; the live figure redrawn (Agg) from recording(last_seconds=5) "
+        f"at 10 Hz on the main thread:\n"
+    )
+    print(
+        "| samples made | received | lost lines | bad lines | dropped (seq) | effective rate | redraws | "
+        "redraw time mean / max |"
+    )
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
-    print(f"| {made:,} | {stats.samples:,} | {lost} | {stats.bad_lines} | {stats.dropped} | {stats.rate_hz:.1f} Hz | "
-          f"{draws} | {1e3 * polls.mean():.0f} ms / {1e3 * polls.max():.0f} ms |")
+    print(
+        f"| {made:,} | {stats.samples:,} | {lost} | {stats.bad_lines} | {stats.dropped} | {stats.rate_hz:.1f} Hz | "
+        f"{draws} | {1e3 * polls.mean():.0f} ms / {1e3 * polls.max():.0f} ms |"
+    )
     print(f"\nbudget 0 lost lines: {'met' if lost == 0 and stats.dropped == 0 else 'NOT met'}")
-    print(f"(machine load average during the run: {', '.join(f'{x:.1f}' for x in os.getloadavg())} on {os.cpu_count()} cores)")
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(f"(machine load average during the run: {load} on {os.cpu_count()} cores)")
 
 
 if __name__ == "__main__":

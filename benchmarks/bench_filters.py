@@ -7,11 +7,11 @@ Budget (DESIGN): re-running a lab's filter over 60 s at 100 Hz within 200 ms, so
 
 import numpy as np
 from filterpy.kalman import KalmanFilter as FilterpyKF
+from timing import best_of
 
 from kfkit import datasets
 from kfkit.filters import KalmanFilter, roll_kf
 from kfkit.frames import accel_tilt
-from timing import best_of
 
 
 def two_state_problem(n=6000, dt=0.01, seed=0):
@@ -67,9 +67,14 @@ def main():
     theirs = best_of(lambda: filterpy_scalar(gyro, z, dt, 1e-7, 1e-3))
     rows.append(("lab 01 roll KF, 60 s at 104 Hz", len(z), ours, theirs))
 
-    print(f"{'problem':42s} {'steps':>6s} {'kfkit ms':>9s} {'kfkit steps/s':>14s} {'filterpy ms':>12s} {'filterpy steps/s':>17s} {'speed-up':>9s}")
+    print(
+        f"{'problem':42s} {'steps':>6s} {'kfkit ms':>9s} {'kfkit steps/s':>14s} {'filterpy ms':>12s} "
+        f"{'filterpy steps/s':>17s} {'speed-up':>9s}"
+    )
     for name, steps, a, b in rows:
-        print(f"{name:42s} {steps:6d} {1e3 * a:9.1f} {steps / a:14,.0f} {1e3 * b:12.1f} {steps / b:17,.0f} {b / a:8.1f}×")
+        print(
+            f"{name:42s} {steps:6d} {1e3 * a:9.1f} {steps / a:14,.0f} {1e3 * b:12.1f} {steps / b:17,.0f} {b / a:8.1f}×"
+        )
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ Reports wall time, seconds per submission, the speed-up against the first ``--jo
 the 1-minute load average after each run (other work on the machine slows both); every copy must
 score full marks (the table says so), or the figures mean nothing. Budget: under 60 s a submission.
 """
+
 import argparse
 import os
 import shutil
@@ -15,8 +16,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from kfkit.paths import KIT_ROOT
 from kfkit.grading import core, resources, sandbox
+from kfkit.paths import KIT_ROOT
 
 
 def main():
@@ -32,10 +33,15 @@ def main():
             shutil.copy(KIT_ROOT / "solutions" / "01_roll_kf_1d.ipynb", subs / f"student{k:02d}.ipynb")
         box = sandbox.probe([str(work)])
         parent, why = resources.cgroup_v2_parent()
-        print(f"{args.copies} copies of solutions/01_roll_kf_1d.ipynb; {os.cpu_count()} cores; "
-              f"load average {os.getloadavg()[0]:.1f}; isolation: {box.describe(full=False)}; memory and CPU "
-              f"limits: {resources.Cgroup.kind if parent else resources.ProcessTree.kind + ' (' + why + ')'}\n")
-        print("| --jobs | wall (s) | s per submission | mean time in a worker (s) | speed-up | all full marks | load after |")
+        print(
+            f"{args.copies} copies of solutions/01_roll_kf_1d.ipynb; {os.cpu_count()} cores; "
+            f"load average {os.getloadavg()[0]:.1f}; isolation: {box.describe(full=False)}; memory and CPU "
+            f"limits: {resources.Cgroup.kind if parent else resources.ProcessTree.kind + ' (' + why + ')'}\n"
+        )
+        print(
+            "| --jobs | wall (s) | s per submission | mean time in a worker (s) | speed-up | all full marks "
+            "| load after |"
+        )
         print("| --- | --- | --- | --- | --- | --- | --- |")
         first = None
         for jobs in args.jobs:
@@ -45,8 +51,10 @@ def main():
             first = first or wall
             full = all(g.points == g.max_points for g in grades)
             mean = sum(g.seconds for g in grades) / len(grades)
-            print(f"| {jobs} | {wall:.1f} | {wall / len(grades):.2f} | {mean:.2f} | {first / wall:.2f}× | {full} "
-                  f"| {os.getloadavg()[0]:.1f} |")
+            print(
+                f"| {jobs} | {wall:.1f} | {wall / len(grades):.2f} | {mean:.2f} | {first / wall:.2f}× | {full} "
+                f"| {os.getloadavg()[0]:.1f} |"
+            )
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

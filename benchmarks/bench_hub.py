@@ -13,6 +13,7 @@ the server alone and server + kernel, median over the students. ``--full-lab``: 
 runs all of lab 01 as solved (solutions/01's code cells: every figure, the tuning panel, the q sweep), and
 the memory of that student's processes is reported the same way.
 """
+
 import argparse
 import json
 import os
@@ -21,14 +22,15 @@ import statistics
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from pathlib import Path
 
 import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-import hub as hubkit  # noqa: E402  (tests/hub.py: the same hub the test runs)
+import hub as hubkit  # tests/hub.py: the same hub the test runs
 
-from kfkit.paths import KIT_ROOT  # noqa: E402
+from kfkit.paths import KIT_ROOT
 
 
 def first_cells() -> str:
@@ -78,30 +80,39 @@ def main():
     if reason:
         sys.exit(f"bench_hub: {reason}")
     code = first_cells()
-    print(f"{os.cpu_count()} cores, {psutil.virtual_memory().total / 2**30:.0f} GB; load average "
-          f"{os.getloadavg()[0]:.1f} at the start\n")
-    print("| N | first (s) | median (s) | last (s) | CPU, all processes (s) | CPU per student (s) "
-          "| server PSS (MB) | server + kernel PSS (MB) | load after |")
+    print(
+        f"{os.cpu_count()} cores, {psutil.virtual_memory().total / 2**30:.0f} GB; load average "
+        f"{os.getloadavg()[0]:.1f} at the start\n"
+    )
+    print(
+        "| N | first (s) | median (s) | last (s) | CPU, all processes (s) | CPU per student (s) "
+        "| server PSS (MB) | server + kernel PSS (MB) | load after |"
+    )
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for n in args.students:
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
         with hubkit.Hub(students=n, prefix="kfb") as hub:
             start = time.monotonic()
             with ThreadPoolExecutor(n) as pool:
-                waits = sorted(pool.map(lambda s: serve(hub, s, start, code), hub.students))
+                waits = sorted(pool.map(partial(serve, hub, start=start, code=code), hub.students))
             memory = [pss_mb(s) for s in hub.students]
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
-        print(f"| {n} | {waits[0]:.1f} | {statistics.median(waits):.1f} | {waits[-1]:.1f} | {cpu:.0f} | {cpu / n:.1f} "
-              f"| {statistics.median(m[0] for m in memory):.0f} | {statistics.median(m[1] for m in memory):.0f} "
-              f"| {os.getloadavg()[0]:.1f} |", flush=True)
+        print(
+            f"| {n} | {waits[0]:.1f} | {statistics.median(waits):.1f} | {waits[-1]:.1f} | {cpu:.0f} | {cpu / n:.1f} "
+            f"| {statistics.median(m[0] for m in memory):.0f} | {statistics.median(m[1] for m in memory):.0f} "
+            f"| {os.getloadavg()[0]:.1f} |",
+            flush=True,
+        )
     if args.full_lab:
         with hubkit.Hub(students=1, prefix="kfb") as hub:
             start = time.monotonic()
             seconds = serve(hub, hub.students[0], start, solved_lab())
             server, total = pss_mb(hub.students[0])
-        print(f"\nlab 01 solved, run whole in one student's kernel: {seconds:.0f} s from the click; "
-              f"PSS server {server:.0f} MB, server + kernel {total:.0f} MB")
+        print(
+            f"\nlab 01 solved, run whole in one student's kernel: {seconds:.0f} s from the click; "
+            f"PSS server {server:.0f} MB, server + kernel {total:.0f} MB"
+        )
 
 
 if __name__ == "__main__":

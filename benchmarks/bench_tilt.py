@@ -9,6 +9,7 @@ Speed: 60 s at 100 Hz through TiltBiasKF.run, filterpy's general KalmanFilter an
 gcc -O2 (budget: a lab's filter over 60 s at 100 Hz within 200 ms); and, where avr-gcc and simavr are
 installed (Debian: gcc-avr avr-libc simavr), the cycles of one update on an ATmega328P (Arduino Uno).
 """
+
 import re
 import shutil
 import subprocess
@@ -17,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 from filterpy.kalman import KalmanFilter as FilterpyKF
+from timing import best_of
 
 from kfkit import datasets
-from kfkit.checkpoints import lab05
+from kfkit.filters import TiltBiasKF, TiltBiasKFSettings, tilt
+from kfkit.labs import lab05
 from kfkit.paths import KIT_ROOT
-from kfkit.filters import TiltBiasKF, tilt
-from timing import best_of
 
 C_SOURCE = KIT_ROOT / "firmware" / "tilt_kf" / "tilt_kf.c"
 HOST_HARNESS = r"""
@@ -87,12 +88,23 @@ def accuracy():
     defined = np.abs(truth[:, 1]) < np.radians(60)
     axes, dt, r, q0 = lab05.pipeline_inputs()
     bias = lab05.true_gyro_bias(rec)
-    tuned = {name: lab05.tune_reference(*axes[name], dt, r, q0) for name in axes}
+    tuned = {name: lab05.tune_on_holds(*axes[name], dt, r, q0) for name in axes}
     print(f"Lab 05 on 05_tilt_protocol (36 s, 100 Hz); r = {r:.2e} rad², q0 = (σ_ω·Δt)² = {q0:.2e} rad²\n")
-    print("| estimate | roll RMSE, holds | pitch RMSE, holds | roll RMSE, whole | pitch RMSE, whole | bias error at 36 s (roll, pitch) |")
+    print(
+        "| estimate | roll RMSE, holds | pitch RMSE, holds | roll RMSE, whole | pitch RMSE, whole "
+        "| bias error at 36 s (roll, pitch) |"
+    )
     print("| --- | --- | --- | --- | --- | --- |")
     rows = [("accelerometer only (six-face corrected)", None, None)]
-    rows += [("KF, q0, skip gate", "skip", {n: (q0, 1e-4 * q0) for n in axes})]
+    rows += [("KF, q0, skip gate", "skip", dict.fromkeys(axes, (q0, 1e-4 * q0)))]
+    shipped = TiltBiasKFSettings()  # = tiltKfDefaultSettings: lab 02's N²Δt and K²Δt
+    rows += [
+        (
+            "KF, shipped defaults (lab 02's N²Δt, K²Δt), skip gate",
+            "skip",
+            dict.fromkeys(axes, (shipped.q_angle, shipped.q_bias)),
+        )
+    ]
     rows += [(f"KF, tuned on the holds, gate = {g}", g, tuned) for g in ("none", "skip", "inflate")]
     for label, gate, q in rows:
         cells, errs = [], []
@@ -122,9 +134,16 @@ def c_filter(gyro, angle, ok, dt):
     with tempfile.TemporaryDirectory() as folder:
         exe, main = Path(folder) / "bench", Path(folder) / "main.c"
         main.write_text(HOST_HARNESS)
-        subprocess.run([gcc, "-std=c99", "-O2", f"-I{C_SOURCE.parent}", str(main), str(C_SOURCE), "-o", str(exe), "-lm"],
-                       check=True)
-        feed = f"{len(gyro)} {dt!r}\n" + "".join(f"{w!r} {z!r} {int(k)}\n" for w, z, k in zip(np.asarray(gyro, float).tolist(), np.asarray(angle, float).tolist(), np.asarray(ok).tolist()))
+        subprocess.run(
+            [gcc, "-std=c99", "-O2", f"-I{C_SOURCE.parent}", str(main), str(C_SOURCE), "-o", str(exe), "-lm"],
+            check=True,
+        )
+        feed = f"{len(gyro)} {dt!r}\n" + "".join(
+            f"{w!r} {z!r} {int(k)}\n"
+            for w, z, k in zip(
+                np.asarray(gyro, float).tolist(), np.asarray(angle, float).tolist(), np.asarray(ok).tolist()
+            )
+        )
         lines = subprocess.run([str(exe)], input=feed, capture_output=True, text=True, check=True).stdout.splitlines()
     return float(lines[0]), np.loadtxt(lines[1:])
 
@@ -137,10 +156,25 @@ def avr_cycles():
     with tempfile.TemporaryDirectory() as folder:
         elf, main = Path(folder) / "bench.elf", Path(folder) / "main.c"
         main.write_text(AVR_HARNESS)
-        subprocess.run([tools[0], "-std=gnu99", "-Os", "-mmcu=atmega328p", "-DF_CPU=16000000L", f"-I{C_SOURCE.parent}",
-                        str(main), str(C_SOURCE), "-o", str(elf), "-lm"], check=True)
-        out = subprocess.run([tools[1], "-m", "atmega328p", "-f", "16000000", str(elf)], capture_output=True, text=True,
-                             timeout=60)
+        subprocess.run(
+            [
+                tools[0],
+                "-std=gnu99",
+                "-Os",
+                "-mmcu=atmega328p",
+                "-DF_CPU=16000000L",
+                f"-I{C_SOURCE.parent}",
+                str(main),
+                str(C_SOURCE),
+                "-o",
+                str(elf),
+                "-lm",
+            ],
+            check=True,
+        )
+        out = subprocess.run(
+            [tools[1], "-m", "atmega328p", "-f", "16000000", str(elf)], capture_output=True, text=True, timeout=60
+        )
     return {k: int(v) for k, v in re.findall(r"(\w+)=(\d+)", out.stdout + out.stderr)}
 
 
@@ -188,9 +222,12 @@ def speed():
     if cycles:
         us = {k: v / 16.0 for k, v in cycles.items()}
         per_sample = 2 * us["update"] + us["roll"] + us["pitch"] + us["static"]
-        print(f"\nATmega328P at 16 MHz (simavr): TiltKfUpdate {us['update']:.0f} µs ({cycles['update']} cycles), "
-              f"coasting {us['coast']:.0f} µs, accelerometer roll {us['roll']:.0f} µs, pitch {us['pitch']:.0f} µs, "
-              f"static test {us['static']:.0f} µs: the sketch's filter work per sample ≈ {per_sample / 1000:.2f} ms of its 10 ms.")
+        print(
+            f"\nATmega328P at 16 MHz (simavr): TiltKfUpdate {us['update']:.0f} µs ({cycles['update']} cycles), "
+            f"coasting {us['coast']:.0f} µs, accelerometer roll {us['roll']:.0f} µs, pitch {us['pitch']:.0f} µs, "
+            f"static test {us['static']:.0f} µs: the sketch's filter work per sample"
+            f" ≈ {per_sample / 1000:.2f} ms of its 10 ms."
+        )
 
 
 if __name__ == "__main__":

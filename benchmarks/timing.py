@@ -1,4 +1,5 @@
 """The benchmarks' one timer: the best of a few runs, so a busy shared machine distorts it least."""
+
 import time
 
 

@@ -16,4 +16,5 @@ Layers, bottom to top (a module imports only from its own layer or below; README
 
 Import what you need, e.g. ``from kfkit import frames, filters``.
 """
+
 __version__ = "0.1.0"

@@ -53,9 +53,12 @@ RUN_STATE_KEYS = ("execution", "collapsed", "scrolled")
 NOTEBOOK_METADATA_KEPT = ("kernelspec", "language_info")
 NBVAL_MARKER = "# NBVAL_"
 PREDICT_TAG, REVEAL_TAG, MY_PREDICTION_TAG = "predict", "reveal", "my-prediction"
-MY_PREDICTION = ("**My prediction:** *(write it here before you run the cells below; the explanation after them is "
-                 "folded: click its bar to open it once you have compared)*")
-#: the first line of a folded explanation: JupyterLab's fold bar previews a cell's first line, which must not be the answer
+MY_PREDICTION = (
+    "**My prediction:** *(write it here before you run the cells below; the explanation after them is "
+    "folded: click its bar to open it once you have compared)*"
+)
+#: the first line of a folded explanation: JupyterLab's fold bar previews a cell's first line, which must not be the
+#: answer
 REVEAL_LEAD = "**Explanation** *(folded: open it after you have run the cells above and compared with your prediction)*"
 RUN_NUMBER = re.compile(r"<!--\s*run:\s*(.*?)\s*-->(.*?)<!--\s*/run\s*-->", re.S)
 
@@ -95,8 +98,11 @@ def strip_solutions(nb: nbformat.NotebookNode, name: str | None = None) -> nbfor
             cell.metadata.pop(key, None)
         cells.append(cell)
         if PREDICT_TAG in tags:
-            cells.append(nbformat.v4.new_markdown_cell(MY_PREDICTION, id=f"{cell.id}-mine"[:64],
-                                                       metadata={"tags": [MY_PREDICTION_TAG]}))
+            cells.append(
+                nbformat.v4.new_markdown_cell(
+                    MY_PREDICTION, id=f"{cell.id}-mine"[:64], metadata={"tags": [MY_PREDICTION_TAG]}
+                )
+            )
     lab.cells = cells
     _check_clean(lab, where)
     return lab
@@ -122,8 +128,11 @@ def _same_scope(node: ast.AST):
     while stack:
         n = stack.pop()
         yield n
-        stack.extend(c for c in ast.iter_child_nodes(n)
-                     if not isinstance(c, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)))
+        stack.extend(
+            c
+            for c in ast.iter_child_nodes(n)
+            if not isinstance(c, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef))
+        )
 
 
 def _check_stubs_recognised(source: str, stub_lines: list[int], where: str) -> None:
@@ -141,7 +150,8 @@ def _check_stubs_recognised(source: str, stub_lines: list[int], where: str) -> N
             raise AuthoringError(
                 f"{where}, line {line}: the exercise guard would not take this for a stub: put the "
                 f"'{BEGIN}' block straight in the function's body (or the cell's), not inside an if, a loop, a try "
-                "or a with, and with no return before it")
+                "or a with, and with no return before it"
+            )
 
 
 def _replace_blocks(source: str, stub: list[str], where: str) -> tuple[str, list[int]]:

@@ -14,7 +14,8 @@ of the bundled simulations). :func:`calibration_for` picks the one that belongs 
 bundled default for the bundled recordings, the student's own for theirs.
 
 **A phone** (board ``"phone-phyphox"``) comes calibrated by its OS, and the kit's default for it is the
-identity, with the noise σ of the phone's sensor model (:func:`kfkit.sensors.phone_board`) (``data/calibration_phone-phyphox.json``):
+identity, with the noise σ of the phone's sensor model (:func:`kfkit.sensors.phone_board`)
+(``data/calibration_phone-phyphox.json``):
 
 - gyro bias 0: Android's ``TYPE_GYROSCOPE``, which phyphox reads, "MUST be calibrated and compensated while
   in use" (Android CDD §7.3.4; AOSP "Sensor types": base sensors carry bias and temperature compensation,
@@ -29,6 +30,7 @@ identity, with the noise σ of the phone's sensor model (:func:`kfkit.sensors.ph
 Student-saved phone calibrations (labs 02 and 03) replace it as for a board. :func:`label_rests` finds and
 names the rests of a recording without labelled windows (a phyphox export), so labs 02 and 03 run on it.
 """
+
 from __future__ import annotations
 
 import json
@@ -38,7 +40,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import nnls
 
-from .frames import G, MAG_FIELD_LONDON
+from .frames import MAG_FIELD_LONDON, G
 from .paths import bundled_calibration_path, data_dir, user_calibration_path
 from .sensors import board as get_board
 
@@ -76,8 +78,10 @@ def _samples(x, name, min_samples=2, width=3):
         raise CalibrationError(f"{name}: {len(a)} samples, at least {min_samples} are needed")
     bad = ~np.isfinite(a).all(axis=1)
     if bad.any():
-        raise CalibrationError(f"{name}: {bad.sum()} of {len(a)} samples hold NaN or inf (first at row {np.argmax(bad)}); "
-                               f"drop them first, e.g. x[np.isfinite(x).all(axis=1)]")
+        raise CalibrationError(
+            f"{name}: {bad.sum()} of {len(a)} samples hold NaN or inf (first at row {np.argmax(bad)}); "
+            f"drop them first, e.g. x[np.isfinite(x).all(axis=1)]"
+        )
     return a
 
 
@@ -130,9 +134,11 @@ def accel_six_face(faces, g=G):
         up = _samples(faces[f"{axis}_up"], f"faces['{axis}_up']").mean(axis=0)[i]
         down = _samples(faces[f"{axis}_down"], f"faces['{axis}_down']").mean(axis=0)[i]
         if not (up > 0.5 * g and down < -0.5 * g):
-            raise CalibrationError(f"faces: axis {axis} reads {up:+.2f} m/s² on '{axis}_up' and {down:+.2f} on "
-                                   f"'{axis}_down'; expected about +{g:.2f} and −{g:.2f}: are the faces labelled "
-                                   f"by the axis pointing up, in the body frame?")
+            raise CalibrationError(
+                f"faces: axis {axis} reads {up:+.2f} m/s² on '{axis}_up' and {down:+.2f} on "
+                f"'{axis}_down'; expected about +{g:.2f} and −{g:.2f}: are the faces labelled "
+                f"by the axis pointing up, in the body frame?"
+            )
         bias[i], scale[i] = (up + down) / 2, (up - down) / (2 * g)
     return bias, scale
 
@@ -173,8 +179,11 @@ def label_rests(rec, min_s=REST_MIN_S, trim_s=REST_TRIM_S, max_tilt=FACE_MAX_TIL
     window = max(3, int(round(REST_WINDOW_S * rec.rate_hz)))
     _, gyr_std = _moving_mean_std(gyr, window)
     acc_mean, acc_std = _moving_mean_std(acc, window)
-    still = ((gyr_std < REST_GYRO_STD).all(axis=1) & (acc_std < REST_ACCEL_STD).all(axis=1)
-             & (np.abs(np.linalg.norm(acc_mean, axis=1) - G) < REST_G_TOLERANCE))
+    still = (
+        (gyr_std < REST_GYRO_STD).all(axis=1)
+        & (acc_std < REST_ACCEL_STD).all(axis=1)
+        & (np.abs(np.linalg.norm(acc_mean, axis=1) - G) < REST_G_TOLERANCE)
+    )
     edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
     phases = []
     for first, stop in zip(edges[::2], edges[1::2]):
@@ -189,20 +198,23 @@ def label_rests(rec, min_s=REST_MIN_S, trim_s=REST_TRIM_S, max_tilt=FACE_MAX_TIL
         if label == "z_down":
             phases.append({"label": "stationary", "start": float(start), "end": float(end)})
     if not phases:
-        raise CalibrationError(f"{rec.path or 'recording'}: no rest of at least {min_s:g} s found (the gyro and the "
-                               f"accelerometer never stay still together): lay the board or phone down, let go, and "
-                               f"keep it still for a few seconds before moving it again")
+        raise CalibrationError(
+            f"{rec.path or 'recording'}: no rest of at least {min_s:g} s found (the gyro and the "
+            f"accelerometer never stay still together): lay the board or phone down, let go, and "
+            f"keep it still for a few seconds before moving it again"
+        )
     meta = {**rec.meta, "phases": phases, "phases_from": "kfkit.calibration.label_rests"}
     return type(rec)(meta, rec.data, rec.path)
 
 
 # --- Allan deviation ----------------------------------------------------------------------------
 
+
 def allan_deviation(x, rate_hz, taus=None):
     """Overlapping Allan deviation of a rate signal (IEEE Std 952-1997, Annex C).
 
-    x (N,) or (N, k) samples at ``rate_hz``; taus cluster times (s), by default ~10 per decade from
-    one sample to a fifth of the record (longer τ have too few clusters to trust). With N samples,
+    x (N,) or (N, k) samples at ``rate_hz``; taus cluster times (s), by default :func:`allan_taus` (~10 per decade
+    from one sample to a fifth of the record). With N samples,
     the angle θ_j = Σ_{i<j} x_i / rate_hz for j = 0 … N (θ_0 = 0: N + 1 angles) and m samples per
     cluster (τ = m / rate_hz), summing every one of the N − 2m + 1 overlapping clusters:
 
@@ -215,21 +227,29 @@ def allan_deviation(x, rate_hz, taus=None):
     if not rate_hz > 0:
         raise CalibrationError(f"rate_hz must be positive, got {rate_hz}")
     if taus is None:
-        decades = np.log10(n / 5)
-        m = np.unique(np.round(np.logspace(0, decades, int(10 * decades) + 1)).astype(int))
+        m = np.round(allan_taus(n, rate_hz) * rate_hz).astype(int)
     else:
         m = np.unique(np.round(np.asarray(taus, dtype=float) * rate_hz).astype(int))
         if m.min() < 1 or 2 * m.max() >= n:
-            raise CalibrationError(f"taus must lie between one sample ({1 / rate_hz:g} s) and under half the record "
-                                   f"({n / 2 / rate_hz:g} s); got {np.min(taus):g} … {np.max(taus):g} s")
+            raise CalibrationError(
+                f"taus must lie between one sample ({1 / rate_hz:g} s) and under half the record "
+                f"({n / 2 / rate_hz:g} s); got {np.min(taus):g} … {np.max(taus):g} s"
+            )
     theta = np.vstack([np.zeros((1, a.shape[1])), np.cumsum(a, axis=0)]) / rate_hz
     adev = np.empty((len(m), a.shape[1]))
     for j, mj in enumerate(m):
-        d = theta[2 * mj:] - 2 * theta[mj:-mj] + theta[:-2 * mj]
+        d = theta[2 * mj :] - 2 * theta[mj:-mj] + theta[: -2 * mj]
         tau = mj / rate_hz
         adev[j] = np.sqrt(np.sum(d**2, axis=0) / (2 * tau**2 * (len(theta) - 2 * mj)))
     taus_out = m / rate_hz
     return taus_out, (adev[:, 0] if np.ndim(x) == 1 else adev)
+
+
+def allan_taus(n, rate_hz):
+    """The cluster times :func:`allan_deviation` uses by default (s): about 10 per decade, whole samples, from one
+    sample to a fifth of a record of ``n`` samples (longer τ have too few clusters to trust)."""
+    decades = np.log10(n / 5)
+    return np.unique(np.round(np.logspace(0, decades, int(10 * decades) + 1))) / rate_hz
 
 
 def angle_random_walk(taus, adev):
@@ -241,8 +261,10 @@ def angle_random_walk(taus, adev):
     """
     taus, adev = np.asarray(taus, float), np.asarray(adev, float)
     if not taus.min() <= 1.0 <= taus.max():
-        raise CalibrationError(f"the Allan curve must span τ = 1 s to read the angle random walk; it spans "
-                               f"{taus.min():g} … {taus.max():g} s")
+        raise CalibrationError(
+            f"the Allan curve must span τ = 1 s to read the angle random walk; it spans "
+            f"{taus.min():g} … {taus.max():g} s"
+        )
     logs = np.log(adev).reshape(len(taus), -1)
     out = np.array([np.exp(np.interp(0.0, np.log(taus), col)) for col in logs.T])
     return out if adev.ndim > 1 else float(out[0])
@@ -283,6 +305,7 @@ def allan_noise_fit(taus, adev):
 
 # --- magnetometer ----------------------------------------------------------------------------------
 
+
 def fit_mag_calibration(mag, field_norm=None, min_samples=50, min_spread=MIN_MAG_SPREAD):
     """Hard iron h (3,) µT and soft-iron correction S (3, 3) symmetric, with m_cal = S (m − h).
 
@@ -314,17 +337,24 @@ def fit_mag_calibration(mag, field_norm=None, min_samples=50, min_spread=MIN_MAG
     if sigma[0] < MIN_MAG_COVERAGE * B:
         still = sigma[-1] < MIN_MAG_COVERAGE * B
         raise CalibrationError(
-            f"mag: the rotations cover too little of the sphere: the readings spread only {sigma[0]:.2g} µT along their narrowest direction (and {sigma[-1]:.2g} µT along "
+            f"mag: the rotations cover too little of the sphere: the readings spread only {sigma[0]:.2g} µT along "
+            f"their narrowest direction (and {sigma[-1]:.2g} µT along "
             f"the widest), under {MIN_MAG_COVERAGE:.0%} of the {B:.3g} µT field: "
-            + ("the board hardly turned (this is sensor noise around one reading). " if still else
-               "the board turned about one axis only, so the field was never seen along that axis. ")
-            + "Record again, turning the board slowly through every orientation — figure eights, on its side and upside "
-              "down — for about a minute (and pass field_norm= your local field if it is far from London's)")
+            + (
+                "the board hardly turned (this is sensor noise around one reading). "
+                if still
+                else "the board turned about one axis only, so the field was never seen along that axis. "
+            )
+            + "Record again, turning the board slowly through every orientation — figure eights, on its side and "
+            "upside down — for about a minute (and pass field_norm= your local field if it is far from London's)"
+        )
     if spread[0] < min_spread * spread[-1]:
         raise CalibrationError(
-            f"mag: the rotations cover too little of the sphere (smallest/largest spread {spread[0] / spread[-1]:.3f} < "
-            f"{min_spread}): a hard/soft-iron fit needs the field seen from all directions. Record again, turning the "
-            f"board slowly through every orientation — figure eights, on its side and upside down — for about a minute")
+            f"mag: the rotations cover too little of the sphere (smallest/largest spread "
+            f"{spread[0] / spread[-1]:.3f} < {min_spread}): a hard/soft-iron fit needs the field seen from all "
+            f"directions. Record again, turning the board slowly through every orientation — figure eights, on its "
+            f"side and upside down — for about a minute"
+        )
     u = (m - centre) / scale
     x, y, z = u.T
     design = np.column_stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, x, y, z, np.ones_like(x)])
@@ -336,8 +366,10 @@ def fit_mag_calibration(mag, field_norm=None, min_samples=50, min_spread=MIN_MAG
     A_u = Q / k
     w, V = np.linalg.eigh(A_u)
     if w.min() <= 0:
-        raise CalibrationError("mag: the readings do not lie on an ellipsoid (the fit is not positive definite): "
-                               "record again with slow rotations through all orientations, away from steel and magnets")
+        raise CalibrationError(
+            "mag: the readings do not lie on an ellipsoid (the fit is not positive definite): "
+            "record again with slow rotations through all orientations, away from steel and magnets"
+        )
     S = B / scale * (V * np.sqrt(w)) @ V.T
     return centre + scale * h_u, S
 
@@ -348,6 +380,7 @@ def apply_mag_calibration(mag, hard_iron, soft_iron):
 
 
 # --- the saved calibration ----------------------------------------------------------------------------
+
 
 def _zeros():
     return [0.0, 0.0, 0.0]
@@ -376,8 +409,17 @@ class Calibration:
     mag_noise: list = field(default_factory=_zeros)
     source: str = ""
 
-    SHAPES = {"gyro_bias": (3,), "gyro_noise": (3,), "gyro_bias_walk": (3,), "accel_bias": (3,), "accel_scale": (3,), "accel_noise": (3,),
-              "mag_hard_iron": (3,), "mag_soft_iron": (3, 3), "mag_noise": (3,)}
+    SHAPES = {
+        "gyro_bias": (3,),
+        "gyro_noise": (3,),
+        "gyro_bias_walk": (3,),
+        "accel_bias": (3,),
+        "accel_scale": (3,),
+        "accel_noise": (3,),
+        "mag_hard_iron": (3,),
+        "mag_soft_iron": (3, 3),
+        "mag_noise": (3,),
+    }
 
     def __post_init__(self):
         """Checks every field: shapes, finite, noise ≥ 0, accel_scale within :data:`ACCEL_SCALE_RANGE`,
@@ -386,33 +428,53 @@ class Calibration:
             raise CalibrationError(f"Calibration.board must be a board name, got {self.board!r}")
         if not isinstance(self.source, str):
             raise CalibrationError(f"Calibration.source must be text, got {self.source!r}")
-        if isinstance(self.rate_hz, bool) or not isinstance(self.rate_hz, (int, float, np.number)) \
-                or not (np.isfinite(self.rate_hz) and self.rate_hz > 0):
+        if (
+            isinstance(self.rate_hz, bool)
+            or not isinstance(self.rate_hz, (int, float, np.number))
+            or not (np.isfinite(self.rate_hz) and self.rate_hz > 0)
+        ):
             raise CalibrationError(f"Calibration.rate_hz must be a positive finite number (Hz), got {self.rate_hz!r}")
         for name, shape in self.SHAPES.items():
             try:
                 value = np.asarray(getattr(self, name), dtype=float)
             except (ValueError, TypeError):
-                raise CalibrationError(f"Calibration.{name}: expected numbers of shape {shape}, got {getattr(self, name)!r}") from None
+                raise CalibrationError(
+                    f"Calibration.{name}: expected numbers of shape {shape}, got {getattr(self, name)!r}"
+                ) from None
             if value.shape != shape:
                 raise CalibrationError(f"Calibration.{name}: expected shape {shape}, got {value.shape}")
             if not np.isfinite(value).all():
                 raise CalibrationError(f"Calibration.{name}: holds NaN or inf: {value.tolist()}")
-            setattr(self, name, [float(f"{v:.9g}") for v in value.ravel()] if value.ndim == 1
-                    else [[float(f"{v:.9g}") for v in row] for row in value])
+            setattr(
+                self,
+                name,
+                [float(f"{v:.9g}") for v in value.ravel()]
+                if value.ndim == 1
+                else [[float(f"{v:.9g}") for v in row] for row in value],
+            )
         lo, hi = ACCEL_SCALE_RANGE
         if not all(lo <= s <= hi for s in self.accel_scale):
-            raise CalibrationError(f"Calibration.accel_scale must lie within {lo:g} … {hi:g} (1 = exact; it divides the "
-                                   f"reading), got {self.accel_scale}")
+            raise CalibrationError(
+                f"Calibration.accel_scale must lie within {lo:g} … {hi:g} (1 = exact; it divides the "
+                f"reading), got {self.accel_scale}"
+            )
         for name in ("gyro_noise", "gyro_bias_walk", "accel_noise", "mag_noise"):
             if min(getattr(self, name)) < 0:
-                raise CalibrationError(f"Calibration.{name} is a noise level: it cannot be negative, got {getattr(self, name)}")
+                raise CalibrationError(
+                    f"Calibration.{name} is a noise level: it cannot be negative, got {getattr(self, name)}"
+                )
         S = np.asarray(self.mag_soft_iron)
         w = np.linalg.eigvalsh((S + S.T) / 2)
-        if not np.allclose(S, S.T, rtol=1e-6, atol=1e-9 * np.abs(S).max()) or w[0] <= 0 or w[-1] > MAX_SOFT_IRON_CONDITION * w[0]:
-            raise CalibrationError(f"Calibration.mag_soft_iron must be symmetric positive definite and not (nearly) singular "
-                                   f"(eigenvalues {', '.join(f'{x:.3g}' for x in w)}), got {self.mag_soft_iron}: "
-                                   f"fit it again with fit_mag_calibration")
+        if (
+            not np.allclose(S, S.T, rtol=1e-6, atol=1e-9 * np.abs(S).max())
+            or w[0] <= 0
+            or w[-1] > MAX_SOFT_IRON_CONDITION * w[0]
+        ):
+            raise CalibrationError(
+                f"Calibration.mag_soft_iron must be symmetric positive definite and not (nearly) singular "
+                f"(eigenvalues {', '.join(f'{x:.3g}' for x in w)}), got {self.mag_soft_iron}: "
+                f"fit it again with fit_mag_calibration"
+            )
         self.rate_hz = float(self.rate_hz)
 
     @property
@@ -425,7 +487,7 @@ class Calibration:
         return json.dumps(asdict(self), indent=1, ensure_ascii=False) + "\n"
 
     @classmethod
-    def from_json(cls, text: str, where="calibration") -> "Calibration":
+    def from_json(cls, text: str, where="calibration") -> Calibration:
         """A calibration file's text. Stricter than the constructor: every field but ``source`` must be
         there (no default stands in for a measurement) and the board must be one the kit knows. A noise σ
         of 0 means "not measured" (a board without magnetometer, a lab that saved before measuring it); a file from
@@ -436,13 +498,15 @@ class Calibration:
             raise CalibrationError(f"{where}: not valid JSON ({e.msg}, line {e.lineno})") from None
         if not isinstance(d, dict):
             raise CalibrationError(f"{where}: expected a JSON object of calibration fields")
-        unknown = sorted(set(d) - {f for f in cls.__dataclass_fields__})
+        unknown = sorted(set(d) - set(cls.__dataclass_fields__))
         if unknown:
             raise CalibrationError(f"{where}: unknown fields {', '.join(unknown)}")
         missing = [f for f in cls.__dataclass_fields__ if f not in d and f not in ("source", "gyro_bias_walk")]
         if missing:
-            raise CalibrationError(f"{where}: missing fields {', '.join(missing)}: a calibration file needs every "
-                                   f"measurement; save one again from labs 02/03 (Calibration.save)")
+            raise CalibrationError(
+                f"{where}: missing fields {', '.join(missing)}: a calibration file needs every "
+                f"measurement; save one again from labs 02/03 (Calibration.save)"
+            )
         try:
             cal = cls(**d)
             get_board(cal.board)
@@ -465,7 +529,7 @@ class Calibration:
         return path
 
     @classmethod
-    def load(cls, path) -> "Calibration":
+    def load(cls, path) -> Calibration:
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"no calibration file at {path}")
@@ -484,8 +548,10 @@ class Calibration:
             rec = rec_or_arrays
             board = rec.meta.get("board")
             if board is not None and board != self.board:
-                raise CalibrationError(f"this calibration is for board {self.board!r}, the recording is from {board!r}: "
-                                       f"use load_calibration(board={board!r})")
+                raise CalibrationError(
+                    f"this calibration is for board {self.board!r}, the recording is from {board!r}: "
+                    f"use load_calibration(board={board!r})"
+                )
             arrays = (rec.body("gyr"), rec.body("acc"), rec.body("mag") if "mag" in rec.meta.get("mount", {}) else None)
         else:
             arrays = tuple(rec_or_arrays) + (None,) * (3 - len(tuple(rec_or_arrays)))
@@ -511,8 +577,10 @@ def load_calibration(board="nucleo-iks02a1", path=None) -> Calibration:
     for candidate in (user_calibration_path(board), bundled_calibration_path(board)):
         if candidate.exists():
             return Calibration.load(candidate)
-    raise FileNotFoundError(f"no calibration for {board!r}: neither {user_calibration_path(board)} nor the bundled "
-                            f"{bundled_calibration_path(board)} exists. Rebuild the bundled one with: python -m kfkit data regenerate")
+    raise FileNotFoundError(
+        f"no calibration for {board!r}: neither {user_calibration_path(board)} nor the bundled "
+        f"{bundled_calibration_path(board)} exists. Rebuild the bundled one with: python -m kfkit data regenerate"
+    )
 
 
 def calibration_for(rec) -> Calibration:
@@ -549,11 +617,15 @@ def calibrate(stationary, six_faces=None, mag_rotations=None, rate_hz=None, fiel
     still = _phase_or_all(stationary, "stationary")
     gyr, acc = stationary.body("gyr")[still], stationary.body("acc")[still]
     window = min(len(gyr), int(NOISE_WINDOW_S * stationary.rate_hz))
-    cal = {"board": board.name, "rate_hz": rate, "gyro_bias": gyro_bias(gyr),
-           "gyro_noise": noise_at_rate(noise_std(gyr, window), stationary.rate_hz, rate),
-           "gyro_bias_walk": allan_noise_fit(*allan_deviation(gyr, stationary.rate_hz))[2],
-           "accel_noise": noise_at_rate(noise_std(acc, window), stationary.rate_hz, rate),
-           "accel_bias": accel_bias(acc, [0.0, 0.0, -G])}
+    cal = {
+        "board": board.name,
+        "rate_hz": rate,
+        "gyro_bias": gyro_bias(gyr),
+        "gyro_noise": noise_at_rate(noise_std(gyr, window), stationary.rate_hz, rate),
+        "gyro_bias_walk": allan_noise_fit(*allan_deviation(gyr, stationary.rate_hz))[2],
+        "accel_noise": noise_at_rate(noise_std(acc, window), stationary.rate_hz, rate),
+        "accel_bias": accel_bias(acc, [0.0, 0.0, -G]),
+    }
     if six_faces is not None:
         faces = {f: six_faces.body("acc")[six_faces.phase(f)] for f in FACES}
         cal["accel_bias"], cal["accel_scale"] = accel_six_face(faces)

@@ -1,15 +1,16 @@
 """The ``kfkit`` command (also ``python -m kfkit``).
 
-    kfkit make-labs [--check]          solutions/ → labs/ (instructors)
-    kfkit data regenerate [--check]    rebuild data/ from seeded simulations
-    kfkit data real [--check] [--source DIR]   convert the real excerpts (BROAD, race track) from their originals
-    kfkit doctor                       check this environment and say what to fix
-    kfkit boards                       list the boards plugged in over USB
-    kfkit capture --port P --seconds S --out FILE   record from a board (or --port virtual, emulated-uno, phyphox://HOST:PORT)
-    kfkit demo tilt --port P|virtual   steer a car by tilting the board (mpu6050_tilt_kf's $ATT lines)
-    kfkit grade --lab NN --out gradebook.csv SUBMISSION…   grade notebooks in isolated kernels
-    kfkit report gradebook.csv         the class report: one self-contained HTML page
+kfkit make-labs [--check]          solutions/ → labs/ (instructors)
+kfkit data regenerate [--check]    rebuild data/ from seeded simulations
+kfkit data real [--check] [--source DIR]   convert the real excerpts (BROAD, race track) from their originals
+kfkit doctor                       check this environment and say what to fix
+kfkit boards                       list the boards plugged in over USB
+kfkit capture --port P --seconds S --out FILE   record from a board (or --port virtual, emulated-uno, phyphox://HOST:PORT)
+kfkit demo tilt --port P|virtual   steer a car by tilting the board (mpu6050_tilt_kf's $ATT lines)
+kfkit grade --lab NN --out gradebook.csv SUBMISSION…   grade notebooks in isolated kernels
+kfkit report gradebook.csv         the class report: one self-contained HTML page
 """
+
 from __future__ import annotations
 
 import argparse
@@ -99,8 +100,9 @@ class UnexpectedError(Exception):
     """A bug met while capturing, reported like any failure (one line, or one JSON object), not as a traceback."""
 
     def __init__(self, cause: BaseException):
-        super().__init__(f"an unexpected error ({type(cause).__name__}: {cause}); please report it with the command "
-                         f"you ran")
+        super().__init__(
+            f"an unexpected error ({type(cause).__name__}: {cause}); please report it with the command you ran"
+        )
 
 
 def _capture(args) -> int:
@@ -119,14 +121,20 @@ def _check_capture_options(args):
     """Options that only mean something together: ValueError naming the option that does not apply."""
     virtual = args.port == "virtual"
     if args.rate is not None and (not virtual or args.protocol):
-        raise ValueError(f"--rate sets the rate of the virtual board in a free recording (--port virtual, no "
-                         f"--protocol); got --port {args.port}{' --protocol ' + args.protocol if args.protocol else ''}: "
-                         f"a board samples at its sketch's rate, a protocol at the board's")
+        raise ValueError(
+            f"--rate sets the rate of the virtual board in a free recording (--port virtual, no "
+            f"--protocol); got --port {args.port}{' --protocol ' + args.protocol if args.protocol else ''}: "
+            f"a board samples at its sketch's rate, a protocol at the board's"
+        )
     if args.fast and args.port not in ("virtual", "emulated-uno"):
-        raise ValueError(f"--fast is for --port virtual or emulated-uno (a board sends in real time), got --port {args.port}")
+        raise ValueError(
+            f"--fast is for --port virtual or emulated-uno (a board sends in real time), got --port {args.port}"
+        )
     if args.board and not (virtual or args.protocol):
-        raise ValueError(f"--board chooses the virtual board (--port virtual) or the board a --protocol is recorded "
-                         f"with; got --port {args.port} without --protocol")
+        raise ValueError(
+            f"--board chooses the virtual board (--port virtual) or the board a --protocol is recorded "
+            f"with; got --port {args.port} without --protocol"
+        )
     if args.quick and not args.protocol:
         raise ValueError("--quick shortens a --protocol; without one, give --seconds")
     if args.out.is_dir():
@@ -142,11 +150,16 @@ def _record(args, state) -> int:
     try:
         _check_capture_options(args)
         if args.protocol:
-            length, steps, options = protocol_capture_options(args.protocol, args.port, args.board, quick=args.quick,
-                                                              fast=args.fast)
+            length, steps, options = protocol_capture_options(
+                args.protocol, args.port, args.board, quick=args.quick, fast=args.fast
+            )
             seconds = length if seconds is None else seconds
         elif args.port == "virtual":
-            options["virtual"] = {"board": args.board or "nucleo-iks02a1", "rate_hz": args.rate, "realtime": not args.fast}
+            options["virtual"] = {
+                "board": args.board or "nucleo-iks02a1",
+                "rate_hz": args.rate,
+                "realtime": not args.fast,
+            }
         elif args.port == "emulated-uno":
             options["virtual"] = {"realtime": not args.fast}
     except ValueError as e:
@@ -159,16 +172,23 @@ def _record(args, state) -> int:
             return
         if not started:
             started.append(True)
-            print(f"recording {seconds:g} s from {rec.description} (Ctrl-C stops early and keeps what arrived)",
-                  file=sys.stderr)
+            print(
+                f"recording {seconds:g} s from {rec.description} (Ctrl-C stops early and keeps what arrived)",
+                file=sys.stderr,
+            )
         step = step_at(steps, rec.elapsed) if steps and args.port != "virtual" else None
         if step is not None and step is not started[-1]:  # a guided protocol's next instruction, on its own line
             started.append(step)
             print(f"\r{'':100}\r{step[0]:6.1f} s  ▶ {step[3]}", file=sys.stderr)
         s = rec.stats
         bar = "#" * int(30 * fraction)
-        print(f"\r[{bar:<30}] {rec.elapsed:6.1f}/{seconds:.1f} s  samples {s.samples}  bad {s.bad_lines}  "
-              f"dropped {s.dropped}", end="", file=sys.stderr, flush=True)
+        print(
+            f"\r[{bar:<30}] {rec.elapsed:6.1f}/{seconds:.1f} s  samples {s.samples}  bad {s.bad_lines}  "
+            f"dropped {s.dropped}",
+            end="",
+            file=sys.stderr,
+            flush=True,
+        )
 
     rec = state["rec"] = Recorder(args.port, args.baud, args.out, seconds=seconds, **options)
     try:
@@ -188,12 +208,15 @@ def _capture_fields(rec, port, error) -> dict:
     stats = rec.stats if rec is not None else CaptureStats()
     saved = rec is not None and stats.samples > 0 and rec.out is not None and rec.out.exists()
     clock = rec.clock_rate_hz() if rec is not None else float("nan")
-    return {**stats.as_dict(), "out": str(rec.out) if saved else None,
-            "port": str(rec.device) if rec is not None else port,
-            "board": rec.header.board if rec is not None and rec.header else None,
-            "clock_rate_hz": clock if clock > 0 else None,
-            "error": None if error is None else str(error),
-            "error_type": None if error is None else type(error).__name__}
+    return {
+        **stats.as_dict(),
+        "out": str(rec.out) if saved else None,
+        "port": str(rec.device) if rec is not None else port,
+        "board": rec.header.board if rec is not None and rec.header else None,
+        "clock_rate_hz": clock if clock > 0 else None,
+        "error": None if error is None else str(error),
+        "error_type": None if error is None else type(error).__name__,
+    }
 
 
 def _capture_report(args, rec, error, code, newline=False) -> int:
@@ -207,14 +230,19 @@ def _capture_report(args, rec, error, code, newline=False) -> int:
     if newline:
         print(file=sys.stderr)  # end the progress line
     if code == 130:
-        print(f"stopped: what arrived is saved in {args.out}" if saved else "stopped before any sample arrived",
-              file=sys.stderr)
+        print(
+            f"stopped: what arrived is saved in {args.out}" if saved else "stopped before any sample arrived",
+            file=sys.stderr,
+        )
     elif error is not None:
         print(f"capture failed: {error}", file=sys.stderr)
     if rec is not None and rec.opened:
         print(rec.stats)
-    print(f"saved {fields['samples']} samples to {args.out}" if saved else f"nothing saved: no samples arrived, "
-          f"{args.out} was not written")
+    print(
+        f"saved {fields['samples']} samples to {args.out}"
+        if saved
+        else f"nothing saved: no samples arrived, {args.out} was not written"
+    )
     return code
 
 
@@ -233,8 +261,10 @@ def _demo(args) -> int:
         if args.fast and port != "virtual":
             raise ValueError(f"--fast is for --port virtual (a board sends in real time), got --port {port}")
         if port.startswith("phyphox://"):
-            raise ValueError(f"the tilt demo steers with a board's $ATT lines (firmware/mpu6050_tilt_kf); a phone "
-                             f"sends none: --port {port}")
+            raise ValueError(
+                f"the tilt demo steers with a board's $ATT lines (firmware/mpu6050_tilt_kf); a phone "
+                f"sends none: --port {port}"
+            )
         run_tilt_demo(port, seconds=args.seconds, headless=args.headless, baud=args.baud, fast=args.fast)
     except (CaptureError, DemoError, ValueError, OSError) as e:
         print(f"demo failed: {e}", file=sys.stderr)
@@ -293,8 +323,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_data)
     p = data_sub.add_parser("real", help="convert data/'s real excerpts (BROAD, race track) from their originals")
     p.add_argument("--check", action="store_true", help="write nothing; fail if a shipped file differs")
-    p.add_argument("--source", type=Path, default=None,
-                   help="folder holding broad/ and racetrack/ (default: $KFKIT_SHARED_DATA or ../shared/data beside the kit)")
+    p.add_argument(
+        "--source",
+        type=Path,
+        default=None,
+        help="folder holding broad/ and racetrack/ (default: $KFKIT_SHARED_DATA or ../shared/data beside the kit)",
+    )
     p.set_defaults(run=_data_real)
 
     p = sub.add_parser("doctor", help="check versions, Jupyter extensions, serial ports and data")
@@ -304,35 +338,58 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_boards)
 
     p = sub.add_parser("capture", help="record from a board (protocol v1) into a recording file")
-    p.add_argument("--port", type=_port, default="auto", help="device path, pyserial URL (loop://, socket://, "
-                   "hwgrep://), 'auto', 'virtual', 'emulated-uno' (the Uno firmware on simavr), or phyphox://HOST:PORT for a phone running phyphox with remote access "
-                   "(default: %(default)s)")
-    p.add_argument("--seconds", type=SECONDS, default=None,
-                   help=f"board time to record, s (default: {DEFAULT_SECONDS:g}, or the protocol's length)")
+    p.add_argument(
+        "--port",
+        type=_port,
+        default="auto",
+        help="device path, pyserial URL (loop://, socket://, "
+        "hwgrep://), 'auto', 'virtual', 'emulated-uno' (the Uno firmware on simavr), or phyphox://HOST:PORT "
+        "for a phone running phyphox with remote access "
+        "(default: %(default)s)",
+    )
+    p.add_argument(
+        "--seconds",
+        type=SECONDS,
+        default=None,
+        help=f"board time to record, s (default: {DEFAULT_SECONDS:g}, or the protocol's length)",
+    )
     p.add_argument("--out", type=Path, required=True, help="recording file to write (CSV, kit format)")
     p.add_argument("--baud", type=BAUD, default=115200, help="default: %(default)s")
     p.add_argument("--json", action="store_true", help="print the statistics as one JSON object, no progress bar")
-    p.add_argument("--protocol", choices=["stationary", "six-faces", "tilt", "mag-rotations", "axis-turns", "headings"],
-                   help="guided protocol: prompts, phase labels; with --port virtual the board plays it")
+    p.add_argument(
+        "--protocol",
+        choices=["stationary", "six-faces", "tilt", "mag-rotations", "axis-turns", "headings"],
+        help="guided protocol: prompts, phase labels; with --port virtual the board plays it",
+    )
     p.add_argument("--quick", action="store_true", help="short protocol durations (tests, demonstrations)")
     p.add_argument("--board", choices=["nucleo-iks02a1", "mpu6050"], help="virtual board type")
     p.add_argument("--fast", action="store_true", help="the virtual board (or emulated Uno) runs faster than real time")
-    p.add_argument("--rate", type=_virtual_rate, default=None, help="virtual board rate, Hz (free recording; default: "
-                   "the board's)")
+    p.add_argument(
+        "--rate", type=_virtual_rate, default=None, help="virtual board rate, Hz (free recording; default: the board's)"
+    )
     p.set_defaults(run=_capture)
 
     p = sub.add_parser("demo", help="small demos to drive with a board")
     demo_sub = p.add_subparsers(dest="demo", required=True)
     p = demo_sub.add_parser("tilt", help="steer a car by tilting the board (firmware/mpu6050_tilt_kf, $ATT lines)")
-    p.add_argument("--port", type=_port, default="auto",
-                   help="device path, pyserial URL, 'auto' or 'virtual' (default: %(default)s)")
+    p.add_argument(
+        "--port",
+        type=_port,
+        default="auto",
+        help="device path, pyserial URL, 'auto' or 'virtual' (default: %(default)s)",
+    )
     p.add_argument("--baud", type=BAUD, default=115200, help="default: %(default)s")
-    p.add_argument("--seconds", type=SECONDS, default=None, help="stop after this long, s (default: when the window closes)")
-    p.add_argument("--headless", action="store_true", help="no window: play --seconds of board time and print a summary")
+    p.add_argument(
+        "--seconds", type=SECONDS, default=None, help="stop after this long, s (default: when the window closes)"
+    )
+    p.add_argument(
+        "--headless", action="store_true", help="no window: play --seconds of board time and print a summary"
+    )
     p.add_argument("--fast", action="store_true", help="the virtual board runs faster than real time (with --headless)")
     p.set_defaults(run=_demo)
 
-    from .grading import add_parser as add_grade_parser, add_report_parser
+    from .grading import add_parser as add_grade_parser
+    from .grading import add_report_parser
 
     add_grade_parser(sub)
     add_report_parser(sub)
@@ -341,7 +398,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _wants_json(argv) -> bool:
     """``--json`` (or an abbreviation argparse would take for it) among the options."""
-    options = argv[:argv.index("--")] if "--" in argv else argv
+    options = argv[: argv.index("--")] if "--" in argv else argv
     return any(len(a) > 2 and "--json".startswith(a) for a in options)
 
 
@@ -354,8 +411,11 @@ def main(argv=None) -> int:
     except UsageError as e:
         if _wants_json(argv):
             command = next((a for a in argv if not a.startswith("-")), None)
-            fields = _capture_fields(None, None, e) if command == "capture" else {"error": str(e),
-                                                                                  "error_type": "UsageError"}
+            fields = (
+                _capture_fields(None, None, e)
+                if command == "capture"
+                else {"error": str(e), "error_type": "UsageError"}
+            )
             print(json.dumps(fields))
         else:
             e.parser.print_usage(sys.stderr)

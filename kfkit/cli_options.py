@@ -4,6 +4,7 @@ argparse puts the option in front of an :class:`argparse.ArgumentTypeError`'s me
 ``kfkit capture --seconds nan`` stops at once with ``argument --seconds: 'nan' is not a finite number > 0 (s)``
 instead of recording forever. Every numeric option of every subcommand takes one of these types.
 """
+
 from __future__ import annotations
 
 import argparse

@@ -7,6 +7,7 @@ format's "no new sample"). :class:`SampleCounter` numbers the rows of such a tim
 numbers its samples (``seq``), so a gap in the timestamps shows as dropped samples and jitter does not.
 Both work on pieces (a live stream) and on a whole file alike.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -33,8 +34,8 @@ class OneClock:
         self.hold_s, self.stall_s = hold_s, stall_s
         self._t = {s: np.zeros(0) for s in (base, *self.interpolated, *self.held)}
         self._v = {s: np.zeros((0, 3)) for s in self._t}
-        self._seen = {s: False for s in self._t}
-        self._last = {s: -np.inf for s in self._t}
+        self._seen = dict.fromkeys(self._t, False)
+        self._last = dict.fromkeys(self._t, -np.inf)
         self._index = 0  # base samples consumed so far (their index in the base sensor's stream)
         self._t_out = -np.inf  # time of the last row released
         self.stats = {"before_start": 0, "after_end": 0, "mag_merged": 0, "mag_late": 0, "mag_outside": 0}

@@ -6,17 +6,19 @@ The real recordings (:mod:`kfkit.real_data`) are converted from their originals 
 (``--check`` likewise); :func:`load` reads both kinds by name.
 The data folder is ``data/`` beside the ``kfkit`` package; ``KFKIT_DATA`` overrides it.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from . import real_data, sim, vehicle
-from .frames import G
 from .calibration import Calibration, calibrate
+from .frames import G
 from .io import Recording, load_recording, load_vehicle, recording_text, vehicle_text
 from .paths import data_dir
 from .phone_sim import simple_experiment_files, simulate_phone
@@ -24,10 +26,19 @@ from .readers.phyphox_export import load_phyphox
 from .sensors import phone_board
 from .unit_errors import MPU6050_ACCEL_BIAS, MPU6050_ACCEL_SCALE, MPU6050_GYRO_BIAS, NUCLEO_UNIT
 
+
 def _roll_sine() -> Recording:
     """Lab 01: a Nucleo + X-NUCLEO-IKS02A1 rolled by hand, ±30° at 0.1 Hz, 104 Hz, 60 s."""
-    motion = sim.sine_roll(duration=60.0, rate_hz=104.0, amplitude=np.radians(30.0), freq_hz=0.1,
-                           still=5.0, shakes=(22.0, 42.0), vibration_rms=0.3, seed=101)
+    motion = sim.sine_roll(
+        duration=60.0,
+        rate_hz=104.0,
+        amplitude=np.radians(30.0),
+        freq_hz=0.1,
+        still=5.0,
+        shakes=(22.0, 42.0),
+        vibration_rms=0.3,
+        seed=101,
+    )
     return sim.simulate_imu(motion, board="nucleo-iks02a1", seed=102)
 
 
@@ -53,8 +64,14 @@ MPU6050_STATIC_TOLERANCE_G = 0.05  # the board's static test |‖a‖ − 1 g| <
 
 
 def _mpu6050(motion, seed) -> Recording:
-    rec = sim.simulate_imu(motion, board="mpu6050", seed=seed, gyro_bias=MPU6050_GYRO_BIAS,
-                           accel_bias=MPU6050_ACCEL_BIAS, accel_scale=MPU6050_ACCEL_SCALE)
+    rec = sim.simulate_imu(
+        motion,
+        board="mpu6050",
+        seed=seed,
+        gyro_bias=MPU6050_GYRO_BIAS,
+        accel_bias=MPU6050_ACCEL_BIAS,
+        accel_scale=MPU6050_ACCEL_SCALE,
+    )
     return _as_logged(rec)
 
 
@@ -68,8 +85,13 @@ def _as_logged(rec) -> Recording:
     data["acc_norm"] = np.round(norm_g, 6)  # 1 count is 6e-5 g
     data["static_ok"] = (np.abs(data["acc_norm"] - 1.0) < MPU6050_STATIC_TOLERANCE_G).astype(np.int64)
     data.update({c: rec[c] for c in rec.columns if c.startswith("true_")})
-    rec.meta["units"].update({"t_us": "µs (board micros())", "acc_norm": "g (raw counts, uncalibrated)",
-                              "static_ok": f"1 where |acc_norm − 1| < {MPU6050_STATIC_TOLERANCE_G} g"})
+    rec.meta["units"].update(
+        {
+            "t_us": "µs (board micros())",
+            "acc_norm": "g (raw counts, uncalibrated)",
+            "static_ok": f"1 where |acc_norm − 1| < {MPU6050_STATIC_TOLERANCE_G} g",
+        }
+    )
     return Recording(rec.meta, data, rec.path)
 
 
@@ -129,8 +151,12 @@ def _headings() -> Recording:
 
 def _calibration_nucleo():
     """The Nucleo's default calibration: lab 02's and lab 03's analyses of their bundled recordings."""
-    return calibrate(_stationary_long(), _six_faces(), _mag_rotations(),
-                     source="kfkit default: labs 02/03 analyses of 02_stationary, 02_six_faces, 03_mag_rotations")
+    return calibrate(
+        _stationary_long(),
+        _six_faces(),
+        _mag_rotations(),
+        source="kfkit default: labs 02/03 analyses of 02_stationary, 02_six_faces, 03_mag_rotations",
+    )
 
 
 def _read_calibration(path):
@@ -145,8 +171,11 @@ def _calibration_mpu6050():
     """The MPU6050's default calibration: lab 02's analysis of a simulated 60 s rest and six faces
     of the lab 05 board (same biases as its bundled recordings)."""
     still = _mpu6050(sim.stationary(60.0, 100.0), seed=211)
-    return calibrate(still, _mpu6050_six_faces(), source="kfkit default: lab 02's analysis of a simulated MPU6050 "
-                                          "(60 s at rest, six faces; lab 05's biases)")
+    return calibrate(
+        still,
+        _mpu6050_six_faces(),
+        source="kfkit default: lab 02's analysis of a simulated MPU6050 (60 s at rest, six faces; lab 05's biases)",
+    )
 
 
 def _calibration_phone():
@@ -154,11 +183,16 @@ def _calibration_phone():
     iron; the accelerometer is assumed factory-calibrated: kfkit.calibration's docstring), with the noise σ of
     the phone's sensor model (kfkit.sensors.phone_board) at the rate a phyphox simple experiment asks for."""
     board = phone_board()
-    return Calibration(board=board.name, rate_hz=board.rate_hz, gyro_noise=[board.gyro.noise_std(board.rate_hz)] * 3,
-                       accel_noise=[board.accel.noise_std(board.rate_hz)] * 3, mag_noise=[board.mag.noise_std(board.rate_hz)] * 3,
-                       source="kfkit default for a phone: identity (its OS removes the gyro bias and the magnetometer's "
-                              "hard iron; the accelerometer is taken as factory-calibrated); noise σ of kfkit.sensors.phone_board's "
-                              "BMI160/AK09918-class model at 100 Hz")
+    return Calibration(
+        board=board.name,
+        rate_hz=board.rate_hz,
+        gyro_noise=[board.gyro.noise_std(board.rate_hz)] * 3,
+        accel_noise=[board.accel.noise_std(board.rate_hz)] * 3,
+        mag_noise=[board.mag.noise_std(board.rate_hz)] * 3,
+        source="kfkit default for a phone: identity (its OS removes the gyro bias and the magnetometer's "
+        "hard iron; the accelerometer is taken as factory-calibrated); noise σ of kfkit.sensors.phone_board's "
+        "BMI160/AK09918-class model at 100 Hz",
+    )
 
 
 @dataclass(frozen=True)
@@ -215,9 +249,15 @@ BUNDLED = {
     "03_axis_turns": Bundled(_axis_turns),
     "03_mag_rotations": Bundled(_mag_rotations),
     "03_headings": Bundled(_headings),
-    "calibration_nucleo-iks02a1": Bundled(_calibration_nucleo, text=_calibration_json, read=_read_calibration, suffix=".json"),
-    "calibration_mpu6050": Bundled(_calibration_mpu6050, text=_calibration_json, read=_read_calibration, suffix=".json"),
-    "calibration_phone-phyphox": Bundled(_calibration_phone, text=_calibration_json, read=_read_calibration, suffix=".json"),
+    "calibration_nucleo-iks02a1": Bundled(
+        _calibration_nucleo, text=_calibration_json, read=_read_calibration, suffix=".json"
+    ),
+    "calibration_mpu6050": Bundled(
+        _calibration_mpu6050, text=_calibration_json, read=_read_calibration, suffix=".json"
+    ),
+    "calibration_phone-phyphox": Bundled(
+        _calibration_phone, text=_calibration_json, read=_read_calibration, suffix=".json"
+    ),
     # a folder (suffix ""): ``text`` gives {file in the folder: text}
     "04_phone_attitude_tour": Bundled(_phone_attitude_tour, text=dict, read=_read_phone_export, suffix=""),
 }
@@ -226,7 +266,9 @@ BUNDLED = {
 def _entry(name: str):
     entry = BUNDLED.get(name) or real_data.REAL.get(name)
     if entry is None:
-        raise ValueError(f"no bundled recording {name!r}; simulated: {', '.join(BUNDLED)}; real: {', '.join(real_data.REAL)}")
+        raise ValueError(
+            f"no bundled recording {name!r}; simulated: {', '.join(BUNDLED)}; real: {', '.join(real_data.REAL)}"
+        )
     return entry
 
 
@@ -301,8 +343,11 @@ def _check_files(path: Path, files: dict) -> list[str]:
         elif (old := target.read_text(encoding="utf-8")) != text:
             report.append(f"{target} differs from what its simulation makes now: {_first_difference(old, text)}")
     if None not in files and path.is_dir():
-        report += [f"{p} is not made by the simulation: delete it" for p in sorted(path.rglob("*"))
-                   if p.is_file() and p.relative_to(path).as_posix() not in files]
+        report += [
+            f"{p} is not made by the simulation: delete it"
+            for p in sorted(path.rglob("*"))
+            if p.is_file() and p.relative_to(path).as_posix() not in files
+        ]
     return report
 
 
@@ -311,5 +356,8 @@ def _first_difference(old: str, new: str) -> str:
         if a != b:
             col = next((j for j, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
             lo = max(0, col - 30)
-            return f"first at line {i}, column {col + 1}: shipped …{a[lo:col + 30]!r}…, regenerated …{b[lo:col + 30]!r}…"
+            return (
+                f"first at line {i}, column {col + 1}: shipped …{a[lo : col + 30]!r}…, "
+                f"regenerated …{b[lo : col + 30]!r}…"
+            )
     return f"line counts differ ({len(old.splitlines())} shipped, {len(new.splitlines())} regenerated)"

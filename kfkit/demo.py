@@ -9,6 +9,7 @@ game controller. The core is headless and testable: :func:`controls` maps angles
 :func:`tilt_figure`: a matplotlib window (``kfkit demo tilt --port …``), a notebook widget
 (:class:`TiltDemoPanel`) and a headless run (``--headless``, for tests and CI).
 """
+
 from __future__ import annotations
 
 import math
@@ -39,6 +40,7 @@ def controls(roll_deg, pitch_deg, max_tilt=MAX_TILT_DEG, dead_zone=DEAD_ZONE_DEG
     steer = roll / max_tilt (right side down steers right); throttle = −pitch / max_tilt (nose down
     accelerates, nose up brakes), both with a dead zone around level and clipped to ±1.
     """
+
     def axis(angle):
         if not math.isfinite(angle):
             return 0.0
@@ -162,13 +164,17 @@ class AttitudeStream:
         if self.counts["ATT"] or self.started is None:
             return None
         if self.counts["samples"] >= NO_ATTITUDE_S * self.rate_hz:
-            return (f"{self.port} sends samples but no $ATT lines: flash firmware/mpu6050_tilt_kf "
-                    f"(mpu6050_logger sends raw samples only)")
+            return (
+                f"{self.port} sends samples but no $ATT lines: flash firmware/mpu6050_tilt_kf "
+                f"(mpu6050_logger sends raw samples only)"
+            )
         if self.counts["samples"] or time.monotonic() - self.started < NO_ATTITUDE_S:
             return None
         if self.counts["bad"]:
             return f"{self.port} sends only unreadable lines ({self.counts['bad']}): wrong baud rate? try --baud 115200"
-        return f"nothing received from {self.port} in {NO_ATTITUDE_S:g} s: is the board plugged in and its sketch flashed?"
+        return (
+            f"nothing received from {self.port} in {NO_ATTITUDE_S:g} s: is the board plugged in and its sketch flashed?"
+        )
 
     def _run(self):
         while not self._stop.is_set():
@@ -216,16 +222,24 @@ def driving_motion(rate_hz=100.0, duration=62.5, still=2.5) -> sim.Motion:
     pitch, pitch_dot = -np.radians(5.0) * (1 - np.cos(w2 * s)), -np.radians(5.0) * w2 * np.sin(w2 * s) * moving
     euler = np.column_stack([roll, pitch, np.zeros_like(t)])
     euler_dot = np.column_stack([roll_dot, pitch_dot, np.zeros_like(t)])
-    return sim.Motion(t, rate_hz, euler, euler_rates_to_body_rates(euler, euler_dot), np.zeros((len(t), 3)),
-                      "a hand steering: roll ±20°, nose down 0…10°", [(0.0, still, "stationary")])
+    return sim.Motion(
+        t,
+        rate_hz,
+        euler,
+        euler_rates_to_body_rates(euler, euler_dot),
+        np.zeros((len(t), 3)),
+        "a hand steering: roll ±20°, nose down 0…10°",
+        [(0.0, still, "stationary")],
+    )
 
 
 def open_stream(stack, port, baud=115200, fast=False) -> AttitudeStream:
     """An :class:`AttitudeStream` on ``port`` inside ``stack`` (an ExitStack); "virtual" starts a virtual board
     that plays :func:`driving_motion` and sends $ATT lines like the sketch (``fast``: faster than real time)."""
     if port == "virtual":
-        board = stack.enter_context(VirtualBoard(board="mpu6050", motion=driving_motion(), attitude=True,
-                                                 realtime=not fast))
+        board = stack.enter_context(
+            VirtualBoard(board="mpu6050", motion=driving_motion(), attitude=True, realtime=not fast)
+        )
         port = board.port
     return stack.enter_context(AttitudeStream(port, baud))
 
@@ -249,9 +263,11 @@ def run_tilt_demo(port, seconds=None, headless=False, fps=30.0, baud=115200, fas
                     time.sleep(0.5 / fps)
         else:
             _window(game, stream, 1.0 / fps, seconds)
-        out(f"$ATT lines {stream.counts['ATT']}, samples {stream.counts['samples']}, bad lines {stream.counts['bad']}; "
-            f"{game.time:.1f} s driven, distance {game.distance:.0f} m, score {game.score:.0f}, off road {game.off_road_s:.1f} s"
-            + (f"; {stream.error}" if stream.error else ""))
+        out(
+            f"$ATT lines {stream.counts['ATT']}, samples {stream.counts['samples']}, bad lines {stream.counts['bad']}; "
+            f"{game.time:.1f} s driven, distance {game.distance:.0f} m, score {game.score:.0f}, "
+            f"off road {game.off_road_s:.1f} s" + (f"; {stream.error}" if stream.error else "")
+        )
     return game
 
 
@@ -264,7 +280,9 @@ def tilt_figure(game, stream, fig=None):
     (left,) = ax.plot([], [], color=COLORS["truth"], lw=2)
     (right,) = ax.plot([], [], color=COLORS["truth"], lw=2)
     (car,) = ax.plot([], [], "s", color=COLORS["bound"], ms=12)
-    text = ax.text(0.02, 0.98, "", transform=ax.transAxes, va="top", family="monospace", parse_math=False)  # "$ATT" is no TeX
+    text = ax.text(
+        0.02, 0.98, "", transform=ax.transAxes, va="top", family="monospace", parse_math=False
+    )  # "$ATT" is no TeX
     ax.set_xlim(-20, 20)
     ax.set_ylim(-20, 80)
     ax.set_xlabel("lateral position (m)")
@@ -281,8 +299,10 @@ def tilt_figure(game, stream, fig=None):
             status = stream.waiting_for() or "waiting for $ATT lines (keep the board still: gyro bias)"
         else:
             roll, pitch = stream.latest
-            status = (f"roll {roll:+6.1f}°  pitch {pitch:+6.1f}°\nspeed {game.speed * 3.6:5.0f} km/h  "
-                      f"score {game.score:6.0f}" + ("" if game.on_road else "\nOFF ROAD"))
+            status = (
+                f"roll {roll:+6.1f}°  pitch {pitch:+6.1f}°\nspeed {game.speed * 3.6:5.0f} km/h  "
+                f"score {game.score:6.0f}" + ("" if game.on_road else "\nOFF ROAD")
+            )
             status += f"\n{stream.error}" if stream.error else ""
         text.set_text("\n".join(textwrap.fill(part, 44) for part in status.split("\n")))
         return left, right, car, text

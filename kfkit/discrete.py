@@ -7,6 +7,7 @@
 is the same integral written out for the [angle, gyro bias] model of labs 01, 04 and 05, fed with the gyro noise
 lab 02 measures on its Allan curve (white-noise density N, rate random walk K).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -53,5 +54,6 @@ def angle_bias_process_noise(white_density, bias_walk, dt):
     Allan curve (:func:`kfkit.calibration.allan_noise_fit`).
     """
     N2, K2 = float(white_density) ** 2, float(bias_walk) ** 2
+    # Qd's two rows, as the docstring writes them
     return np.array([[N2 * dt + K2 * dt**3 / 3.0, -K2 * dt**2 / 2.0],
-                     [-K2 * dt**2 / 2.0, K2 * dt]])
+                     [-K2 * dt**2 / 2.0, K2 * dt]])  # fmt: skip

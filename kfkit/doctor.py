@@ -59,7 +59,9 @@ def package_lines() -> list[str]:
     try:
         pins = read_pins(ENVIRONMENT)
     except FileNotFoundError:
-        return [f"{WARN} {ENVIRONMENT} not found (kfkit installed without the kit's folder): package versions not checked"]
+        return [
+            f"{WARN} {ENVIRONMENT} not found (kfkit installed without the kit's folder): package versions not checked"
+        ]
     except ValueError as e:
         return [f"{FAIL} cannot read the package list: {e}"]
     lines = []
@@ -131,6 +133,7 @@ def describe_port(port) -> str:
 def serial_lines() -> list[str]:
     try:
         from .capture.ports import find_boards  # USB serial ports only: built-in UARTs (/dev/ttyS0) are no boards
+
         ports = find_boards()
     except ImportError as e:
         return [f"{WARN} cannot list serial ports: {e.name} is not installed"]

@@ -24,6 +24,7 @@ all): the check itself says "not attempted yet". When a cell that defines a func
 older definition is set aside (:class:`StaleDefinition`), so that its check says "stale" instead of passing code
 the student has since changed. A solution notebook, with nothing unfinished, runs exactly as without the guard.
 """
+
 from __future__ import annotations
 
 import ast
@@ -81,8 +82,10 @@ class ExerciseGuard:
             return lines
         made = assigned_names(tree.body)
         if is_stub(tree.body):
-            why, cause = ("this cell is an exercise: replace '# YOUR CODE HERE' and the raise below it with your code",
-                          "an exercise cell not filled in yet")
+            why, cause = (
+                "this cell is an exercise: replace '# YOUR CODE HERE' and the raise below it with your code",
+                "an exercise cell not filled in yet",
+            )
         else:
             why, cause = self._needs(tree, source)
         if why is None:
@@ -146,8 +149,11 @@ class ExerciseGuard:
         if hasattr(builtins, name) and name not in self.user_ns and name not in self.missing:
             return None
         entry = self._still_missing(name)
-        if entry is not None and not (entry.source == source and name in self.user_ns) \
-                and not (for_check and name in self.user_ns):
+        if (
+            entry is not None
+            and not (entry.source == source and name in self.user_ns)
+            and not (for_check and name in self.user_ns)
+        ):
             return f"it uses {via}{name}, made by {entry.cause}", entry.cause
         why = None if for_check else self.unfinished(name)
         if why:
@@ -207,8 +213,10 @@ class ExerciseGuard:
 def _set_aside(name: str, cause: str) -> types.FunctionType:
     """What stands for the function ``name`` while the cell that defines it anew is skipped, as ``cause``: calling it,
     or checking it, says so."""
-    message = (f"the cell that defines {name} was skipped, as {cause}. The {name} defined before it is set aside; "
-               "run that cell again once that is done, then this one")
+    message = (
+        f"the cell that defines {name} was skipped, as {cause}. The {name} defined before it is set aside; "
+        "run that cell again once that is done, then this one"
+    )
 
     def stand_in(*args, **kwargs):
         raise StaleDefinition(message)
@@ -263,8 +271,11 @@ def _outside(scope: ast.AST) -> list[ast.AST]:
     """What a def, lambda, class or comprehension evaluates where it stands: decorators, defaults, base classes,
     a comprehension's first iterable."""
     if isinstance(scope, (*_DEFS, ast.Lambda)):
-        return [*getattr(scope, "decorator_list", []), *scope.args.defaults,
-                *[d for d in scope.args.kw_defaults if d is not None]]
+        return [
+            *getattr(scope, "decorator_list", []),
+            *scope.args.defaults,
+            *[d for d in scope.args.kw_defaults if d is not None],
+        ]
     if isinstance(scope, ast.ClassDef):
         return [*scope.decorator_list, *scope.bases, *[k.value for k in scope.keywords]]
     return [scope.generators[0].iter]
@@ -345,13 +356,21 @@ def _reads_now(statement: ast.stmt) -> list[tuple[str, bool]]:
     as`` name, an assignment earlier in a loop body). "Handed to check": only read as ``check(…)``'s answer."""
     nodes = list(_in_scope([statement]))
     for_check = {id(n) for call in nodes if _is_check(call) for n in ast.walk(_answer(call))}
-    reads = [((n.lineno, n.col_offset), n.id, id(n) in for_check) for n in nodes
-             if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load)]
-    reads += [((n.lineno, n.col_offset), n.target.id, False) for n in nodes
-              if isinstance(n, ast.AugAssign) and isinstance(n.target, ast.Name)]  # x += …
+    reads = [
+        ((n.lineno, n.col_offset), n.id, id(n) in for_check)
+        for n in nodes
+        if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load)
+    ]
+    reads += [
+        ((n.lineno, n.col_offset), n.target.id, False)
+        for n in nodes
+        if isinstance(n, ast.AugAssign) and isinstance(n.target, ast.Name)
+    ]  # x += …
     for scope in (n for n in nodes if isinstance(n, _SCOPES) and not isinstance(n, _DEFS)):
-        reads += [((scope.lineno, scope.col_offset), name, id(scope) in for_check)
-                  for name in sorted(_global_reads(scope, now=True))]
+        reads += [
+            ((scope.lineno, scope.col_offset), name, id(scope) in for_check)
+            for name in sorted(_global_reads(scope, now=True))
+        ]
     walrus = [n for c in nodes if isinstance(c, _COMPREHENSIONS) for n in ast.walk(c) if isinstance(n, ast.NamedExpr)]
     bound = _bound_at(nodes + walrus)
     result: dict[str, bool] = {}
@@ -407,8 +426,13 @@ def _functions_defined(statements: list[ast.stmt]) -> set[str]:
     """The functions cell statements define: ``def f``, and ``f = lambda …``."""
     nodes = list(_in_scope(statements))
     names = {n.name for n in nodes if isinstance(n, _DEFS)}
-    return names | {t.id for n in nodes if isinstance(n, ast.Assign) and isinstance(n.value, ast.Lambda)
-                    for t in n.targets if isinstance(t, ast.Name)}
+    return names | {
+        t.id
+        for n in nodes
+        if isinstance(n, ast.Assign) and isinstance(n.value, ast.Lambda)
+        for t in n.targets
+        if isinstance(t, ast.Name)
+    }
 
 
 def load_ipython_extension(ipython) -> None:
@@ -418,5 +442,6 @@ def load_ipython_extension(ipython) -> None:
 
 
 def unload_ipython_extension(ipython) -> None:
-    ipython.input_transformers_post[:] = [t for t in ipython.input_transformers_post
-                                          if not getattr(t, "is_exercise_guard", False)]
+    ipython.input_transformers_post[:] = [
+        t for t in ipython.input_transformers_post if not getattr(t, "is_exercise_guard", False)
+    ]

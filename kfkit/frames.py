@@ -19,6 +19,7 @@ q maps body → navigation frame like R_nb. The names carry the convention and c
 :func:`quat_rotate`, :func:`quat_slerp`, :func:`dcm_slerp`, :func:`random_dcm`, :func:`enu_to_ned` (vectors) and
 :func:`enu_to_ned_quat`.
 """
+
 from __future__ import annotations
 
 import math
@@ -102,10 +103,15 @@ def euler_to_quat(euler):
     cr, sr = np.cos(e[..., 0] / 2), np.sin(e[..., 0] / 2)
     cp, sp = np.cos(e[..., 1] / 2), np.sin(e[..., 1] / 2)
     cy, sy = np.cos(e[..., 2] / 2), np.sin(e[..., 2] / 2)
-    q = np.stack([cy * cp * cr + sy * sp * sr,
-                  cy * cp * sr - sy * sp * cr,
-                  cy * sp * cr + sy * cp * sr,
-                  sy * cp * cr - cy * sp * sr], axis=-1)
+    q = np.stack(
+        [
+            cy * cp * cr + sy * sp * sr,
+            cy * cp * sr - sy * sp * cr,
+            cy * sp * cr + sy * cp * sr,
+            sy * cp * cr - cy * sp * sr,
+        ],
+        axis=-1,
+    )
     return q * np.where(q[..., :1] < 0, -1.0, 1.0)
 
 
@@ -146,13 +152,27 @@ def dcm_to_quat(R):
     diag = np.diagonal(R, axis1=-2, axis2=-1)
     sq = np.concatenate([(1 + tr)[..., None], 1 + 2 * diag - tr[..., None]], axis=-1)  # 4w², 4x², 4y², 4z²
     big = np.argmax(sq, axis=-1)[..., None]
-    d = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1],  # 4wx, 4wy, 4wz
-                  R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1]], axis=-1)  # 4xy, 4xz, 4yz
+    d = np.stack(
+        [
+            R[..., 2, 1] - R[..., 1, 2],
+            R[..., 0, 2] - R[..., 2, 0],
+            R[..., 1, 0] - R[..., 0, 1],  # 4wx, 4wy, 4wz
+            R[..., 0, 1] + R[..., 1, 0],
+            R[..., 0, 2] + R[..., 2, 0],
+            R[..., 1, 2] + R[..., 2, 1],
+        ],
+        axis=-1,
+    )  # 4xy, 4xz, 4yz
     # products 4·q_i·q_j laid out as rows i, columns j (w, x, y, z), diagonal 4q_i²
-    P = np.stack([np.stack([sq[..., 0], d[..., 0], d[..., 1], d[..., 2]], -1),
-                  np.stack([d[..., 0], sq[..., 1], d[..., 3], d[..., 4]], -1),
-                  np.stack([d[..., 1], d[..., 3], sq[..., 2], d[..., 5]], -1),
-                  np.stack([d[..., 2], d[..., 4], d[..., 5], sq[..., 3]], -1)], axis=-2)
+    P = np.stack(
+        [
+            np.stack([sq[..., 0], d[..., 0], d[..., 1], d[..., 2]], -1),
+            np.stack([d[..., 0], sq[..., 1], d[..., 3], d[..., 4]], -1),
+            np.stack([d[..., 1], d[..., 3], sq[..., 2], d[..., 5]], -1),
+            np.stack([d[..., 2], d[..., 4], d[..., 5], sq[..., 3]], -1),
+        ],
+        axis=-2,
+    )
     row = np.take_along_axis(P, big[..., None], axis=-2)[..., 0, :]  # 4·q_big·q
     q = row / np.linalg.norm(row, axis=-1, keepdims=True)
     return q * np.where(q[..., :1] < 0, -1.0, 1.0)
@@ -164,8 +184,15 @@ def quat_multiply(p, q):
     p, q = np.broadcast_arrays(np.asarray(p, dtype=float), np.asarray(q, dtype=float))
     w1, x1, y1, z1 = np.moveaxis(p, -1, 0)
     w2, x2, y2, z2 = np.moveaxis(q, -1, 0)
-    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], axis=-1)
+    return np.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ],
+        axis=-1,
+    )
 
 
 def quat_conjugate(q):
@@ -205,6 +232,17 @@ def quat_to_rotvec(q):
     angle = 2.0 * np.arctan2(s, q[..., :1])
     scale = np.where(s < 1e-12, 2.0 / np.where(q[..., :1] == 0, 1.0, q[..., :1]), angle / np.where(s < 1e-12, 1.0, s))
     return scale * q[..., 1:]
+
+
+def cross_matrix(v):
+    """[v×] (…, 3, 3): the matrix with [v×]·u = v × u, of vectors v (…, 3). R(I + [δθ×]) is R turned by the small
+    rotation δθ in its own (body) frame, (I + [δθ×])R the same turn in the outer (navigation) frame."""
+    v = np.asarray(v, dtype=float)
+    _require_last_axis(v, 3, "cross_matrix", "a vector")
+    M = np.zeros(v.shape + (3,))
+    M[..., 0, 1], M[..., 0, 2], M[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    M[..., 1, 0], M[..., 2, 0], M[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return M
 
 
 def quat_slerp(q0, q1, fraction):
@@ -320,7 +358,9 @@ def mount_matrix(spec):
 def _mag_components(m_b):
     m = np.asarray(m_b, dtype=float)
     if m.ndim == 0 or m.shape[-1] != 3:
-        raise ValueError(f"expected a magnetic field with 3 components on the last axis (µT, body FRD), got shape {m.shape}")
+        raise ValueError(
+            f"expected a magnetic field with 3 components on the last axis (µT, body FRD), got shape {m.shape}"
+        )
     return m[..., 0], m[..., 1], m[..., 2]
 
 
@@ -378,17 +418,29 @@ def quat_multiply_f(p, q):
     """Hamilton product p ⊗ q of two quaternions (w, x, y, z) as a tuple: R(p ⊗ q) = R(p)·R(q)."""
     pw, px, py, pz = p
     qw, qx, qy, qz = q
-    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    )
 
 
 def quat_to_dcm_f(q):
     """The 3×3 rotation matrix of a unit quaternion (w, x, y, z), row by row, as a 9-tuple
     (r00, r01, r02, r10, …, r22): v_n = R v_b for q body → NED."""
     w, x, y, z = q
-    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
-            2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
-            2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
+    return (
+        1.0 - 2.0 * (y * y + z * z),
+        2.0 * (x * y - w * z),
+        2.0 * (x * z + w * y),
+        2.0 * (x * y + w * z),
+        1.0 - 2.0 * (x * x + z * z),
+        2.0 * (y * z - w * x),
+        2.0 * (x * z - w * y),
+        2.0 * (y * z + w * x),
+        1.0 - 2.0 * (x * x + y * y),
+    )
 
 
 def rotvec_to_quat_f(vx, vy, vz):

@@ -29,6 +29,7 @@ counter), a number that is not plain ASCII decimal or is longer than :data:`MAX_
 does not increase, and a last line without its newline (see :func:`load_recording`).
 A UTF-8 byte-order mark (Excel writes one) is accepted.
 """
+
 from __future__ import annotations
 
 import csv
@@ -53,12 +54,15 @@ def magic(kind: str) -> str:
 MAGIC = magic("recording")
 VERSION_PREFIX = "# kfkit-"  # any kit file, of any kind and version: what readers.load_any looks for
 REQUIRED_COLUMNS = ("t", "seq")
-INT_COLUMNS = frozenset({"seq", "ax", "ay", "az", "gx", "gy", "gz", "t_us", "static_ok"})  # t_us, static_ok: lab 05's logger columns
+INT_COLUMNS = frozenset(
+    {"seq", "ax", "ay", "az", "gx", "gy", "gz", "t_us", "static_ok"}
+)  # t_us, static_ok: lab 05's logger columns
 OPTIONAL_INT_COLUMNS = frozenset({"mx", "my", "mz"})  # empty cell = no new sample (NaN)
 SENSOR_COLUMNS = {"acc": ("ax", "ay", "az"), "gyr": ("gx", "gy", "gz"), "mag": ("mx", "my", "mz")}
 TRUTH_COLUMNS = ("true_roll", "true_pitch", "true_yaw")
 BOM = "\ufeff"
-#: the largest count magnitude: integers up to 2^53 are exact as int64 and as float64 (counts() and NaN-able mag columns)
+#: the largest count magnitude: integers up to 2^53 are exact as int64 and as float64 (counts() and NaN-able mag
+#: columns)
 MAX_COUNT = 2**53
 SEQ_MODULO = 2**16  # ``seq`` is the board's 16-bit sample counter: 0 … 65535
 #: the longest number text read: every writer of the kit's formats writes far shorter ones (a count ≤ 2^53 has 17
@@ -86,8 +90,10 @@ def shown(text: str, limit: int = SHOWN_CHARS) -> str:
 
 def _check_length(text: str):
     if len(text) > MAX_NUMBER_CHARS:
-        raise ValueError(f"{shown(text)} is longer than any number the file's writer produces "
-                         f"(≤ {MAX_NUMBER_CHARS} characters): a corrupted value?")
+        raise ValueError(
+            f"{shown(text)} is longer than any number the file's writer produces "
+            f"(≤ {MAX_NUMBER_CHARS} characters): a corrupted value?"
+        )
 
 
 def parse_count(text: str) -> int:
@@ -153,7 +159,9 @@ class Recording:
         try:
             return self.data[name]
         except KeyError:
-            raise KeyError(f"recording {self.path or ''} has no column {name!r}; columns: {', '.join(self.data)}") from None
+            raise KeyError(
+                f"recording {self.path or ''} has no column {name!r}; columns: {', '.join(self.data)}"
+            ) from None
 
     def counts(self, sensor: str) -> np.ndarray:
         """Raw counts of ``sensor`` ('acc', 'gyr' or 'mag') as an (N, 3) array, sensor frame."""
@@ -171,7 +179,9 @@ class Recording:
         """True [roll, pitch, yaw] (rad) as (N, 3); only simulated recordings have it."""
         missing = [c for c in TRUTH_COLUMNS if c not in self.data]
         if missing:
-            raise KeyError(f"recording {self.path or ''} has no truth columns ({', '.join(missing)}): only simulated recordings do")
+            raise KeyError(
+                f"recording {self.path or ''} has no truth columns ({', '.join(missing)}): only simulated recordings do"
+            )
         return np.column_stack([self.data[c] for c in TRUTH_COLUMNS])
 
     @property
@@ -190,7 +200,7 @@ class Recording:
             mask |= (self.t >= w["start"]) & (self.t < w["end"])
         return mask
 
-    def head(self, seconds: float) -> "Recording":
+    def head(self, seconds: float) -> Recording:
         """The first ``seconds`` of the recording (a new Recording sharing metadata)."""
         keep = self.t < self.t[0] + seconds
         return Recording(dict(self.meta), {k: v[keep] for k, v in self.data.items()}, self.path)
@@ -205,7 +215,9 @@ def _count_text(name: str, value) -> str:
     if abs(n) > MAX_COUNT:
         raise ValueError(f"column {name!r}: {n} is out of range for a count (|n| ≤ 2^53)")
     if name == "seq" and not 0 <= n < SEQ_MODULO:
-        raise ValueError(f"column 'seq': {n} is not a 16-bit sample counter (0 … {SEQ_MODULO - 1}): take it modulo 2^16")
+        raise ValueError(
+            f"column 'seq': {n} is not a 16-bit sample counter (0 … {SEQ_MODULO - 1}): take it modulo 2^16"
+        )
     return str(n)
 
 
@@ -247,24 +259,34 @@ def save_recording(rec: Recording, path) -> Path:
 
 def parse_header(path, line: str, kind: str = "recording", hint: str = "", needs_rate: bool = True) -> dict:
     """The metadata of a kit file's first line ``# kfkit-<kind> v1 {json}``: a JSON object with valid ``phases`` and
-    (``needs_rate``) a positive finite ``rate_hz``. A file of another kind or version, or bad JSON, is a RecordingError on line 1
-    (``hint``: what to do instead, for a file that is not the kit's at all)."""
+    (``needs_rate``) a positive finite ``rate_hz``. A file of another kind or version, or bad JSON, is a RecordingError
+    on line 1 (``hint``: what to do instead, for a file that is not the kit's at all)."""
     expected = magic(kind)
     if not line.startswith(f"# kfkit-{kind} "):
         shown = line[:60].rstrip("\n")
-        raise RecordingError(path, 1, f"expected the header '{expected.strip()} {{…json…}}', got {shown!r}: is this a "
-                             f"kfkit {kind}?{' ' + hint if hint else ''}")
+        raise RecordingError(
+            path,
+            1,
+            f"expected the header '{expected.strip()} {{…json…}}', got {shown!r}: is this a "
+            f"kfkit {kind}?{' ' + hint if hint else ''}",
+        )
     if not line.startswith(expected):
-        version = line[len(f"# kfkit-{kind} "):].split(" ", 1)[0]
+        version = line[len(f"# kfkit-{kind} ") :].split(" ", 1)[0]
         raise RecordingError(path, 1, f"unsupported {kind} version {version!r}; this kfkit reads v{FORMAT_VERSION}")
     try:
-        meta = json.loads(line[len(expected):])
+        meta = json.loads(line[len(expected) :])
     except json.JSONDecodeError as e:
-        raise RecordingError(path, 1, f"the metadata is not valid JSON ({e.msg} at column {e.colno + len(expected)})") from None
+        raise RecordingError(
+            path, 1, f"the metadata is not valid JSON ({e.msg} at column {e.colno + len(expected)})"
+        ) from None
     if not isinstance(meta, dict) or (needs_rate and "rate_hz" not in meta):
-        raise RecordingError(path, 1, "the metadata must be a JSON object" + (" with at least 'rate_hz'" if needs_rate else ""))
+        raise RecordingError(
+            path, 1, "the metadata must be a JSON object" + (" with at least 'rate_hz'" if needs_rate else "")
+        )
     if needs_rate and not positive_number(meta["rate_hz"]):
-        raise RecordingError(path, 1, f"metadata 'rate_hz' must be a positive finite number (Hz), got {meta['rate_hz']!r}")
+        raise RecordingError(
+            path, 1, f"metadata 'rate_hz' must be a positive finite number (Hz), got {meta['rate_hz']!r}"
+        )
     check_phases(path, meta.get("phases", []))
     return meta
 
@@ -275,19 +297,30 @@ def _check_meta(path, meta: dict, cols) -> None:
     present = [s for s, names in SENSOR_COLUMNS.items() if any(c in cols for c in names)]
     for key in ("sensors", "mount"):
         if present and not isinstance(meta.get(key), dict):
-            raise RecordingError(path, 1, f"the metadata has no {key!r} object, but the file has columns of "
-                                 f"{', '.join(present)}: each needs its {'sensitivity' if key == 'sensors' else 'mounting matrix'}")
+            raise RecordingError(
+                path,
+                1,
+                f"the metadata has no {key!r} object, but the file has columns of "
+                f"{', '.join(present)}: each needs its {'sensitivity' if key == 'sensors' else 'mounting matrix'}",
+            )
     for s in present:
         spec = meta["sensors"].get(s)
         if not isinstance(spec, dict) or not positive_number(spec.get("sensitivity")):
             got = spec.get("sensitivity") if isinstance(spec, dict) else spec
-            raise RecordingError(path, 1, f"metadata sensors.{s}.sensitivity must be a positive finite number "
-                                 f"(SI units per count), got {got!r}")
+            raise RecordingError(
+                path,
+                1,
+                f"metadata sensors.{s}.sensitivity must be a positive finite number (SI units per count), got {got!r}",
+            )
         try:
             mount_matrix(meta["mount"].get(s))
         except (ValueError, TypeError):
-            raise RecordingError(path, 1, f"metadata mount.{s} must be a 3×3 rotation matrix M_bs (body ← sensor; "
-                                 f"orthonormal, det +1), got {meta['mount'].get(s)!r}") from None
+            raise RecordingError(
+                path,
+                1,
+                f"metadata mount.{s} must be a 3×3 rotation matrix M_bs (body ← sensor; "
+                f"orthonormal, det +1), got {meta['mount'].get(s)!r}",
+            ) from None
 
 
 def check_phases(path, phases, line=1) -> None:
@@ -295,24 +328,37 @@ def check_phases(path, phases, line=1) -> None:
     if not isinstance(phases, list):
         raise RecordingError(path, line, f"metadata 'phases' must be a list of {{label, start, end}}, got {phases!r}")
     for i, p in enumerate(phases):
-        ok = (isinstance(p, dict) and isinstance(p.get("label"), str)
-              and all(isinstance(p.get(k), (int, float)) and not isinstance(p.get(k), bool) and math.isfinite(p[k])
-                      for k in ("start", "end")) and p["start"] < p["end"])
+        ok = (
+            isinstance(p, dict)
+            and isinstance(p.get("label"), str)
+            and all(
+                isinstance(p.get(k), (int, float)) and not isinstance(p.get(k), bool) and math.isfinite(p[k])
+                for k in ("start", "end")
+            )
+            and p["start"] < p["end"]
+        )
         if not ok:
-            raise RecordingError(path, line, f"metadata phases[{i}] must be {{\"label\": text, \"start\": s, \"end\": s}} "
-                                 f"with start < end, got {p!r}")
+            raise RecordingError(
+                path,
+                line,
+                f'metadata phases[{i}] must be {{"label": text, "start": s, "end": s}} with start < end, got {p!r}',
+            )
 
 
 def _parse_columns(path, line: str) -> list[str]:
     cols = [c.strip() for c in line.rstrip("\r\n").split(",")]
     missing = [c for c in REQUIRED_COLUMNS if c not in cols]
     if missing or not line.strip():
-        raise RecordingError(path, 2, f"the column line must name at least {', '.join(REQUIRED_COLUMNS)}; got {line.strip()!r}")
+        raise RecordingError(
+            path, 2, f"the column line must name at least {', '.join(REQUIRED_COLUMNS)}; got {line.strip()!r}"
+        )
     dupes = sorted({c for c in cols if cols.count(c) > 1})
     if dupes:
         raise RecordingError(path, 2, f"duplicate column names: {', '.join(dupes)}")
     if "" in cols:
-        raise RecordingError(path, 2, f"column {cols.index('') + 1} has no name (two commas in a row, or one at the end?)")
+        raise RecordingError(
+            path, 2, f"column {cols.index('') + 1} has no name (two commas in a row, or one at the end?)"
+        )
     return cols
 
 
@@ -324,8 +370,12 @@ def _parse_cell(path, lineno: int, col: str, text: str):
     except ValueError as e:
         raise RecordingError(path, lineno, f"column {col!r}: {e}") from None
     if col == "seq" and not 0 <= value < SEQ_MODULO:
-        raise RecordingError(path, lineno, f"column 'seq': {value} is not a sample counter: seq counts the board's "
-                             f"samples modulo 2^16, 0 … {SEQ_MODULO - 1}")
+        raise RecordingError(
+            path,
+            lineno,
+            f"column 'seq': {value} is not a sample counter: seq counts the board's "
+            f"samples modulo 2^16, 0 … {SEQ_MODULO - 1}",
+        )
     return value
 
 
@@ -359,8 +409,12 @@ def load_recording(path) -> Recording:
         lineno = i + 3
         if truncated_tail and i == len(rows) - 1:
             # Every writer ends a row with a newline: without one, even a full field count may hide a cut number.
-            raise RecordingError(path, lineno, f"the last line is cut short (no newline at the end): the capture was "
-                                 f"probably interrupted; the {i} rows before it are complete: delete this line to load them")
+            raise RecordingError(
+                path,
+                lineno,
+                f"the last line is cut short (no newline at the end): the capture was "
+                f"probably interrupted; the {i} rows before it are complete: delete this line to load them",
+            )
         cells = raw.rstrip("\r").split(",")
         if len(cells) != len(cols):
             raise RecordingError(path, lineno, f"expected {len(cols)} fields ({','.join(cols)}), got {len(cells)}")
@@ -380,11 +434,12 @@ def load_recording(path) -> Recording:
     return Recording(meta, data, path)
 
 
-# --- the kit's vehicle recording format (and the row reader students' CSVs share) ----------------------------------------------
+# --- the kit's vehicle recording format (and the row reader students' CSVs share) ---------------------------------
 
 VEHICLE_MAGIC = magic("vehicle")
 VEHICLE_COLUMNS = ("t", "delta", "yaw_rate", "ay", "vx")
 VEHICLE_TRUTH = ("true_beta", "true_yaw_rate", "true_vy")
+
 
 def vehicle_text(rec: Recording) -> str:
     """The file contents of a vehicle recording: ``# kfkit-vehicle v1 {json}``, column names, rows."""
@@ -410,9 +465,13 @@ def read_csv_rows(path, lines, first_lineno, header, columns, delimiter=","):
     index = {}
     for name, col in columns.items():
         if col not in header:
-            raise RecordingError(path, first_lineno - 1, f"no column {col!r} for {name} (columns in the file: {', '.join(header)})")
+            raise RecordingError(
+                path, first_lineno - 1, f"no column {col!r} for {name} (columns in the file: {', '.join(header)})"
+            )
         if header.count(col) > 1:
-            raise RecordingError(path, first_lineno - 1, f"column {col!r} (for {name}) appears {header.count(col)} times in the header")
+            raise RecordingError(
+                path, first_lineno - 1, f"column {col!r} (for {name}) appears {header.count(col)} times in the header"
+            )
         index[name] = header.index(col)
     values = {name: [] for name in columns}
     linenos = []
@@ -422,17 +481,23 @@ def read_csv_rows(path, lines, first_lineno, header, columns, delimiter=","):
         if not cells or all(not c.strip() for c in cells):
             continue
         # a trailing delimiter (spreadsheet exports) adds empty cells: allowed; anything else must match the header
-        if len(cells) < len(header) or any(c.strip() for c in cells[len(header):]):
-            raise RecordingError(path, lineno, f"expected {len(header)} fields ({delimiter.join(header)}), got {len(cells)}")
+        if len(cells) < len(header) or any(c.strip() for c in cells[len(header) :]):
+            raise RecordingError(
+                path, lineno, f"expected {len(header)} fields ({delimiter.join(header)}), got {len(cells)}"
+            )
         for name, i in index.items():
             text = cells[i].strip()
             try:
                 values[name].append(parse_number(text))
             except ValueError as e:
-                raise RecordingError(path, lineno, f"column {header[i]!r} ({name}): {'is empty' if not text else e}") from None
+                raise RecordingError(
+                    path, lineno, f"column {header[i]!r} ({name}): {'is empty' if not text else e}"
+                ) from None
         t = values["t"][-1]
         if t_prev is not None and t <= t_prev:
-            raise RecordingError(path, lineno, f"time (column {header[index['t']]!r}) does not increase: {t:.10g} after {t_prev:.10g}")
+            raise RecordingError(
+                path, lineno, f"time (column {header[index['t']]!r}) does not increase: {t:.10g} after {t_prev:.10g}"
+            )
         t_prev = t
         linenos.append(lineno)
     if t_prev is None:
@@ -450,8 +515,11 @@ def csv_rows(path, lines, first_lineno, delimiter=","):
         except StopIteration:
             return
         except csv.Error as e:
-            raise RecordingError(path, first_lineno + reader.line_num - 1, f"not readable as CSV ({e}): no number is "
-                                 f"that long or holds such a character; a corrupted file?") from None
+            raise RecordingError(
+                path,
+                first_lineno + reader.line_num - 1,
+                f"not readable as CSV ({e}): no number is that long or holds such a character; a corrupted file?",
+            ) from None
         yield cells
 
 
@@ -474,13 +542,21 @@ def load_vehicle(path) -> Recording:
     short may have cut a number in it: ``0.0123`` to ``0.01`` still parses)."""
     path = Path(path)
     lines, terminated = read_lines(path)
-    meta = parse_header(path, lines[0] if lines else "", "vehicle",
-                        hint="For your own CSV use kfkit.readers.load_vehicle_csv(path, columns=…, units=…).")
+    meta = parse_header(
+        path,
+        lines[0] if lines else "",
+        "vehicle",
+        hint="For your own CSV use kfkit.readers.load_vehicle_csv(path, columns=…, units=…).",
+    )
     if len(lines) < 2:
         raise RecordingError(path, 2, "no column-name line")
     if not terminated and len(lines) > 2:
-        raise RecordingError(path, len(lines), "the last line is cut short (no newline at the end): the file was "
-                             "probably copied or written incompletely; delete this line to load the rows before it")
+        raise RecordingError(
+            path,
+            len(lines),
+            "the last line is cut short (no newline at the end): the file was "
+            "probably copied or written incompletely; delete this line to load the rows before it",
+        )
     header = [c.strip() for c in lines[1].split(",")]
     dupes = sorted({c for c in header if header.count(c) > 1})
     if dupes:

@@ -8,6 +8,7 @@ and the normalised innovation squared
 are χ²-distributed with n and m degrees of freedom; their average over N steps, times N,
 is χ² with N·n (or N·m) degrees of freedom, which gives the bounds of :func:`chi2_bounds`.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,7 +20,7 @@ from .frames import quat_conjugate, quat_multiply, wrap_angle
 def rmse(estimate, truth, axis=0):
     """Root-mean-square error √mean((estimate − truth)²), ignoring NaN rows."""
     err = np.asarray(estimate, dtype=float) - np.asarray(truth, dtype=float)
-    return np.sqrt(np.nanmean(err ** 2, axis=axis))
+    return np.sqrt(np.nanmean(err**2, axis=axis))
 
 
 def angle_error(estimate, truth):

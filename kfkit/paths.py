@@ -7,6 +7,7 @@
 
 A leaf: it imports nothing from the kit (and no NumPy), so every layer may use it.
 """
+
 from __future__ import annotations
 
 import os

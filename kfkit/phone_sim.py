@@ -8,6 +8,7 @@ the phone's fixed-point grid (:data:`kfkit.sensors.PHONE_LSB`). :func:`simple_ex
 as phyphox exports it (read back by :mod:`kfkit.readers.phyphox_export`); :mod:`kfkit.capture.virtual_phone` serves
 it as phyphox's remote interface.
 """
+
 from __future__ import annotations
 
 import math
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .frames import G, MAG_FIELD_LONDON, dcm_slerp, dcm_to_euler, dcm_to_quat, euler_to_dcm
+from .frames import MAG_FIELD_LONDON, G, dcm_slerp, dcm_to_euler, dcm_to_quat, euler_to_dcm
 from .io import format_header
 from .sensors import DEFAULT_PHONE_MOUNT, PHONE_LSB, PHONE_MAG, phone_board, phone_mount
 from .sim import Motion, simulate_imu
@@ -57,8 +58,16 @@ def _sample_times(rng, t0, t1, rate):
     return t0 + phase + np.arange(int(np.floor((t1 - t0 - phase) * rate)) + 1) / rate
 
 
-def simulate_phone(motion, seed=0, rates=None, jitter_s=TIMESTAMP_JITTER, unit=None, field_n=MAG_FIELD_LONDON,
-                   mount=DEFAULT_PHONE_MOUNT, drop=0.0) -> PhoneSamples:
+def simulate_phone(
+    motion,
+    seed=0,
+    rates=None,
+    jitter_s=TIMESTAMP_JITTER,
+    unit=None,
+    field_n=MAG_FIELD_LONDON,
+    mount=DEFAULT_PHONE_MOUNT,
+    drop=0.0,
+) -> PhoneSamples:
     """A phone held in ``mount`` through ``motion`` (a :class:`kfkit.sim.Motion`, best sampled well
     above the sensors' rates, e.g. 400 Hz): each sensor samples at its own rate (:data:`PHONE_RATES`)
     from a random phase, its timestamps carry ``jitter_s`` RMS of jitter, each sample is lost with
@@ -76,8 +85,9 @@ def simulate_phone(motion, seed=0, rates=None, jitter_s=TIMESTAMP_JITTER, unit=N
         R_nb, omega, acc_n = resample_motion(motion, t_true)
         euler = dcm_to_euler(R_nb)
         sampled = Motion(t_true, rates[sensor], euler, omega, acc_n)
-        rec = simulate_imu(sampled, board=board, seed=int(rng.integers(2**31)), field_n=field_n,
-                           mag_rate_hz=1e9, **unit)
+        rec = simulate_imu(
+            sampled, board=board, seed=int(rng.integers(2**31)), field_n=field_n, mag_rate_hz=1e9, **unit
+        )
         values[sensor] = rec.counts(sensor) * PHONE_LSB[sensor]
         t[sensor] = t_true + rng.normal(0.0, jitter_s, len(t_true))
         R_true[sensor] = R_nb
@@ -85,8 +95,15 @@ def simulate_phone(motion, seed=0, rates=None, jitter_s=TIMESTAMP_JITTER, unit=N
     R_ns = R_true["gyr"] @ M  # x_n = R_nb x_b = R_nb M_bs x_s
     gravity = np.einsum("nji,j->ni", R_true["acc"] @ M, [0.0, 0.0, -G])  # R_sn (−g_n), what a "gravity" sensor reports
     quat = dcm_to_quat(R_ns)
-    sim = {"seed": seed, "rates_hz": rates, "timestamp_jitter_s": jitter_s, "drop": drop, "field_n": list(field_n),
-           "mount": phone_mount(mount)[0], **{k: np.asarray(v, float).tolist() for k, v in unit.items()}}
+    sim = {
+        "seed": seed,
+        "rates_hz": rates,
+        "timestamp_jitter_s": jitter_s,
+        "drop": drop,
+        "field_n": list(field_n),
+        "mount": phone_mount(mount)[0],
+        **{k: np.asarray(v, float).tolist() for k, v in unit.items()},
+    }
     phases = [{"label": label, "start": float(a), "end": float(b)} for a, b, label in motion.phases]
     return PhoneSamples(t, values, quat, gravity, phases, motion.description, sim)
 
@@ -95,7 +112,8 @@ def simulate_phone(motion, seed=0, rates=None, jitter_s=TIMESTAMP_JITTER, unit=N
 TRUTH_FILE, TRUTH_KIND = "kfkit_truth.csv", "truth"
 
 
-# --- an export as phyphox writes it (the bundled phone recording, tests) ----------------------------------------------------------------------
+# --- an export as phyphox writes it (the bundled phone recording, tests) ------------------------------------------
+
 
 def format_number(value: float, decimal: str = ".") -> str:
     """A number as phyphox's CSV export writes it: ten significant digits, ``9.806650000E0``."""
@@ -137,22 +155,39 @@ def simple_experiment_files(samples, separator=",", decimal=".", device=None) ->
     files = {}
     for k, (set_name, labels) in SIMPLE_EXPERIMENT_SETS.items():
         v = samples.values[k]
-        files[f"{set_name}.csv"] = csv_text([("Time (s)", samples.t[k])] + [(labels[i], v[:, i]) for i in range(3)],
-                                            separator, decimal)
-    props = {"version": "1.2.0", "deviceModel": "kfkit simulated phone", "deviceBrand": "kfkit",
-             "deviceManufacturer": "kfkit", "deviceRelease": "simulation", **(device or {})}
+        files[f"{set_name}.csv"] = csv_text(
+            [("Time (s)", samples.t[k])] + [(labels[i], v[:, i]) for i in range(3)], separator, decimal
+        )
+    props = {
+        "version": "1.2.0",
+        "deviceModel": "kfkit simulated phone",
+        "deviceBrand": "kfkit",
+        "deviceManufacturer": "kfkit",
+        "deviceRelease": "simulation",
+        **(device or {}),
+    }
     for k, android in (("acc", "accelerometer"), ("gyr", "gyroscope"), ("mag", "magnetic_field")):
         spec = phone_board().accel if k == "acc" else phone_board().gyro if k == "gyr" else PHONE_MAG
         props[f"{android} Name"] = spec.chip
         props[f"{android} Range"] = f"{spec.full_scale:.6g}"
-    files["meta/device.csv"] = (f'"property"{separator}"value"\n'
-                                + "".join(f'"{p}"{separator}"{v}"\n' for p, v in props.items()))
-    files["meta/time.csv"] = (separator.join(f'"{c}"' for c in ("event", "experiment time", "system time",
-                                                                "system time text")) + "\n"
-                              + separator.join(['"START"', format_number(0.0, decimal), "0.000".replace(".", decimal),
-                                                '"1970-01-01 00:00:00.000 UTC+00:00"']) + "\n")
+    files["meta/device.csv"] = f'"property"{separator}"value"\n' + "".join(
+        f'"{p}"{separator}"{v}"\n' for p, v in props.items()
+    )
+    files["meta/time.csv"] = (
+        separator.join(f'"{c}"' for c in ("event", "experiment time", "system time", "system time text"))
+        + "\n"
+        + separator.join(
+            [
+                '"START"',
+                format_number(0.0, decimal),
+                "0.000".replace(".", decimal),
+                '"1970-01-01 00:00:00.000 UTC+00:00"',
+            ]
+        )
+        + "\n"
+    )
     truth = {"description": samples.description, "phases": samples.phases, "sim": samples.sim}
-    files[TRUTH_FILE] = (format_header(truth, ("row", "true_qw", "true_qx", "true_qy", "true_qz"), TRUTH_KIND)
-                         + "".join(f"{i},{w:.9f},{x:.9f},{y:.9f},{z:.9f}\n" for i, (w, x, y, z)
-                                   in enumerate(samples.truth_quat.tolist())))
+    files[TRUTH_FILE] = format_header(truth, ("row", "true_qw", "true_qx", "true_qy", "true_qz"), TRUTH_KIND) + "".join(
+        f"{i},{w:.9f},{x:.9f},{y:.9f},{z:.9f}\n" for i, (w, x, y, z) in enumerate(samples.truth_quat.tolist())
+    )
     return files

@@ -7,6 +7,7 @@ Each function draws on the given axes (or a new figure) and returns the figure.
 A recording of your own has no truth: every helper that takes ``truth`` accepts None and says so
 in the figure or the table (:data:`NO_TRUTH`) instead of failing, so a notebook cell needs no branch.
 """
+
 from __future__ import annotations
 
 import matplotlib.pyplot as plt
@@ -33,11 +34,20 @@ NO_TRUTH = "no truth in this recording"
 
 def apply_style():
     """Notebook-wide defaults: readable sizes, light grid, tight layout."""
-    plt.rcParams.update({
-        "figure.figsize": (9.0, 3.6), "figure.dpi": 100, "figure.constrained_layout.use": True,
-        "axes.grid": True, "grid.alpha": 0.3, "axes.spines.top": False, "axes.spines.right": False,
-        "font.size": 10, "legend.frameon": False, "lines.linewidth": 1.3,
-    })
+    plt.rcParams.update(
+        {
+            "figure.figsize": (9.0, 3.6),
+            "figure.dpi": 100,
+            "figure.constrained_layout.use": True,
+            "axes.grid": True,
+            "grid.alpha": 0.3,
+            "axes.spines.top": False,
+            "axes.spines.right": False,
+            "font.size": 10,
+            "legend.frameon": False,
+            "lines.linewidth": 1.3,
+        }
+    )
 
 
 def _axes(ax):
@@ -61,8 +71,18 @@ def mark_windows(ax, windows, label="sideways shake"):
         ax.axvspan(t0, t1, color=COLORS["other"], alpha=0.15, lw=0, label=label if i == 0 else None)
 
 
-def compare_values(t, truth, estimates: dict, ax=None, ylabel="v_y", unit="m/s", convert=np.asarray, title=None,
-                   shade=(), shade_label="shaded"):
+def compare_values(
+    t,
+    truth,
+    estimates: dict,
+    ax=None,
+    ylabel="v_y",
+    unit="m/s",
+    convert=np.asarray,
+    title=None,
+    shade=(),
+    shade_label="shaded",
+):
     """Truth and several estimates of one quantity against time (s), shown as ``convert(values)`` in ``unit``.
 
     ``estimates`` maps a label to (values, kind) or just values; kind picks the colour
@@ -74,8 +94,16 @@ def compare_values(t, truth, estimates: dict, ax=None, ylabel="v_y", unit="m/s",
         ax.plot(t, convert(truth), color=COLORS["truth"], lw=2.2, alpha=0.55, label="truth", zorder=1)
     for i, (label, value) in enumerate(estimates.items()):
         values, kind = value if isinstance(value, tuple) else (value, "other")
-        ax.plot(t, convert(values), color=COLORS[kind], ls=STYLES.get(kind, "-"), label=label,
-                alpha=0.85 if kind == "accel" else 1.0, lw=0.9 if kind == "accel" else 1.4, zorder=2 + i)
+        ax.plot(
+            t,
+            convert(values),
+            color=COLORS[kind],
+            ls=STYLES.get(kind, "-"),
+            label=label,
+            alpha=0.85 if kind == "accel" else 1.0,
+            lw=0.9 if kind == "accel" else 1.4,
+            zorder=2 + i,
+        )
     ax.set_xlabel("time (s)")
     ax.set_ylabel(f"{ylabel} ({unit})")
     mark_windows(ax, shade, label=shade_label)
@@ -139,7 +167,9 @@ def nis_plot(t, values, dof=1, window=None, ax=None, alpha=0.05):
     _, hi1 = chi2_bounds(dof, 1, alpha)
     lo, hi = chi2_bounds(dof, n, alpha)
     ax.axhline(hi1, color=COLORS["bound"], ls=":", lw=1, label=f"{100 * (1 - alpha):.0f} % bound, one step ({hi1:.2f})")
-    ax.fill_between(t, lo, hi, color=COLORS["bound"], alpha=0.12, lw=0, label=f"{100 * (1 - alpha):.0f} % bounds, average")
+    ax.fill_between(
+        t, lo, hi, color=COLORS["bound"], alpha=0.12, lw=0, label=f"{100 * (1 - alpha):.0f} % bounds, average"
+    )
     ax.axhline(dof, color=COLORS["truth"], lw=0.8, alpha=0.6)
     ax.set_yscale("log")
     ax.set_ylim(1e-4, max(10 * hi1, 2 * np.nanmax(average, initial=0.0)))
@@ -169,6 +199,7 @@ def consistency(t, err, variance, y, S, dof=1, title=None):
 
 # --- helpers that make a notebook cell one call (labs 01–06) -----------------------------------------------
 
+
 def no_truth(ax, what):
     """Say in ``ax`` that ``what`` needs the truth this recording does not have."""
     ax.text(0.5, 0.5, f"{NO_TRUTH}: {what}", transform=ax.transAxes, ha="center", va="center", color=COLORS["truth"])
@@ -194,8 +225,16 @@ def label_phases(ax, phases, skip=("stationary",)):
     """Name each phase (``Recording.phases`` or [(start, end, label)], s) above ``ax``, at its middle."""
     for a, b, label in _phase_tuples(phases):
         if label not in skip:
-            ax.text((a + b) / 2, 1.0, label.replace("_", " "), transform=ax.get_xaxis_transform(),
-                    ha="center", va="bottom", fontsize=8, color="0.3")
+            ax.text(
+                (a + b) / 2,
+                1.0,
+                label.replace("_", " "),
+                transform=ax.get_xaxis_transform(),
+                ha="center",
+                va="bottom",
+                fontsize=8,
+                color="0.3",
+            )
 
 
 def break_wraps(angle):
@@ -238,9 +277,13 @@ def compare_euler(t, truth, estimates: dict, shade=(), title=None):
     as jumps, one legend on top. ``truth`` (N, 3) or None; ``estimates`` maps a label to ((N, 3), kind)."""
     fig, axes = plt.subplots(3, 1, sharex=True, figsize=(9.0, 8.0))
     for i, ax in enumerate(axes):
-        compare_angles(t, None if truth is None else break_wraps(np.asarray(truth)[:, i]),
-                       {label: (break_wraps(np.asarray(v)[:, i]), kind) for label, (v, kind) in estimates.items()},
-                       ax=ax, ylabel=EULER[i])
+        compare_angles(
+            t,
+            None if truth is None else break_wraps(np.asarray(truth)[:, i]),
+            {label: (break_wraps(np.asarray(v)[:, i]), kind) for label, (v, kind) in estimates.items()},
+            ax=ax,
+            ylabel=EULER[i],
+        )
         ax.set_xlabel("")
         if i:
             ax.get_legend().remove()
@@ -259,11 +302,24 @@ def tilt_panels(t, truth, estimates: dict, known=None, shade=(), title=None):
     one legend for both panels, below them."""
     fig, axes = plt.subplots(2, 1, sharex=True, figsize=(9.0, 5.4))
     for i, ax in enumerate(axes):
-        compare_angles(t, None if truth is None else np.asarray(truth)[:, i],
-                       {label: (v[i], kind) for label, (v, kind) in estimates.items()}, ax=ax, ylabel=EULER[i])
+        compare_angles(
+            t,
+            None if truth is None else np.asarray(truth)[:, i],
+            {label: (v[i], kind) for label, (v, kind) in estimates.items()},
+            ax=ax,
+            ylabel=EULER[i],
+        )
         if known is not None:
-            ax.plot(t, np.degrees(known[i]), ls="none", marker="s", ms=1.5, color=COLORS["bound"],
-                    label="protocol (holds)", zorder=1.5)   # under the estimates, over the truth
+            ax.plot(
+                t,
+                np.degrees(known[i]),
+                ls="none",
+                marker="s",
+                ms=1.5,
+                color=COLORS["bound"],
+                label="protocol (holds)",
+                zorder=1.5,
+            )  # under the estimates, over the truth
         ax.get_legend().remove()
         ax.set_xlabel("")
     mark_windows(axes[0], shade, label=None)
@@ -301,8 +357,13 @@ def nees_plot(t, values, dof=3, ax=None, alpha=0.05):
     else:
         ax.plot(t, values, ".", ms=1.5, color=COLORS["gyro"], alpha=0.5, label="NEES per step")
     ax.set_yscale("log")
-    ax.axhline(chi2_bounds(dof, 1, alpha)[1], color=COLORS["bound"], ls=":", lw=1,
-               label=f"{100 * (1 - alpha):.0f} % bound, one step")
+    ax.axhline(
+        chi2_bounds(dof, 1, alpha)[1],
+        color=COLORS["bound"],
+        ls=":",
+        lw=1,
+        label=f"{100 * (1 - alpha):.0f} % bound, one step",
+    )
     ax.axhline(dof, color=COLORS["truth"], lw=0.8, alpha=0.6)
     ax.set_ylim(1e-4, 1e3)
     ax.set_xlabel("time (s)")
@@ -327,8 +388,9 @@ def consistency_panels(t, nees, nis_sets: dict, nees_dof=3, shade=(), phases=())
     return fig
 
 
-def sweep(values, rmses: dict, xlabel, ylabel="RMSE (°)", marks: dict | None = None, ax=None,
-          references: dict | None = None):
+def sweep(
+    values, rmses: dict, xlabel, ylabel="RMSE (°)", marks: dict | None = None, ax=None, references: dict | None = None
+):
     """RMSE (°) against a tuning value on log–log axes: ``rmses`` maps a label to one RMSE per value;
     ``marks`` maps a label to a value drawn as a vertical line (the datasheet's, the best);
     ``references`` maps a label to (RMSE (°), kind), a horizontal line in that kind's colour (a sensor alone)."""
@@ -355,24 +417,43 @@ def allan(ax, taus, adev, unit, scale=1.0, white=None, walk=None, arw=None, mini
     for i, (axis, (kind, style)) in enumerate(zip("xyz", XYZ)):
         ax.loglog(taus, adev[:, i], color=COLORS[kind], ls=style, label=axis)
     if white is not None:
-        ax.loglog(taus, white[1] * scale / np.sqrt(taus), color=COLORS["truth"], ls=(0, (6, 2, 1, 2, 1, 2)), lw=1,
-                  label=f"{white[0]} N/√τ (slope −½)")
+        ax.loglog(
+            taus,
+            white[1] * scale / np.sqrt(taus),
+            color=COLORS["truth"],
+            ls=(0, (6, 2, 1, 2, 1, 2)),
+            lw=1,
+            label=f"{white[0]} N/√τ (slope −½)",
+        )
     if walk is not None and walk[1] is not None:
-        ax.loglog(taus, walk[1] * scale * np.sqrt(taus / 3), ":", color=COLORS["truth"], lw=1.4,
-                  label=f"{walk[0]} K√(τ/3) (+½)")
+        ax.loglog(
+            taus,
+            walk[1] * scale * np.sqrt(taus / 3),
+            ":",
+            color=COLORS["truth"],
+            lw=1.4,
+            label=f"{walk[0]} K√(τ/3) (+½)",
+        )
     if arw is not None:
         ax.plot([1.0], [arw * scale], "o", color=COLORS["truth"], label="ARW read at τ = 1 s")
     if minimum is not None:
-        ax.plot(minimum[0], np.asarray(minimum[1]) * scale, "s", color=COLORS["truth"], mfc="white",
-                label="minimum = 0.664·B")
+        ax.plot(
+            minimum[0],
+            np.asarray(minimum[1]) * scale,
+            "s",
+            color=COLORS["truth"],
+            mfc="white",
+            label="minimum = 0.664·B",
+        )
     ax.set(xlabel="cluster time τ (s)", ylabel=f"Allan deviation ({unit})", ylim=(0.5 * adev.min(), 2 * adev.max()))
     if title:
         ax.set_title(title)
     return ax.figure
 
 
-def rmse_table(estimates: dict, truth, columns=EULER, rotation=False, width=26, hint="", title="RMSE (°)", note="",
-               out=print):
+def rmse_table(
+    estimates: dict, truth, columns=EULER, rotation=False, width=26, hint="", title="RMSE (°)", note="", out=print
+):
     """Print the RMSE (°) of each estimate against ``truth`` (rad), one row each, one column per angle;
     ``rotation``: also the RMSE of the total rotation error (°) between the Euler ZYX attitudes.
     ``title`` heads the label column, ``note`` ends the header line.
@@ -405,20 +486,27 @@ def consistency_table(nees, nis_sets: dict, nees_dof=3, alpha=0.05, out=print):
     else:
         nees = np.asarray(nees, dtype=float)
         nees = nees[~np.isnan(nees)]
-        out(f"{'NEES':13s} mean {np.mean(nees):6.2f} (expected {nees_dof}); "
-            f"{100 * fraction_inside(nees, nees_dof, alpha):3.0f} % of samples inside the one-step {level} bounds")
+        out(
+            f"{'NEES':13s} mean {np.mean(nees):6.2f} (expected {nees_dof}); "
+            f"{100 * fraction_inside(nees, nees_dof, alpha):3.0f} % of samples inside the one-step {level} bounds"
+        )
     for name, (values, dof) in nis_sets.items():
         v = np.asarray(values, dtype=float)
         v = v[~np.isnan(v)]
         lo, hi = chi2_bounds(dof, len(v), alpha)
-        out(f"{'NIS (' + name + ')':13s} mean {v.mean():6.2f} (expected {dof}, {level} bounds of the mean {lo:.2f} … "
-            f"{hi:.2f}); {100 * fraction_inside(v, dof, alpha):3.0f} % of samples inside the one-step {level} bounds")
+        out(
+            f"{'NIS (' + name + ')':13s} mean {v.mean():6.2f} (expected {dof}, {level} bounds of the mean {lo:.2f} … "
+            f"{hi:.2f}); {100 * fraction_inside(v, dof, alpha):3.0f} % of samples inside the one-step {level} bounds"
+        )
 
 
 # --- a recording's own signals, its labelled phases shaded (labs 00, 02) -------------------------------------
 
-SENSOR_PLOT = {"acc": ("specific force", "m/s²", 1.0), "gyr": ("angular rate", "°/s", np.degrees(1.0)),
-               "mag": ("magnetic field", "µT", 1.0)}  # body() is SI: m/s², rad/s (shown in °/s), µT
+SENSOR_PLOT = {
+    "acc": ("specific force", "m/s²", 1.0),
+    "gyr": ("angular rate", "°/s", np.degrees(1.0)),
+    "mag": ("magnetic field", "µT", 1.0),
+}  # body() is SI: m/s², rad/s (shown in °/s), µT
 
 
 def recording_signal(ax, rec, sensor, title=None):
@@ -435,8 +523,15 @@ def recording_signal(ax, rec, sensor, title=None):
         else:
             runs.append([p["start"], p["end"], p["label"]])
     for j, (a, b, label) in enumerate(runs if len(runs) > 1 else []):
-        ax.text((a + b) / 2, 1.02 + 0.12 * (j % 2), label.replace("_", " "), ha="center", va="bottom", fontsize=7,
-                transform=ax.get_xaxis_transform())
+        ax.text(
+            (a + b) / 2,
+            1.02 + 0.12 * (j % 2),
+            label.replace("_", " "),
+            ha="center",
+            va="bottom",
+            fontsize=7,
+            transform=ax.get_xaxis_transform(),
+        )
     ax.set_title(title, pad=34 if len(runs) > 1 else 6, fontsize=10)
     ax.set_xlabel("time (s)")
     return ax.figure
@@ -449,7 +544,7 @@ def recording_grid(panels: dict, ncols=2, title=None):
     fig, axes = plt.subplots(rows, ncols, figsize=(5.2 * ncols, 2.9 * rows), squeeze=False)
     for ax, (name, (rec, sensor)) in zip(axes.flat, panels.items()):
         recording_signal(ax, rec, sensor, title=name)
-    for ax in axes.flat[len(panels):]:
+    for ax in axes.flat[len(panels) :]:
         ax.set_visible(False)
     fig.legend(axes[0, 0].get_lines(), [f"{axis} (body)" for axis in "xyz"], loc="outside lower center", ncols=3)
     if title:
@@ -466,10 +561,12 @@ def recording_signals(rec, title=None):
 
 # --- a vehicle drive: what a production car measures (lab 06) ------------------------------------------------
 
-VEHICLE_PLOT = (("delta", "δ (°)", np.degrees(1.0), "steering δ (road wheel)", "kf"),
-                ("yaw_rate", "r (°/s)", np.degrees(1.0), "yaw-rate gyro", "gyro"),
-                ("ay", "a_y (m/s²)", 1.0, "lateral accelerometer", "accel"),
-                ("vx", "V_x (km/h)", 3.6, "speed from wheel speeds", "other"))  # column, axis label, scale from SI
+VEHICLE_PLOT = (
+    ("delta", "δ (°)", np.degrees(1.0), "steering δ (road wheel)", "kf"),
+    ("yaw_rate", "r (°/s)", np.degrees(1.0), "yaw-rate gyro", "gyro"),
+    ("ay", "a_y (m/s²)", 1.0, "lateral accelerometer", "accel"),
+    ("vx", "V_x (km/h)", 3.6, "speed from wheel speeds", "other"),
+)  # column, axis label, scale from SI
 
 
 def vehicle_signals(rec, title=None):

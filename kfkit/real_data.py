@@ -31,27 +31,32 @@ What the conversion changes, and why:
 - **Phases.** BROAD's ``movement`` flag becomes the phases ``rest`` and ``movement`` (its error metrics use
   the movement phases).
 """
+
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import scipy.signal
 
 from .frames import dcm_to_quat, quat_slerp, quat_to_dcm, quat_to_euler
 from .io import Recording, load_recording, load_vehicle, recording_text, vehicle_text
-from .paths import KIT_ROOT, data_dir
+from .paths import KIT_ROOT
 from .readers.broad import load_broad
 from .readers.vehicle_csv import load_vehicle_csv
 
-BROAD_CITATION = ("BROAD: D. Laidig, M. Caruso, A. Cereatti, T. Seel, \"BROAD — A Benchmark for Robust Inertial "
-                  "Orientation Estimation\", Data 6(7), 2021, doi:10.3390/data6070072; CC BY 4.0")
-RACETRACK_CITATION = ("Stanford race-track log of 2014-02-22 as published with the sideslip-angle-vehicle-estimation "
-                      "estimators of F. Leanza, G. Reina, J. L. Blanco-Claraco; MIT licence")
+BROAD_CITATION = (
+    'BROAD: D. Laidig, M. Caruso, A. Cereatti, T. Seel, "BROAD — A Benchmark for Robust Inertial '
+    'Orientation Estimation", Data 6(7), 2021, doi:10.3390/data6070072; CC BY 4.0'
+)
+RACETRACK_CITATION = (
+    "Stanford race-track log of 2014-02-22 as published with the sideslip-angle-vehicle-estimation "
+    "estimators of F. Leanza, G. Reina, J. L. Blanco-Claraco; MIT licence"
+)
 #: SI per count of the converted BROAD columns (see the module doc)
 BROAD_SENSITIVITY = {"gyr": (1e-5, "rad/s"), "acc": (1e-4, "m/s^2"), "mag": (1e-3, "uT")}
 #: body ← IMU: the IMU's z points up, the kit's body z down
@@ -101,8 +106,14 @@ def _phases(movement, t) -> list[dict]:
     edges = np.flatnonzero(np.diff(movement.astype(int))) + 1
     starts, ends = np.r_[0, edges], np.r_[edges, len(t)]
     dt = float(np.median(np.diff(t)))
-    return [{"label": "movement" if movement[s] else "rest", "start": round(float(t[s]), 6),
-             "end": round(float(t[e - 1] + dt), 6)} for s, e in zip(starts, ends)]
+    return [
+        {
+            "label": "movement" if movement[s] else "rest",
+            "start": round(float(t[s]), 6),
+            "end": round(float(t[e - 1] + dt), 6),
+        }
+        for s, e in zip(starts, ends)
+    ]
 
 
 @dataclass(frozen=True)
@@ -143,9 +154,12 @@ class BroadExcerpt:
         for i, name in enumerate(("true_roll", "true_pitch", "true_yaw")):
             data[name] = euler[:, i]
         mount = BROAD_MOUNT.tolist()
-        resampled = (f"resampled from {fs:.7g} Hz to {rate:g} Hz (scipy.signal.resample_poly, the kit's anti-alias FIR: "
-                     f"flat to {PASS_HZ:g} Hz, ≥ {STOP_DB:g} dB down from {STOP_HZ:g} Hz; truth by slerp)"
-                     if self.rate_hz else f"native rate {fs:.7g} Hz, not resampled")
+        resampled = (
+            f"resampled from {fs:.7g} Hz to {rate:g} Hz (scipy.signal.resample_poly, the kit's anti-alias FIR: "
+            f"flat to {PASS_HZ:g} Hz, ≥ {STOP_DB:g} dB down from {STOP_HZ:g} Hz; truth by slerp)"
+            if self.rate_hz
+            else f"native rate {fs:.7g} Hz, not resampled"
+        )
         meta = {
             "board": "broad-myon-aktos-t",
             "rate_hz": rate,
@@ -153,23 +167,36 @@ class BroadExcerpt:
             "trial": self.trial,
             "description": self.what,
             "excerpt": {"from_s": self.start, "to_s": round(self.start + t[-1] + 1 / rate, 6)},
-            "units": {"t": "s", "sensors": "counts (see sensors.*.sensitivity)",
-                      "true_*": "rad, body → NED from optical motion capture; empty where the markers were not seen"},
-            "sensors": {s: {"chip": "Myon aktos-t", "sensitivity": sens, "unit": unit} for s, (sens, unit) in BROAD_SENSITIVITY.items()},
+            "units": {
+                "t": "s",
+                "sensors": "counts (see sensors.*.sensitivity)",
+                "true_*": "rad, body → NED from optical motion capture; empty where the markers were not seen",
+            },
+            "sensors": {
+                s: {"chip": "Myon aktos-t", "sensitivity": sens, "unit": unit}
+                for s, (sens, unit) in BROAD_SENSITIVITY.items()
+            },
             "mount": {"acc": mount, "gyr": mount, "mag": mount},
             "phases": _phases(movement[keep], t),
             "license": BROAD_CITATION,
             "changes": f"cut to {self.start:g}–{self.end:g} s of the trial; {resampled}; body frame forward-right-down "
-                       "(mounting diag(1, −1, −1)); SI values stored as integer counts of the sensitivities above; "
-                       "'movement' flag → phases",
+            "(mounting diag(1, −1, −1)); SI values stored as integer counts of the sensitivities above; "
+            "'movement' flag → phases",
         }
         return Recording(meta, data)
 
 
 def _racetrack(source: Path) -> Recording:
     """The race-track half as a vehicle recording: t from 0, the log's signals renamed, β truth."""
-    columns = {"t": "t_s", "delta": "steer_road_wheel_rad", "yaw_rate": "yaw_rate_rad_s", "ay": "ay_cg_m_s2",
-               "vx": "vx_m_s", "true_beta": "beta_true_rad", "true_vy": "vy_m_s"}
+    columns = {
+        "t": "t_s",
+        "delta": "steer_road_wheel_rad",
+        "yaw_rate": "yaw_rate_rad_s",
+        "ay": "ay_cg_m_s2",
+        "vx": "vx_m_s",
+        "true_beta": "beta_true_rad",
+        "true_vy": "vy_m_s",
+    }
     raw = load_vehicle_csv(source / "racetrack" / "racetrack_first_half.csv", columns)  # t from 0, SI
     t0 = float(raw.meta["t0"])
     data = {name: np.asarray(raw[name], dtype=float) for name in columns}
@@ -177,19 +204,35 @@ def _racetrack(source: Path) -> Recording:
     meta = {
         "rate_hz": 100.0,
         "source": "race track (real car)",
-        "description": "a real car on a race track, 275 s: speed 16–61 m/s, lateral acceleration up to 1.7 g, "
-                       "sideslip measured by the vehicle's reference instrumentation",
+        "description": "a real car on a race track, 275 s: speed 16–61 m/s, lateral acceleration up to 1.1 g "
+        "(half a second's mean; single samples of the vibrating body reach 1.7 g), sideslip measured by "
+        "the vehicle's reference instrumentation",
         "axes": "ISO 8855 (x forward, y left, z up)",
-        "units": {"t": "s", "delta": "rad (road wheel)", "yaw_rate": "rad/s", "ay": "m/s^2 (at the CG)", "vx": "m/s",
-                  "true_beta": "rad (measured)", "true_vy": "m/s (measured, at the CG)"},
-        # the parameters its authors published with their estimators (C_f, C_r chosen for their linear model, not measured)
-        "vehicle": {"m": 982.0, "Iz": round(982.0 / 12.0 * (1.7 ** 2 + 4.09 ** 2), 1), "a": 1.33, "b": 1.07,
-                    "Cf": 70_000.0, "Cr": 120_000.0, "mu": 1.0},
+        "units": {
+            "t": "s",
+            "delta": "rad (road wheel)",
+            "yaw_rate": "rad/s",
+            "ay": "m/s^2 (at the CG)",
+            "vx": "m/s",
+            "true_beta": "rad (measured)",
+            "true_vy": "m/s (measured, at the CG)",
+        },
+        # the parameters its authors published with their estimators (C_f, C_r chosen for their linear model, not
+        # measured); no friction coefficient was published: vehicle.peak_friction gives the one the log shows
+        "vehicle": {
+            "m": 982.0,
+            "Iz": round(982.0 / 12.0 * (1.7**2 + 4.09**2), 1),
+            "a": 1.33,
+            "b": 1.07,
+            "Cf": 70_000.0,
+            "Cr": 120_000.0,
+        },
         "log_time_offset_s": t0,
         "license": RACETRACK_CITATION,
-        "changes": f"the first half of the log (t = {t0:g}–{t0 + data['t'][-1]:g} s), time from 0; columns renamed to the "
-                   "kit's (t_s→t, steer_road_wheel_rad→delta, yaw_rate_rad_s→yaw_rate, ay_cg_m_s2→ay, vx_m_s→vx, "
-                   "beta_true_rad→true_beta, vy_m_s→true_vy); values unchanged (100 Hz, SI)",
+        "changes": f"the first half of the log (t = {t0:g}–{t0 + data['t'][-1]:g} s), time from 0; columns renamed"
+        " to the "
+        "kit's (t_s→t, steer_road_wheel_rad→delta, yaw_rate_rad_s→yaw_rate, ay_cg_m_s2→ay, vx_m_s→vx, "
+        "beta_true_rad→true_beta, vy_m_s→true_vy); values unchanged (100 Hz, SI)",
     }
     return Recording(meta, data)
 
@@ -211,22 +254,49 @@ def _broad(trial, start, end, rate_hz, what) -> RealFile:
 
 #: name → how to make it from the originals; the file is ``data/<name>.csv``
 REAL = {
-    "01_broad_slow_rotation": _broad("02_undisturbed_slow_rotation_B", 0.0, 186.0, 100.0,
-                                     "BROAD trial 02: 40 s at rest, slow rotations by hand (40–100 s mostly about x, then about "
-                                     "all axes), 33 s at rest"),
-    "02_broad_rest": _broad("02_undisturbed_slow_rotation_B", 0.0, 39.0, None,
-                            "BROAD trial 02: the IMU lying still for 39 s before the rotations (native rate)"),
-    "03_broad_attached_magnet": _broad("34_disturbed_attached_magnet_3cm", 0.0, 169.0, 100.0,
-                                       "BROAD trial 34: at rest, then medium-speed motions about all axes with a magnet "
-                                       "attached to the board 3 cm from the IMU, then at rest"),
-    "04_broad_fast_rotation": _broad("06_undisturbed_fast_rotation_A", 0.0, 171.0, 100.0,
-                                     "BROAD trial 06: 38 s at rest, fast rotations by hand about all axes (up to ~16 rad/s), "
-                                     "10 s at rest"),
-    "04_broad_stationary_magnet": _broad("28_disturbed_stationary_magnet_A", 0.0, 184.0, 100.0,
-                                         "BROAD trial 28: at rest, then medium-speed motions near a small magnet placed "
-                                         "at a fixed spot, then at rest"),
-    "05_broad_rotation_breaks": _broad("04_undisturbed_slow_rotation_with_breaks_A", 0.0, 213.0, 100.0,
-                                       "BROAD trial 04: 30 s at rest, slow rotations with three rests of ~10 s between "
-                                       "them, 36 s at rest"),
+    "01_broad_slow_rotation": _broad(
+        "02_undisturbed_slow_rotation_B",
+        0.0,
+        186.0,
+        100.0,
+        "BROAD trial 02: 40 s at rest, slow rotations by hand (40–100 s mostly about x, then about "
+        "all axes), 33 s at rest",
+    ),
+    "02_broad_rest": _broad(
+        "02_undisturbed_slow_rotation_B",
+        0.0,
+        39.0,
+        None,
+        "BROAD trial 02: the IMU lying still for 39 s before the rotations (native rate)",
+    ),
+    "03_broad_attached_magnet": _broad(
+        "34_disturbed_attached_magnet_3cm",
+        0.0,
+        169.0,
+        100.0,
+        "BROAD trial 34: at rest, then medium-speed motions about all axes with a magnet "
+        "attached to the board 3 cm from the IMU, then at rest",
+    ),
+    "04_broad_fast_rotation": _broad(
+        "06_undisturbed_fast_rotation_A",
+        0.0,
+        171.0,
+        100.0,
+        "BROAD trial 06: 38 s at rest, fast rotations by hand about all axes (up to ~16 rad/s), 10 s at rest",
+    ),
+    "04_broad_stationary_magnet": _broad(
+        "28_disturbed_stationary_magnet_A",
+        0.0,
+        184.0,
+        100.0,
+        "BROAD trial 28: at rest, then medium-speed motions near a small magnet placed at a fixed spot, then at rest",
+    ),
+    "05_broad_rotation_breaks": _broad(
+        "04_undisturbed_slow_rotation_with_breaks_A",
+        0.0,
+        213.0,
+        100.0,
+        "BROAD trial 04: 30 s at rest, slow rotations with three rests of ~10 s between them, 36 s at rest",
+    ),
     "06_racetrack": RealFile(_racetrack, "racetrack/racetrack_first_half.csv", text=vehicle_text, read=load_vehicle),
 }

@@ -13,13 +13,14 @@ Boards bundle sensors with their mounting matrices M_bs (body ← sensor); see :
 :func:`phone_board` for a phone (its frame, mountings and fixed-point counts are described there).
 The sensor vocabulary is :data:`SENSORS` ("acc", "gyr", "mag") with their :data:`SI_UNITS`.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from .frames import G, MOUNT_Z_UP, mount_matrix
+from .frames import MOUNT_Z_UP, G, mount_matrix
 
 DEG = np.pi / 180.0
 MG = 1e-3 * G  # one milli-g in m/s²
@@ -100,7 +101,9 @@ _ISM_ODR = (12.5, 26.0, 52.0, 104.0, 208.0, 416.0, 833.0, 1666.0, 3332.0, 6667.0
 def ism330dhcx_accel(fs_g: int = 4) -> SensorSpec:
     """ISM330DHCX accelerometer at ±fs_g g."""
     return SensorSpec(
-        chip="ISM330DHCX", kind="accel", full_scale=fs_g * G,
+        chip="ISM330DHCX",
+        kind="accel",
+        full_scale=fs_g * G,
         sensitivity=_ISM_ACC_SENS_MG[fs_g] * MG,
         noise_density=60e-6 * G,  # An, high-performance mode: 60 µg/√Hz (DS13012 Table 3)
         noise_rms=None,
@@ -112,7 +115,9 @@ def ism330dhcx_accel(fs_g: int = 4) -> SensorSpec:
 def ism330dhcx_gyro(fs_dps: int = 500) -> SensorSpec:
     """ISM330DHCX gyroscope at ±fs_dps °/s."""
     return SensorSpec(
-        chip="ISM330DHCX", kind="gyro", full_scale=fs_dps * DEG,
+        chip="ISM330DHCX",
+        kind="gyro",
+        full_scale=fs_dps * DEG,
         sensitivity=_ISM_GYR_SENS_MDPS[fs_dps] * 1e-3 * DEG,
         noise_density=5e-3 * DEG,  # Rn rate noise density: 5 mdps/√Hz (DS13012 Table 3)
         noise_rms=None,
@@ -124,7 +129,9 @@ def ism330dhcx_gyro(fs_dps: int = 500) -> SensorSpec:
 def iis2mdc_mag() -> SensorSpec:
     """IIS2MDC magnetometer (single range ±50 gauss)."""
     return SensorSpec(
-        chip="IIS2MDC", kind="mag", full_scale=50 * GAUSS,  # ±50 gauss (DS12134 Rev 5, Table 2)
+        chip="IIS2MDC",
+        kind="mag",
+        full_scale=50 * GAUSS,  # ±50 gauss (DS12134 Rev 5, Table 2)
         sensitivity=1.5e-3 * GAUSS,  # 1.5 mgauss/LSB (DS12134 Table 2)
         noise_density=None,
         noise_rms=3e-3 * GAUSS,  # RMS noise, high-resolution mode: 3 mgauss (DS12134 Table 2)
@@ -141,7 +148,9 @@ _MPU_GYR_LSB_PER_DPS = {250: 131.0, 500: 65.5, 1000: 32.8, 2000: 16.4}
 def mpu6050_accel(fs_g: int = 2) -> SensorSpec:
     """MPU-6050 accelerometer at ±fs_g g."""
     return SensorSpec(
-        chip="MPU6050", kind="accel", full_scale=fs_g * G,
+        chip="MPU6050",
+        kind="accel",
+        full_scale=fs_g * G,
         sensitivity=G / _MPU_ACC_LSB_PER_G[fs_g],  # 16384 LSB/g at ±2 g (§6.2)
         noise_density=400e-6 * G,  # power spectral density 400 µg/√Hz (§6.2)
         noise_rms=None,
@@ -153,7 +162,9 @@ def mpu6050_accel(fs_g: int = 2) -> SensorSpec:
 def mpu6050_gyro(fs_dps: int = 250) -> SensorSpec:
     """MPU-6050 gyroscope at ±fs_dps °/s."""
     return SensorSpec(
-        chip="MPU6050", kind="gyro", full_scale=fs_dps * DEG,
+        chip="MPU6050",
+        kind="gyro",
+        full_scale=fs_dps * DEG,
         sensitivity=DEG / _MPU_GYR_LSB_PER_DPS[fs_dps],  # 131 LSB/(°/s) at ±250 °/s (§6.1)
         noise_density=0.005 * DEG,  # rate noise spectral density 0.005 °/s/√Hz (§6.1)
         noise_rms=None,
@@ -252,8 +263,10 @@ def phone_mount(mount=DEFAULT_PHONE_MOUNT) -> tuple[str, np.ndarray]:
         try:
             return mount, np.array(PHONE_MOUNTS[mount])
         except KeyError:
-            raise ValueError(f"unknown phone mounting {mount!r}; known: {', '.join(PHONE_MOUNTS)}, "
-                             f"or a 3×3 rotation matrix M_bs whose rows are the body axes in phone axes") from None
+            raise ValueError(
+                f"unknown phone mounting {mount!r}; known: {', '.join(PHONE_MOUNTS)}, "
+                f"or a 3×3 rotation matrix M_bs whose rows are the body axes in phone axes"
+            ) from None
     return "custom", mount_matrix(mount)
 
 
@@ -276,12 +289,29 @@ class PhoneSensorSpec(SensorSpec):
 # ±3 °/s; ranges used by Android: ±8 g, ±2000 °/s. AKM AK09918 (016014242-E-00, 2016/11): 0.15 µT
 # per LSB, ±4912 µT, continuous modes 10–100 Hz; its noise is not in the datasheet's tables, so
 # σ = 0.3 µT (2 LSB) per sample is assumed here.
-PHONE_ACCEL = PhoneSensorSpec("BMI160-class phone accelerometer", "accel", 8 * G, PHONE_LSB["acc"], 180e-6 * G, None,
-                              40 * MG, (25.0, 50.0, 100.0, 200.0, 400.0))
-PHONE_GYRO = PhoneSensorSpec("BMI160-class phone gyroscope", "gyro", 2000 * DEG, PHONE_LSB["gyr"], 0.007 * DEG, None,
-                             3.0 * DEG, (25.0, 50.0, 100.0, 200.0, 400.0))
-PHONE_MAG = PhoneSensorSpec("AK09918-class phone magnetometer", "mag", 4912.0, PHONE_LSB["mag"], None, 0.3,
-                            1.0, (10.0, 20.0, 50.0, 100.0))
+PHONE_ACCEL = PhoneSensorSpec(
+    "BMI160-class phone accelerometer",
+    "accel",
+    8 * G,
+    PHONE_LSB["acc"],
+    180e-6 * G,
+    None,
+    40 * MG,
+    (25.0, 50.0, 100.0, 200.0, 400.0),
+)
+PHONE_GYRO = PhoneSensorSpec(
+    "BMI160-class phone gyroscope",
+    "gyro",
+    2000 * DEG,
+    PHONE_LSB["gyr"],
+    0.007 * DEG,
+    None,
+    3.0 * DEG,
+    (25.0, 50.0, 100.0, 200.0, 400.0),
+)
+PHONE_MAG = PhoneSensorSpec(
+    "AK09918-class phone magnetometer", "mag", 4912.0, PHONE_LSB["mag"], None, 0.3, 1.0, (10.0, 20.0, 50.0, 100.0)
+)
 
 
 def phone_board(mount=DEFAULT_PHONE_MOUNT) -> Board:
@@ -292,8 +322,11 @@ def phone_board(mount=DEFAULT_PHONE_MOUNT) -> Board:
 
 def phone_sensor_metadata(sensor: str, chip: str | None = None, full_scale: float | None = None) -> dict:
     """A recording's ``meta["sensors"][sensor]`` for phone counts (sensitivity = :data:`PHONE_LSB`)."""
-    meta = {"chip": chip or f"phone {dict(acc='accelerometer', gyr='gyroscope', mag='magnetometer')[sensor]}",
-            "sensitivity": PHONE_LSB[sensor], "unit": SI_UNITS[sensor]}
+    meta = {
+        "chip": chip or f"phone {dict(acc='accelerometer', gyr='gyroscope', mag='magnetometer')[sensor]}",
+        "sensitivity": PHONE_LSB[sensor],
+        "unit": SI_UNITS[sensor],
+    }
     if full_scale is not None:
         meta["full_scale"] = float(full_scale)
     return meta

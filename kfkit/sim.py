@@ -10,15 +10,17 @@ acceleration of the board in NED. :func:`simulate_imu` produces what a board wou
 with constant bias plus a bias random walk b(t), white noise of density N (σ = N·√rate),
 quantisation to the LSB and saturation at full scale. Every random draw is seeded.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .frames import G, MAG_FIELD_LONDON, dcm_to_euler, euler_rates_to_body_rates, euler_to_dcm, mount_matrix
+from .frames import MAG_FIELD_LONDON, G, dcm_to_euler, euler_rates_to_body_rates, euler_to_dcm, mount_matrix
 from .io import Recording
-from .sensors import SensorSpec, board as get_board
+from .sensors import SensorSpec
+from .sensors import board as get_board
 
 
 @dataclass
@@ -52,12 +54,29 @@ def stationary(duration: float, rate_hz: float, roll=0.0, pitch=0.0, yaw=0.0) ->
     t = sample_times(duration, rate_hz)
     euler = np.tile([roll, pitch, yaw], (len(t), 1)).astype(float)
     zeros = np.zeros((len(t), 3))
-    return Motion(t, rate_hz, euler, zeros, zeros.copy(), f"stationary at roll {np.degrees(roll):.0f}°, pitch {np.degrees(pitch):.0f}°")
+    return Motion(
+        t,
+        rate_hz,
+        euler,
+        zeros,
+        zeros.copy(),
+        f"stationary at roll {np.degrees(roll):.0f}°, pitch {np.degrees(pitch):.0f}°",
+    )
 
 
-def sine_roll(duration=60.0, rate_hz=104.0, amplitude=np.radians(30.0), freq_hz=0.1, still=5.0,
-              shakes=(25.0, 45.0), shake_duration=3.0, shake_accel=3.0, shake_freq_hz=2.0,
-              vibration_rms=0.0, seed=0) -> Motion:
+def sine_roll(
+    duration=60.0,
+    rate_hz=104.0,
+    amplitude=np.radians(30.0),
+    freq_hz=0.1,
+    still=5.0,
+    shakes=(25.0, 45.0),
+    shake_duration=3.0,
+    shake_accel=3.0,
+    shake_freq_hz=2.0,
+    vibration_rms=0.0,
+    seed=0,
+) -> Motion:
     """A board rolled back and forth by hand about its x axis, as in lab 01.
 
     Roll φ(t) = A·w(t)·sin(2πf(t − t₀)) after ``still`` seconds at rest, where the envelope
@@ -86,9 +105,11 @@ def sine_roll(duration=60.0, rate_hz=104.0, amplitude=np.radians(30.0), freq_hz=
         acc_n[inside, 1] += shake_accel * np.cos(2.0 * np.pi * shake_freq_hz * (t[inside] - t0))
     if vibration_rms > 0:
         acc_n += np.random.default_rng(seed).normal(0.0, vibration_rms, acc_n.shape)
-    desc = (f"roll sine {np.degrees(amplitude):.0f}° at {freq_hz:g} Hz after {still:g} s at rest; "
-            f"sideways shakes of {shake_accel:g} m/s² at t = {', '.join(f'{s:g}' for s in shakes)} s; "
-            f"hand vibration {vibration_rms:g} m/s² RMS")
+    desc = (
+        f"roll sine {np.degrees(amplitude):.0f}° at {freq_hz:g} Hz after {still:g} s at rest; "
+        f"sideways shakes of {shake_accel:g} m/s² at t = {', '.join(f'{s:g}' for s in shakes)} s; "
+        f"hand vibration {vibration_rms:g} m/s² RMS"
+    )
     return Motion(t, rate_hz, euler, euler_rates_to_body_rates(euler, euler_dot), acc_n, desc)
 
 
@@ -121,10 +142,12 @@ def tilt_protocol(axes=("pitch", "roll"), hold=2.0, move=1.5, rate_hz=100.0, see
             inside = (t >= start) & (t < start + move)
             s = t[inside] - start
             euler[inside, col] = np.pi / 4 * (1.0 - sign * np.cos(np.pi * s / move))
-            euler_dot[inside, col] = sign * np.pi ** 2 / (4 * move) * np.sin(np.pi * s / move)
+            euler_dot[inside, col] = sign * np.pi**2 / (4 * move) * np.sin(np.pi * s / move)
             acc_n[inside] = np.outer(np.sin(2 * np.pi * s / move), rng.normal(0.0, hand_accel, 3))
-    desc = (f"tilt protocol ({', '.join(axes)}): per axis {hold:g} s at 0°, turn to 90° in {move:g} s, {hold:g} s at 90°, "
-            f"back, {hold:g} s at 0°; hand acceleration {hand_accel:g} m/s² RMS amplitude while turning")
+    desc = (
+        f"tilt protocol ({', '.join(axes)}): per axis {hold:g} s at 0°, turn to 90° in {move:g} s, {hold:g} s at 90°, "
+        f"back, {hold:g} s at 0°; hand acceleration {hand_accel:g} m/s² RMS amplitude while turning"
+    )
     return Motion(t, rate_hz, euler, euler_rates_to_body_rates(euler, euler_dot), acc_n, desc, phases)
 
 
@@ -136,10 +159,23 @@ def _sensor_signal(rng, truth_s, spec: SensorSpec, rate_hz, bias, bias_rw):
     return spec.to_counts(truth_s + bias + walk + noise)
 
 
-def simulate_imu(motion: Motion, board="nucleo-iks02a1", seed=0, *, gyro_bias=None, accel_bias=None,
-                 gyro_bias_rw=1e-4, accel_bias_rw=1e-4, field_n=MAG_FIELD_LONDON,
-                 mag_rate_hz=None, mag_disturbance=None, accel_scale=None, gyro_scale=None,
-                 mag_hard_iron=None, mag_soft_iron=None) -> Recording:
+def simulate_imu(
+    motion: Motion,
+    board="nucleo-iks02a1",
+    seed=0,
+    *,
+    gyro_bias=None,
+    accel_bias=None,
+    gyro_bias_rw=1e-4,
+    accel_bias_rw=1e-4,
+    field_n=MAG_FIELD_LONDON,
+    mag_rate_hz=None,
+    mag_disturbance=None,
+    accel_scale=None,
+    gyro_scale=None,
+    mag_hard_iron=None,
+    mag_soft_iron=None,
+) -> Recording:
     """Simulate the board's IMU over ``motion`` and return a recording in counts.
 
     gyro_bias, accel_bias  constant biases (3,) in the sensor frame, SI; by default drawn
@@ -183,10 +219,12 @@ def simulate_imu(motion: Motion, board="nucleo-iks02a1", seed=0, *, gyro_bias=No
         imperfections[key] = np.asarray(scale, float).tolist()
         return x_s * np.asarray(scale, float)
 
-    gyr = _sensor_signal(rng, scaled(to_sensor(motion.omega_b, "gyr"), gyro_scale, "gyro_scale"), b.gyro, rate,
-                         gyro_bias, gyro_bias_rw)
-    acc = _sensor_signal(rng, scaled(to_sensor(f_b, "acc"), accel_scale, "accel_scale"), b.accel, rate,
-                         accel_bias, accel_bias_rw)
+    gyr = _sensor_signal(
+        rng, scaled(to_sensor(motion.omega_b, "gyr"), gyro_scale, "gyro_scale"), b.gyro, rate, gyro_bias, gyro_bias_rw
+    )
+    acc = _sensor_signal(
+        rng, scaled(to_sensor(f_b, "acc"), accel_scale, "accel_scale"), b.accel, rate, accel_bias, accel_bias_rw
+    )
 
     n = len(motion.t)
     data = {"t": motion.t.astype(float), "seq": np.arange(n, dtype=np.int64) % 65536}
@@ -199,7 +237,9 @@ def simulate_imu(motion: Motion, board="nucleo-iks02a1", seed=0, *, gyro_bias=No
         if mag_disturbance is not None:
             disturbance = np.asarray(mag_disturbance, dtype=float)
             if disturbance.shape != m_b.shape:
-                raise ValueError(f"mag_disturbance must be one NED vector per sample, shape {m_b.shape}; got {disturbance.shape}")
+                raise ValueError(
+                    f"mag_disturbance must be one NED vector per sample, shape {m_b.shape}; got {disturbance.shape}"
+                )
             m_b = m_b + np.einsum("nij,nj->ni", R_bn, disturbance)
         m_s = to_sensor(m_b, "mag")
         if mag_soft_iron is not None:
@@ -228,8 +268,12 @@ def simulate_imu(motion: Motion, board="nucleo-iks02a1", seed=0, *, gyro_bias=No
         "units": {"t": "s", "sensors": "counts (see sensors.*.sensitivity)", "true_*": "rad"},
         "sensors": sensors,
         "mount": {k: v for k, v in b.mount.items() if k in sensors},
-        "sim": {"gyro_bias": np.asarray(gyro_bias, float).tolist(), "accel_bias": np.asarray(accel_bias, float).tolist(),
-                "field_n": list(map(float, field_n)), **imperfections},
+        "sim": {
+            "gyro_bias": np.asarray(gyro_bias, float).tolist(),
+            "accel_bias": np.asarray(accel_bias, float).tolist(),
+            "field_n": list(map(float, field_n)),
+            **imperfections,
+        },
     }
     if motion.phases:
         meta["phases"] = [{"label": label, "start": float(t0), "end": float(t1)} for t0, t1, label in motion.phases]
@@ -237,6 +281,7 @@ def simulate_imu(motion: Motion, board="nucleo-iks02a1", seed=0, *, gyro_bias=No
 
 
 # --- attitude motions (lab 04) --------------------------------------------------------------
+
 
 def _smooth_step(u):
     """Minimum-jerk step s(u) = 10u³ − 15u⁴ + 6u⁵ on [0, 1] and its derivative ds/du (0 outside)."""
@@ -288,8 +333,9 @@ def _still_windows(duration, busy):
     return windows
 
 
-def attitude_tour(rate_hz=104.0, yaw0=np.radians(30.0), swing=np.radians(40.0), translate_accel=2.0,
-                  vibration_rms=0.0, seed=0) -> Motion:
+def attitude_tour(
+    rate_hz=104.0, yaw0=np.radians(30.0), swing=np.radians(40.0), translate_accel=2.0, vibration_rms=0.0, seed=0
+) -> Motion:
     """Lab 04: a board turned by hand about all its axes, with rests in between (60 s).
 
     0–5 s at rest; roll swings ±``swing`` (5–15 s); pitch swings ±0.9·``swing`` (17–27 s); a yaw
@@ -306,15 +352,30 @@ def attitude_tour(rate_hz=104.0, yaw0=np.radians(30.0), swing=np.radians(40.0), 
     t = sample_times(duration, rate_hz)
     a, p = swing, 0.9 * swing
     moves = [
-        (5.0, 7.5, 0, a), (7.5, 12.5, 0, -2 * a), (12.5, 15.0, 0, a),
-        (17.0, 19.5, 1, p), (19.5, 24.5, 1, -2 * p), (24.5, 27.0, 1, p),
-        (29.0, 34.0, 2, np.radians(170.0)), (34.0, 39.0, 2, -np.radians(170.0)),
-        (49.0, 52.0, 0, np.radians(30.0)), (52.0, 55.0, 0, -np.radians(50.0)), (55.0, 57.0, 0, np.radians(20.0)),
-        (49.0, 52.5, 1, -np.radians(25.0)), (52.5, 55.5, 1, np.radians(40.0)), (55.5, 57.0, 1, -np.radians(15.0)),
-        (49.0, 53.0, 2, -np.radians(90.0)), (53.0, 57.0, 2, np.radians(90.0)),
+        (5.0, 7.5, 0, a),
+        (7.5, 12.5, 0, -2 * a),
+        (12.5, 15.0, 0, a),
+        (17.0, 19.5, 1, p),
+        (19.5, 24.5, 1, -2 * p),
+        (24.5, 27.0, 1, p),
+        (29.0, 34.0, 2, np.radians(170.0)),
+        (34.0, 39.0, 2, -np.radians(170.0)),
+        (49.0, 52.0, 0, np.radians(30.0)),
+        (52.0, 55.0, 0, -np.radians(50.0)),
+        (55.0, 57.0, 0, np.radians(20.0)),
+        (49.0, 52.5, 1, -np.radians(25.0)),
+        (52.5, 55.5, 1, np.radians(40.0)),
+        (55.5, 57.0, 1, -np.radians(15.0)),
+        (49.0, 53.0, 2, -np.radians(90.0)),
+        (53.0, 57.0, 2, np.radians(90.0)),
     ]
-    busy = {"roll": (5.0, 15.0), "pitch": (17.0, 27.0), "yaw": (29.0, 39.0),
-            "linear_acceleration": (41.0, 47.0), "tumble": (49.0, 57.0)}
+    busy = {
+        "roll": (5.0, 15.0),
+        "pitch": (17.0, 27.0),
+        "yaw": (29.0, 39.0),
+        "linear_acceleration": (41.0, 47.0),
+        "tumble": (49.0, 57.0),
+    }
     acc_n = np.zeros((len(t), 3))
     t0, t1 = busy["linear_acceleration"]
     inside = (t >= t0) & (t < t1)
@@ -325,9 +386,11 @@ def attitude_tour(rate_hz=104.0, yaw0=np.radians(30.0), swing=np.radians(40.0), 
         moving = np.any([(t >= b0) & (t < b1) for b0, b1 in busy.values()], axis=0)
         acc_n[moving] += np.random.default_rng(seed).normal(0.0, vibration_rms, (int(moving.sum()), 3))
     phases = sorted(_still_windows(duration, busy.values()) + [(b0, b1, k) for k, (b0, b1) in busy.items()])
-    desc = (f"attitude tour: rest, roll ±{np.degrees(a):.0f}°, pitch ±{np.degrees(p):.0f}°, yaw +170° and back "
-            f"from {np.degrees(yaw0):.0f}°, sliding on the table (up to {2 * translate_accel:g} m/s²), a tumble about all "
-            f"axes, rests in between; hand vibration {vibration_rms:g} m/s² RMS while moving")
+    desc = (
+        f"attitude tour: rest, roll ±{np.degrees(a):.0f}°, pitch ±{np.degrees(p):.0f}°, yaw +170° and back "
+        f"from {np.degrees(yaw0):.0f}°, sliding on the table (up to {2 * translate_accel:g} m/s²), a tumble about all "
+        f"axes, rests in between; hand vibration {vibration_rms:g} m/s² RMS while moving"
+    )
     return _motion_from_euler(t, rate_hz, *euler_moves(t, [0.0, 0.0, yaw0], moves), acc_n, desc, phases)
 
 
@@ -358,13 +421,22 @@ def pitch_over(rate_hz=104.0, peak=np.radians(110.0), wobble=np.radians(5.0), ya
     ends = np.append(t, duration)  # a window ends at the first sample after it
     vertical = [(float(t[i]), float(ends[j]), "near_vertical") for i, j in zip(edges[::2], edges[1::2])]
     phases = sorted(_still_windows(duration, busy.values()) + [(b0, b1, k) for k, (b0, b1) in busy.items()] + vertical)
-    desc = (f"pitch over: nose up through vertical to {np.degrees(peak):.0f}° and back, then nose down the same; "
-            f"roll and yaw wobble ±{np.degrees(wobble):.0f}°")
+    desc = (
+        f"pitch over: nose up through vertical to {np.degrees(peak):.0f}° and back, then nose down the same; "
+        f"roll and yaw wobble ±{np.degrees(wobble):.0f}°"
+    )
     return _motion_from_euler(t, rate_hz, euler, euler_dot, np.zeros((len(t), 3)), desc, phases)
 
 
-def yaw_sweeps(rate_hz=104.0, duration=30.0, amplitude=np.radians(60.0), period=10.0, still=3.0,
-               disturbance=(12.0, 20.0), yaw0=np.radians(30.0)) -> Motion:
+def yaw_sweeps(
+    rate_hz=104.0,
+    duration=30.0,
+    amplitude=np.radians(60.0),
+    period=10.0,
+    still=3.0,
+    disturbance=(12.0, 20.0),
+    yaw0=np.radians(30.0),
+) -> Motion:
     """Lab 04's magnetic disturbance: slow heading sweeps ±``amplitude`` with ``period`` (s) after
     ``still`` s at rest, roll and pitch wobbling ±10°. The window ``disturbance`` (s) is labelled
     'mag_disturbance' for :func:`mag_disturbance`, which makes the field that goes with it.
@@ -373,8 +445,10 @@ def yaw_sweeps(rate_hz=104.0, duration=30.0, amplitude=np.radians(60.0), period=
     t = sample_times(duration, rate_hz)
     half = period / 2
     n_half = int((duration - still) // half)
-    moves = [(still + k * half, still + (k + 1) * half, 2, amplitude * (1 if k == 0 else 2) * (-1) ** k)
-             for k in range(n_half)]
+    moves = [
+        (still + k * half, still + (k + 1) * half, 2, amplitude * (1 if k == 0 else 2) * (-1) ** k)
+        for k in range(n_half)
+    ]
     euler, euler_dot = euler_moves(t, [0.0, 0.0, yaw0], moves)
     s, ds = _smooth_step(t - still)  # wobble fades in over one second
     for axis, f in ((0, 0.23), (1, 0.17)):
@@ -382,8 +456,10 @@ def yaw_sweeps(rate_hz=104.0, duration=30.0, amplitude=np.radians(60.0), period=
         euler[:, axis] += s * w
         euler_dot[:, axis] += ds * w + s * np.radians(10.0) * 2 * np.pi * f * np.cos(2 * np.pi * f * (t - still))
     phases = [(0.0, still, "stationary"), (still, duration, "sweeps"), (*map(float, disturbance), "mag_disturbance")]
-    desc = (f"heading sweeps ±{np.degrees(amplitude):.0f}° every {period:g} s with roll/pitch wobble ±10°; "
-            f"magnetic disturbance window {disturbance[0]:g}–{disturbance[1]:g} s")
+    desc = (
+        f"heading sweeps ±{np.degrees(amplitude):.0f}° every {period:g} s with roll/pitch wobble ±10°; "
+        f"magnetic disturbance window {disturbance[0]:g}–{disturbance[1]:g} s"
+    )
     return _motion_from_euler(t, rate_hz, euler, euler_dot, np.zeros((len(t), 3)), desc, phases)
 
 
@@ -401,6 +477,7 @@ def mag_disturbance(motion: Motion, field=(-10.0, 8.0, 10.0), label="mag_disturb
 
 
 # --- calibration motions (labs 02 and 03) -----------------------------------------------------
+
 
 def _pose_sequence(rate_hz, poses, hold, move, description) -> Motion:
     """Rest at each pose ``(roll, pitch, yaw, label)`` (rad) for ``hold`` s, turning between poses in
@@ -430,13 +507,31 @@ def six_faces(hold=5.0, move=3.0, rate_hz=104.0, seed=0) -> Motion:
     x_up (pitch 90°), x_down (pitch −90°).
     """
     rng = np.random.default_rng(seed)
-    nominal = [(0, 0, "z_down"), (90, 0, "y_down"), (180, 0, "z_up"), (270, 0, "y_up"), (360, 90, "x_up"),
-               (360, -90, "x_down")]
-    poses = [(np.radians(r) + rng.normal(0.0, np.radians(0.5)), np.radians(p) + rng.normal(0.0, np.radians(0.5)),
-              rng.uniform(-np.pi, np.pi), label) for r, p, label in nominal]
-    return _pose_sequence(rate_hz, poses, hold, move,
-                          f"six faces: {hold:g} s at rest on each face (z down, y down, z up, y up, x up, x down), "
-                          f"{move:g} s turns between them; faces tilted by about 0.5° at random headings")
+    nominal = [
+        (0, 0, "z_down"),
+        (90, 0, "y_down"),
+        (180, 0, "z_up"),
+        (270, 0, "y_up"),
+        (360, 90, "x_up"),
+        (360, -90, "x_down"),
+    ]
+    poses = [
+        (
+            np.radians(r) + rng.normal(0.0, np.radians(0.5)),
+            np.radians(p) + rng.normal(0.0, np.radians(0.5)),
+            rng.uniform(-np.pi, np.pi),
+            label,
+        )
+        for r, p, label in nominal
+    ]
+    return _pose_sequence(
+        rate_hz,
+        poses,
+        hold,
+        move,
+        f"six faces: {hold:g} s at rest on each face (z down, y down, z up, y up, x up, x down), "
+        f"{move:g} s turns between them; faces tilted by about 0.5° at random headings",
+    )
 
 
 def mag_rotations(duration=60.0, rate_hz=104.0, seed=0) -> Motion:
@@ -459,9 +554,15 @@ def mag_rotations(duration=60.0, rate_hz=104.0, seed=0) -> Motion:
     euler = np.column_stack([A_r * (np.sin(w_r * tau + a) - np.sin(a)), A_p * np.sin(w_p * tau), yaw0 + w_y * tau])
     rates = np.column_stack([A_r * w_r * np.cos(w_r * tau + a), A_p * w_p * np.cos(w_p * tau), np.full_like(tau, w_y)])
     euler_dot = rates * e[:, None]
-    return _motion_from_euler(t, rate_hz, euler, euler_dot, np.zeros((len(t), 3)),
-                              f"slow tumbling over {duration:g} s covering the sphere (roll ±170°, pitch ±75°, "
-                              f"yaw turning at 14.4°/s)", [(0.0, float(duration), "mag_rotations")])
+    return _motion_from_euler(
+        t,
+        rate_hz,
+        euler,
+        euler_dot,
+        np.zeros((len(t), 3)),
+        f"slow tumbling over {duration:g} s covering the sphere (roll ±170°, pitch ±75°, yaw turning at 14.4°/s)",
+        [(0.0, float(duration), "mag_rotations")],
+    )
 
 
 def axis_turns(angle=np.radians(90.0), hold=2.0, move=3.0, rate_hz=104.0, yaw=0.0) -> Motion:
@@ -476,21 +577,36 @@ def axis_turns(angle=np.radians(90.0), hold=2.0, move=3.0, rate_hz=104.0, yaw=0.
         out = [0.0, 0.0, yaw]
         out[axis] += angle
         poses += [(0.0, 0.0, yaw, None), (*out, None), (0.0, 0.0, yaw, None)]
-    m = _pose_sequence(rate_hz, poses, hold, move,
-                       f"turns of {np.degrees(angle):.0f}° about body x, y and z and back, {hold:g} s rests")
+    m = _pose_sequence(
+        rate_hz,
+        poses,
+        hold,
+        move,
+        f"turns of {np.degrees(angle):.0f}° about body x, y and z and back, {hold:g} s rests",
+    )
     step = hold + move  # pose i starts resting at i·step
     m.phases = [(3 * i * step, (3 * i + 2) * step + hold, f"turn_{axis}") for i, axis in enumerate("xyz")]
     return m
 
 
-def heading_steps(headings=np.radians([0.0, 60.0, 120.0, 180.0, 240.0, 300.0]), tilt=(np.radians(20.0), np.radians(-15.0)),
-                  hold=4.0, move=2.0, rate_hz=104.0) -> Motion:
+def heading_steps(
+    headings=np.radians([0.0, 60.0, 120.0, 180.0, 240.0, 300.0]),
+    tilt=(np.radians(20.0), np.radians(-15.0)),
+    hold=4.0,
+    move=2.0,
+    rate_hz=104.0,
+) -> Motion:
     """Lab 03's heading test: the board turned through known ``headings`` (rad) flat, then again tilted
     by ``tilt`` = (roll, pitch) (rad), resting ``hold`` s at each. Phases ``"heading_flat"`` and
     ``"heading_tilted"`` label the rests; the tilted pass visits the headings in reverse order."""
     flat = [(0.0, 0.0, float(h), "heading_flat") for h in headings]
     tilted = [(tilt[0], tilt[1], float(h), "heading_tilted") for h in headings[::-1]]  # turn back, not round
-    return _pose_sequence(rate_hz, flat + tilted, hold, move,
-                          f"turned flat through headings {', '.join(f'{np.degrees(h):.0f}°' for h in headings)}, "
-                          f"then again tilted (roll {np.degrees(tilt[0]):.0f}°, pitch {np.degrees(tilt[1]):.0f}°), "
-                          f"{hold:g} s at each")
+    return _pose_sequence(
+        rate_hz,
+        flat + tilted,
+        hold,
+        move,
+        f"turned flat through headings {', '.join(f'{np.degrees(h):.0f}°' for h in headings)}, "
+        f"then again tilted (roll {np.degrees(tilt[0]):.0f}°, pitch {np.degrees(tilt[1]):.0f}°), "
+        f"{hold:g} s at each",
+    )

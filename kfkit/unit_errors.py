@@ -12,6 +12,7 @@ errors, and what labs 02/03 measure on one recording calibrates the others. Each
 
 gathered by board name in :data:`BOARD_UNITS`; :func:`resolve_unit` checks a unit given by hand.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -49,22 +50,40 @@ BIAS_RANDOM_WALK = {
 
 # The bundled 05_* recordings (10–48 s) were made with sim.simulate_imu's default walks (1e-4 on both,
 # a gyro walk 5× what a long rest of such a part shows); the unit's own walks are BIAS_RANDOM_WALK's.
-MPU6050_UNIT = {"gyro_bias": MPU6050_GYRO_BIAS, "accel_bias": MPU6050_ACCEL_BIAS, "accel_scale": MPU6050_ACCEL_SCALE,
-                "gyro_bias_rw": BIAS_RANDOM_WALK["mpu6050"][0], "accel_bias_rw": BIAS_RANDOM_WALK["mpu6050"][1]}
+MPU6050_UNIT = {
+    "gyro_bias": MPU6050_GYRO_BIAS,
+    "accel_bias": MPU6050_ACCEL_BIAS,
+    "accel_scale": MPU6050_ACCEL_SCALE,
+    "gyro_bias_rw": BIAS_RANDOM_WALK["mpu6050"][0],
+    "accel_bias_rw": BIAS_RANDOM_WALK["mpu6050"][1],
+}
 
 #: A phone after the OS's own calibration (phone frame, SI; assumptions, not measurements): the
 #: gyro bias its drift compensation leaves (a few hundredths of °/s), a few mg of accelerometer
 #: offset, and about 1 µT of hard iron its continuous magnetometer calibration has not removed (each
 #: µT of it turns the heading by up to 3° in London's 19.5 µT horizontal field: lab 03).
-PHONE_UNIT = {"gyro_bias": tuple(np.radians([0.03, -0.02, 0.04])), "accel_bias": (0.04, -0.03, 0.05),
-              "mag_hard_iron": (0.6, -0.4, 0.8), "gyro_bias_rw": 2e-5, "accel_bias_rw": 2e-5}
+PHONE_UNIT = {
+    "gyro_bias": tuple(np.radians([0.03, -0.02, 0.04])),
+    "accel_bias": (0.04, -0.03, 0.05),
+    "mag_hard_iron": (0.6, -0.4, 0.8),
+    "gyro_bias_rw": 2e-5,
+    "accel_bias_rw": 2e-5,
+}
 
 #: Each board's simulated unit, by board name.
 BOARD_UNITS = {"nucleo-iks02a1": NUCLEO_UNIT, "mpu6050": MPU6050_UNIT, PHONE_BOARD: PHONE_UNIT}
 
 #: The errors a unit can have, with their shapes (``sim.simulate_imu`` keywords).
-ERROR_SHAPES = {"gyro_bias": (3,), "accel_bias": (3,), "accel_scale": (3,), "gyro_scale": (3,), "mag_hard_iron": (3,),
-                "mag_soft_iron": (3, 3), "gyro_bias_rw": (), "accel_bias_rw": ()}
+ERROR_SHAPES = {
+    "gyro_bias": (3,),
+    "accel_bias": (3,),
+    "accel_scale": (3,),
+    "gyro_scale": (3,),
+    "mag_hard_iron": (3,),
+    "mag_soft_iron": (3, 3),
+    "gyro_bias_rw": (),
+    "accel_bias_rw": (),
+}
 
 
 def resolve_unit(board_name: str, unit="bundled", boards=BOARD_UNITS) -> dict:
@@ -75,8 +94,10 @@ def resolve_unit(board_name: str, unit="bundled", boards=BOARD_UNITS) -> dict:
         if unit != "bundled":
             raise ValueError(f"unit must be 'bundled', None or a dict of sensor errors, got {unit!r}")
         if board_name not in boards:
-            raise ValueError(f"no bundled unit for board {board_name!r} (known: {', '.join(boards)}); "
-                             "pass unit=None for an ideal sensor or a dict of its errors")
+            raise ValueError(
+                f"no bundled unit for board {board_name!r} (known: {', '.join(boards)}); "
+                "pass unit=None for an ideal sensor or a dict of its errors"
+            )
         unit = boards[board_name]
     unit = dict(unit or {})
     unknown = sorted(set(unit) - set(ERROR_SHAPES))
@@ -85,5 +106,7 @@ def resolve_unit(board_name: str, unit="bundled", boards=BOARD_UNITS) -> dict:
     errors = {k: np.array(v, float) for k, v in unit.items()}
     for k, v in errors.items():
         if v.shape != ERROR_SHAPES[k] or not np.all(np.isfinite(v)) or (k.endswith("_rw") and v < 0):
-            raise ValueError(f"unit {k}: expected finite values of shape {ERROR_SHAPES[k]} (a walk ≥ 0), got {unit[k]!r}")
+            raise ValueError(
+                f"unit {k}: expected finite values of shape {ERROR_SHAPES[k]} (a walk ≥ 0), got {unit[k]!r}"
+            )
     return errors

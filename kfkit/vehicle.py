@@ -1,5 +1,6 @@
 """Single-track (bicycle) vehicle models (made discrete by :func:`kfkit.discrete.discretize`) and simulated
-drives; their files are :mod:`kfkit.io`'s vehicle format (``# kfkit-vehicle v1``; a CSV of your own: :mod:`kfkit.readers.vehicle_csv`).
+drives; their files are :mod:`kfkit.io`'s vehicle format (``# kfkit-vehicle v1``; a CSV of your own:
+:mod:`kfkit.readers.vehicle_csv`).
 
 Axes and signs follow ISO 8855: x forward, y left, z up; steering δ > 0 turns left, yaw rate
 r > 0 is a left turn, lateral acceleration a_y > 0 points left. (The IMU labs use FRD: an IMU
@@ -16,6 +17,7 @@ input δ, outputs [r, a_y]::
 Reference for the model and the default car: R. Rajamani, *Vehicle Dynamics and Control*,
 2nd ed., Springer 2012, ch. 2–3 (lateral dynamics; the example car of ch. 3).
 """
+
 from __future__ import annotations
 
 import math
@@ -30,6 +32,7 @@ KMH = 1.0 / 3.6  # m/s per km/h
 
 
 # --- parameters -----------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class BicycleParams:
@@ -75,18 +78,21 @@ class BicycleParams:
         """K = m/L·(b/Cf − a/Cr), rad per m/s² (> 0: understeer); steady state δ = L/R + K·a_y."""
         return self.m / self.wheelbase * (self.b / self.Cf - self.a / self.Cr)
 
-    def scaled(self, cornering: float = 1.0) -> "BicycleParams":
+    def scaled(self, cornering: float = 1.0) -> BicycleParams:
         """The same car with both cornering stiffnesses multiplied by ``cornering`` (e.g. 0.8)."""
         return replace(self, Cf=self.Cf * cornering, Cr=self.Cr * cornering)
 
 
 # --- the linear model and its discretisation -----------------------------------------------
 
+
 def _check_speed(vx, who="linear_model"):
     vx = float(vx)
     if not (math.isfinite(vx) and vx > 0):
-        raise ValueError(f"{who}: the bicycle model needs a forward speed Vx > 0 m/s (its coefficients divide by Vx), "
-                         f"got Vx = {vx!r}")
+        raise ValueError(
+            f"{who}: the bicycle model needs a forward speed Vx > 0 m/s (its coefficients divide by Vx), "
+            f"got Vx = {vx!r}"
+        )
     return vx
 
 
@@ -97,12 +103,15 @@ def linear_model(params: BicycleParams, vx: float):
     """
     vx = _check_speed(vx)
     m, Iz, a, b, Cf, Cr = params.m, params.Iz, params.a, params.b, params.Cf, params.Cr
+    # the matrices as the equations write them, one row a line
+    # fmt: off
     A = np.array([[-(Cf + Cr) / (m * vx), (b * Cr - a * Cf) / (m * vx ** 2) - 1.0],
                   [(b * Cr - a * Cf) / Iz, -(a * a * Cf + b * b * Cr) / (Iz * vx)]])
     B = np.array([[Cf / (m * vx)], [a * Cf / Iz]])
     C = np.array([[0.0, 1.0],
                   [-(Cf + Cr) / m, (b * Cr - a * Cf) / (m * vx)]])
     D = np.array([[0.0], [Cf / m]])
+    # fmt: on
     return A, B, C, D
 
 
@@ -124,11 +133,22 @@ def units_consistent(model, params: BicycleParams = BicycleParams(), vx: float =
     Returns a dict 'A[i,j]' → True / False for every entry (entries that are 0 are skipped).
     """
     lam, mu, tau = 0.37, 2.9, 1.7  # arbitrary unit changes
-    other = BicycleParams(m=params.m * mu, Iz=params.Iz * mu * lam ** 2, a=params.a * lam, b=params.b * lam,
-                          Cf=params.Cf * mu * lam / tau ** 2, Cr=params.Cr * mu * lam / tau ** 2, mu=params.mu)
+    other = BicycleParams(
+        m=params.m * mu,
+        Iz=params.Iz * mu * lam**2,
+        a=params.a * lam,
+        b=params.b * lam,
+        Cf=params.Cf * mu * lam / tau**2,
+        Cr=params.Cr * mu * lam / tau**2,
+        mu=params.mu,
+    )
     # dimension exponents (L, T) of each entry; mass never survives in a ratio of the outputs
-    dims = {"A": [[(0, -1), (0, 0)], [(0, -2), (0, -1)]], "B": [[(0, -1)], [(0, -2)]],
-            "C": [[(0, 0), (0, 0)], [(1, -2), (1, -1)]], "D": [[(0, 0)], [(1, -2)]]}
+    dims = {
+        "A": [[(0, -1), (0, 0)], [(0, -2), (0, -1)]],
+        "B": [[(0, -1)], [(0, -2)]],
+        "C": [[(0, 0), (0, 0)], [(1, -2), (1, -1)]],
+        "D": [[(0, 0)], [(1, -2)]],
+    }
     base = dict(zip("ABCD", model(params, vx)))
     moved = dict(zip("ABCD", model(other, vx * lam / tau)))
     result = {}
@@ -139,7 +159,7 @@ def units_consistent(model, params: BicycleParams = BicycleParams(), vx: float =
                 if ref == 0.0:
                     continue
                 got = float(np.asarray(moved[name])[i, j])
-                result[f"{name}[{i},{j}]"] = bool(abs(got - ref * lam ** p * tau ** s) <= rtol * abs(ref * lam ** p * tau ** s))
+                result[f"{name}[{i},{j}]"] = bool(abs(got - ref * lam**p * tau**s) <= rtol * abs(ref * lam**p * tau**s))
     return result
 
 
@@ -160,6 +180,7 @@ def miscopied_linear_model(params: BicycleParams, vx: float):
 
 
 # --- the nonlinear single-track truth model ---------------------------------------------------
+
 
 @dataclass(frozen=True)
 class MagicFormula:
@@ -191,15 +212,44 @@ class MagicFormula:
         dF/dα = D cos(C atan φ)·C/(1 + φ²)·B(1 − E + E/(1 + x²))."""
         x = self.B * alpha
         phi = x - self.E * (x - np.arctan(x))
-        return self.D * np.cos(self.C * np.arctan(phi)) * self.C / (1.0 + phi * phi) * \
-            self.B * (1.0 - self.E + self.E / (1.0 + x * x))
+        return (
+            self.D
+            * np.cos(self.C * np.arctan(phi))
+            * self.C
+            / (1.0 + phi * phi)
+            * self.B
+            * (1.0 - self.E + self.E / (1.0 + x * x))
+        )
 
 
 def axle_tyres(params: BicycleParams):
     """Front and rear :class:`MagicFormula` with static loads F_zf = m g b/L, F_zr = m g a/L."""
     L = params.wheelbase
-    return (MagicFormula.for_axle(params.Cf, params.m * G * params.b / L, params.mu),
-            MagicFormula.for_axle(params.Cr, params.m * G * params.a / L, params.mu))
+    return (
+        MagicFormula.for_axle(params.Cf, params.m * G * params.b / L, params.mu),
+        MagicFormula.for_axle(params.Cr, params.m * G * params.a / L, params.mu),
+    )
+
+
+def peak_friction(t, ay, window_s: float = 0.5) -> float:
+    """The friction a drive shows without its sideslip: µ ≥ max |ā_y| / g, ā_y the lateral acceleration (m/s²)
+    averaged over ``window_s`` seconds (a centred moving mean, at the median sample interval of ``t``, s).
+
+    Each axle's force is at most µ F_z and the static loads add up to m g, so m |a_y| ≤ µ m g: the tyres made at
+    least the grip the car measured. On a drive at the limit (a race track) the bound is µ itself; on a gentle drive
+    it says only that µ is above it. The mean keeps a corner's sustained force and averages out the body's vibration
+    (white noise of σ per sample shrinks by √(samples in the window)), which a single sample's peak would count.
+    """
+    t, ay = np.asarray(t, dtype=float), np.asarray(ay, dtype=float)
+    if not np.all(np.isfinite(ay)):
+        k = int(np.argmax(~np.isfinite(ay)))
+        raise ValueError(f"peak_friction: ay[{k}] is {ay[k]}: drop or interpolate non-finite samples first")
+    n = max(1, int(round(window_s / float(np.median(np.diff(t))))))
+    if len(ay) < n:
+        raise ValueError(
+            f"peak_friction: the drive ({len(ay)} samples) is shorter than the {window_s:g} s window ({n} samples)"
+        )
+    return float(np.max(np.abs(np.convolve(ay, np.ones(n) / n, mode="valid"))) / G)
 
 
 MIN_TRUTH_SPEED = 0.5  # m/s: slip angles atan(v/Vx) are meaningless at a standstill
@@ -223,8 +273,10 @@ def simulate_nonlinear(params: BicycleParams, t, delta, vx, substeps: int = 4):
     vx = np.broadcast_to(np.asarray(vx, dtype=float), t.shape)
     if np.any(vx < MIN_TRUTH_SPEED):
         k = int(np.argmax(vx < MIN_TRUTH_SPEED))
-        raise ValueError(f"simulate_nonlinear: V_x = {vx[k]:.3g} m/s at t = {t[k]:.3f} s is below {MIN_TRUTH_SPEED} m/s, "
-                         "where tyre slip angles are undefined")
+        raise ValueError(
+            f"simulate_nonlinear: V_x = {vx[k]:.3g} m/s at t = {t[k]:.3f} s is below {MIN_TRUTH_SPEED} m/s, "
+            "where tyre slip angles are undefined"
+        )
     front, rear = axle_tyres(params)
     m, Iz, a, b = params.m, params.Iz, params.a, params.b
 
@@ -259,6 +311,7 @@ def simulate_nonlinear(params: BicycleParams, t, delta, vx, substeps: int = 4):
 
 # --- scenarios ---------------------------------------------------------------------------------
 
+
 @dataclass
 class Drive:
     """A prescribed drive: times (s), road-wheel steering δ (rad), speed V_x (m/s), labelled windows."""
@@ -284,8 +337,16 @@ def _speed_ramp(t, t0, t1, v0, v1):
     return v0 + (v1 - v0) * 0.5 * (1.0 - np.cos(np.pi * s))
 
 
-def slalom(speed_kmh=20.0, cone_spacing=9.0, cones=10, peak_ay=3.0, rate_hz=100.0, lead=2.0,
-           start_kmh=None, params: BicycleParams = BicycleParams()) -> Drive:
+def slalom(
+    speed_kmh=20.0,
+    cone_spacing=9.0,
+    cones=10,
+    peak_ay=3.0,
+    rate_hz=100.0,
+    lead=2.0,
+    start_kmh=None,
+    params: BicycleParams = BicycleParams(),
+) -> Drive:
     """Slalom through ``cones`` cones ``cone_spacing`` m apart at ``speed_kmh``.
 
     The car passes one cone per half steering period, so δ(t) = δ₀ sin(2π f t) with
@@ -308,15 +369,25 @@ def slalom(speed_kmh=20.0, cone_spacing=9.0, cones=10, peak_ay=3.0, rate_hz=100.
         up = _speed_ramp(t, 0.0, ramp, 0.0, 1.0) - _speed_ramp(t, t[-1] - ramp, t[-1], 0.0, 1.0)
         vx = start_kmh * KMH + (v - start_kmh * KMH) * up
     phases = [(t0, t0 + duration, "slalom")]
-    text = (f"slalom at {speed_kmh:g} km/h through {cones} cones {cone_spacing:g} m apart: steering "
-            f"{math.degrees(amplitude):.2f}° (road wheel) at {freq:.3f} Hz, linear-model a_y amplitude {peak_ay:g} m/s²")
+    text = (
+        f"slalom at {speed_kmh:g} km/h through {cones} cones {cone_spacing:g} m apart: steering "
+        f"{math.degrees(amplitude):.2f}° (road wheel) at {freq:.3f} Hz, linear-model a_y amplitude {peak_ay:g} m/s²"
+    )
     if start_kmh is not None:
         text += f"; from {start_kmh:g} km/h up to speed in {ramp:g} s before and back down after"
     return Drive(t, delta, vx, phases, text)
 
 
-def lane_change(speed_kmh=60.0, offset=3.5, change_length=40.0, hold_length=25.0, rate_hz=100.0, lead=2.0,
-                end_kmh=None, params: BicycleParams = BicycleParams()) -> Drive:
+def lane_change(
+    speed_kmh=60.0,
+    offset=3.5,
+    change_length=40.0,
+    hold_length=25.0,
+    rate_hz=100.0,
+    lead=2.0,
+    end_kmh=None,
+    params: BicycleParams = BicycleParams(),
+) -> Drive:
     """A double lane change (ISO 3888-1 style, approximated): out by ``offset`` m, hold, and back.
 
     Each lane change is one full sine period of steering over ``change_length`` m of travel;
@@ -338,14 +409,22 @@ def lane_change(speed_kmh=60.0, offset=3.5, change_length=40.0, hold_length=25.0
     y = np.concatenate([[0.0], np.cumsum(0.5 * (lateral_rate[1:] + lateral_rate[:-1]) * np.diff(t))])
     k_hold = int(np.searchsorted(t, lead + T + 0.5 * H))
     amplitude = 1e-3 * offset / y[k_hold]
-    phases = [(lead, lead + T, "lane_out"), (lead + T, lead + T + H, "hold"), (lead + T + H, lead + 2 * T + H, "lane_back")]
-    text = (f"double lane change at {speed_kmh:g} km/h" + ("" if end_kmh is None else f" braking to {end_kmh:g} km/h") +
-            f": {offset:g} m out over {change_length:g} m, {hold_length:g} m hold, back; steering amplitude "
-            f"{math.degrees(amplitude):.2f}° (road wheel)")
+    phases = [
+        (lead, lead + T, "lane_out"),
+        (lead + T, lead + T + H, "hold"),
+        (lead + T + H, lead + 2 * T + H, "lane_back"),
+    ]
+    text = (
+        f"double lane change at {speed_kmh:g} km/h"
+        + ("" if end_kmh is None else f" braking to {end_kmh:g} km/h")
+        + f": {offset:g} m out over {change_length:g} m, {hold_length:g} m hold, back; steering amplitude "
+        f"{math.degrees(amplitude):.2f}° (road wheel)"
+    )
     return Drive(t, amplitude * shape, vx, phases, text)
 
 
 # --- sensors and recordings -------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class VehicleSensors:
@@ -375,8 +454,15 @@ def _quantise(x, lsb):
     return np.round(np.asarray(x) / lsb) * lsb
 
 
-def simulate_drive(drive: Drive, params: BicycleParams = BicycleParams(), sensors: VehicleSensors = VehicleSensors(),
-                   seed=0, *, gyro_bias=None, accel_bias=None) -> Recording:
+def simulate_drive(
+    drive: Drive,
+    params: BicycleParams = BicycleParams(),
+    sensors: VehicleSensors = VehicleSensors(),
+    seed=0,
+    *,
+    gyro_bias=None,
+    accel_bias=None,
+) -> Recording:
     """Simulate ``drive`` on the nonlinear model and its sensors → a vehicle :class:`Recording`.
 
     Columns t, delta, yaw_rate, ay, vx (measured, SI) and true_beta, true_yaw_rate, true_vy.
@@ -393,13 +479,33 @@ def simulate_drive(drive: Drive, params: BicycleParams = BicycleParams(), sensor
     wheels = [_quantise(drive.vx + rng.normal(0.0, sensors.wheel_noise, N), sensors.speed_lsb) for _ in range(2)]
     vx = np.maximum(0.5 * (wheels[0] + wheels[1]), 0.0)
     rate = 1.0 / float(np.median(np.diff(drive.t)))
-    meta = {"rate_hz": round(rate, 6), "source": "simulated", "description": drive.description,
-            "axes": "ISO 8855 (x forward, y left, z up)",
-            "units": {"t": "s", "delta": "rad (road wheel)", "yaw_rate": "rad/s", "ay": "m/s^2", "vx": "m/s",
-                      "true_beta": "rad", "true_yaw_rate": "rad/s", "true_vy": "m/s"},
-            "vehicle": {k: getattr(params, k) for k in ("m", "Iz", "a", "b", "Cf", "Cr", "mu")},
-            "phases": [{"label": lab, "start": round(s, 6), "end": round(e, 6)} for s, e, lab in drive.phases],
-            "sim": {"seed": seed, "gyro_bias": bg, "accel_bias": ba, "sensors": sensors.__dict__}}
-    data = {"t": drive.t, "delta": delta, "yaw_rate": yaw_rate, "ay": ay, "vx": vx,
-            "true_beta": truth["beta"], "true_yaw_rate": truth["r"], "true_vy": truth["vy"]}
+    meta = {
+        "rate_hz": round(rate, 6),
+        "source": "simulated",
+        "description": drive.description,
+        "axes": "ISO 8855 (x forward, y left, z up)",
+        "units": {
+            "t": "s",
+            "delta": "rad (road wheel)",
+            "yaw_rate": "rad/s",
+            "ay": "m/s^2",
+            "vx": "m/s",
+            "true_beta": "rad",
+            "true_yaw_rate": "rad/s",
+            "true_vy": "m/s",
+        },
+        "vehicle": {k: getattr(params, k) for k in ("m", "Iz", "a", "b", "Cf", "Cr", "mu")},
+        "phases": [{"label": lab, "start": round(s, 6), "end": round(e, 6)} for s, e, lab in drive.phases],
+        "sim": {"seed": seed, "gyro_bias": bg, "accel_bias": ba, "sensors": sensors.__dict__},
+    }
+    data = {
+        "t": drive.t,
+        "delta": delta,
+        "yaw_rate": yaw_rate,
+        "ay": ay,
+        "vx": vx,
+        "true_beta": truth["beta"],
+        "true_yaw_rate": truth["r"],
+        "true_vy": truth["vy"],
+    }
     return Recording(meta, {k: np.asarray(v, dtype=float) for k, v in data.items()})

@@ -5,6 +5,7 @@ give the Allan variance σ²(τ) = (N² + q²/12/rate)/τ + K²τ/3. allantools 
 kfkit.calibration and gives Greenhall's equivalent degrees of freedom for each point's chi-square
 interval.
 """
+
 import numpy as np
 import pytest
 
@@ -37,7 +38,9 @@ def outside_chi2_interval(taus, adev, model, n, rate_hz, ci=0.999):
         m = int(round(tau * rate_hz))
         if m > n / 10:
             continue
-        edf = adev.shape[1] * min(allantools.edf_greenhall(alpha=a, d=2, m=m, N=n + 1, overlapping=True) for a in (0, -2))
+        edf = adev.shape[1] * min(
+            allantools.edf_greenhall(alpha=a, d=2, m=m, N=n + 1, overlapping=True) for a in (0, -2)
+        )
         lo, hi = allantools.confidence_interval(want, edf, ci=ci)
         if not lo <= got <= hi:
             bad.append((round(float(tau), 2), float(got / want)))

@@ -17,6 +17,7 @@ line each. Options (argv): ``--start-us N`` (the clock's start, e.g. near 2³² 
 ``--who-am-i 0xNN`` (what the MPU6050 answers), ``--max-us N`` (stop a sketch stuck in setup),
 and ``T:c`` (the host sends character c at T µs after the start).
 """
+
 from __future__ import annotations
 
 import shutil
@@ -346,7 +347,7 @@ int main(int argc, char **argv) {
     while (used < frameCount && now - start <= maxUs) { loop(); now += 500u; }
     return 0;
 }
-"""
+"""  # noqa: E501  (C++ source laid out as C++: the one-line stand-in methods stay whole)
 
 HEADERS = {"Arduino.h": ARDUINO_H, "Wire.h": WIRE_H, "ISM330DHCXSensor.h": ISM330DHCX_H, "IIS2MDCSensor.h": IIS2MDC_H}
 
@@ -369,13 +370,48 @@ def build_sketch(sketch: Path, work: Path, include=(), sources=()) -> Path:
     for source in sources:
         if Path(source).suffix == ".c":  # C99 on its own: g++'s -std=c++11 is an error for C under -Werror
             obj = work / f"{Path(source).stem}.o"
-            subprocess.run([shutil.which("gcc") or "gcc", "-std=c99", "-O1", "-Wall", "-Wextra", "-Werror", *includes, "-c",
-                            str(source), "-o", str(obj)], check=True, capture_output=True, text=True)
+            subprocess.run(
+                [
+                    shutil.which("gcc") or "gcc",
+                    "-std=c99",
+                    "-O1",
+                    "-Wall",
+                    "-Wextra",
+                    "-Werror",
+                    *includes,
+                    "-c",
+                    str(source),
+                    "-o",
+                    str(obj),
+                ],
+                check=True,
+                capture_output=True,
+                text=True,
+            )
             extra += ["-x", "none", str(obj)]
         else:
             extra += ["-x", "c++", str(source)]
-    command = [gxx, "-std=c++11", "-O1", "-Wall", "-Wextra", "-Werror", "-Wno-unused-parameter", "-DARDUINO=10819",
-               *includes, "-x", "c++", str(sketch), "-x", "c++", str(work / "host_main.cpp"), *extra, "-o", str(exe), "-lm"]
+    command = [
+        gxx,
+        "-std=c++11",
+        "-O1",
+        "-Wall",
+        "-Wextra",
+        "-Werror",
+        "-Wno-unused-parameter",
+        "-DARDUINO=10819",
+        *includes,
+        "-x",
+        "c++",
+        str(sketch),
+        "-x",
+        "c++",
+        str(work / "host_main.cpp"),
+        *extra,
+        "-o",
+        str(exe),
+        "-lm",
+    ]
     result = subprocess.run(command, capture_output=True, text=True)
     if result.returncode:
         raise AssertionError(f"{sketch.name} does not compile against the Arduino/ST API stand-ins:\n{result.stderr}")
@@ -385,8 +421,9 @@ def build_sketch(sketch: Path, work: Path, include=(), sources=()) -> Path:
 def run_sketch(exe: Path, frames, *args, timeout=60):
     """Run a host-built sketch on ``frames`` (rows of ints); returns (stdout lines as bytes, stderr text)."""
     feed = "".join(" ".join(str(int(v)) for v in row) + "\n" for row in frames)
-    run = subprocess.run([str(exe), *map(str, args)], input=feed.encode(), capture_output=True, timeout=timeout,
-                         check=True)
+    run = subprocess.run(
+        [str(exe), *map(str, args)], input=feed.encode(), capture_output=True, timeout=timeout, check=True
+    )
     return run.stdout.splitlines(keepends=True), run.stderr.decode()
 
 
@@ -394,7 +431,8 @@ def uno_image(sketch: str):
     """The Arduino Uno image of ``firmware/<sketch>`` (a :class:`kfkit.capture.emulated_uno.AvrImage`): avr-gcc with
     the real Arduino AVR core and Wire (Debian's arduino-core-avr, or ``$KFKIT_ARDUINO_AVR``), the kit's code with
     every warning an error, linked as for ``arduino:avr:uno``. kfkit builds it once per version of its sources (its
-    cache, shared by the test modules and ``--port emulated-uno``). Skips, naming the packages, without the toolchain."""
+    cache, shared by the test modules and ``--port emulated-uno``). Skips, naming the packages, without the
+    toolchain."""
     from kfkit.capture.emulated_uno import EmulatorUnavailable, sketch_image
 
     try:
@@ -406,8 +444,9 @@ def uno_image(sketch: str):
 def avr_symbol(elf: Path, name: str) -> tuple[int, int]:
     """(SRAM address, size in bytes) of the variable ``name`` in an AVR image (avr-nm; C++ names demangled, so a
     sketch's ``static TiltKf rollKf`` is "rollKf"). avr-gcc places RAM at 0x800000 in the ELF's address space."""
-    listing = subprocess.run([shutil.which("avr-nm") or "avr-nm", "-S", "-C", str(elf)], capture_output=True, text=True,
-                             check=True).stdout
+    listing = subprocess.run(
+        [shutil.which("avr-nm") or "avr-nm", "-S", "-C", str(elf)], capture_output=True, text=True, check=True
+    ).stdout
     for line in listing.splitlines():
         fields = line.split()
         if len(fields) == 4 and fields[3] == name and fields[2].lower() in "bd":

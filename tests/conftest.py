@@ -10,6 +10,7 @@ last and leave one worker running it alone for minutes. :func:`pytest_collection
 known long modules to the front, longest first. ``-n`` is not in pyproject's addopts, so pytest starts
 without xdist too (a student's ``python -m pytest NOTEBOOK``).
 """
+
 import sys
 
 import pytest
@@ -22,6 +23,7 @@ def pytest_cmdline_main(config):
     if getattr(config.option, "numprocesses", None) and config.option.dist == "no":
         config.option.dist = "loadscope"
         config.option.loadscopereorder = False
+
 
 #: the longest test modules and notebooks, longest first (CPU time on the 2-core machine; see the README's
 #: "Tests" section); everything else keeps pytest's order after them

@@ -3,6 +3,7 @@ every exercise function of the solution notebook (the functions make-labs turns 
 (decorators, closures, classes, comprehensions, walrus, match, try, generators, magics, star imports, globals, …),
 keeping what it computes. :func:`variants` returns, per way, the exercise cells as a student might have written them.
 """
+
 from __future__ import annotations
 
 import ast
@@ -46,10 +47,15 @@ class Way:
 
 # --- helpers on a function's AST --------------------------------------------------------------------------------
 
+
 def _docstring(fn: ast.FunctionDef) -> tuple[list[ast.stmt], list[ast.stmt]]:
     body = fn.body
-    if body and isinstance(body[0], ast.Expr) and isinstance(getattr(body[0], "value", None), ast.Constant) \
-            and isinstance(body[0].value.value, str):
+    if (
+        body
+        and isinstance(body[0], ast.Expr)
+        and isinstance(getattr(body[0], "value", None), ast.Constant)
+        and isinstance(body[0].value.value, str)
+    ):
         return body[:1], body[1:]
     return [], body
 
@@ -104,7 +110,7 @@ def _body_wrapped(fn: ast.FunctionDef, template: str) -> ast.FunctionDef:
             if isinstance(block, list):
                 for i, stmt in enumerate(block):
                     if isinstance(stmt, ast.Expr) and isinstance(stmt.value, ast.Name) and stmt.value.id == "BODY":
-                        block[i:i + 1] = copy.deepcopy(rest)
+                        block[i : i + 1] = copy.deepcopy(rest)
     return _with_body(fn, holder)
 
 
@@ -115,6 +121,7 @@ def _via_compute(fn: ast.FunctionDef, tail: str) -> ast.FunctionDef:
 
 # --- the ways: each maps one exercise function (AST) to the source that replaces it in its cell ---------------------
 
+
 def _impl(fn):
     """The function under another name, for the ways that bind the exercise's name some other way."""
     return _src(_renamed(fn, f"impl_{fn.name}"))
@@ -124,55 +131,83 @@ WAYS = {
     "unparsed": lambda fn: _src(fn),
     "wraps_decorator": lambda fn: (
         f"import functools\n\ndef traced_{fn.name}(f):\n    @functools.wraps(f)\n    def wrapper(*args, **kwargs):\n"
-        f"        return f(*args, **kwargs)\n    return wrapper\n\n@traced_{fn.name}\n{_src(fn)}"),
+        f"        return f(*args, **kwargs)\n    return wrapper\n\n@traced_{fn.name}\n{_src(fn)}"
+    ),
     "plain_decorator": lambda fn: (
         f"def passed_{fn.name}(f):\n    def wrapper(*args, **kwargs):\n        return f(*args, **kwargs)\n"
-        f"    return wrapper\n\n@passed_{fn.name}\n{_src(fn)}"),
+        f"    return wrapper\n\n@passed_{fn.name}\n{_src(fn)}"
+    ),
     "stacked_decorators": lambda fn: (
         f"import functools\n\ndef outer_{fn.name}(f):\n    return functools.wraps(f)(lambda *a, **k: f(*a, **k))\n\n"
-        f"def inner_{fn.name}(f):\n    f.tagged = True\n    return f\n\n@outer_{fn.name}\n@inner_{fn.name}\n{_src(fn)}"),
+        f"def inner_{fn.name}(f):\n    f.tagged = True\n    return f\n\n@outer_{fn.name}\n@inner_{fn.name}\n{_src(fn)}"
+    ),
     "decorator_with_arguments": lambda fn: (
         f"def labelled_{fn.name}(label):\n    def decorate(f):\n        f.label = label\n        return f\n"
-        f"    return decorate\n\n@labelled_{fn.name}('exercise')\n{_src(fn)}"),
+        f"    return decorate\n\n@labelled_{fn.name}('exercise')\n{_src(fn)}"
+    ),
     "closure_factory": lambda fn: (
-        f"def make_{fn.name}():\n{textwrap.indent(_src(fn), '    ')}\n    return {fn.name}\n\n{fn.name} = make_{fn.name}()"),
+        f"def make_{fn.name}():\n{textwrap.indent(_src(fn), '    ')}\n    return {fn.name}\n\n"
+        f"{fn.name} = make_{fn.name}()"
+    ),
     "nonlocal_counter": lambda fn: (
         f"def counted_{fn.name}(f):\n    calls = 0\n    def wrapper(*args, **kwargs):\n        nonlocal calls\n"
         f"        calls += 1\n        return f(*args, **kwargs)\n    return wrapper\n\n{_impl(fn)}\n\n"
-        f"{fn.name} = counted_{fn.name}(impl_{fn.name})"),
+        f"{fn.name} = counted_{fn.name}(impl_{fn.name})"
+    ),
     "staticmethod": lambda fn: (
         f"class Exercise_{fn.name}:\n    @staticmethod\n{textwrap.indent(_src(fn), '    ')}\n\n"
-        f"{fn.name} = Exercise_{fn.name}.{fn.name}"),
+        f"{fn.name} = Exercise_{fn.name}.{fn.name}"
+    ),
     "bound_method": lambda fn: (
-        f"class Solver_{fn.name}:\n    def solve(self, *args, **kwargs):\n        return impl_{fn.name}(*args, **kwargs)\n\n"
-        f"{_impl(fn)}\n\n{fn.name} = Solver_{fn.name}().solve"),
+        f"class Solver_{fn.name}:\n    def solve(self, *args, **kwargs):\n"
+        f"        return impl_{fn.name}(*args, **kwargs)\n\n"
+        f"{_impl(fn)}\n\n{fn.name} = Solver_{fn.name}().solve"
+    ),
     "classmethod": lambda fn: (
         f"class Tools_{fn.name}:\n    @classmethod\n    def run(cls, *args, **kwargs):\n"
         f"        return impl_{fn.name}(*args, **kwargs)\n\n"
-        f"{_impl(fn)}\n\n{fn.name} = Tools_{fn.name}.run"),
+        f"{_impl(fn)}\n\n{fn.name} = Tools_{fn.name}.run"
+    ),
     "callable_instance": lambda fn: (
         f"{_impl(fn)}\n\nclass Callable_{fn.name}:\n    def __call__(self, *args, **kwargs):\n"
-        f"        return impl_{fn.name}(*args, **kwargs)\n\n{fn.name} = Callable_{fn.name}()"),
+        f"        return impl_{fn.name}(*args, **kwargs)\n\n{fn.name} = Callable_{fn.name}()"
+    ),
     "dataclass_holder": lambda fn: (
-        f"import dataclasses\n\n{_impl(fn)}\n\n@dataclasses.dataclass\nclass Holder_{fn.name}:\n    function: object\n\n"
-        f"{fn.name} = Holder_{fn.name}(impl_{fn.name}).function"),
+        f"import dataclasses\n\n{_impl(fn)}\n\n@dataclasses.dataclass\n"
+        f"class Holder_{fn.name}:\n    function: object\n\n"
+        f"{fn.name} = Holder_{fn.name}(impl_{fn.name}).function"
+    ),
     "lambda_alias": lambda fn: f"{_impl(fn)}\n\n{fn.name} = lambda *args, **kwargs: impl_{fn.name}(*args, **kwargs)",
     "partial": lambda fn: f"import functools\n\n{_impl(fn)}\n\n{fn.name} = functools.partial(impl_{fn.name})",
     "exec": lambda fn: f"exec({_src(fn)!r})",
     "globals_assignment": lambda fn: f"{_impl(fn)}\n\nglobals()[{fn.name!r}] = impl_{fn.name}",
     "globals_update": lambda fn: f"{_impl(fn)}\n\nglobals().update({{{fn.name!r}: impl_{fn.name}}})",
-    "getattr_module": lambda fn: f"import sys\n\n{_impl(fn)}\n\n{fn.name} = getattr(sys.modules[__name__], 'impl_{fn.name}')",
-    "global_counter": lambda fn: _src(_with_body(fn, _stmts(
-        f"global calls_{fn.name}\ncalls_{fn.name} = globals().get('calls_{fn.name}', 0) + 1") + _docstring(fn)[1])),
-    "raises_it_for_an_input_it_does_not_take": lambda fn: _src(_with_body(fn, _stmts(
-        f"if {_first_param(fn)} is NotImplemented:\n    raise NotImplementedError('not for NotImplemented')")
-        + _docstring(fn)[1])),
+    "getattr_module": lambda fn: (
+        f"import sys\n\n{_impl(fn)}\n\n{fn.name} = getattr(sys.modules[__name__], 'impl_{fn.name}')"
+    ),
+    "global_counter": lambda fn: _src(
+        _with_body(
+            fn,
+            _stmts(f"global calls_{fn.name}\ncalls_{fn.name} = globals().get('calls_{fn.name}', 0) + 1")
+            + _docstring(fn)[1],
+        )
+    ),
+    "raises_it_for_an_input_it_does_not_take": lambda fn: _src(
+        _with_body(
+            fn,
+            _stmts(f"if {_first_param(fn)} is NotImplemented:\n    raise NotImplementedError('not for NotImplemented')")
+            + _docstring(fn)[1],
+        )
+    ),
     "stub_left_after_return": lambda fn: _src(_via_compute(fn, "return CALL\nraise NotImplementedError()")),
     "stub_in_an_else": lambda fn: _src(_body_wrapped(fn, "if True:\n    BODY\nelse:\n    raise NotImplementedError()")),
-    "catches_not_implemented": lambda fn: _src(_body_wrapped(
-        fn, "try:\n    BODY\nexcept NotImplementedError:\n    raise NotImplementedError()")),
+    "catches_not_implemented": lambda fn: _src(
+        _body_wrapped(fn, "try:\n    BODY\nexcept NotImplementedError:\n    raise NotImplementedError()")
+    ),
     "try_finally": lambda fn: _src(_body_wrapped(fn, "try:\n    BODY\nfinally:\n    cleaned = True")),
-    "with_block": lambda fn: "import contextlib\n\n" + _src(_body_wrapped(fn, "with contextlib.nullcontext():\n    BODY")),
+    "with_block": lambda fn: (
+        "import contextlib\n\n" + _src(_body_wrapped(fn, "with contextlib.nullcontext():\n    BODY"))
+    ),
     "match": lambda fn: _src(_body_wrapped(fn, f"match {_first_param(fn)}:\n    case _:\n        BODY")),
     "for_loop": lambda fn: _src(_body_wrapped(fn, "for attempt in range(1):\n    BODY")),
     "while_loop": lambda fn: _src(_body_wrapped(fn, "while True:\n    BODY\n    break")),
@@ -180,9 +215,13 @@ WAYS = {
     "list_comprehension": lambda fn: _src(_via_compute(fn, "return [CALL for attempt in range(1)][0]")),
     "generator_expression": lambda fn: _src(_via_compute(fn, "return next(CALL for attempt in (None,))")),
     "generator_function": lambda fn: _src(_via_compute(fn, "def results():\n    yield CALL\nreturn next(results())")),
-    "inner_names_like_the_labs_variables": lambda fn: _src(_with_body(fn, _stmts(
-        "probe = lambda r, roll_acc, x0: r\ndef probe_unused(t, dt, rec):\n    return [t for t in (t, dt)]")
-        + _docstring(fn)[1])),
+    "inner_names_like_the_labs_variables": lambda fn: _src(
+        _with_body(
+            fn,
+            _stmts("probe = lambda r, roll_acc, x0: r\ndef probe_unused(t, dt, rec):\n    return [t for t in (t, dt)]")
+            + _docstring(fn)[1],
+        )
+    ),
     "annotations": lambda fn: _src(_annotated(fn)),
 }
 
@@ -211,8 +250,10 @@ def variants(solution: nbformat.NotebookNode) -> list[Way]:
         rewritten = []
         for source, exercises in cells:
             tree = ast.parse(python(source))
-            parts = [rewrite(node) if isinstance(node, ast.FunctionDef) and node.name in exercises else _src(node)
-                     for node in tree.body]
+            parts = [
+                rewrite(node) if isinstance(node, ast.FunctionDef) and node.name in exercises else _src(node)
+                for node in tree.body
+            ]
             rewritten.append("\n\n".join(parts) + "\n")
         ways.append(Way(name, rewritten))
     return ways

@@ -1,13 +1,14 @@
 """What the tests of the hand-outs share: running a lab notebook as a student does, a hand-out with some of its
 exercises written, and reading what its cells printed and which stubs its skip notes name."""
+
 import ast
 import re
 
 import nbformat
 from nbclient import NotebookClient
+from waiting import HANG_GUARD_S
 
 from kfkit.paths import KIT_ROOT
-from waiting import HANG_GUARD_S
 
 #: the exercise guard's note in a skipped cell, and the stubs it names
 NOTE = re.compile(r"⏭  skipped: (.*)\. Run this cell again when that is done\.")
@@ -21,9 +22,14 @@ def code(cell) -> str:
 
 def stubs(nb) -> set[str]:
     """The functions a hand-out leaves to the student: those whose body raises NotImplementedError."""
-    return {node.name for cell in nb.cells if cell.cell_type == "code"
-            for node in ast.walk(ast.parse(code(cell))) if isinstance(node, ast.FunctionDef)
-            and any(isinstance(n, ast.Name) and n.id == "NotImplementedError" for n in ast.walk(node))}
+    return {
+        node.name
+        for cell in nb.cells
+        if cell.cell_type == "code"
+        for node in ast.walk(ast.parse(code(cell)))
+        if isinstance(node, ast.FunctionDef)
+        and any(isinstance(n, ast.Name) and n.id == "NotImplementedError" for n in ast.walk(node))
+    }
 
 
 def printed(cell) -> str:
@@ -34,8 +40,14 @@ def printed(cell) -> str:
 def execute(nb, timeout=HANG_GUARD_S) -> nbformat.NotebookNode:
     """Run All on ``nb`` in a fresh kernel, from labs/ as a student's would; nbclient raises on the first error,
     naming the cell."""
-    NotebookClient(nb, timeout=timeout, startup_timeout=HANG_GUARD_S, allow_errors=False, kernel_name="python3",
-                   resources={"metadata": {"path": str(KIT_ROOT / "labs")}}).execute()
+    NotebookClient(
+        nb,
+        timeout=timeout,
+        startup_timeout=HANG_GUARD_S,
+        allow_errors=False,
+        kernel_name="python3",
+        resources={"metadata": {"path": str(KIT_ROOT / "labs")}},
+    ).execute()
     return nb
 
 

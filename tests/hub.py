@@ -14,6 +14,7 @@ Layout under ``root`` (``/tmp/kfkit-hub-…``, mode 711): ``home/<student>/``, `
 ``labs.git`` (what nbgitpuller pulls), ``instructor/`` (mode 700: the hub's database and logs,
 submissions, gradebook).
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -73,8 +74,12 @@ def free_port() -> int:
 
 
 def git(*args, cwd):
-    subprocess.run(["git", "-c", "user.name=Instructor", "-c", "user.email=instructor@example.org", *args],
-                   cwd=cwd, check=True, capture_output=True)
+    subprocess.run(
+        ["git", "-c", "user.name=Instructor", "-c", "user.email=instructor@example.org", *args],
+        cwd=cwd,
+        check=True,
+        capture_output=True,
+    )
 
 
 SPAWNER = '''
@@ -109,7 +114,7 @@ class Hub:
         self.work = self.instructor / "labs"  # the instructor's clone of the student repository
         self.port, self.token = free_port(), secrets.token_hex(32)
         self.url = f"http://127.0.0.1:{self.port}"
-        self.proc, self.users_made, self.log = None, [], None
+        self.proc, self.users_made = None, []
 
     # -------------------------------------------------------------------------------- setup
     def __enter__(self):
@@ -128,17 +133,25 @@ class Hub:
         self._labs_repo()
         self._users()
         self._config()
-        self.log = open(self.instructor / "jupyterhub.log", "w")
-        self.proc = subprocess.Popen([sys.executable, "-m", "jupyterhub", "-f", str(self.instructor / "config.py")],
-                                     cwd=self.instructor, stdout=self.log, stderr=subprocess.STDOUT,
-                                     env={**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"})
+        with open(self.instructor / "jupyterhub.log", "w") as log:  # the hub writes to its own copy of the file
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "jupyterhub", "-f", str(self.instructor / "config.py")],
+                cwd=self.instructor,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                env={**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"},
+            )
         self._wait(self._answers, "the hub did not answer")  # it adds allowed_users itself
 
     def _kit_without_solutions(self):
         """The instructor's deployment: the committed kit minus solutions/ (README, Running a class)."""
         self.kit.mkdir(mode=0o755)
-        archive = subprocess.run(["git", "archive", "--format=tar", "HEAD", "--", ".", ":!solutions"], cwd=KIT_ROOT,
-                                 check=True, capture_output=True).stdout
+        archive = subprocess.run(
+            ["git", "archive", "--format=tar", "HEAD", "--", ".", ":!solutions"],
+            cwd=KIT_ROOT,
+            check=True,
+            capture_output=True,
+        ).stdout
         subprocess.run(["tar", "-x", "-C", str(self.kit)], input=archive, check=True)
 
     def _labs_repo(self):
@@ -168,8 +181,11 @@ class Hub:
         self.homes.mkdir(mode=0o711)
         for name in self.students:
             home = self.homes / name
-            subprocess.run(["useradd", "--no-create-home", "--home-dir", str(home), "--shell", "/bin/sh",
-                            "--user-group", name], check=True, capture_output=True)
+            subprocess.run(
+                ["useradd", "--no-create-home", "--home-dir", str(home), "--shell", "/bin/sh", "--user-group", name],
+                check=True,
+                capture_output=True,
+            )
             self.users_made.append(name)
             home.mkdir(mode=0o700)
             pw = pwd.getpwnam(name)
@@ -180,14 +196,18 @@ class Hub:
         hidden = [Path.home(), KIT_ROOT]
         kept = [Path(sys.base_prefix), Path(sys.prefix)]  # the Python install and the venv, wherever they are
         stage = self.instructor / "stage"
-        lines = ["#!/bin/sh", "# A student's server as in a hub image: the instructor's files hidden, then the student's user.",
-                 "set -eu",
-                 "# every mount below happens in a new mount namespace, never in the machine's: re-run inside one,",
-                 "# and refuse to go on unless the namespace really differs from the one this script started in",
-                 'if [ -z "${KFKIT_OUTER_NS:-}" ]; then',
-                 '    KFKIT_OUTER_NS=$(readlink /proc/self/ns/mnt) exec unshare --mount --propagation private -- "$0" "$@"',
-                 "fi",
-                 '[ "$(readlink /proc/self/ns/mnt)" != "$KFKIT_OUTER_NS" ] || { echo "not in a new mount namespace" >&2; exit 1; }']
+        lines = [
+            "#!/bin/sh",
+            "# A student's server as in a hub image: the instructor's files hidden, then the student's user.",
+            "set -eu",
+            "# every mount below happens in a new mount namespace, never in the machine's: re-run inside one,",
+            "# and refuse to go on unless the namespace really differs from the one this script started in",
+            'if [ -z "${KFKIT_OUTER_NS:-}" ]; then',
+            '    KFKIT_OUTER_NS=$(readlink /proc/self/ns/mnt) exec unshare --mount --propagation private -- "$0" "$@"',
+            "fi",
+            '[ "$(readlink /proc/self/ns/mnt)" != "$KFKIT_OUTER_NS" ] || '
+            '{ echo "not in a new mount namespace" >&2; exit 1; }',
+        ]
         for i, path in enumerate(kept):
             (stage / str(i)).mkdir(parents=True)
             lines.append(f"mount --bind '{path}' '{stage / str(i)}'")
@@ -200,19 +220,25 @@ class Hub:
         wrapper.chmod(0o700)
         (self.instructor / "image_spawner.py").write_text(SPAWNER)
         settings = self.root / "lab-settings"  # every cell in the DOM, no news: as tests/browser/ sets it
-        for rel, text in {"@jupyterlab/notebook-extension/tracker.jupyterlab-settings": '{"windowingMode": "none"}',
-                          "@jupyterlab/apputils-extension/notification.jupyterlab-settings":
-                              '{"fetchNews": "false", "checkForUpdates": false}'}.items():
+        tracker = "@jupyterlab/notebook-extension/tracker.jupyterlab-settings"
+        news = "@jupyterlab/apputils-extension/notification.jupyterlab-settings"
+        for rel, text in {
+            tracker: '{"windowingMode": "none"}',
+            news: '{"fetchNews": "false", "checkForUpdates": false}',
+        }.items():
             (settings / rel).parent.mkdir(parents=True, exist_ok=True)
             (settings / rel).write_text(text)
         for d in [settings, *settings.rglob("*")]:
             d.chmod(0o755 if d.is_dir() else 0o644)
         singleuser = Path(sys.executable).parent / "jupyterhub-singleuser"
-        env = {"PYTHONPATH": str(self.kit), "JUPYTERLAB_SETTINGS_DIR": str(settings),
-               "PATH": f"{Path(sys.executable).parent}:/usr/bin:/bin",
-               # the test's repository is a local folder of root's: git reads another user's repository only if a
-               # global config names it safe (on a real hub the repository is on a git server: not needed)
-               "GIT_CONFIG_GLOBAL": str(self.root / "gitconfig")}
+        env = {
+            "PYTHONPATH": str(self.kit),
+            "JUPYTERLAB_SETTINGS_DIR": str(settings),
+            "PATH": f"{Path(sys.executable).parent}:/usr/bin:/bin",
+            # the test's repository is a local folder of root's: git reads another user's repository only if a
+            # global config names it safe (on a real hub the repository is on a git server: not needed)
+            "GIT_CONFIG_GLOBAL": str(self.root / "gitconfig"),
+        }
         (self.root / "gitconfig").write_text(f"[safe]\n\tdirectory = {self.repo}\n")
         (self.root / "gitconfig").chmod(0o644)
         config = f"""
@@ -226,9 +252,9 @@ c.JupyterHub.hub_ip = "127.0.0.1"
 c.JupyterHub.hub_port = {free_port()}
 c.ConfigurableHTTPProxy.api_url = "http://127.0.0.1:{free_port()}"
 c.ConfigurableHTTPProxy.command = [{shutil.which(CHP)!r}]
-c.JupyterHub.db_url = "sqlite:///{self.instructor / 'hub.sqlite'}"
-c.JupyterHub.cookie_secret_file = {str(self.instructor / 'cookie_secret')!r}
-c.JupyterHub.pid_file = {str(self.instructor / 'hub.pid')!r}
+c.JupyterHub.db_url = "sqlite:///{self.instructor / "hub.sqlite"}"
+c.JupyterHub.cookie_secret_file = {str(self.instructor / "cookie_secret")!r}
+c.JupyterHub.pid_file = {str(self.instructor / "hub.pid")!r}
 c.JupyterHub.authenticator_class = "dummy"
 c.DummyAuthenticator.password = {PASSWORD!r}
 c.Authenticator.allowed_users = {set(self.students)!r}
@@ -250,9 +276,12 @@ c.JupyterHub.cleanup_servers = True
     def request(self, method, url, body=None, token=None, timeout=60):
         """JSON of a REST call (None for 404), raising with the hub's answer otherwise."""
         data = None if body is None else json.dumps(body).encode()
-        req = urllib.request.Request(url, data=data, method=method,
-                                     headers={"Authorization": f"token {token or self.token}",
-                                              "Content-Type": "application/json"})
+        req = urllib.request.Request(
+            url,
+            data=data,
+            method=method,
+            headers={"Authorization": f"token {token or self.token}", "Content-Type": "application/json"},
+        )
         try:
             with urllib.request.urlopen(req, timeout=timeout) as r:
                 text = r.read().decode()
@@ -285,12 +314,15 @@ c.JupyterHub.cleanup_servers = True
 
     def wait_ready(self, name):
         """Wait for the server :meth:`spawn` asked for; a spawn the hub gave up on fails at once, with the log."""
+
         def ready():
             server = ((self.api("GET", f"/users/{name}") or {}).get("servers") or {}).get("")
             if server is None or not (server.get("ready") or server.get("pending")):
-                raise AssertionError(f"{name}'s server stopped before it was ready: {server}; the hub's log:\n"
-                                     f"{self.hub_log()}")
+                raise AssertionError(
+                    f"{name}'s server stopped before it was ready: {server}; the hub's log:\n{self.hub_log()}"
+                )
             return server["ready"]
+
         self._wait(ready, f"{name}'s server did not become ready")
 
     def server_api(self, name, method, path, body=None, token=None):
@@ -300,8 +332,9 @@ c.JupyterHub.cleanup_servers = True
     def pull(self, name, token, targetpath="kfkit-labs"):
         """What an nbgitpuller link does: nbgitpuller's own API streams git's progress; → that text."""
         query = urllib.parse.urlencode({"repo": f"file://{self.repo}", "branch": "student", "targetpath": targetpath})
-        req = urllib.request.Request(f"{self.url}/user/{name}/git-pull/api?{query}",
-                                     headers={"Authorization": f"token {token}"})
+        req = urllib.request.Request(
+            f"{self.url}/user/{name}/git-pull/api?{query}", headers={"Authorization": f"token {token}"}
+        )
         with urllib.request.urlopen(req, timeout=START_TIMEOUT) as r:
             text = r.read().decode()
         events = [json.loads(ln[5:]) for ln in text.splitlines() if ln.startswith("data:")]
@@ -311,8 +344,14 @@ c.JupyterHub.cleanup_servers = True
 
     def pull_link(self, name_in_repo: str) -> str:
         """The nbgitpuller link an instructor hands out (README), for this hub and repository."""
-        query = urllib.parse.urlencode({"repo": f"file://{self.repo}", "branch": "student",
-                                        "targetpath": "kfkit-labs", "urlpath": f"lab/tree/kfkit-labs/{name_in_repo}"})
+        query = urllib.parse.urlencode(
+            {
+                "repo": f"file://{self.repo}",
+                "branch": "student",
+                "targetpath": "kfkit-labs",
+                "urlpath": f"lab/tree/kfkit-labs/{name_in_repo}",
+            }
+        )
         return f"{self.url}/hub/user-redirect/git-pull?{query}"
 
     def run_code(self, name, token, code: str, timeout=HANG_GUARD_S, keep=False) -> str:
@@ -333,12 +372,32 @@ c.JupyterHub.cleanup_servers = True
         url = f"ws://127.0.0.1:{self.port}/user/{name}/api/kernels/{kernel_id}/channels"
         ws = await websocket_connect(HTTPRequest(url, headers={"Authorization": f"token {token}"}))
         msg_id = uuid.uuid4().hex
-        ws.write_message(json.dumps({
-            "header": {"msg_id": msg_id, "username": name, "session": uuid.uuid4().hex, "msg_type": "execute_request",
-                       "version": "5.3", "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())},
-            "parent_header": {}, "metadata": {}, "channel": "shell", "buffers": [],
-            "content": {"code": code, "silent": False, "store_history": False, "user_expressions": {},
-                        "allow_stdin": False, "stop_on_error": True}}))
+        ws.write_message(
+            json.dumps(
+                {
+                    "header": {
+                        "msg_id": msg_id,
+                        "username": name,
+                        "session": uuid.uuid4().hex,
+                        "msg_type": "execute_request",
+                        "version": "5.3",
+                        "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                    },
+                    "parent_header": {},
+                    "metadata": {},
+                    "channel": "shell",
+                    "buffers": [],
+                    "content": {
+                        "code": code,
+                        "silent": False,
+                        "store_history": False,
+                        "user_expressions": {},
+                        "allow_stdin": False,
+                        "stop_on_error": True,
+                    },
+                }
+            )
+        )
         out, deadline = [], time.monotonic() + timeout
         try:
             while time.monotonic() < deadline:
@@ -389,6 +448,4 @@ c.JupyterHub.cleanup_servers = True
         for name in self.users_made:
             subprocess.run(["pkill", "-KILL", "-u", name], capture_output=True)  # only that user's processes
             subprocess.run(["userdel", name], capture_output=True)
-        if self.log:
-            self.log.close()
         shutil.rmtree(self.root, ignore_errors=True)

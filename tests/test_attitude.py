@@ -1,26 +1,46 @@
-"""kfkit's attitude filters (euler_ekf, euler_ekf_fast, mekf, attitude) against independent oracles: scipy Rotation, finite differences,
-filterpy's ExtendedKalmanFilter, chi-square bounds over Monte Carlo runs."""
+"""kfkit's attitude filters (euler_ekf, euler_ekf_fast, mekf, attitude) against independent oracles: scipy Rotation,
+finite differences, filterpy's ExtendedKalmanFilter, chi-square bounds over Monte Carlo runs."""
+
 import numpy as np
 import pytest
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from kfkit.frames import (G, MAG_FIELD_LONDON, body_rates_to_euler_rates, euler_rates_to_body_rates, euler_to_quat, quat_to_dcm, quat_to_euler,
-                          wrap_angle)
-from kfkit.filters import (EulerAttitudeEKF, attitude_jacobian, attitude_measurement, estimate_attitude, euler_ekf_predict,
-                           euler_ekf_update, euler_process_noise)
-from kfkit.filters import FastEulerAttitudeEKF, MultiplicativeEKFSettings, MultiplicativeEKF, Step
+from kfkit.filters import (
+    EulerAttitudeEKF,
+    FastEulerAttitudeEKF,
+    MultiplicativeEKF,
+    MultiplicativeEKFSettings,
+    Step,
+    attitude_jacobian,
+    attitude_measurement,
+    estimate_attitude,
+    euler_ekf_predict,
+    euler_ekf_update,
+    euler_process_noise,
+)
 from kfkit.filters.attitude_run import learn_field, tilt_heading
 from kfkit.filters.euler_ekf import EulerAttitudeEKFSettings, euler_kinematics_jacobian, euler_rate_matrix
 from kfkit.filters.mag_gate import MagGate
+from kfkit.frames import (
+    MAG_FIELD_LONDON,
+    G,
+    body_rates_to_euler_rates,
+    euler_rates_to_body_rates,
+    euler_to_quat,
+    quat_to_euler,
+    wrap_angle,
+)
 from kfkit.metrics import attitude_errors, chi2_bounds, nees
 
 FIELD = np.array(MAG_FIELD_LONDON)
 
 
 def random_states(rng, n, max_pitch=np.radians(80)):
-    return np.column_stack([rng.uniform(-np.pi, np.pi, n), rng.uniform(-max_pitch, max_pitch, n), rng.uniform(-np.pi, np.pi, n)])
+    return np.column_stack(
+        [rng.uniform(-np.pi, np.pi, n), rng.uniform(-max_pitch, max_pitch, n), rng.uniform(-np.pi, np.pi, n)]
+    )
 
 
 def scipy_rotation(euler):
@@ -73,7 +93,9 @@ def test_euler_rates_invert_the_body_rate_map():
     omega = rng.normal(0, 2.0, (200, 3))
     rates = body_rates_to_euler_rates(x, omega)
     np.testing.assert_allclose(euler_rates_to_body_rates(x, rates), omega, atol=1e-9)
-    np.testing.assert_allclose([euler_rate_matrix(xi) @ wi for xi, wi in zip(x[:20], omega[:20])], rates[:20], atol=1e-9)
+    np.testing.assert_allclose(
+        [euler_rate_matrix(xi) @ wi for xi, wi in zip(x[:20], omega[:20])], rates[:20], atol=1e-9
+    )
 
 
 def test_euler_rates_divide_by_cos_pitch_not_cos_roll():
@@ -111,7 +133,9 @@ def test_prediction_jacobian_against_finite_differences(seed):
     x = random_states(rng, 1)[0]
     omega, dt = rng.normal(0, 1.0, 3), 0.01
     A = euler_kinematics_jacobian(x, omega)
-    np.testing.assert_allclose(A, finite_difference(lambda s: body_rates_to_euler_rates(s, omega), x), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(
+        A, finite_difference(lambda s: body_rates_to_euler_rates(s, omega), x), rtol=1e-6, atol=1e-7
+    )
     P = np.diag(rng.uniform(0.01, 0.1, 3))
     Q = euler_process_noise(x, 0.02, dt)
     _, P_pred = euler_ekf_predict(x, P, omega, dt, Q)
@@ -145,8 +169,12 @@ def test_measurement_jacobian_against_finite_differences(seed):
     rng = np.random.default_rng(seed + 100)
     x = random_states(rng, 1, np.radians(89))[0]
     field = rng.normal(0, 30, 3)
-    np.testing.assert_allclose(attitude_jacobian(x, field), finite_difference(lambda s: attitude_measurement(s, field), x),
-                               rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(
+        attitude_jacobian(x, field),
+        finite_difference(lambda s: attitude_measurement(s, field), x),
+        rtol=1e-6,
+        atol=1e-6,
+    )
 
 
 def test_initial_state_from_tilt_and_heading():
@@ -187,8 +215,12 @@ def test_update_matches_filterpy_ekf(seed, with_mag):
 
     ref = ExtendedKalmanFilter(dim_x=3, dim_z=6 if with_mag else 3)
     ref.x, ref.P = x.copy(), P.copy()
-    ref.update(z[rows], lambda s: attitude_jacobian(s, FIELD)[rows], lambda s: attitude_measurement(s, FIELD)[rows],
-               R=R[rows, rows])
+    ref.update(
+        z[rows],
+        lambda s: attitude_jacobian(s, FIELD)[rows],
+        lambda s: attitude_measurement(s, FIELD)[rows],
+        R=R[rows, rows],
+    )
     np.testing.assert_allclose(y, ref.y, atol=1e-10)
     np.testing.assert_allclose(S, ref.S, rtol=1e-10)
     np.testing.assert_allclose(P_new, ref.P, rtol=1e-8, atol=1e-14)
@@ -249,18 +281,22 @@ def test_reference_run_is_a_loop_of_steps_and_the_fast_run_equals_it():
 
 def test_settings_carry_units_defaults_and_name_bad_values():
     assert EulerAttitudeEKF(rate_hz=100.0, accel_noise=0.2).settings == EulerAttitudeEKFSettings(accel_noise=0.2)
-    assert MultiplicativeEKF(rate_hz=100.0, settings=MultiplicativeEKFSettings(mag_nis_gate=None), accel_tau=None).settings == \
-        MultiplicativeEKFSettings(mag_nis_gate=None, accel_tau=None)
+    assert MultiplicativeEKF(
+        rate_hz=100.0, settings=MultiplicativeEKFSettings(mag_nis_gate=None), accel_tau=None
+    ).settings == MultiplicativeEKFSettings(mag_nis_gate=None, accel_tau=None)
     with pytest.raises(ValueError, match="MultiplicativeEKFSettings: mag_recovery must be a positive number, got 0"):
         MultiplicativeEKF(rate_hz=100.0, mag_recovery=0)
     with pytest.raises(ValueError, match="EulerAttitudeEKFSettings: accel_noise must be a positive number, got -0.3"):
         EulerAttitudeEKF(rate_hz=100.0, accel_noise=-0.3)
-    with pytest.raises(TypeError, match="MultiplicativeEKF: unknown setting mag_gate; MultiplicativeEKFSettings has gyro_noise"):
+    with pytest.raises(
+        TypeError, match="MultiplicativeEKF: unknown setting mag_gate; MultiplicativeEKFSettings has gyro_noise"
+    ):
         MultiplicativeEKF(rate_hz=100.0, mag_gate=1.0)
     with pytest.raises(TypeError, match="settings must be a EulerAttitudeEKFSettings, got float"):
         EulerAttitudeEKF(0.01, 0.01)  # the old positional gyro_noise
-    with pytest.raises(ValueError, match="EulerAttitudeEKF: dt = 100 s is longer than 1 s; if 100 is a sample rate, pass "
-                                         "rate_hz=100"):
+    with pytest.raises(
+        ValueError, match="EulerAttitudeEKF: dt = 100 s is longer than 1 s; if 100 is a sample rate, pass rate_hz=100"
+    ):
         EulerAttitudeEKF(100.0)  # the old positional rate_hz
 
 
@@ -287,7 +323,9 @@ def test_mekf_prior_is_the_prediction_of_the_previous_state():
     rng = np.random.default_rng(23)
     t, euler, omega = smooth_motion(rng, 3.0, 100.0)
     gyr, acc, mag = sensors(rng, euler, omega, 0.01, 0.05, 0.5)
-    run = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD, rest_gyro=None).run(gyr + np.radians([1.0, -1.0, 0.5]), acc, mag)
+    run = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD, rest_gyro=None).run(
+        gyr + np.radians([1.0, -1.0, 0.5]), acc, mag
+    )
     assert np.abs(np.diff(run.bias, axis=0)).max() > 0  # the updates move the bias
     np.testing.assert_array_equal(run.x_prior[1:, 4:], run.x[:-1, 4:])
     b = run.x[:-1, 4:]
@@ -319,7 +357,7 @@ def test_tracks_a_smooth_motion_and_yaw_across_plus_minus_pi():
     assert np.any(np.abs(np.diff(euler[:, 2])) > np.pi)
     res = EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD).run(gyr, acc, mag)
     err = np.degrees(np.abs(wrap_angle(res.euler - euler)))
-    assert np.sqrt((err ** 2).mean(axis=0)).max() < 1.0
+    assert np.sqrt((err**2).mean(axis=0)).max() < 1.0
     assert np.all((res.euler[:, 2] > -np.pi) & (res.euler[:, 2] <= np.pi))
 
 
@@ -331,11 +369,15 @@ def test_accelerometer_gating_flags_accelerating_rows_and_protects_tilt():
     acc_n[shake, 1] = 6.0 * np.sin(2 * np.pi * 1.0 * (t[shake] - 8.0))  # sideways shake, m/s²
     gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.02, 0.3, acc_n=acc_n)
     gated_truth = np.abs(np.linalg.norm(acc, axis=1) - G) > 1.0
-    runs = {gate: EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD, accel_gate=gate, accel_noise=0.1).run(gyr, acc, mag)
-            for gate in (1.0, None)}
+    runs = {
+        gate: EulerAttitudeEKF(rate_hz=100.0, field_n=FIELD, accel_gate=gate, accel_noise=0.1).run(gyr, acc, mag)
+        for gate in (1.0, None)
+    }
     np.testing.assert_array_equal(runs[1.0].accel_gated, gated_truth)
     assert not runs[None].accel_gated.any()
-    roll_err = {gate: np.degrees(np.abs(wrap_angle(r.euler[shake, 0] - euler[shake, 0]))).max() for gate, r in runs.items()}
+    roll_err = {
+        gate: np.degrees(np.abs(wrap_angle(r.euler[shake, 0] - euler[shake, 0]))).max() for gate, r in runs.items()
+    }
     assert roll_err[1.0] < 0.5 * roll_err[None]
 
 
@@ -369,8 +411,9 @@ def test_monte_carlo_nees_and_nis_inside_chi2_bounds():
         P0 = np.diag(np.radians([2.0, 2.0, 4.0]) ** 2)
         x0 = euler[0] + rng.multivariate_normal(np.zeros(3), P0)
         # gyr[k] is the rate at t_k; the filter predicts t_{k-1} → t_k, so its first sample is t_1.
-        res = FastEulerAttitudeEKF(rate_hz=100.0, gyro_noise=sg, accel_noise=sa, mag_noise=sm, field_n=FIELD, accel_gate=None,
-                                   x0=x0, P0=P0).run(gyr[1:], acc[1:], mag[1:])
+        res = FastEulerAttitudeEKF(
+            rate_hz=100.0, gyro_noise=sg, accel_noise=sa, mag_noise=sm, field_n=FIELD, accel_gate=None, x0=x0, P0=P0
+        ).run(gyr[1:], acc[1:], mag[1:])
         final_nees.append(nees(wrap_angle(res.euler[-1:] - euler[-1:]), res.P[-1:])[0])
         nis_sum += res.nis.sum()
         dof_sum += res.dof.sum()
@@ -399,17 +442,23 @@ def test_estimate_attitude_defaults_learn_magnetic_north():
     np.testing.assert_allclose(np.linalg.norm(res.quat, axis=1), 1.0, atol=1e-12)
 
 
-@pytest.mark.parametrize("change,message", [
-    (lambda g, a, m: (g[:, :2], a, m), r"gyr must have shape \(N, 3\)"),
-    (lambda g, a, m: (g, a[:-1], m), "acc has 299 rows but gyr has 300"),
-    (lambda g, a, m: (g, np.where(np.arange(300)[:, None] == 17, np.nan, a), m), "acc row 17 is not finite"),
-    (lambda g, a, m: (np.where(np.arange(300)[:, None] == 5, np.inf, g), a, m), "gyr row 5 is not finite"),
-    (lambda g, a, m: (g, a / G, m), "looks like it is in g"),
-    (lambda g, a, m: (np.degrees(g) * 20, a, m), "°/s"),
-    (lambda g, a, m: (g, a, m * 1e-6), "tesla"),
-    (lambda g, a, m: (g, a, m / 100), "gauss"),
-    (lambda g, a, m: (g, a, np.where(np.arange(300)[:, None] == 9, [np.nan, 1.0, 1.0], m)), "mag row 9 is partly NaN"),
-])
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        (lambda g, a, m: (g[:, :2], a, m), r"gyr must have shape \(N, 3\)"),
+        (lambda g, a, m: (g, a[:-1], m), "acc has 299 rows but gyr has 300"),
+        (lambda g, a, m: (g, np.where(np.arange(300)[:, None] == 17, np.nan, a), m), "acc row 17 is not finite"),
+        (lambda g, a, m: (np.where(np.arange(300)[:, None] == 5, np.inf, g), a, m), "gyr row 5 is not finite"),
+        (lambda g, a, m: (g, a / G, m), "looks like it is in g"),
+        (lambda g, a, m: (np.degrees(g) * 20, a, m), "°/s"),
+        (lambda g, a, m: (g, a, m * 1e-6), "tesla"),
+        (lambda g, a, m: (g, a, m / 100), "gauss"),
+        (
+            lambda g, a, m: (g, a, np.where(np.arange(300)[:, None] == 9, [np.nan, 1.0, 1.0], m)),
+            "mag row 9 is partly NaN",
+        ),
+    ],
+)
 def test_estimate_attitude_rejects_bad_inputs_with_a_hint(change, message):
     _, gyr, acc, mag = _clean_inputs()
     with pytest.raises(ValueError, match=message):
@@ -446,11 +495,20 @@ def pitch_over_motion(rng, duration=40.0, rate_hz=100.0):
     """Pitch swings of ±110° (through ±90° twice per cycle) with roll and yaw motion on top."""
     t = np.arange(int(round(duration * rate_hz))) / rate_hz
     f = 0.05
-    e = np.column_stack([0.3 * np.sin(2 * np.pi * 0.07 * t), np.radians(110) * np.sin(2 * np.pi * f * t),
-                         0.8 * np.sin(2 * np.pi * 0.03 * t + 1.0)])
-    ed = np.column_stack([0.3 * 2 * np.pi * 0.07 * np.cos(2 * np.pi * 0.07 * t),
-                          np.radians(110) * 2 * np.pi * f * np.cos(2 * np.pi * f * t),
-                          0.8 * 2 * np.pi * 0.03 * np.cos(2 * np.pi * 0.03 * t + 1.0)])
+    e = np.column_stack(
+        [
+            0.3 * np.sin(2 * np.pi * 0.07 * t),
+            np.radians(110) * np.sin(2 * np.pi * f * t),
+            0.8 * np.sin(2 * np.pi * 0.03 * t + 1.0),
+        ]
+    )
+    ed = np.column_stack(
+        [
+            0.3 * 2 * np.pi * 0.07 * np.cos(2 * np.pi * 0.07 * t),
+            np.radians(110) * 2 * np.pi * f * np.cos(2 * np.pi * f * t),
+            0.8 * 2 * np.pi * 0.03 * np.cos(2 * np.pi * 0.03 * t + 1.0),
+        ]
+    )
     return t, e, euler_rates_to_body_rates(e, ed)
 
 
@@ -476,7 +534,7 @@ def test_mekf_estimates_a_constant_gyro_bias():
     res = estimate_attitude(gyr + bias, acc, mag, 100.0, method="mekf", field_n=FIELD)
     np.testing.assert_allclose(np.degrees(res.bias[-1]), np.degrees(bias), atol=0.1)
     total, _, _ = attitude_errors(res.quat[3000:], euler_to_quat(euler[3000:]))
-    assert np.degrees(np.sqrt(np.mean(total ** 2))) < 1.0
+    assert np.degrees(np.sqrt(np.mean(total**2))) < 1.0
 
 
 def test_mekf_heading_update_leaves_tilt_alone():
@@ -487,7 +545,15 @@ def test_mekf_heading_update_leaves_tilt_alone():
     acc, mag = attitude_measurement(truth, FIELD)[:3], attitude_measurement(truth, FIELD)[3:]
     P0 = np.diag(np.r_[[1e-12] * 6])
     P0[:3, :3] = np.radians(1.0) ** 2 * np.array([[1.0, 0.3, 2.0], [0.3, 1.0, -2.0], [2.0, -2.0, 400.0]])  # NED
-    f = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD, x0=np.r_[q_wrong, 0.0, 0.0, 0.0], P0=P0, gyro_noise=0.0, gyro_bias_rw=0.0, accel_tau=None)
+    f = MultiplicativeEKF(
+        rate_hz=100.0,
+        field_n=FIELD,
+        x0=np.r_[q_wrong, 0.0, 0.0, 0.0],
+        P0=P0,
+        gyro_noise=0.0,
+        gyro_bias_rw=0.0,
+        accel_tau=None,
+    )
     res = f.run(np.zeros((1, 3)), acc[None], mag[None])
     _, heading, incl = attitude_errors(res.quat, euler_to_quat(truth)[None])
     assert res.mag_used[0]
@@ -502,8 +568,10 @@ def test_mekf_rejects_a_magnetic_disturbance_by_norm_and_dip():
     window = (t >= 15.0) & (t < 25.0)
     mag[window] += [15.0, -10.0, 5.0]  # a steel object fixed to the board (body frame), µT
     ungated = {"mag_norm_gate": None, "mag_dip_gate": None, "mag_nis_gate": None}
-    runs = {gated: estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, **({} if gated else ungated))
-            for gated in (True, False)}
+    runs = {
+        gated: estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, **({} if gated else ungated))
+        for gated in (True, False)
+    }
     assert runs[True].mag_gated[window].mean() > 0.95
     assert not runs[True].mag_used[window].any() and not runs[True].mag_gated[~window][:1000].any()
     assert not runs[False].mag_gated.any()
@@ -547,8 +615,8 @@ def test_mekf_adopts_a_changed_field_once_the_gyro_alone_is_no_better():
     # norm +15 % (fails the gate), heading of the new field 8.7° east of the old one. It is rejected
     # while the filter's own heading σ (its P, growing with the gyro's bias random walk, set high here so
     # that it happens within the test) says the gyro is better than 8.7°: adopted about when 3σ reaches
-    # the offset; then the heading follows the new field. A change that keeps the heading (norm ×1.15) is adopted within seconds. Without the
-    # innovation test a changed field is rejected for as long as it lasts.
+    # the offset; then the heading follows the new field. A change that keeps the heading (norm ×1.15) is adopted
+    # within seconds. Without the innovation test a changed field is rejected for as long as it lasts.
     rng = np.random.default_rng(27)
     t, euler, omega = smooth_motion(rng, 120.0, 100.0, amp=(0.3, 0.3, 1.0))
     gyr, acc, mag = sensors(rng, euler, omega, 0.002, 0.05, 0.3)
@@ -587,8 +655,10 @@ def test_mekf_skips_heading_outliers_for_at_most_the_recovery_time():
     # what a perfect gate would do: no magnetometer during the spike
     gap = estimate_attitude(gyr, acc, np.where(spike[:, None], np.nan, mag), 100.0, method="mekf", field_n=FIELD)
     mag[spike] = scipy_rotation(euler[spike]).inv().apply(turned) + rng.normal(0, 0.3, (spike.sum(), 3))
-    runs = {gate: estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, mag_nis_gate=gate)
-            for gate in (9.0, None)}
+    runs = {
+        gate: estimate_attitude(gyr, acc, mag, 100.0, method="mekf", field_n=FIELD, mag_nis_gate=gate)
+        for gate in (9.0, None)
+    }
     assert runs[9.0].mag_gated[spike].all() and not runs[9.0].mag_gated[~spike].any()
     moved_by_spike = {g: np.degrees(attitude_errors(r.quat, gap.quat)[1]).max() for g, r in runs.items()}
     assert moved_by_spike[9.0] < 0.1 < 3.0 < moved_by_spike[None]
@@ -648,11 +718,25 @@ def test_mekf_nees_and_nis_inside_chi2_bounds():
         t, euler, omega = smooth_motion(rng, 8.0, 100.0, amp=(0.5, 0.4, 1.0), freq=(0.02, 0.1))
         gyr, acc, mag = sensors(rng, euler, omega, sg, sa, sm)
         P0 = np.diag(np.r_[np.radians([2.0, 2.0, 4.0]) ** 2, [1e-14] * 3])
-        q0 = (scipy_rotation(euler[0]) * Rotation.from_rotvec(rng.multivariate_normal(np.zeros(3), P0[:3, :3]))
-              ).as_quat()[[3, 0, 1, 2]]
-        f = MultiplicativeEKF(rate_hz=100.0, gyro_noise=sg, gyro_bias_rw=0.0, accel_noise=sa, mag_noise=sm, field_n=FIELD,
-                              mag_norm_gate=None, mag_dip_gate=None, mag_nis_gate=None, accel_tau=None,
-                              accel_dynamic=None, rest_gyro=None, x0=np.r_[q0, 0.0, 0.0, 0.0], P0=P0)
+        q0 = (
+            scipy_rotation(euler[0]) * Rotation.from_rotvec(rng.multivariate_normal(np.zeros(3), P0[:3, :3]))
+        ).as_quat()[[3, 0, 1, 2]]
+        f = MultiplicativeEKF(
+            rate_hz=100.0,
+            gyro_noise=sg,
+            gyro_bias_rw=0.0,
+            accel_noise=sa,
+            mag_noise=sm,
+            field_n=FIELD,
+            mag_norm_gate=None,
+            mag_dip_gate=None,
+            mag_nis_gate=None,
+            accel_tau=None,
+            accel_dynamic=None,
+            rest_gyro=None,
+            x0=np.r_[q0, 0.0, 0.0, 0.0],
+            P0=P0,
+        )
         res = f.run(gyr[1:], acc[1:], mag[1:])
         e = rotvec_error_ned(res.quat[-1:], euler[-1:])
         final_nees.append(nees(e, res.P_attitude[-1:])[0])
@@ -667,14 +751,25 @@ def test_mekf_result_layout_and_heading_innovations():
     euler, gyr, acc, mag = _clean_inputs(400)
     mag[1::2] = np.nan
     res = estimate_attitude(gyr, acc, mag, 100.0, method="mekf")
-    assert res.method == "mekf" and res.quat.shape == (400, 4) and res.P.shape == (400, 6, 6) and res.bias.shape == (400, 3)
+    assert (
+        res.method == "mekf"
+        and res.quat.shape == (400, 4)
+        and res.P.shape == (400, 6, 6)
+        and res.bias.shape == (400, 3)
+    )
     assert res.P_attitude.shape == (400, 3, 3) and res.at_rest.shape == (400,) and not res.at_rest.any()
     assert np.array_equal(res.mag_used, ~np.isnan(mag[:, 0]) & ~res.mag_gated)
     assert set(np.unique(res.dof)) <= {2, 3}  # accelerometer north and east, + the heading
     assert np.array_equal(np.isnan(res.y[:, 2]), ~res.mag_used) and np.all(np.abs(res.y[res.mag_used, 2]) <= np.pi)
     assert np.all(np.isnan(res.y[:, 3:]))  # no zero-rate update: never at rest
-    np.testing.assert_allclose(res.nis, [y[~np.isnan(y)] @ np.linalg.solve(S[~np.isnan(y)][:, ~np.isnan(y)], y[~np.isnan(y)])
-                                         for y, S in zip(res.y, res.S)], rtol=1e-12)
+    np.testing.assert_allclose(
+        res.nis,
+        [
+            y[~np.isnan(y)] @ np.linalg.solve(S[~np.isnan(y)][:, ~np.isnan(y)], y[~np.isnan(y)])
+            for y, S in zip(res.y, res.S)
+        ],
+        rtol=1e-12,
+    )
     np.testing.assert_allclose(quat_to_euler(res.quat), res.euler, atol=1e-9)
     with pytest.raises(ValueError, match="acc row 3 is not finite"):
         acc[3] = np.nan
@@ -687,8 +782,9 @@ def test_mag_gate_rejects_a_disturbed_field_until_it_has_passed_the_gates_for_th
     norm, dip = np.linalg.norm(field), np.arctan2(40.0, 20.0)
     ts = np.arange(50) / 10.0  # s
     disturbed = (ts >= 1.0) & (ts < 2.0)
-    settings = MultiplicativeEKFSettings(mag_norm_gate=0.1, mag_dip_gate=np.radians(10.0), mag_recovery=1.0,
-                                         mag_nis_gate=9.0, mag_ref_tau=None)
+    settings = MultiplicativeEKFSettings(
+        mag_norm_gate=0.1, mag_dip_gate=np.radians(10.0), mag_recovery=1.0, mag_nis_gate=9.0, mag_ref_tau=None
+    )
     gate = MagGate(field, settings)
     # var_h far below the averaged noise variance: the disturbed field is never adopted (layer 3 stays out)
     used = np.array([gate.use(t, norm * (1.3 if d else 1.0), dip, 0.0, 1e-6, 1e-3) for t, d in zip(ts, disturbed)])
@@ -696,7 +792,11 @@ def test_mag_gate_rejects_a_disturbed_field_until_it_has_passed_the_gates_for_th
     assert not MagGate(field, settings).use(0.0, norm, dip + np.radians(11.0), 0.0, 1e-6, 1e-3)
     # an outlier heading (y² > 9 (var_h + r_psi)) in a trusted field is skipped, for at most `recovery` seconds
     gate = MagGate(field, settings)
-    assert [gate.use(t, norm, dip, y, 1e-3, 1e-3) for t, y in ((0.0, 0.0), (0.1, 1.0), (0.2, 0.0))] == [True, False, True]
+    assert [gate.use(t, norm, dip, y, 1e-3, 1e-3) for t, y in ((0.0, 0.0), (0.1, 1.0), (0.2, 0.0))] == [
+        True,
+        False,
+        True,
+    ]
     stuck = [gate.use(t, norm, dip, 1.0, 1e-3, 1e-3) for t in 1.0 + np.arange(13) / 10.0]
     assert stuck == [False] * 10 + [True] * 3  # a heading that keeps disagreeing for 1 s is the filter's error
 
@@ -761,13 +861,24 @@ def test_mekf_heading_nis_counts_the_tilt_uncertainty():
     for _ in range(runs):
         R_est = Rotation.random(random_state=rng)
         R_true = Rotation.from_rotvec(rng.multivariate_normal(np.zeros(3), P_att)) * R_est
-        f = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD, x0=np.r_[R_est.as_quat()[[3, 0, 1, 2]], 0.0, 0.0, 0.0], P0=P0, gyro_noise=0.0,
-                              gyro_bias_rw=0.0, accel_noise=1e6, mag_noise=sm, mag_norm_gate=None, mag_dip_gate=None,
-                              mag_nis_gate=None, rest_gyro=None)
+        f = MultiplicativeEKF(
+            rate_hz=100.0,
+            field_n=FIELD,
+            x0=np.r_[R_est.as_quat()[[3, 0, 1, 2]], 0.0, 0.0, 0.0],
+            P0=P0,
+            gyro_noise=0.0,
+            gyro_bias_rw=0.0,
+            accel_noise=1e6,
+            mag_noise=sm,
+            mag_norm_gate=None,
+            mag_dip_gate=None,
+            mag_nis_gate=None,
+            rest_gyro=None,
+        )
         step = f.step(np.zeros(3), R_true.inv().apply([0.0, 0.0, -G]), R_true.inv().apply(FIELD) + rng.normal(0, sm, 3))
         y, S = step.y[2], step.S[2, 2]
         nis_kit.append(y * y / S)
-        r_psi = sm ** 2 / (FIELD[0] ** 2 + FIELD[1] ** 2)
+        r_psi = sm**2 / (FIELD[0] ** 2 + FIELD[1] ** 2)
         nis_heading_only.append(y * y / (P_att[2, 2] + r_psi))
     lo, hi = chi2.ppf(0.0005, runs), chi2.ppf(0.9995, runs)
     assert lo <= np.sum(nis_kit) <= hi
@@ -783,11 +894,13 @@ def test_mekf_gyro_sample_is_held_over_the_step_it_ends():
     t = np.arange(1, n + 1) / rate
     gyr = np.column_stack([np.zeros(n), np.zeros(n), alpha * t])
     acc = np.tile([0.0, 0.0, -G], (n, 1))
-    res = MultiplicativeEKF(rate_hz=rate, field_n=FIELD, x0=[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], rest_gyro=None).run(gyr, acc)
+    res = MultiplicativeEKF(rate_hz=rate, field_n=FIELD, x0=[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], rest_gyro=None).run(
+        gyr, acc
+    )
     yaw = np.unwrap(res.euler[:, 2])
-    lead = alpha * (t + 0.5 / rate) ** 2 / 2 - alpha / (8 * rate ** 2)  # Σ α t_k dt = α (t_N + dt/2)²/2 − α dt²/8
+    lead = alpha * (t + 0.5 / rate) ** 2 / 2 - alpha / (8 * rate**2)  # Σ α t_k dt = α (t_N + dt/2)²/2 − α dt²/8
     np.testing.assert_allclose(yaw, lead, atol=1e-9)
-    assert np.all(np.abs(yaw - alpha * t ** 2 / 2) > 0.9 * alpha * t / (2 * rate))
+    assert np.all(np.abs(yaw - alpha * t**2 / 2) > 0.9 * alpha * t / (2 * rate))
 
 
 def test_mekf_learns_the_bias_at_rest_and_freezes_it_in_motion():

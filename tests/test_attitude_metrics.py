@@ -1,4 +1,5 @@
 """BROAD attitude errors (kfkit.metrics.attitude_errors) against scipy Rotation constructions."""
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -51,7 +52,11 @@ def test_pure_heading_and_pure_tilt_errors():
     truth = Rotation.from_euler("ZYX", [0.3, 0.2, -0.1])
     yawed = Rotation.from_euler("z", 0.25) * truth  # about the navigation vertical
     total, heading, incl = attitude_errors(wxyz(yawed)[None], wxyz(truth)[None])
-    assert heading[0] == pytest.approx(0.25) and incl[0] == pytest.approx(0.0, abs=1e-9) and total[0] == pytest.approx(0.25)
+    assert (
+        heading[0] == pytest.approx(0.25)
+        and incl[0] == pytest.approx(0.0, abs=1e-9)
+        and total[0] == pytest.approx(0.25)
+    )
     tilted = Rotation.from_euler("x", -0.1) * truth
     total, heading, incl = attitude_errors(wxyz(tilted)[None], wxyz(truth)[None])
     assert heading[0] == pytest.approx(0.0, abs=1e-9) and incl[0] == pytest.approx(0.1)
@@ -67,7 +72,11 @@ def test_nan_truth_rows_and_masked_rmse():
     mask = np.ones(10, bool)
     mask[:2] = False
     r = attitude_rmse(est, truth, mask)
-    assert r["heading"] == pytest.approx(0.1) and r["total"] == pytest.approx(0.1) and r["inclination"] == pytest.approx(0.0, abs=1e-7)
+    assert (
+        r["heading"] == pytest.approx(0.1)
+        and r["total"] == pytest.approx(0.1)
+        and r["inclination"] == pytest.approx(0.0, abs=1e-7)
+    )
 
 
 def test_bad_shapes_are_named():

@@ -25,17 +25,23 @@ def rms(values):
 
 
 def solution_notebook():
-    nb = new_notebook(metadata={
-        "kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"},
-        "language_info": {"name": "python", "version": "3.11.7"},
-        "widgets": {"application/vnd.jupyter.widget-state+json": {"state": {}}},
-    })
+    nb = new_notebook(
+        metadata={
+            "kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"},
+            "language_info": {"name": "python", "version": "3.11.7"},
+            "widgets": {"application/vnd.jupyter.widget-state+json": {"state": {}}},
+        }
+    )
     code = new_code_cell(
         "import numpy as np\n### BEGIN SOLUTION\nK = 0.5\n### END SOLUTION\nprint(K)",
         execution_count=3,
         outputs=[new_output("stream", name="stdout", text="0.5\n")],
-        metadata={"tags": ["kalman-gain"], "scrolled": True, "collapsed": False,
-                  "execution": {"iopub.status.idle": "2024-01-01T00:00:00Z"}},
+        metadata={
+            "tags": ["kalman-gain"],
+            "scrolled": True,
+            "collapsed": False,
+            "execution": {"iopub.status.idle": "2024-01-01T00:00:00Z"},
+        },
     )
     functions = new_code_cell(FUNCTION_SOLUTION, execution_count=4)
     answer = new_markdown_cell(
@@ -94,15 +100,27 @@ def test_indented_blocks_compile_and_raise():
             namespace["rms"](values)
 
 
-@pytest.mark.parametrize("function, line", [
-    ("def rms(values):\n    if values:\n        ### BEGIN SOLUTION\n        return 1.0\n        ### END SOLUTION\n"
-     "    return 0.0", 4),
-    ("def rms(values):\n    try:\n        ### BEGIN SOLUTION\n        return 1.0\n        ### END SOLUTION\n"
-     "    except ValueError:\n        return 0.0", 4),
-    ("def rms(values):\n    if not values:\n        return 0.0\n    ### BEGIN SOLUTION\n    return 1.0\n"
-     "    ### END SOLUTION", 5),
-    ("for k in range(3):\n    ### BEGIN SOLUTION\n    print(k)\n    ### END SOLUTION", 3),
-])
+@pytest.mark.parametrize(
+    "function, line",
+    [
+        (
+            "def rms(values):\n    if values:\n        ### BEGIN SOLUTION\n        return 1.0\n"
+            "        ### END SOLUTION\n    return 0.0",
+            4,
+        ),
+        (
+            "def rms(values):\n    try:\n        ### BEGIN SOLUTION\n        return 1.0\n        ### END SOLUTION\n"
+            "    except ValueError:\n        return 0.0",
+            4,
+        ),
+        (
+            "def rms(values):\n    if not values:\n        return 0.0\n    ### BEGIN SOLUTION\n    return 1.0\n"
+            "    ### END SOLUTION",
+            5,
+        ),
+        ("for k in range(3):\n    ### BEGIN SOLUTION\n    print(k)\n    ### END SOLUTION", 3),
+    ],
+)
 def test_a_block_the_exercise_guard_would_not_take_for_a_stub_is_refused(function, line):
     """Inside an if or a try, or after a return, the stub left in the lab raises only for some input: the guard
     (which must never skip a finished function that raises NotImplementedError for some input) would let the
@@ -129,11 +147,14 @@ def test_notebook_metadata_keeps_only_kernel_and_language():
     assert set(lab.metadata) == {"kernelspec", "language_info"}
 
 
-@pytest.mark.parametrize("source, line, words", [
-    ("x = 1\n### BEGIN SOLUTION\nx = 2", 2, "without"),
-    ("x = 1\ny = 2\n### END SOLUTION", 3, "without"),
-    ("### BEGIN SOLUTION\nx = 1\n    ### BEGIN SOLUTION\nx = 2\n### END SOLUTION", 3, "nested"),
-])
+@pytest.mark.parametrize(
+    "source, line, words",
+    [
+        ("x = 1\n### BEGIN SOLUTION\nx = 2", 2, "without"),
+        ("x = 1\ny = 2\n### END SOLUTION", 3, "without"),
+        ("### BEGIN SOLUTION\nx = 1\n    ### BEGIN SOLUTION\nx = 2\n### END SOLUTION", 3, "nested"),
+    ],
+)
 def test_malformed_markers_name_cell_and_line(source, line, words):
     nb = new_notebook(cells=[new_markdown_cell("intro"), new_code_cell(source)])
     with pytest.raises(AuthoringError, match=rf"solutions/01_x\.ipynb: cell index 1, line {line}: .*{words}"):
@@ -214,11 +235,12 @@ def test_output_is_byte_deterministic(tmp_path):
 
 def predicting_notebook(reveal_text="The RMSE falls to <!-- run: the RMSE printed above -->0.33°<!-- /run -->."):
     nb = new_notebook()
-    nb.cells = [new_markdown_cell("**Predict before you run.** Will the RMSE fall?", metadata={"tags": ["predict"]}),
-                new_code_cell("print(0.33)", execution_count=1,
-                              outputs=[new_output("stream", name="stdout", text="0.33\n")]),
-                new_markdown_cell(reveal_text, metadata={"tags": ["reveal"]}),
-                new_markdown_cell("## Next")]
+    nb.cells = [
+        new_markdown_cell("**Predict before you run.** Will the RMSE fall?", metadata={"tags": ["predict"]}),
+        new_code_cell("print(0.33)", execution_count=1, outputs=[new_output("stream", name="stdout", text="0.33\n")]),
+        new_markdown_cell(reveal_text, metadata={"tags": ["reveal"]}),
+        new_markdown_cell("## Next"),
+    ]
     return nb
 
 

@@ -1,4 +1,5 @@
 """kfkit.readers.load_broad: a small file in BROAD's format written here, and the real trials when present."""
+
 import glob
 import re
 from pathlib import Path
@@ -11,8 +12,8 @@ from scipy.spatial.transform import Rotation
 from kfkit.filters import estimate_attitude
 from kfkit.frames import G, enu_to_ned_quat, quat_to_dcm
 from kfkit.io import RecordingError
-from kfkit.readers import load_broad
 from kfkit.metrics import attitude_errors
+from kfkit.readers import load_broad
 
 BROAD_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "broad"
 REAL_TRIALS = sorted(glob.glob(str(BROAD_DIR / "*.mat")))
@@ -35,9 +36,19 @@ def write_trial(path, n=3000, rate=200.0, seed=0):
     quat[500:520] = np.nan
     movement = np.zeros((n, 1), np.uint8)
     movement[400:] = 1
-    scipy.io.savemat(path, {"imu_gyr": omega + rng.normal(0, 0.002, (n, 3)), "imu_acc": acc, "imu_mag": mag,
-                            "opt_quat": quat, "opt_pos": np.zeros((n, 3)), "sampling_rate": np.array([[rate]]),
-                            "movement": movement, "info": np.array(["test trial"])})
+    scipy.io.savemat(
+        path,
+        {
+            "imu_gyr": omega + rng.normal(0, 0.002, (n, 3)),
+            "imu_acc": acc,
+            "imu_mag": mag,
+            "opt_quat": quat,
+            "opt_pos": np.zeros((n, 3)),
+            "sampling_rate": np.array([[rate]]),
+            "movement": movement,
+            "info": np.array(["test trial"]),
+        },
+    )
     return rot
 
 
@@ -83,18 +94,26 @@ def test_filters_on_a_broad_format_file_agree_with_its_truth(tmp_path):
         assert np.degrees(np.sqrt(np.mean(total[keep] ** 2))) < 1.5, method
 
 
-@pytest.mark.parametrize("change,message", [
-    (lambda d: d.pop("opt_quat"), "missing field.*opt_quat"),
-    (lambda d: d.update(imu_acc=np.zeros((10, 2))), r"'imu_acc' must have shape \(N, 3\)"),
-    (lambda d: d.update(imu_mag=np.zeros((9, 3))), "'imu_mag' has 9 rows but imu_gyr has 10"),
-    (lambda d: d.update(movement=np.zeros((3, 1))), "'movement' has 3 entries"),
-    (lambda d: d.update(sampling_rate=np.array([[0.0]])), "'sampling_rate' must be one positive finite number"),
-    (lambda d: d["imu_gyr"].__setitem__((4, 1), np.nan), "'imu_gyr' row 4 is not finite"),
-])
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        (lambda d: d.pop("opt_quat"), "missing field.*opt_quat"),
+        (lambda d: d.update(imu_acc=np.zeros((10, 2))), r"'imu_acc' must have shape \(N, 3\)"),
+        (lambda d: d.update(imu_mag=np.zeros((9, 3))), "'imu_mag' has 9 rows but imu_gyr has 10"),
+        (lambda d: d.update(movement=np.zeros((3, 1))), "'movement' has 3 entries"),
+        (lambda d: d.update(sampling_rate=np.array([[0.0]])), "'sampling_rate' must be one positive finite number"),
+        (lambda d: d["imu_gyr"].__setitem__((4, 1), np.nan), "'imu_gyr' row 4 is not finite"),
+    ],
+)
 def test_load_broad_names_the_bad_field(tmp_path, change, message):
-    data = {"imu_gyr": np.zeros((10, 3)), "imu_acc": np.tile([0, 0, G], (10, 1)), "imu_mag": np.ones((10, 3)),
-            "opt_quat": np.tile([1.0, 0, 0, 0], (10, 1)), "sampling_rate": np.array([[100.0]]),
-            "movement": np.ones((10, 1), np.uint8)}
+    data = {
+        "imu_gyr": np.zeros((10, 3)),
+        "imu_acc": np.tile([0, 0, G], (10, 1)),
+        "imu_mag": np.ones((10, 3)),
+        "opt_quat": np.tile([1.0, 0, 0, 0], (10, 1)),
+        "sampling_rate": np.array([[100.0]]),
+        "movement": np.ones((10, 1), np.uint8),
+    }
     change(data)
     path = tmp_path / "bad.mat"
     scipy.io.savemat(path, data)
@@ -133,7 +152,7 @@ def test_real_broad_trial(path):
     n = int(20 * rec.rate_hz)
     res = estimate_attitude(rec.body("gyr")[:n], rec.body("acc")[:n], rec.body("mag")[:n], rec.rate_hz, method="mekf")
     _, _, incl = attitude_errors(res.quat, q[:n])
-    assert np.degrees(np.sqrt(np.nanmean(incl ** 2))) < 1.0
+    assert np.degrees(np.sqrt(np.nanmean(incl**2))) < 1.0
 
 
 UNDISTURBED_TRIALS = [p for p in REAL_TRIALS if "_undisturbed_" in Path(p).name]
@@ -156,28 +175,59 @@ def test_mekf_on_a_whole_real_trial(path):
 
 
 def minimal_trial(**changes):
-    data = {"imu_gyr": np.zeros((10, 3)), "imu_acc": np.tile([0, 0, G], (10, 1)), "imu_mag": np.ones((10, 3)),
-            "opt_quat": np.tile([1.0, 0, 0, 0], (10, 1)), "sampling_rate": np.array([[100.0]]),
-            "movement": np.ones((10, 1), np.uint8)}
+    data = {
+        "imu_gyr": np.zeros((10, 3)),
+        "imu_acc": np.tile([0, 0, G], (10, 1)),
+        "imu_mag": np.ones((10, 3)),
+        "opt_quat": np.tile([1.0, 0, 0, 0], (10, 1)),
+        "sampling_rate": np.array([[100.0]]),
+        "movement": np.ones((10, 1), np.uint8),
+    }
     data.update(changes)
     return {k: v for k, v in data.items() if v is not None}
 
 
-@pytest.mark.parametrize("changes, message", [
-    ({"sampling_rate": np.array([[np.inf]])}, r"'sampling_rate' must be one positive finite number \(Hz\), got \[inf\]"),
-    ({"sampling_rate": np.array([[np.nan]])}, r"'sampling_rate' must be one positive finite number"),
-    ({"sampling_rate": np.zeros((0, 0))}, r"'sampling_rate' must be one positive finite number \(Hz\), got \[\]"),
-    ({"sampling_rate": np.array([[100.0, 200.0]])}, r"got \[100.0, 200.0\]"),
-    ({"sampling_rate": None}, r"missing field\(s\) sampling_rate"),
-    ({"sampling_rate": np.array(["fast"])}, r"'sampling_rate' must be numeric"),
-    ({"movement": np.full((10, 1), 2.0)}, r"'movement' must hold 0 or 1, got 2"),
-    ({"opt_quat": np.tile([2.0, 0, 0, 0], (10, 1))}, r"'opt_quat' row 0 is not a unit quaternion \(norm 2\)"),
-    ({"opt_quat": np.tile([np.nan, 0, 0, 0], (10, 1))}, r"'opt_quat' row 0 is not finite"),
-    ({"imu_mag": np.full((10, 3), np.inf)}, r"'imu_mag' row 0 is not finite"),
-    ({"imu_gyr": np.zeros((1, 3)), "imu_acc": np.zeros((1, 3)), "imu_mag": np.zeros((1, 3)),
-      "opt_quat": np.array([[1.0, 0, 0, 0]]), "movement": np.ones((1, 1))}, "at least 2 samples"),
-], ids=["rate-inf", "rate-nan", "rate-empty", "rate-two", "rate-missing", "rate-text", "movement", "quat-norm",
-        "quat-partial-nan", "mag-inf", "one-sample"])
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        (
+            {"sampling_rate": np.array([[np.inf]])},
+            r"'sampling_rate' must be one positive finite number \(Hz\), got \[inf\]",
+        ),
+        ({"sampling_rate": np.array([[np.nan]])}, r"'sampling_rate' must be one positive finite number"),
+        ({"sampling_rate": np.zeros((0, 0))}, r"'sampling_rate' must be one positive finite number \(Hz\), got \[\]"),
+        ({"sampling_rate": np.array([[100.0, 200.0]])}, r"got \[100.0, 200.0\]"),
+        ({"sampling_rate": None}, r"missing field\(s\) sampling_rate"),
+        ({"sampling_rate": np.array(["fast"])}, r"'sampling_rate' must be numeric"),
+        ({"movement": np.full((10, 1), 2.0)}, r"'movement' must hold 0 or 1, got 2"),
+        ({"opt_quat": np.tile([2.0, 0, 0, 0], (10, 1))}, r"'opt_quat' row 0 is not a unit quaternion \(norm 2\)"),
+        ({"opt_quat": np.tile([np.nan, 0, 0, 0], (10, 1))}, r"'opt_quat' row 0 is not finite"),
+        ({"imu_mag": np.full((10, 3), np.inf)}, r"'imu_mag' row 0 is not finite"),
+        (
+            {
+                "imu_gyr": np.zeros((1, 3)),
+                "imu_acc": np.zeros((1, 3)),
+                "imu_mag": np.zeros((1, 3)),
+                "opt_quat": np.array([[1.0, 0, 0, 0]]),
+                "movement": np.ones((1, 1)),
+            },
+            "at least 2 samples",
+        ),
+    ],
+    ids=[
+        "rate-inf",
+        "rate-nan",
+        "rate-empty",
+        "rate-two",
+        "rate-missing",
+        "rate-text",
+        "movement",
+        "quat-norm",
+        "quat-partial-nan",
+        "mag-inf",
+        "one-sample",
+    ],
+)
 def test_load_broad_checks_the_rate_and_the_truth(tmp_path, changes, message):
     path = tmp_path / "bad.mat"
     scipy.io.savemat(path, minimal_trial(**changes))

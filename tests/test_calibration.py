@@ -1,6 +1,7 @@
 """kfkit.calibration's estimators against known simulated parameters, random ellipsoids, an independent Allan
 deviation (allantools, and a non-overlapping estimator written here), and the saved JSON.
 (Labs 02 and 03 end to end: test_calibration_labs.py; their checkpoints: test_checkpoints.py.)"""
+
 import json
 import re
 
@@ -11,13 +12,14 @@ from scipy.spatial.transform import Rotation
 from kfkit import calibration as C
 from kfkit import datasets, sim
 from kfkit.checkpoints.lab03 import random_ellipsoid
-from kfkit.frames import G, MAG_FIELD_LONDON, mount_matrix
+from kfkit.frames import MAG_FIELD_LONDON, G, mount_matrix
 from kfkit.io import load_recording, save_recording
 
 B_LONDON = np.linalg.norm(MAG_FIELD_LONDON)
 
 
 # --- bias and noise on a simulated board with known parameters --------------------------------
+
 
 def test_gyro_bias_and_noise_match_simulated_truth():
     bias_s = np.radians([0.5, -0.3, 0.8])
@@ -48,16 +50,27 @@ def test_accel_bias_keeps_gravity_out():
 
 
 # the six faces as exact poses (roll, pitch), FRD: the named body axis points up and reads +g of specific force
-FACE_POSES = {"z_down": (0.0, 0.0), "z_up": (np.pi, 0.0), "y_down": (np.pi / 2, 0.0), "y_up": (-np.pi / 2, 0.0),
-              "x_up": (0.0, np.pi / 2), "x_down": (0.0, -np.pi / 2)}
+FACE_POSES = {
+    "z_down": (0.0, 0.0),
+    "z_up": (np.pi, 0.0),
+    "y_down": (np.pi / 2, 0.0),
+    "y_up": (-np.pi / 2, 0.0),
+    "x_up": (0.0, np.pi / 2),
+    "x_down": (0.0, -np.pi / 2),
+}
 
 
 def test_six_face_signs_and_values_on_exact_poses():
     bias_s, scale = np.array([0.06, -0.04, 0.09]), np.array([1.01, 0.994, 1.003])
     faces = {}
     for k, (face, (roll, pitch)) in enumerate(FACE_POSES.items()):
-        rec = sim.simulate_imu(sim.stationary(5.0, 104.0, roll=roll, pitch=pitch), seed=30 + k, accel_bias=bias_s,
-                               accel_scale=scale, accel_bias_rw=0.0)
+        rec = sim.simulate_imu(
+            sim.stationary(5.0, 104.0, roll=roll, pitch=pitch),
+            seed=30 + k,
+            accel_bias=bias_s,
+            accel_scale=scale,
+            accel_bias_rw=0.0,
+        )
         faces[face] = rec.body("acc")
         axis = "xyz".index(face[0])
         assert np.sign(faces[face][:, axis].mean()) == (1 if face.endswith("up") else -1)  # DESIGN: up reads +g
@@ -94,12 +107,15 @@ def test_six_face_errors_name_the_problem():
 
 
 @pytest.mark.parametrize("func", [C.gyro_bias, C.noise_std, lambda x: C.accel_bias(x, [0, 0, -G])])
-@pytest.mark.parametrize("bad, match", [
-    (np.zeros((1, 3)), "1 samples, at least 2"),
-    (np.zeros((10, 2)), r"expected shape \(N, 3\), got \(10, 2\)"),
-    (np.zeros(3), "one vector"),
-    (np.vstack([np.zeros((5, 3)), [[0.0, np.nan, 0.0]]]), "1 of 6 samples hold NaN or inf .first at row 5"),
-])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.zeros((1, 3)), "1 samples, at least 2"),
+        (np.zeros((10, 2)), r"expected shape \(N, 3\), got \(10, 2\)"),
+        (np.zeros(3), "one vector"),
+        (np.vstack([np.zeros((5, 3)), [[0.0, np.nan, 0.0]]]), "1 of 6 samples hold NaN or inf .first at row 5"),
+    ],
+)
 def test_bad_input_raises_clear_errors(func, bad, match):
     with pytest.raises(C.CalibrationError, match=match):
         func(bad)
@@ -111,6 +127,7 @@ def test_accel_bias_expected_must_be_a_vector():
 
 
 # --- Allan deviation ----------------------------------------------------------------------------
+
 
 def allan_nonoverlapping(x, rate_hz, m):
     """Independent estimator: averages of consecutive clusters of m samples, σ² = ½⟨(ȳ_{k+1} − ȳ_k)²⟩."""
@@ -198,7 +215,8 @@ def test_allan_read_outs_on_synthesised_white_and_flicker_noise():
 @pytest.mark.parametrize("seed", range(4))
 def test_allan_noise_fit_reads_white_noise_and_the_bias_random_walk(seed):
     """The simulator's gyro: white noise N plus a bias that walks with K (its steps' σ = K/√rate), one hour at 50 Hz.
-    The walk shows on the curve's last two decades only, so K is read to ±30 % (the estimate's own scatter), N to 2 %."""
+    The walk shows on the curve's last two decades only, so K is read to ±30 % (the estimate's own scatter), N to
+    2 %."""
     rng = np.random.default_rng(seed)
     rate, N, K = 50.0, 5e-3, 2e-4
     n = int(3600 * rate)
@@ -250,6 +268,7 @@ def test_allan_bad_input():
 
 # --- magnetometer calibration ------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("seed", range(5))
 def test_fit_recovers_random_ellipsoids(seed):
     rng = np.random.default_rng(seed)
@@ -266,9 +285,14 @@ def test_fit_of_a_general_soft_iron_leaves_only_a_rotation():
     """W not symmetric (a rotation after the scaling): norms still come out right, S is the symmetric
     (W Wᵀ)^(−½) (scipy's sqrtm as the oracle) and S·W is a rotation, the part norms cannot see."""
     from scipy.linalg import sqrtm
+
     rng = np.random.default_rng(21)
     u = Rotation.random(800, random_state=rng).apply([1.0, 0.0, 0.0])
-    W = Rotation.random(random_state=rng).as_matrix() @ np.diag([1.2, 0.9, 0.8]) @ Rotation.random(random_state=rng).as_matrix()
+    W = (
+        Rotation.random(random_state=rng).as_matrix()
+        @ np.diag([1.2, 0.9, 0.8])
+        @ Rotation.random(random_state=rng).as_matrix()
+    )
     h = np.array([5.0, -20.0, 8.0])
     mag = B_LONDON * u @ W.T + h
     h_fit, S = C.fit_mag_calibration(mag)
@@ -329,17 +353,21 @@ def test_fit_judges_coverage_against_the_field_not_the_cloud_shape():
     np.testing.assert_allclose(soft, S_true, atol=0.005)
     # The same tumble where the field is half London's (South America), still judged with London's B: it passes.
     weak = field_seen_from(rotations, field=np.asarray(MAG_FIELD_LONDON) * 0.5, noise=0.05)
-    np.testing.assert_allclose(np.linalg.norm(C.apply_mag_calibration(weak, *C.fit_mag_calibration(weak)), axis=1),
-                               B_LONDON, rtol=0.01)
+    np.testing.assert_allclose(
+        np.linalg.norm(C.apply_mag_calibration(weak, *C.fit_mag_calibration(weak)), axis=1), B_LONDON, rtol=0.01
+    )
     with pytest.raises(C.CalibrationError, match="field_norm must be"):
         C.fit_mag_calibration(raw, field_norm=-1.0)
 
 
-@pytest.mark.parametrize("bad, match", [
-    (np.zeros((10, 3)), "10 samples, at least 50"),
-    (np.ones((60, 3)), "all readings are equal"),
-    (np.zeros((60, 4)), r"expected shape \(N, 3\)"),
-])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.zeros((10, 3)), "10 samples, at least 50"),
+        (np.ones((60, 3)), "all readings are equal"),
+        (np.zeros((60, 4)), r"expected shape \(N, 3\)"),
+    ],
+)
 def test_fit_bad_input(bad, match):
     with pytest.raises(C.CalibrationError, match=match):
         C.fit_mag_calibration(bad)
@@ -356,15 +384,33 @@ def test_fit_drops_rows_without_a_sample_but_rejects_partial_nan():
 
 # --- the saved calibration ----------------------------------------------------------------------------
 
+
 def test_calibration_json_round_trip_and_apply(tmp_path):
-    cal = C.Calibration(board="nucleo-iks02a1", gyro_bias=[0.01, -0.02, 0.03], accel_bias=[0.1, 0.2, 0.3],
-                        accel_scale=[1.01, 0.99, 1.0], mag_hard_iron=[1.0, 2.0, 3.0],
-                        mag_soft_iron=np.diag([2.0, 1.0, 0.5]), source="test")
+    cal = C.Calibration(
+        board="nucleo-iks02a1",
+        gyro_bias=[0.01, -0.02, 0.03],
+        accel_bias=[0.1, 0.2, 0.3],
+        accel_scale=[1.01, 0.99, 1.0],
+        mag_hard_iron=[1.0, 2.0, 3.0],
+        mag_soft_iron=np.diag([2.0, 1.0, 0.5]),
+        source="test",
+    )
     path = cal.save(tmp_path / "c.json")
     assert C.Calibration.load(path) == cal
-    assert set(json.loads(path.read_text())) == {"board", "rate_hz", "gyro_bias", "gyro_noise", "gyro_bias_walk", "accel_bias",
-                                                 "accel_scale", "accel_noise", "mag_hard_iron", "mag_soft_iron", "mag_noise",
-                                                 "source"}
+    assert set(json.loads(path.read_text())) == {
+        "board",
+        "rate_hz",
+        "gyro_bias",
+        "gyro_noise",
+        "gyro_bias_walk",
+        "accel_bias",
+        "accel_scale",
+        "accel_noise",
+        "mag_hard_iron",
+        "mag_soft_iron",
+        "mag_noise",
+        "source",
+    }
     older = {k: v for k, v in json.loads(path.read_text()).items() if k != "gyro_bias_walk"}  # saved before it existed
     assert C.Calibration.from_json(json.dumps(older)).gyro_bias_walk == [0.0, 0.0, 0.0]
     gyr, acc, mag = cal.apply((np.zeros((2, 3)), np.ones((2, 3)), np.array([[2.0, 3.0, 4.0], [np.nan] * 3])))
@@ -401,13 +447,20 @@ def test_load_calibration_prefers_path_then_user_then_bundled(tmp_path, monkeypa
 
 
 def test_bundled_default_is_the_reference_analysis_of_the_bundled_recordings():
-    made = C.calibrate(datasets.load("02_stationary"), datasets.load("02_six_faces"), datasets.load("03_mag_rotations"),
-                       source=datasets.load("calibration_nucleo-iks02a1").source)
+    made = C.calibrate(
+        datasets.load("02_stationary"),
+        datasets.load("02_six_faces"),
+        datasets.load("03_mag_rotations"),
+        source=datasets.load("calibration_nucleo-iks02a1").source,
+    )
     assert made == datasets.load("calibration_nucleo-iks02a1")
 
 
-GOOD_FILE = json.loads(C.Calibration(board="nucleo-iks02a1", gyro_noise=[1e-3] * 3, accel_noise=[6e-3] * 3,
-                                     mag_noise=[0.3] * 3, source="test").to_json())
+GOOD_FILE = json.loads(
+    C.Calibration(
+        board="nucleo-iks02a1", gyro_noise=[1e-3] * 3, accel_noise=[6e-3] * 3, mag_noise=[0.3] * 3, source="test"
+    ).to_json()
+)
 
 
 def changed(**fields):
@@ -416,37 +469,71 @@ def changed(**fields):
     return json.dumps(d, allow_nan=True)
 
 
-@pytest.mark.parametrize("text, match", [
-    ("{", "not valid JSON"),
-    ("[1, 2]", "JSON object"),
-    ("{}", "missing fields board, rate_hz, gyro_bias"),  # loaded as an all-zero calibration before
-    (changed(mag_soft_iron=...), "missing fields mag_soft_iron"),
-    (changed(gyro_bias=[1, 2]), r"gyro_bias: expected shape \(3,\), got \(2,\)"),
-    (changed(gyro_bias=["a", 0, 0]), r"gyro_bias: expected numbers of shape \(3,\)"),
-    (changed(gyro_bias={"x": 1}), r"gyro_bias: expected numbers"),
-    (changed(colour="red"), "unknown fields colour"),
-    (changed(accel_scale=[1, 0, 1]), r"accel_scale must lie within 0\.5 … 2"),
-    (changed(accel_scale=[1, -1, 1]), r"accel_scale must lie within"),
-    (changed(accel_scale=[1, 1e-9, 1]), r"accel_scale must lie within"),
-    (changed(accel_bias=[float("nan"), 0, 0]), "accel_bias: holds NaN or inf"),
-    (changed(mag_hard_iron=[float("inf"), 0, 0]), "mag_hard_iron: holds NaN or inf"),
-    (changed(gyro_noise=[-1e-3, 1e-3, 1e-3]), "gyro_noise is a noise level: it cannot be negative"),
-    (changed(gyro_bias_walk=[1e-5, -1e-5, 0.0]), "gyro_bias_walk is a noise level: it cannot be negative"),
-    (changed(mag_soft_iron=[[0, 0, 0]] * 3), "mag_soft_iron must be symmetric positive definite and not .*singular"),
-    (changed(mag_soft_iron=[[1, 0, 0], [0, 1, 0], [0, 0, 1e-6]]), "mag_soft_iron .* singular"),
-    (changed(mag_soft_iron=[[1, 0.5, 0], [0, 1, 0], [0, 0, 1]]), "mag_soft_iron must be symmetric"),
-    (changed(mag_soft_iron=[[-1, 0, 0], [0, 1, 0], [0, 0, 1]]), "mag_soft_iron must be symmetric positive definite"),
-    (changed(rate_hz=0), "rate_hz must be a positive finite number"),
-    (changed(rate_hz=-104), "rate_hz must be a positive finite number"),
-    (changed(rate_hz=float("nan")), "rate_hz must be a positive finite number"),
-    (changed(rate_hz="104"), "rate_hz must be a positive finite number"),
-    (changed(rate_hz=True), "rate_hz must be a positive finite number"),
-    (changed(board=3), "board must be a board name"),
-    (changed(board="arduino-nano"), "unknown board 'arduino-nano'"),
-], ids=["json", "list", "empty", "missing-field", "shape", "text", "object", "unknown", "scale-zero", "scale-negative",
-        "scale-tiny", "nan", "inf", "noise-negative", "walk-negative", "soft-iron-zero", "soft-iron-singular", "soft-iron-asymmetric",
-        "soft-iron-reflection", "rate-zero", "rate-negative", "rate-nan", "rate-text", "rate-bool", "board-number",
-        "board-unknown"])
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("{", "not valid JSON"),
+        ("[1, 2]", "JSON object"),
+        ("{}", "missing fields board, rate_hz, gyro_bias"),  # loaded as an all-zero calibration before
+        (changed(mag_soft_iron=...), "missing fields mag_soft_iron"),
+        (changed(gyro_bias=[1, 2]), r"gyro_bias: expected shape \(3,\), got \(2,\)"),
+        (changed(gyro_bias=["a", 0, 0]), r"gyro_bias: expected numbers of shape \(3,\)"),
+        (changed(gyro_bias={"x": 1}), r"gyro_bias: expected numbers"),
+        (changed(colour="red"), "unknown fields colour"),
+        (changed(accel_scale=[1, 0, 1]), r"accel_scale must lie within 0\.5 … 2"),
+        (changed(accel_scale=[1, -1, 1]), r"accel_scale must lie within"),
+        (changed(accel_scale=[1, 1e-9, 1]), r"accel_scale must lie within"),
+        (changed(accel_bias=[float("nan"), 0, 0]), "accel_bias: holds NaN or inf"),
+        (changed(mag_hard_iron=[float("inf"), 0, 0]), "mag_hard_iron: holds NaN or inf"),
+        (changed(gyro_noise=[-1e-3, 1e-3, 1e-3]), "gyro_noise is a noise level: it cannot be negative"),
+        (changed(gyro_bias_walk=[1e-5, -1e-5, 0.0]), "gyro_bias_walk is a noise level: it cannot be negative"),
+        (
+            changed(mag_soft_iron=[[0, 0, 0]] * 3),
+            "mag_soft_iron must be symmetric positive definite and not .*singular",
+        ),
+        (changed(mag_soft_iron=[[1, 0, 0], [0, 1, 0], [0, 0, 1e-6]]), "mag_soft_iron .* singular"),
+        (changed(mag_soft_iron=[[1, 0.5, 0], [0, 1, 0], [0, 0, 1]]), "mag_soft_iron must be symmetric"),
+        (
+            changed(mag_soft_iron=[[-1, 0, 0], [0, 1, 0], [0, 0, 1]]),
+            "mag_soft_iron must be symmetric positive definite",
+        ),
+        (changed(rate_hz=0), "rate_hz must be a positive finite number"),
+        (changed(rate_hz=-104), "rate_hz must be a positive finite number"),
+        (changed(rate_hz=float("nan")), "rate_hz must be a positive finite number"),
+        (changed(rate_hz="104"), "rate_hz must be a positive finite number"),
+        (changed(rate_hz=True), "rate_hz must be a positive finite number"),
+        (changed(board=3), "board must be a board name"),
+        (changed(board="arduino-nano"), "unknown board 'arduino-nano'"),
+    ],
+    ids=[
+        "json",
+        "list",
+        "empty",
+        "missing-field",
+        "shape",
+        "text",
+        "object",
+        "unknown",
+        "scale-zero",
+        "scale-negative",
+        "scale-tiny",
+        "nan",
+        "inf",
+        "noise-negative",
+        "walk-negative",
+        "soft-iron-zero",
+        "soft-iron-singular",
+        "soft-iron-asymmetric",
+        "soft-iron-reflection",
+        "rate-zero",
+        "rate-negative",
+        "rate-nan",
+        "rate-text",
+        "rate-bool",
+        "board-number",
+        "board-unknown",
+    ],
+)
 def test_calibration_file_errors_name_the_file(tmp_path, text, match):
     path = tmp_path / "bad.json"
     path.write_text(text)
@@ -477,8 +564,9 @@ def test_user_recording_round_trips_through_the_kit_format(tmp_path):
     path = save_recording(rec, tmp_path / "mine.csv")
     again = load_recording(path)
     faces = {f: again.body("acc")[again.phase(f)] for f in C.FACES}
-    np.testing.assert_allclose(C.accel_six_face(faces)[1], C.accel_six_face(
-        {f: rec.body("acc")[rec.phase(f)] for f in C.FACES})[1])
+    np.testing.assert_allclose(
+        C.accel_six_face(faces)[1], C.accel_six_face({f: rec.body("acc")[rec.phase(f)] for f in C.FACES})[1]
+    )
 
 
 def test_saving_again_keeps_the_previous_calibration(tmp_path):
@@ -511,6 +599,7 @@ def phone_export(folder, motion, seed, truth=False, unit=None):
     tested in test_phyphox.py). Without ``truth``, like a real export: no kfkit_truth.csv, so no labels."""
     from kfkit import phone_sim
     from kfkit.phone_sim import simulate_phone
+
     files = phone_sim.simple_experiment_files(simulate_phone(motion, seed=seed, unit=unit))
     if not truth:
         files.pop(phone_sim.TRUTH_FILE)
@@ -540,10 +629,19 @@ def test_phone_default_is_the_identity_with_the_phone_models_noise(tmp_path, mon
 def test_a_saved_phone_calibration_round_trips_and_belongs_to_the_students_phone(tmp_path, monkeypatch):
     from kfkit.io import save_recording
     from kfkit.readers import load_any
+
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
-    mine = C.Calibration(board=PHONE, rate_hz=100.2, gyro_bias=np.radians([0.03, -0.01, 0.02]), gyro_noise=[0.0012] * 3,
-                         accel_bias=[0.03, -0.04, 0.05], accel_scale=[1.002, 0.998, 1.001], accel_noise=[0.018] * 3,
-                         mag_hard_iron=[0.5, -0.3, 0.9], source="lab 02/03: my phone")
+    mine = C.Calibration(
+        board=PHONE,
+        rate_hz=100.2,
+        gyro_bias=np.radians([0.03, -0.01, 0.02]),
+        gyro_noise=[0.0012] * 3,
+        accel_bias=[0.03, -0.04, 0.05],
+        accel_scale=[1.002, 0.998, 1.001],
+        accel_noise=[0.018] * 3,
+        mag_hard_iron=[0.5, -0.3, 0.9],
+        source="lab 02/03: my phone",
+    )
     assert mine.save() == tmp_path / "home" / f"calibration_{PHONE}.json"
     assert json.loads((tmp_path / "home" / f"calibration_{PHONE}.json").read_text())["board"] == PHONE
     assert C.load_calibration(PHONE) == mine  # what lab 04 loads for a phone
@@ -570,6 +668,7 @@ def test_label_rests_finds_and_names_the_six_faces(tmp_path, source):
         rec = strip_phases(sim.simulate_imu(motion, seed=6, accel_bias=bias_s, accel_scale=scale, accel_bias_rw=0.0))
     else:
         from kfkit.unit_errors import PHONE_UNIT
+
         unit = {**PHONE_UNIT, "accel_bias": bias_s, "accel_scale": scale, "accel_bias_rw": 0.0}
         rec = load_recording_or_export(phone_export(tmp_path / "faces", motion, seed=6, unit=unit))
         assert rec.phases == []  # a real export carries no labels
@@ -590,6 +689,7 @@ def test_label_rests_finds_and_names_the_six_faces(tmp_path, source):
 
 def load_recording_or_export(path):
     from kfkit.readers import load_any
+
     return load_any(path)
 
 

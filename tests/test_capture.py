@@ -1,4 +1,5 @@
 """kfkit.capture without a pty: protocol v1 parsing, board discovery, opening errors, loop:// URLs."""
+
 import errno
 import json
 import threading
@@ -32,28 +33,33 @@ def test_design_example_sample_parses():
 
 
 def test_design_example_header_parses():
-    item = C.parse_line(b"#KFKIT,1,board=mpu6050,rate_hz=100,fields=t_us|seq|ax|ay|az|gx|gy|gz,accel_fs_g=2,gyro_fs_dps=250\n")
+    item = C.parse_line(
+        b"#KFKIT,1,board=mpu6050,rate_hz=100,fields=t_us|seq|ax|ay|az|gx|gy|gz,accel_fs_g=2,gyro_fs_dps=250\n"
+    )
     assert isinstance(item, C.Header)
     assert (item.version, item.board, item.rate_hz) == (1, "mpu6050", 100.0)
     assert item.fields == ("t_us", "seq", "ax", "ay", "az", "gx", "gy", "gz")
     assert item.params["gyro_fs_dps"] == "250"
 
 
-@pytest.mark.parametrize("line, kind", [
-    (b"$123456,42,-120,35,16390,12,-8,3*2E", "checksum"),       # wrong checksum
-    (b"$123456,42,-120,35,16390,12,-8,4*2D", "checksum"),       # a changed digit
-    (b"$123456,42,-120,35,16390,12,-8,3", "malformed"),         # no *HH
-    (b"$123456,42,-120,35,16390,12,-8,3*2", "malformed"),       # one hex digit
-    (b"$123456,42,-120,35,16390,12,-8,3*ZZ", "malformed"),      # not hex
-    (b"123456,42,-120,35*00", "malformed"),                      # no $
-    (b"\xff\xfe\x00garbage", "malformed"),                       # binary noise
-    (b"#KFKIT,2,board=x,rate_hz=1,fields=t_us|seq", "version"),  # another protocol version
-    (b"#KFKIT,1,board=x,fields=t_us|seq", "malformed"),          # no rate_hz
-    (b"#KFKIT,1,board=x,rate_hz=1,fields=seq|t_us", "malformed"),
-    (b"#KFKIT,1,board=x,rate_hz=0,fields=t_us|seq", "malformed"),     # a rate the host cannot divide by
-    (b"#KFKIT,1,board=x,rate_hz=nan,fields=t_us|seq", "malformed"),
-    (b"   \r\n", "empty"),
-])
+@pytest.mark.parametrize(
+    "line, kind",
+    [
+        (b"$123456,42,-120,35,16390,12,-8,3*2E", "checksum"),  # wrong checksum
+        (b"$123456,42,-120,35,16390,12,-8,4*2D", "checksum"),  # a changed digit
+        (b"$123456,42,-120,35,16390,12,-8,3", "malformed"),  # no *HH
+        (b"$123456,42,-120,35,16390,12,-8,3*2", "malformed"),  # one hex digit
+        (b"$123456,42,-120,35,16390,12,-8,3*ZZ", "malformed"),  # not hex
+        (b"123456,42,-120,35*00", "malformed"),  # no $
+        (b"\xff\xfe\x00garbage", "malformed"),  # binary noise
+        (b"#KFKIT,2,board=x,rate_hz=1,fields=t_us|seq", "version"),  # another protocol version
+        (b"#KFKIT,1,board=x,fields=t_us|seq", "malformed"),  # no rate_hz
+        (b"#KFKIT,1,board=x,rate_hz=1,fields=seq|t_us", "malformed"),
+        (b"#KFKIT,1,board=x,rate_hz=0,fields=t_us|seq", "malformed"),  # a rate the host cannot divide by
+        (b"#KFKIT,1,board=x,rate_hz=nan,fields=t_us|seq", "malformed"),
+        (b"   \r\n", "empty"),
+    ],
+)
 def test_bad_lines_are_classified(line, kind):
     item = C.parse_line(line)
     assert isinstance(item, C.BadLine) and item.kind == kind, item
@@ -75,8 +81,11 @@ def test_tagged_message_and_note():
 def test_encoders_round_trip_and_header_checksum_is_optional():
     rng = np.random.default_rng(1)
     for _ in range(200):  # the firmware's types: uint32 t_us, uint16 seq, int32 values
-        values = (int(rng.integers(0, 2**32)), int(rng.integers(0, 2**16)),
-                  *(int(v) for v in rng.integers(-2**31, 2**31, 9)))
+        values = (
+            int(rng.integers(0, 2**32)),
+            int(rng.integers(0, 2**16)),
+            *(int(v) for v in rng.integers(-(2**31), 2**31, 9)),
+        )
         line = C.encode_sample(values)
         assert line.endswith(b"\n") and int(line[-3:-1], 16) == xor(line[1:-4])
         assert C.parse_line(line).values == values
@@ -89,9 +98,19 @@ def test_encoders_round_trip_and_header_checksum_is_optional():
 
 # The protocol's integer range is the firmware's (kfkit_protocol.h): uint32 t_us, uint16 seq, int32 fields. Every
 # value inside it is exact in float64; a value outside it (2^53 + 1 and 1e20 are not) must never reach a file.
-IN_RANGE = [(0, 0, -2**31, 2**31 - 1), (2**32 - 1, 2**16 - 1, 0), (7, 3)]
-OUT_OF_RANGE = [(2**32, 0, 1), (-1, 0, 1), (0, 2**16, 1), (0, -1, 1), (0, 0, 2**31), (0, 0, -2**31 - 1),
-                (0, 0, 5, 2**53 + 1), (0, 0, 10**20), (0, 0, -(10**20)), (2**64 + 5, 1, 2)]
+IN_RANGE = [(0, 0, -(2**31), 2**31 - 1), (2**32 - 1, 2**16 - 1, 0), (7, 3)]
+OUT_OF_RANGE = [
+    (2**32, 0, 1),
+    (-1, 0, 1),
+    (0, 2**16, 1),
+    (0, -1, 1),
+    (0, 0, 2**31),
+    (0, 0, -(2**31) - 1),
+    (0, 0, 5, 2**53 + 1),
+    (0, 0, 10**20),
+    (0, 0, -(10**20)),
+    (2**64 + 5, 1, 2),
+]
 
 
 @pytest.mark.parametrize("values", IN_RANGE)
@@ -108,8 +127,19 @@ def test_values_outside_the_protocols_range_are_malformed(values):
     assert "range" in item.detail or "must be in" in item.detail
 
 
-@pytest.mark.parametrize("body", [b"1000,1,+5", b"1000,1, 5", b"1000,1,1_000", b"1000,1,--5", b"1000,1,-", b"1000,,5",
-                                  b"1000,1,5 ", "1000,1,\u0663".encode()])
+@pytest.mark.parametrize(
+    "body",
+    [
+        b"1000,1,+5",
+        b"1000,1, 5",
+        b"1000,1,1_000",
+        b"1000,1,--5",
+        b"1000,1,-",
+        b"1000,,5",
+        b"1000,1,5 ",
+        "1000,1,\u0663".encode(),
+    ],
+)
 def test_integers_are_an_optional_minus_and_digits_only(body):
     """int() would take '+5', ' 5', '1_000' or an Arabic-Indic digit: the protocol does not."""
     item = C.parse_line(b"$" + body + b"*%02X" % xor(body))
@@ -122,7 +152,7 @@ def test_every_single_byte_change_of_a_sample_is_rejected():
         for new in (ord("0"), ord("9"), ord(","), ord("-")):
             if new == line[i]:
                 continue
-            changed = line[:i] + bytes([new]) + line[i + 1:]
+            changed = line[:i] + bytes([new]) + line[i + 1 :]
             assert isinstance(C.parse_line(changed), C.BadLine), changed
 
 
@@ -135,12 +165,17 @@ def port(device, vid=None, pid=None, description="n/a"):
 def comports(monkeypatch):
     def use(*ports):
         monkeypatch.setattr(serial.tools.list_ports, "comports", lambda include_links=False: list(ports))
+
     return use
 
 
 def test_find_boards_names_known_ids_and_skips_builtin_uarts(comports):
-    comports(port("/dev/ttyS0"), port("/dev/ttyUSB0", 0x1234, 0x5678, "Mystery"),
-             port("/dev/ttyUSB1", 0x1A86, 0x7523, "USB Serial"), port("/dev/ttyACM0", 0x0483, 0x374B, "STM32 STLink"))
+    comports(
+        port("/dev/ttyS0"),
+        port("/dev/ttyUSB0", 0x1234, 0x5678, "Mystery"),
+        port("/dev/ttyUSB1", 0x1A86, 0x7523, "USB Serial"),
+        port("/dev/ttyACM0", 0x0483, 0x374B, "STM32 STLink"),
+    )
     boards = C.find_boards()
     assert [b.port for b in boards] == ["/dev/ttyACM0", "/dev/ttyUSB1", "/dev/ttyUSB0"]
     assert [b.board for b in boards] == ["nucleo-iks02a1", "mpu6050", None]
@@ -149,10 +184,23 @@ def test_find_boards_names_known_ids_and_skips_builtin_uarts(comports):
 
 
 # the issue's table: ST-LINK (Nucleo), Arduino, and the USB-serial chips of clones, by what they are
-ISSUE_IDS = {"0483:374B": "ST-LINK/V2-1", "0483:3752": "ST-LINK/V2-1", "0483:374E": "STLINK-V3", "0483:374F": "STLINK-V3",
-             "0483:3753": "STLINK-V3", "0483:3754": "STLINK-V3", "2341:0043": "Arduino Uno", "2341:0001": "Arduino Uno",
-             "2341:0243": "Genuino Uno", "2A03:0043": "Arduino Uno", "1A86:7523": "CH340", "1A86:55D4": "CH9102",
-             "10C4:EA60": "CP210x", "0403:6001": "FTDI FT232R", "0403:6015": "FTDI FT-X"}
+ISSUE_IDS = {
+    "0483:374B": "ST-LINK/V2-1",
+    "0483:3752": "ST-LINK/V2-1",
+    "0483:374E": "STLINK-V3",
+    "0483:374F": "STLINK-V3",
+    "0483:3753": "STLINK-V3",
+    "0483:3754": "STLINK-V3",
+    "2341:0043": "Arduino Uno",
+    "2341:0001": "Arduino Uno",
+    "2341:0243": "Genuino Uno",
+    "2A03:0043": "Arduino Uno",
+    "1A86:7523": "CH340",
+    "1A86:55D4": "CH9102",
+    "10C4:EA60": "CP210x",
+    "0403:6001": "FTDI FT232R",
+    "0403:6015": "FTDI FT-X",
+}
 
 
 @pytest.mark.parametrize("vid_pid", ISSUE_IDS)
@@ -172,7 +220,8 @@ def test_kfkit_boards_lists_what_it_finds(comports, capsys):
     assert main(["boards"]) == 0
     assert capsys.readouterr().out.splitlines() == [
         "/dev/ttyACM0 [0483:374B] ST-LINK/V2-1 (STM32 Nucleo-64 such as the Nucleo-F411RE) → probably nucleo-iks02a1",
-        "/dev/ttyUSB0 [1234:5678] unknown USB serial device (Mystery)"]
+        "/dev/ttyUSB0 [1234:5678] unknown USB serial device (Mystery)",
+    ]
     comports()
     assert main(["boards"]) == 0
     assert "no USB serial boards found" in capsys.readouterr().out
@@ -205,14 +254,18 @@ def test_hwgrep_without_match_is_port_not_found(comports):
         C.open_port("hwgrep://FFFF:FFFF")
 
 
-@pytest.mark.parametrize("code, error, words", [
-    (errno.EACCES, C.PortPermissionError, "group 'dialout' and you are not in it: sudo usermod -aG dialout"),
-    (errno.EBUSY, C.PortBusyError, "busy: another program"),
-    (errno.EAGAIN, C.PortBusyError, "busy: another program"),  # pyserial's exclusive lock (flock) is taken
-])
+@pytest.mark.parametrize(
+    "code, error, words",
+    [
+        (errno.EACCES, C.PortPermissionError, "group 'dialout' and you are not in it: sudo usermod -aG dialout"),
+        (errno.EBUSY, C.PortBusyError, "busy: another program"),
+        (errno.EAGAIN, C.PortBusyError, "busy: another program"),  # pyserial's exclusive lock (flock) is taken
+    ],
+)
 def test_open_errors_say_what_to_do(monkeypatch, code, error, words):
     def refuse(*args, **kwargs):
         raise serial.SerialException(code, f"could not open port /dev/ttyACM0: [Errno {code}]")
+
     monkeypatch.setattr(serial, "serial_for_url", refuse)
     monkeypatch.setattr(ports_module.sys, "platform", "linux")
     monkeypatch.setattr(ports_module.os, "getgroups", lambda: [])  # not in any group (the port is absent: dialout)
@@ -220,15 +273,22 @@ def test_open_errors_say_what_to_do(monkeypatch, code, error, words):
         C.open_port("/dev/ttyACM0")
 
 
-@pytest.mark.parametrize("text, error", [
-    ("could not open port 'COM7': FileNotFoundError(2, 'The system cannot find the file specified.', None, 2)",
-     C.PortNotFoundError),
-    ("could not open port 'COM3': PermissionError(13, 'Access is denied.', None, 5)", C.PortBusyError),
-])
+@pytest.mark.parametrize(
+    "text, error",
+    [
+        (
+            "could not open port 'COM7': FileNotFoundError(2, 'The system cannot find the file specified.', None, 2)",
+            C.PortNotFoundError,
+        ),
+        ("could not open port 'COM3': PermissionError(13, 'Access is denied.', None, 5)", C.PortBusyError),
+    ],
+)
 def test_windows_open_errors(monkeypatch, comports, text, error):
     """pyserial on Windows gives no errno: 'Access is denied' is a port another program holds."""
+
     def refuse(*args, **kwargs):
         raise serial.SerialException(text)
+
     comports()
     monkeypatch.setattr(serial, "serial_for_url", refuse)
     monkeypatch.setattr(ports_module.sys, "platform", "win32")
@@ -237,7 +297,9 @@ def test_windows_open_errors(monkeypatch, comports, text, error):
 
 
 # -- a pyserial URL: loop:// echoes what is written into it -------------------------------------------------
-HEADER = C.encode_header("mpu6050", 100, ("t_us", "seq", "ax", "ay", "az", "gx", "gy", "gz"), accel_fs_g=2, gyro_fs_dps=250)
+HEADER = C.encode_header(
+    "mpu6050", 100, ("t_us", "seq", "ax", "ay", "az", "gx", "gy", "gz"), accel_fs_g=2, gyro_fs_dps=250
+)
 
 
 def loop_capture(payload: bytes, settle_s=0.05, **options):
@@ -336,15 +398,26 @@ def test_board_time_reference_against_a_float_clock():
     true_t = np.cumsum(rng.uniform(0.009, 0.011, 500))  # s, a clock that never wraps
     start = 2**32 - 2_000_000  # 2 s before micros() wraps
     t_us = (start + np.round(true_t * 1e6).astype(np.int64)) % 2**32
-    np.testing.assert_allclose(C.board_time(t_us), np.round(true_t * 1e6) / 1e6 - np.round(true_t[0] * 1e6) / 1e6, atol=1e-9)
+    np.testing.assert_allclose(
+        C.board_time(t_us), np.round(true_t * 1e6) / 1e6 - np.round(true_t[0] * 1e6) / 1e6, atol=1e-9
+    )
 
 
 # -- options checked where they are taken: the Recorder, the virtual board, a port's address ------------------------
-@pytest.mark.parametrize("options, words", [
-    ({"seconds": float("nan")}, "seconds"), ({"seconds": -1.0}, "seconds"), ({"seconds": 0}, "seconds"),
-    ({"seconds": float("inf")}, "seconds"), ({"baud": -5}, "baud"), ({"baud": 0}, "baud"), ({"baud": 115200.5}, "baud"),
-    ({"no_data_s": float("nan")}, "no_data_s"), ({"flush_s": 0.0}, "flush_s"),
-])
+@pytest.mark.parametrize(
+    "options, words",
+    [
+        ({"seconds": float("nan")}, "seconds"),
+        ({"seconds": -1.0}, "seconds"),
+        ({"seconds": 0}, "seconds"),
+        ({"seconds": float("inf")}, "seconds"),
+        ({"baud": -5}, "baud"),
+        ({"baud": 0}, "baud"),
+        ({"baud": 115200.5}, "baud"),
+        ({"no_data_s": float("nan")}, "no_data_s"),
+        ({"flush_s": 0.0}, "flush_s"),
+    ],
+)
 def test_the_recorder_refuses_options_it_cannot_honour(options, words):
     """A NaN duration used to record forever (no board time is ≥ NaN)."""
     with pytest.raises(ValueError, match=f"Recorder: {words} must be"):
@@ -358,15 +431,20 @@ def test_the_virtual_board_refuses_a_rate_it_cannot_play(rate):
         C.VirtualBoard(rate_hz=rate)
 
 
-@pytest.mark.parametrize("port, words", [
-    ("bogus://x", "no port has the scheme 'bogus://'"),
-    ("BOGUS://x", "no port has the scheme 'bogus://'"),
-    ("a.b://x", "no port has the scheme 'a.b://'"),
-    ("socket://localhost", "socket:// needs HOST:PORT"),
-    ("socket://localhost:0", "socket:// needs HOST:PORT"),
-    ("rfc2217://:4000", "rfc2217:// needs HOST:PORT"),
-    ("", "not a port name"), ("  ", "not a port name"), ("/dev/tty\0", "not a port name"),
-])
+@pytest.mark.parametrize(
+    "port, words",
+    [
+        ("bogus://x", "no port has the scheme 'bogus://'"),
+        ("BOGUS://x", "no port has the scheme 'bogus://'"),
+        ("a.b://x", "no port has the scheme 'a.b://'"),
+        ("socket://localhost", "socket:// needs HOST:PORT"),
+        ("socket://localhost:0", "socket:// needs HOST:PORT"),
+        ("rfc2217://:4000", "rfc2217:// needs HOST:PORT"),
+        ("", "not a port name"),
+        ("  ", "not a port name"),
+        ("/dev/tty\0", "not a port name"),
+    ],
+)
 def test_a_port_of_no_known_form_names_it_and_lists_the_forms(port, words):
     for check in (ports_module.check_port, C.open_port):
         with pytest.raises(C.PortAddressError) as e:
@@ -376,14 +454,24 @@ def test_a_port_of_no_known_form_names_it_and_lists_the_forms(port, words):
             assert form in str(e.value)
 
 
-@pytest.mark.parametrize("url, words", [
-    ("phyphox://", "no host"), ("phyphox://::::", "no host"), ("phyphox://:8080", "no host"),
-    ("phyphox://phone:abc", "whole number 1 … 65535"), ("phyphox://phone:99999", "whole number 1 … 65535"),
-    ("phyphox://phone:0", "whole number 1 … 65535"), ("phyphox://pho ne:80", "not a host name"),
-    ("phyphox://phone/get", "nothing may follow the port"), ("phyphox://phone?poll=nan", "poll='nan'"),
-    ("phyphox://phone?timeout=-3", "timeout='-3'"), ("phyphox://phone?poll=", "poll=''"),
-    ("phyphox://phone?mount=sideways", "unknown phone mounting 'sideways'"), ("phyphox://phone?moutn=flat", "'moutn'"),
-])
+@pytest.mark.parametrize(
+    "url, words",
+    [
+        ("phyphox://", "no host"),
+        ("phyphox://::::", "no host"),
+        ("phyphox://:8080", "no host"),
+        ("phyphox://phone:abc", "whole number 1 … 65535"),
+        ("phyphox://phone:99999", "whole number 1 … 65535"),
+        ("phyphox://phone:0", "whole number 1 … 65535"),
+        ("phyphox://pho ne:80", "not a host name"),
+        ("phyphox://phone/get", "nothing may follow the port"),
+        ("phyphox://phone?poll=nan", "poll='nan'"),
+        ("phyphox://phone?timeout=-3", "timeout='-3'"),
+        ("phyphox://phone?poll=", "poll=''"),
+        ("phyphox://phone?mount=sideways", "unknown phone mounting 'sideways'"),
+        ("phyphox://phone?moutn=flat", "'moutn'"),
+    ],
+)
 def test_a_bad_phone_address_says_what_is_wrong_and_the_form(url, words):
     with pytest.raises(C.PortAddressError) as e:
         ports_module.check_port(url)
@@ -393,15 +481,29 @@ def test_a_bad_phone_address_says_what_is_wrong_and_the_form(url, words):
 def test_good_ports_pass_the_check_unchanged():
     from kfkit.capture.phyphox_http import parse_url
 
-    for port in ("auto", "virtual", "/dev/ttyACM0", "COM3", "loop://", "socket://127.0.0.1:4000", "hwgrep://0483:374B",
-                 "rfc2217://host:2217", "phyphox://192.168.0.42:8080", "phyphox://[fe80::1]:80?mount=upright&poll=0.2"):
+    for port in (
+        "auto",
+        "virtual",
+        "/dev/ttyACM0",
+        "COM3",
+        "loop://",
+        "socket://127.0.0.1:4000",
+        "hwgrep://0483:374B",
+        "rfc2217://host:2217",
+        "phyphox://192.168.0.42:8080",
+        "phyphox://[fe80::1]:80?mount=upright&poll=0.2",
+    ):
         assert ports_module.check_port(port) == port
     assert parse_url("phyphox://[fe80::1]?mount=upright&poll=0.2&timeout=5") == (
-        "fe80::1", 8080, {"mount": "upright", "poll": 0.2, "timeout": 5.0})
+        "fe80::1",
+        8080,
+        {"mount": "upright", "poll": 0.2, "timeout": 5.0},
+    )
 
 
 def test_a_name_that_is_no_device_path_lists_the_forms_when_not_found(comports):
     comports()
-    with pytest.raises(C.PortNotFoundError, match="port virtaul not found; no USB serial ports are connected. A port "
-                                                  "is 'auto'"):
+    with pytest.raises(
+        C.PortNotFoundError, match="port virtaul not found; no USB serial ports are connected. A port is 'auto'"
+    ):
         C.open_port("virtaul")

@@ -7,6 +7,7 @@ sensors, phyphox refusing to start, a phone that pauses or stops answering mid-c
 is saved). Every server is on 127.0.0.1 and stops by itself. Most phones here step their clock by a fixed
 amount per poll (``step_s``), so a busy machine makes a test slower, never different.
 """
+
 import json
 import socket
 import time
@@ -19,8 +20,13 @@ import serial.tools.list_ports
 
 from kfkit import frames
 from kfkit.capture import Recorder, capture
-from kfkit.capture.errors import (PhoneError, PhoneExperimentError, PhoneStoppedError, PhoneUnreachableError,
-                                 RemoteAccessOffError)
+from kfkit.capture.errors import (
+    PhoneError,
+    PhoneExperimentError,
+    PhoneStoppedError,
+    PhoneUnreachableError,
+    RemoteAccessOffError,
+)
 from kfkit.capture.phyphox_http import PhyphoxClient, parse_url
 from kfkit.capture.virtual_phone import VirtualPhone, format_number
 from kfkit.cli import main
@@ -143,6 +149,7 @@ def test_the_capture_panel_records_from_a_phone(vphone, tmp_path, monkeypatch):
 
 # --- errors ----------------------------------------------------------------------------------------------
 
+
 def free_port():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -187,11 +194,14 @@ def test_a_server_that_is_not_phyphox():
         server.server_close()
 
 
-@pytest.mark.parametrize("experiment, message", [
-    ("gyroscope", r"'Gyroscope'\) has no accelerometer \(it has: gyroscope\).*New simple experiment"),
-    ("acceleration-without-g", r"no accelerometer.*linear acceleration \(gravity removed\).*'Acceleration with g'"),
-    ("simple-linear", r"no accelerometer.*linear acceleration"),
-])
+@pytest.mark.parametrize(
+    "experiment, message",
+    [
+        ("gyroscope", r"'Gyroscope'\) has no accelerometer \(it has: gyroscope\).*New simple experiment"),
+        ("acceleration-without-g", r"no accelerometer.*linear acceleration \(gravity removed\).*'Acceleration with g'"),
+        ("simple-linear", r"no accelerometer.*linear acceleration"),
+    ],
+)
 def test_an_experiment_without_the_sensors_names_what_to_open(experiment, message):
     with VirtualPhone(experiment=experiment) as vp:
         with pytest.raises(PhoneExperimentError, match=message):
@@ -206,28 +216,35 @@ def test_without_a_magnetometer_it_records_gyro_and_accelerometer():
 
 
 def test_phyphox_refusing_to_start():
-    with VirtualPhone(faults={"refuse_start": True}) as vp:
-        with pytest.raises(PhoneExperimentError, match="refused to start"):
-            Recorder(vp.url).start()
+    with (
+        VirtualPhone(faults={"refuse_start": True}) as vp,
+        pytest.raises(PhoneExperimentError, match="refused to start"),
+    ):
+        Recorder(vp.url).start()
 
 
 def test_a_phone_that_pauses_mid_capture_keeps_what_arrived(tmp_path):
-    with VirtualPhone(step_s=0.8, faults={"pause_at": 4.0}) as vp:
-        with pytest.raises(PhoneStoppedError, match="stopped measuring"):
-            capture(vp.url, seconds=30.0, out=tmp_path / "paused.csv")
+    with (
+        VirtualPhone(step_s=0.8, faults={"pause_at": 4.0}) as vp,
+        pytest.raises(PhoneStoppedError, match="stopped measuring"),
+    ):
+        capture(vp.url, seconds=30.0, out=tmp_path / "paused.csv")
     rec = load_recording(tmp_path / "paused.csv")
     assert 3.5 < rec.t[-1] < 4.0 and rec.meta["capture"]["stats"]["samples"] == len(rec)
 
 
 def test_a_phone_that_stops_answering_mid_capture_keeps_what_arrived(tmp_path):
-    with VirtualPhone(step_s=0.4, faults={"hang_after": 15}) as vp:
-        with pytest.raises(PhoneUnreachableError, match="no answer"):
-            capture(vp.url + "?timeout=5", seconds=60.0, out=tmp_path / "lost.csv")  # 5 s: a busy machine answers
+    with (
+        VirtualPhone(step_s=0.4, faults={"hang_after": 15}) as vp,
+        pytest.raises(PhoneUnreachableError, match="no answer"),
+    ):
+        capture(vp.url + "?timeout=5", seconds=60.0, out=tmp_path / "lost.csv")  # 5 s: a busy machine answers
     rec = load_recording(tmp_path / "lost.csv")
     assert len(rec) > 100 and rec.meta["capture"]["stats"]["samples"] == len(rec)
 
 
 # --- the virtual phone speaks phyphox ----------------------------------------------------------------------
+
 
 def test_virtual_phone_answers_like_phyphox(vphone):
     client = PhyphoxClient("127.0.0.1", vphone.port)
@@ -272,8 +289,10 @@ def test_virtual_phone_clocks_and_bias_walks_run_on_across_its_loops():
     assert (s["dropped"], s["bad_lines"]) == (0, 0) and len(rec) > 1200 * 100
     assert np.all(np.diff(t_acc) > 0) and np.diff(t_acc).max() < 1.5 / PHONE_RATES["acc"]  # no seams
     series = {"gyr": (rec.sensor_si("gyr"), s["rate_hz"]), "acc": (acc, (len(t_acc) - 1) / (t_acc[-1] - t_acc[0]))}
-    for sensor, chip, K in (("gyr", PHONE_GYRO, PHONE_UNIT["gyro_bias_rw"]),
-                            ("acc", PHONE_ACCEL, PHONE_UNIT["accel_bias_rw"])):
+    for sensor, chip, K in (
+        ("gyr", PHONE_GYRO, PHONE_UNIT["gyro_bias_rw"]),
+        ("acc", PHONE_ACCEL, PHONE_UNIT["accel_bias_rw"]),
+    ):
         x, rate = series[sensor]
         taus, adev = allan_curves(x, rate)
         model = model_adev(taus, chip.noise_density, K, PHONE_LSB[sensor], rate)

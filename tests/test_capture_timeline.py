@@ -2,6 +2,7 @@
 
 No thread, no port: each case is a list of (t_us, seq) built from the protocol's rules with a known answer.
 """
+
 import numpy as np
 import pytest
 

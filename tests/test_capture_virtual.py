@@ -1,5 +1,6 @@
 """End to end over a pseudo-terminal: the virtual board with each fault kind, the recorder,
 the streamed file, the CLI. Expected statistics come from the fault positions, not from the code."""
+
 import json
 import os
 import re
@@ -12,14 +13,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-import kfkit.capture as C
-from kfkit.capture import ports as ports_module
 import unit_truth
 from allan_oracle import allan_curves, loglog_slope, model_adev, outside_chi2_interval
+
+import kfkit.capture as C
 from kfkit import sim
+from kfkit.capture import ports as ports_module
 from kfkit.cli import main
-from kfkit.frames import G, MAG_FIELD_LONDON
+from kfkit.frames import MAG_FIELD_LONDON, G
 from kfkit.io import load_recording, recording_text
 from kfkit.unit_errors import BIAS_RANDOM_WALK
 
@@ -66,14 +67,19 @@ def test_clean_stream_physics_and_time():
 # Oracle: the sensor model written out here (sensor frame: ω_s = b_g, f_s = k ⊙ M_accᵀ f_b + b_a,
 # m_s = W M_magᵀ m_b + h) with the errors kfkit.datasets simulates the bundled recordings with (tests/unit_truth.py).
 
+
 def expected_at_rest(rec, errors):
     """What each sensor of ``rec``'s board reads on average lying flat at yaw 0 (sensor frame, SI) with ``errors``."""
     f_b, m_b = np.array([0.0, 0.0, -G]), np.asarray(MAG_FIELD_LONDON, float)  # level, nose north: body = NED
     M = {k: np.array(v) for k, v in rec.meta["mount"].items()}
-    want = {"gyr": np.asarray(errors.get("gyro_bias", np.zeros(3)), float),
-            "acc": np.asarray(errors.get("accel_scale", np.ones(3))) * (M["acc"].T @ f_b) + errors.get("accel_bias", 0.0)}
+    want = {
+        "gyr": np.asarray(errors.get("gyro_bias", np.zeros(3)), float),
+        "acc": np.asarray(errors.get("accel_scale", np.ones(3))) * (M["acc"].T @ f_b) + errors.get("accel_bias", 0.0),
+    }
     if "mag" in M:
-        want["mag"] = np.asarray(errors.get("mag_soft_iron", np.eye(3))) @ M["mag"].T @ m_b + errors.get("mag_hard_iron", 0.0)
+        want["mag"] = np.asarray(errors.get("mag_soft_iron", np.eye(3))) @ M["mag"].T @ m_b + errors.get(
+            "mag_hard_iron", 0.0
+        )
     return want
 
 
@@ -101,11 +107,13 @@ def test_a_unit_of_ones_own_and_bad_units():
     errors = {"gyro_bias": [0.01, -0.02, 0.03], "mag_hard_iron": [5.0, 0.0, -5.0]}
     rec = C.capture("virtual", 20.0, virtual={"realtime": False, "seed": 12, "unit": errors})
     assert_reads_at_rest(rec, errors)
-    for unit, match in (("ideal", "unit must be 'bundled', None or a dict"),
-                        ({"hard_iron": [1, 2, 3]}, "unknown sensor error\\(s\\) hard_iron.*known: gyro_bias"),
-                        ({"mag_soft_iron": np.eye(2)}, "mag_soft_iron: expected finite values of shape \\(3, 3\\)"),
-                        ({"gyro_bias_rw": float("nan")}, "gyro_bias_rw: expected finite"),
-                        ({"accel_bias_rw": -1e-5}, "accel_bias_rw: .*a walk ≥ 0")):
+    for unit, match in (
+        ("ideal", "unit must be 'bundled', None or a dict"),
+        ({"hard_iron": [1, 2, 3]}, "unknown sensor error\\(s\\) hard_iron.*known: gyro_bias"),
+        ({"mag_soft_iron": np.eye(2)}, "mag_soft_iron: expected finite values of shape \\(3, 3\\)"),
+        ({"gyro_bias_rw": float("nan")}, "gyro_bias_rw: expected finite"),
+        ({"accel_bias_rw": -1e-5}, "accel_bias_rw: .*a walk ≥ 0"),
+    ):
         with pytest.raises(ValueError, match=match):
             C.VirtualBoard(unit=unit)
     with pytest.raises(ValueError, match="no bundled unit for board 'phone-phyphox'.*unit=None"):
@@ -122,29 +130,71 @@ def at(position):
 # Each fault kind on its own and all together. Expected values follow from the positions by hand:
 # a lost sample at position p leaves a gap "before sample p − (losses before p)", at t = p / RATE.
 FAULT_CASES = {
-    "corrupt": ({"corrupt": [10, 20]}, {},
-                dict(samples=N - 2, bad_checksum=2, malformed=0, dropped=2, drops=[(10, at(10), 1), (19, at(20), 1)],
-                     resets=0, reset_positions=[])),
-    "drop": ({"drop": [30, 31, 32]}, {},
-             dict(samples=N - 3, bad_checksum=0, malformed=0, dropped=3, drops=[(30, at(30), 3)], resets=0,
-                  reset_positions=[])),
-    "truncate": ({"truncate": [40]}, {},
-                 dict(samples=N - 1, bad_checksum=0, malformed=1, dropped=1, drops=[(40, at(40), 1)], resets=0,
-                      reset_positions=[])),
-    "reset": ({"reset": [100]}, {},
-              dict(samples=N, bad_checksum=0, malformed=0, dropped=0, drops=[], resets=1, reset_positions=[100])),
+    "corrupt": (
+        {"corrupt": [10, 20]},
+        {},
+        dict(
+            samples=N - 2,
+            bad_checksum=2,
+            malformed=0,
+            dropped=2,
+            drops=[(10, at(10), 1), (19, at(20), 1)],
+            resets=0,
+            reset_positions=[],
+        ),
+    ),
+    "drop": (
+        {"drop": [30, 31, 32]},
+        {},
+        dict(
+            samples=N - 3, bad_checksum=0, malformed=0, dropped=3, drops=[(30, at(30), 3)], resets=0, reset_positions=[]
+        ),
+    ),
+    "truncate": (
+        {"truncate": [40]},
+        {},
+        dict(
+            samples=N - 1, bad_checksum=0, malformed=1, dropped=1, drops=[(40, at(40), 1)], resets=0, reset_positions=[]
+        ),
+    ),
+    "reset": (
+        {"reset": [100]},
+        {},
+        dict(samples=N, bad_checksum=0, malformed=0, dropped=0, drops=[], resets=1, reset_positions=[100]),
+    ),
     # after 50 min micros() > 2³¹: a restart to 1500 µs looks like a step forwards; the header gives it away
-    "reset after 2**31 us": ({"reset": [100]}, {"start_us": 3_000_000_000},
-                             dict(samples=N, bad_checksum=0, malformed=0, dropped=0, drops=[], resets=1,
-                                  reset_positions=[100])),
+    "reset after 2**31 us": (
+        {"reset": [100]},
+        {"start_us": 3_000_000_000},
+        dict(samples=N, bad_checksum=0, malformed=0, dropped=0, drops=[], resets=1, reset_positions=[100]),
+    ),
     # seq 65436 + 100 = 65536 wraps to 0 at position 100: that sample and the one at 150 are lost
-    "drops across the seq wrap": ({"drop": [100, 150]}, {"start_seq": 65436},
-                                  dict(samples=N - 2, bad_checksum=0, malformed=0, dropped=2,
-                                       drops=[(100, at(100), 1), (149, at(150), 1)], resets=0, reset_positions=[])),
-    "all at once": ({"corrupt": [10, 20], "drop": [30, 31, 32], "truncate": [40], "reset": [100]}, {},
-                    dict(samples=N - 6, bad_checksum=2, malformed=1, dropped=6,
-                         drops=[(10, at(10), 1), (19, at(20), 1), (28, at(30), 3), (35, at(40), 1)],
-                         resets=1, reset_positions=[100 - 6])),
+    "drops across the seq wrap": (
+        {"drop": [100, 150]},
+        {"start_seq": 65436},
+        dict(
+            samples=N - 2,
+            bad_checksum=0,
+            malformed=0,
+            dropped=2,
+            drops=[(100, at(100), 1), (149, at(150), 1)],
+            resets=0,
+            reset_positions=[],
+        ),
+    ),
+    "all at once": (
+        {"corrupt": [10, 20], "drop": [30, 31, 32], "truncate": [40], "reset": [100]},
+        {},
+        dict(
+            samples=N - 6,
+            bad_checksum=2,
+            malformed=1,
+            dropped=6,
+            drops=[(10, at(10), 1), (19, at(20), 1), (28, at(30), 3), (35, at(40), 1)],
+            resets=1,
+            reset_positions=[100 - 6],
+        ),
+    ),
 }
 
 
@@ -202,8 +252,10 @@ def test_disconnect_keeps_every_sample_on_disk(tmp_path):
         streamed = load_recording(out)  # before stop(): what the streaming writer put on disk
         assert len(streamed) == 149
     finally:
-        with pytest.raises(C.BoardDisconnectedError, match=f"disconnected.*every sample received "
-                                                           f"\\(149 samples, 0.15 s\\) is saved in {out}"):
+        with pytest.raises(
+            C.BoardDisconnectedError,
+            match=f"disconnected.*every sample received \\(149 samples, 0.15 s\\) is saved in {out}",
+        ):
             rec.stop()
     final = load_recording(out)
     assert len(final) == 149 and final.meta["capture"]["stats"]["dropped"] == 1
@@ -226,7 +278,7 @@ def test_streamed_file_is_flushed_while_recording(tmp_path):
         rec.stop()
     rows = streamed.split("\n")[2:-1]
     assert running and len(rows) >= 100  # on disk while the 600 s capture was still running
-    assert rows == [line for line in recording_text(received).split("\n")[2:len(rows) + 2]]
+    assert rows == recording_text(received).split("\n")[2 : len(rows) + 2]
 
 
 def test_board_that_stops_sending_mid_capture(tmp_path):
@@ -285,11 +337,14 @@ def test_permission_denied_names_the_group_and_the_command():
             except KeyError:
                 pytest.skip("no dialout group on this system")
             os.chmod(vb.port, 0o660)
-            run = subprocess.run([sys.executable, "-c", PERMISSION_PROBE, vb.port], capture_output=True, text=True,
-                                 timeout=60)
+            run = subprocess.run(
+                [sys.executable, "-c", PERMISSION_PROBE, vb.port], capture_output=True, text=True, timeout=60
+            )
             message = run.stdout.strip()
-            assert message == (f"permission denied opening {vb.port}; serial ports belong to the group 'dialout' "
-                               "and you are not in it: sudo usermod -aG dialout $USER   (then log out and in again)"), run.stderr
+            assert message == (
+                f"permission denied opening {vb.port}; serial ports belong to the group 'dialout' "
+                "and you are not in it: sudo usermod -aG dialout $USER   (then log out and in again)"
+            ), run.stderr
         else:  # not root: take the read/write bits off our own pty
             os.chmod(vb.port, 0)
             with pytest.raises(C.PortPermissionError, match=f"permission denied opening {vb.port}"):
@@ -317,16 +372,17 @@ def test_auto_and_hwgrep_find_the_board_by_its_usb_id(monkeypatch, port):
             assert rec.wait(10)
     assert rec.stats.samples == 50 and rec.header.board == "nucleo-iks02a1"
     if port == "auto":
-        assert rec.description == f"auto: the only known board is {vb.port} [0483:374B] ST-LINK/V2-1 " \
-                                  f"(STM32 Nucleo-64 such as the Nucleo-F411RE) → probably nucleo-iks02a1"
+        assert (
+            rec.description == f"auto: the only known board is {vb.port} [0483:374B] ST-LINK/V2-1 "
+            f"(STM32 Nucleo-64 such as the Nucleo-F411RE) → probably nucleo-iks02a1"
+        )
 
 
 def test_second_recorder_on_the_same_port_is_busy():
-    with C.VirtualBoard(rate_hz=RATE, realtime=False) as vb:
-        with C.Recorder(vb.port, seconds=0.01) as first:
-            with pytest.raises(C.PortBusyError, match="busy"):
-                C.Recorder(vb.port).start()
-            first.wait(5)
+    with C.VirtualBoard(rate_hz=RATE, realtime=False) as vb, C.Recorder(vb.port, seconds=0.01) as first:
+        with pytest.raises(C.PortBusyError, match="busy"):
+            C.Recorder(vb.port).start()
+        first.wait(5)
 
 
 def test_commands_h_and_s():
@@ -350,10 +406,14 @@ def test_commands_h_and_s():
 # --- the noise process: one bias random walk across the simulator's 1 s chunks ---------------------------------
 # Oracles: the datasheet densities N (kfkit.sensors), the configured walks K, allantools (tests/allan_oracle.py).
 
+
 def rest(board, seconds, rate_hz, sim_options=None, seed=7):
     """A fast virtual recording of the board lying still, through the pty like any capture."""
-    return C.capture("virtual", seconds, virtual={"board": board, "rate_hz": rate_hz, "realtime": False, "seed": seed,
-                                                  "sim_options": sim_options})
+    return C.capture(
+        "virtual",
+        seconds,
+        virtual={"board": board, "rate_hz": rate_hz, "realtime": False, "seed": seed, "sim_options": sim_options},
+    )
 
 
 def curves_and_model(rec, sensor, chip, K):
@@ -408,8 +468,13 @@ def test_angle_random_walk_of_a_two_minute_rest_is_the_datasheets():
     x = rec.sensor_si("gyr")
     taus, adev = allan_deviation(x, rec.rate_hz)
     arw = angle_random_walk(taus, adev)
-    want = model_adev(1.0, gyro.noise_density, BIAS_RANDOM_WALK["nucleo-iks02a1"][0],
-                      rec.meta["sensors"]["gyr"]["sensitivity"], rec.rate_hz)
+    want = model_adev(
+        1.0,
+        gyro.noise_density,
+        BIAS_RANDOM_WALK["nucleo-iks02a1"][0],
+        rec.meta["sensors"]["gyr"]["sensitivity"],
+        rec.rate_hz,
+    )
     assert want == pytest.approx(gyro.noise_density, rel=0.01)  # at 1 s the white noise is all there is
     m = int(round(rec.rate_hz))
     edf = allantools.edf_greenhall(alpha=0, d=2, m=m, N=len(x) + 1, overlapping=True)
@@ -439,8 +504,10 @@ def test_attitude_board_measures_the_bias_again_after_stop_and_start_as_the_sket
 
     sketch = (Path(__file__).parents[1] / "firmware/mpu6050_tilt_kf/mpu6050_tilt_kf.ino").read_text()
     assert f'Serial.println(F("{C.virtual.ATTITUDE_NOTE.decode().rstrip()}"))' in sketch  # the sketch's words
-    with C.VirtualBoard(board="mpu6050", attitude=True, realtime=False, seed=5) as vb, \
-            serial.Serial(vb.port, timeout=30) as port:  # a safety net: readline returns at the newline
+    with (
+        C.VirtualBoard(board="mpu6050", attitude=True, realtime=False, seed=5) as vb,
+        serial.Serial(vb.port, timeout=30) as port,
+    ):  # a safety net: readline returns at the newline
         port.write(b"h")
         assert C.parse_line(port.readline()).params["filter"] == "tilt_kf"
         assert port.readline() == C.virtual.ATTITUDE_NOTE
@@ -459,7 +526,7 @@ def test_attitude_board_measures_the_bias_again_after_stop_and_start_as_the_sket
     fresh = TiltAttitude("mpu6050", 100.0)
     expected = [fresh.step(s.values[2:5], s.values[5:8]) for s in samples]
     got = [i.values for i in after if isinstance(i, C.Message)]
-    expected = np.degrees([e for e in expected if e is not None])[:len(got)]
+    expected = np.degrees([e for e in expected if e is not None])[: len(got)]
     assert len(got) > 10 and np.max(np.abs(np.array(got) - expected)) <= 0.005 + 1e-9  # two decimals on the wire
     t_us = [i.t_us for i in before + after if isinstance(i, C.Sample)]
     seq = [i.seq for i in before + after if isinstance(i, C.Sample)]
@@ -480,8 +547,12 @@ def test_attitude_board_after_a_reset_sends_header_note_and_measures_again():
 
 def test_guided_motion_phases_reach_the_recording(tmp_path):
     motion = C.protocol_motion("six-faces", 208.0, quick=True)
-    r = C.capture("virtual", seconds=len(motion.t) / 208.0, out=tmp_path / "faces.csv",
-                  virtual=dict(motion=motion, realtime=False))
+    r = C.capture(
+        "virtual",
+        seconds=len(motion.t) / 208.0,
+        out=tmp_path / "faces.csv",
+        virtual=dict(motion=motion, realtime=False),
+    )
     loaded = load_recording(tmp_path / "faces.csv")
     assert {p["label"] for p in loaded.phases} == {"x_up", "x_down", "y_up", "y_down", "z_up", "z_down"}
     f = loaded.body("acc")[loaded.phase("x_up")].mean(axis=0)  # x up reads +g of specific force
@@ -521,23 +592,58 @@ def test_cli_capture_error_exit_code(tmp_path, capsys):
 
 def test_cli_guided_protocol_on_the_virtual_board(tmp_path, capsys):
     out = tmp_path / "faces.csv"
-    assert main(["capture", "--port", "virtual", "--protocol", "six-faces", "--quick", "--fast", "--out", str(out), "--json"]) == 0
+    assert (
+        main(
+            [
+                "capture",
+                "--port",
+                "virtual",
+                "--protocol",
+                "six-faces",
+                "--quick",
+                "--fast",
+                "--out",
+                str(out),
+                "--json",
+            ]
+        )
+        == 0
+    )
     result = json.loads(capsys.readouterr().out)
     rec = load_recording(out)
     assert result["samples"] == len(rec) == round(13.5 * 104) and result["board"] == "nucleo-iks02a1"
     assert {p["label"] for p in rec.phases} == {"x_up", "x_down", "y_up", "y_down", "z_up", "z_down"}
 
 
-@pytest.mark.parametrize("name, labels", [("axis-turns", {"turn_x", "turn_y", "turn_z"}),
-                                          ("headings", {"heading_flat", "heading_tilted"})])
+@pytest.mark.parametrize(
+    "name, labels", [("axis-turns", {"turn_x", "turn_y", "turn_z"}), ("headings", {"heading_flat", "heading_tilted"})]
+)
 def test_cli_records_lab03s_protocols(tmp_path, capsys, name, labels):
     out = tmp_path / f"{name}.csv"
-    assert main(["capture", "--port", "virtual", "--protocol", name, "--quick", "--fast", "--out", str(out), "--json"]) == 0
+    assert (
+        main(["capture", "--port", "virtual", "--protocol", name, "--quick", "--fast", "--out", str(out), "--json"])
+        == 0
+    )
     result = json.loads(capsys.readouterr().out)
     rec = load_recording(out)
     assert result["board"] == "nucleo-iks02a1" and {p["label"] for p in rec.phases} == labels
-    assert main(["capture", "--port", "virtual", "--protocol", name, "--board", "mpu6050", "--quick", "--out",
-                 str(tmp_path / "no.csv")]) == 2
+    assert (
+        main(
+            [
+                "capture",
+                "--port",
+                "virtual",
+                "--protocol",
+                name,
+                "--board",
+                "mpu6050",
+                "--quick",
+                "--out",
+                str(tmp_path / "no.csv"),
+            ]
+        )
+        == 2
+    )
     assert "no magnetometer" in capsys.readouterr().err and not (tmp_path / "no.csv").exists()
 
 
@@ -581,7 +687,10 @@ def test_each_prompt_list_has_one_text_per_segment(name, quick):
 
 
 def test_lab03_protocols_need_the_magnetometer():
-    assert C.dataset_name("axis-turns") == "03_axis_turns" and C.dataset_name("headings", "nucleo-iks02a1") == "03_headings"
+    assert (
+        C.dataset_name("axis-turns") == "03_axis_turns"
+        and C.dataset_name("headings", "nucleo-iks02a1") == "03_headings"
+    )
     for name in ("axis-turns", "headings", "mag-rotations"):
         with pytest.raises(ValueError, match="not recorded with the mpu6050 \\(it has no magnetometer\\)"):
             C.dataset_name(name, "mpu6050")
@@ -599,8 +708,14 @@ def fresh_shell_env():
 @pytest.mark.skipif(not KFKIT.exists(), reason="the kfkit console script is not installed")
 def test_kfkit_capture_from_a_fresh_shell(tmp_path):
     """`kfkit capture --port virtual --seconds S --out x.csv`, as typed in a new terminal."""
-    run = subprocess.run([str(KFKIT), "capture", "--port", "virtual", "--seconds", "2", "--out", "x.csv"],
-                         cwd=tmp_path, env=fresh_shell_env(), capture_output=True, text=True, timeout=60)
+    run = subprocess.run(
+        [str(KFKIT), "capture", "--port", "virtual", "--seconds", "2", "--out", "x.csv"],
+        cwd=tmp_path,
+        env=fresh_shell_env(),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert run.returncode == 0, run.stderr
     assert "recording 2 s from virtual board (nucleo-iks02a1, 104 Hz) on /dev/pts/" in run.stderr
     assert "[##############################]" in run.stderr  # the progress bar reached the end
@@ -613,8 +728,13 @@ def test_kfkit_capture_from_a_fresh_shell(tmp_path):
 @pytest.mark.skipif(not KFKIT.exists(), reason="the kfkit console script is not installed")
 def test_ctrl_c_keeps_what_arrived(tmp_path):
     out = tmp_path / "long.csv"
-    proc = subprocess.Popen([str(KFKIT), "capture", "--port", "virtual", "--seconds", "60", "--out", str(out)],
-                            env=fresh_shell_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [str(KFKIT), "capture", "--port", "virtual", "--seconds", "60", "--out", str(out)],
+        env=fresh_shell_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 30
         while (not out.exists() or out.stat().st_size < 3000) and time.monotonic() < deadline:
@@ -630,6 +750,7 @@ def test_ctrl_c_keeps_what_arrived(tmp_path):
 
 # --- what was streamed is what the final file holds: the protocol's whole integer range, exactly ------------------
 
+
 def test_every_accepted_value_reaches_the_final_file_exactly_and_out_of_range_lines_are_counted(tmp_path):
     """Raw lines over a pty (a Nucleo header: its mx, my, mz are float columns, NaN where mag_new = 0): counts over the
     whole int32 range, t_us across the 2³² wrap, seq across the 2¹⁶ wrap, and lines whose values lie outside the
@@ -643,15 +764,30 @@ def test_every_accepted_value_reaches_the_final_file_exactly_and_out_of_range_li
 
     n, step_us, start_us, start_seq = 400, 9615, 2**32 - 1_000_000, 65_400  # micros() wraps 1 s in, seq at 136
     rng = np.random.default_rng(17)
-    counts = rng.integers(-2**31, 2**31, (n + 1, 9))
-    counts[:4] = [[-2**31] * 9, [2**31 - 1] * 9, [2**24 + 1] * 9, [-(2**24) - 1] * 9]  # the edges (2^24 + 1: not float32)
+    counts = rng.integers(-(2**31), 2**31, (n + 1, 9))
+    counts[:4] = [
+        [-(2**31)] * 9,
+        [2**31 - 1] * 9,
+        [2**24 + 1] * 9,
+        [-(2**24) - 1] * 9,
+    ]  # the edges (2^24 + 1: not float32)
     mag_new = (np.arange(n + 1) % 2 == 0).astype(int)
-    good = [C.encode_sample(((start_us + k * step_us) % 2**32, (start_seq + k) % 2**16, *counts[k], mag_new[k]))
-            for k in range(n + 1)]  # the last one is past `seconds`: it ends the capture by the board's clock
-    bad = [C.encode_sample(values) for values in (
-        (5, 1, 2**53 + 1, 0, 0, 0, 0, 0, 0, 0, 0, 1), (5, 1, 10**20, 0, 0, 0, 0, 0, 0, 0, 0, 1),
-        (5, 1, 0, 0, 0, 0, 0, 0, 2**31, 0, 0, 1), (5, 1, 0, 0, 0, 0, 0, 0, 0, 0, -2**31 - 1, 1),
-        (-5, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1), (5, 2**16, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1), (2**32, 1, *[0] * 9, 1))]
+    good = [
+        C.encode_sample(((start_us + k * step_us) % 2**32, (start_seq + k) % 2**16, *counts[k], mag_new[k]))
+        for k in range(n + 1)
+    ]  # the last one is past `seconds`: it ends the capture by the board's clock
+    bad = [
+        C.encode_sample(values)
+        for values in (
+            (5, 1, 2**53 + 1, 0, 0, 0, 0, 0, 0, 0, 0, 1),
+            (5, 1, 10**20, 0, 0, 0, 0, 0, 0, 0, 0, 1),
+            (5, 1, 0, 0, 0, 0, 0, 0, 2**31, 0, 0, 1),
+            (5, 1, 0, 0, 0, 0, 0, 0, 0, 0, -(2**31) - 1, 1),
+            (-5, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1),
+            (5, 2**16, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1),
+            (2**32, 1, *[0] * 9, 1),
+        )
+    ]
     stream = bytearray(board_header(get_board("nucleo-iks02a1"), 104.0))
     for k, line in enumerate(good):
         stream += line + (bad[k // 50] if k % 50 == 25 and k // 50 < len(bad) else b"")  # 7 bad lines among them
@@ -677,7 +813,9 @@ def test_every_accepted_value_reaches_the_final_file_exactly_and_out_of_range_li
         assert "9007199254740993" not in text and "100000000000000000000" not in text
     for r in (load_recording(out), rec.recording()):
         np.testing.assert_array_equal(r["seq"], (start_seq + np.arange(n)) % 2**16)
-        np.testing.assert_array_equal(np.column_stack([r[c] for c in ("ax", "ay", "az", "gx", "gy", "gz")]), counts[:n, :6])
+        np.testing.assert_array_equal(
+            np.column_stack([r[c] for c in ("ax", "ay", "az", "gx", "gy", "gz")]), counts[:n, :6]
+        )
         mag, fresh = np.column_stack([r[c] for c in ("mx", "my", "mz")]), mag_new[:n] == 1
         np.testing.assert_array_equal(mag[fresh], counts[:n][fresh, 6:].astype(float))  # exact: |v| < 2^53
         assert np.isnan(mag[~fresh]).all()
@@ -685,6 +823,7 @@ def test_every_accepted_value_reaches_the_final_file_exactly_and_out_of_range_li
 
 
 # --- kfkit capture when a capture fails: one JSON object, or the statistics and where the data is ----------------
+
 
 def run_cli(capsys, port, out, *extra):
     code = main(["capture", "--port", port, "--seconds", "60", "--out", str(out), *extra])
@@ -722,22 +861,28 @@ def test_cli_capture_failure_still_reports_statistics_and_where_the_data_is(tmp_
     else:
         assert re.search(f"capture failed: .*{words}", printed.err)
         assert printed.out.startswith(f"samples        {samples}") and "bad lines      0" in printed.out
-        assert printed.out.splitlines()[-1] == (f"saved {samples} samples to {out}" if saved
-                                                else f"nothing saved: no samples arrived, {out} was not written")
+        assert printed.out.splitlines()[-1] == (
+            f"saved {samples} samples to {out}"
+            if saved
+            else f"nothing saved: no samples arrived, {out} was not written"
+        )
 
 
 def fail_at(n_fail):
     """An ``extra_lines`` hook of the virtual board that raises at sample ``n_fail``: its thread fails mid-capture."""
+
     def hook(board, n, euler):
         if n == n_fail:
             raise ZeroDivisionError("division by zero (a failing simulation)")
+
     return hook
 
 
 @pytest.mark.parametrize("as_json", [True, False], ids=["json", "human"])
 @pytest.mark.parametrize("reached", ["--port virtual", "its pty"])
-def test_a_board_whose_thread_fails_mid_capture_gives_one_answer_and_keeps_what_arrived(tmp_path, capsys, monkeypatch,
-                                                                                        reached, as_json):
+def test_a_board_whose_thread_fails_mid_capture_gives_one_answer_and_keeps_what_arrived(
+    tmp_path, capsys, monkeypatch, reached, as_json
+):
     """The virtual board's thread raising (a bug in what it plays) used to escape as a thread traceback on stderr and
     end the capture 3 s later as "the board stopped sending". Now the board sends what it made and closes its port:
     the capture ends at once with the 100 samples made before the failure on disk, and says why: the board's error
@@ -785,6 +930,8 @@ def test_cli_capture_port_not_found_reports_too(tmp_path, capsys, as_json):
 
 
 def test_cli_protocol_that_the_board_cannot_record_reports_in_json(tmp_path, capsys):
-    code, printed = run_cli(capsys, "virtual", tmp_path / "x.csv", "--protocol", "headings", "--board", "mpu6050", "--json")
+    code, printed = run_cli(
+        capsys, "virtual", tmp_path / "x.csv", "--protocol", "headings", "--board", "mpu6050", "--json"
+    )
     result = json.loads(printed.out)
     assert code == 2 and result["error_type"] == "ValueError" and "no magnetometer" in result["error"]

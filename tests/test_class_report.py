@@ -10,6 +10,7 @@ A looping function is the one thing simulated: its call raises the runner's ``Ti
 runner does, the function is stopped for the rest of the grading).
 The page is opened in headless Chromium (Debian's, as in tests/browser/): DOM, requests, a screenshot.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -25,13 +26,12 @@ from pathlib import Path
 import nbformat
 import numpy as np
 import pytest
+from browser.conftest import ARTIFACTS, browser  # noqa: F401 (a fixture)
+from waiting import HANG_GUARD_S
 
 from kfkit.checkpoints import Status, lab01
 from kfkit.cli import main
 from kfkit.grading import core, gradebook, report, runner, sandbox, wire
-
-from browser.conftest import ARTIFACTS, browser  # noqa: F401 (a fixture)
-from waiting import HANG_GUARD_S
 
 CHECKPOINTS = core.lab_checkpoints("01")
 BOX = sandbox.Sandbox("root", True, ["/x"])
@@ -89,6 +89,7 @@ def make_run_kf(predict, update):
             x, P, y, S = update(x, P, roll_acc[k], r)
             out[:, k] = x, P, y, S
         return tuple(out)
+
     return run_kf
 
 
@@ -112,10 +113,12 @@ VARIANTS = {
 #: students whose names a browser must show as text (one of the correct ones each)
 AWKWARD = ["<script>window.__kfkit_xss = 1", f'<img src=x onerror="{XSS}">', "=HYPERLINK(1)", 'a&amp;b "q"']
 #: checkpoint → variants that pass it (the oracle: what each variant's functions do, not what the report counts)
-PASSING = {"01.accel_roll": {"correct", "gain_over_r", "no_q", "loops", "raises"},
-           "01.kf_predict": {"correct", "swapped", "flipped", "gain_over_r", "loops", "raises"},
-           "01.kf_update": {"correct", "swapped", "flipped", "no_q", "loops"},
-           "01.run_kf": {"correct", "swapped", "flipped"}}
+PASSING = {
+    "01.accel_roll": {"correct", "gain_over_r", "no_q", "loops", "raises"},
+    "01.kf_predict": {"correct", "swapped", "flipped", "gain_over_r", "loops", "raises"},
+    "01.kf_update": {"correct", "swapped", "flipped", "no_q", "loops"},
+    "01.run_kf": {"correct", "swapped", "flipped"},
+}
 
 
 class InProcessRun:
@@ -129,7 +132,7 @@ class InProcessRun:
 
     def call(self, function, cases_args, checkpoint=""):
         if function in self.hangs:  # what KernelRun.call does for a call past its timeout
-            self.stopped[function] = runner.Stopped(function, 4, 30.0, 0, checkpoint)
+            self.stopped[function] = runner.Stopped(function, 4, "timed out after 30 s", 0, checkpoint)
             raise TimeoutError("timed out after 30 s")
         nonce, out = wire.new_nonce(), io.StringIO()
         with contextlib.redirect_stdout(out):
@@ -189,8 +192,11 @@ def test_the_gradebook_holds_what_each_variant_deserves(graded):
     rows = gradebook_rows(path)
     assert len({gradebook._csv_unsafe(r["submission"]) for r in rows}) == 32
     for cp, passing in PASSING.items():
-        passed = {gradebook._csv_unsafe(r["submission"]) for r in rows
-                  if r["checkpoint"] == cp and float(r["points"]) == float(r["max_points"])}
+        passed = {
+            gradebook._csv_unsafe(r["submission"])
+            for r in rows
+            if r["checkpoint"] == cp and float(r["points"]) == float(r["max_points"])
+        }
         assert passed == {n for n, v in variant_of.items() if v in passing}, cp
 
 
@@ -206,11 +212,15 @@ def test_the_same_mistake_groups_and_different_ones_do_not():
     assert len(swapped) == 1 and len(flipped) == 1 and swapped != flipped
     assert "swapped" in swapped.pop() and "flipped" in flipped.pop()
     upd = next(c for c in CHECKPOINTS if c.name == "01.kf_update")
-    texts = {report.mistake(core._short(cps.run_checkpoint(upd, kf_update_gain_over_r, s).message, upd.name))
-             for s in range(8)}
+    texts = {
+        report.mistake(core._short(cps.run_checkpoint(upd, kf_update_gain_over_r, s).message, upd.name))
+        for s in range(8)
+    }
     assert all(t.startswith("value 1 of 4: expected #, got #") for t in texts), texts
-    assert report.mistake("expected 4 values (-0.35, 2.6e-06, 1.1, 3.4e-05), got 1 value: 0.02") == \
-        "expected 4 values (…), got 1 value: #"
+    assert (
+        report.mistake("expected 4 values (-0.35, 2.6e-06, 1.1, 3.4e-05), got 1 value: 0.02")
+        == "expected 4 values (…), got 1 value: #"
+    )
 
 
 @pytest.mark.slow
@@ -247,13 +257,19 @@ def test_report_page_in_a_browser(graded, browser_page):
     # the stacked bars: per checkpoint the outcomes add up to the class, passed = the gradebook's full marks
     for cp in CHECKPOINTS:
         segs = browser_page.locator(f'rect.segment[data-checkpoint="{cp.name}"]')
-        counts = {segs.nth(i).get_attribute("data-outcome"): int(segs.nth(i).get_attribute("data-count"))
-                  for i in range(segs.count())}
+        counts = {
+            segs.nth(i).get_attribute("data-outcome"): int(segs.nth(i).get_attribute("data-count"))
+            for i in range(segs.count())
+        }
         full = sum(1 for r in rows if r["checkpoint"] == cp.name and float(r["points"]) == float(r["max_points"]))
         assert sum(counts.values()) == 32 and counts.get("passed", 0) == full, (cp.name, counts)
     accel = browser_page.locator('rect.segment[data-checkpoint="01.accel_roll"]')
-    assert {accel.nth(i).get_attribute("data-outcome") for i in range(accel.count())} == \
-        {"passed", "failed", "not attempted", "missing"}
+    assert {accel.nth(i).get_attribute("data-outcome") for i in range(accel.count())} == {
+        "passed",
+        "failed",
+        "not attempted",
+        "missing",
+    }
     run_kf = browser_page.locator('rect.segment[data-checkpoint="01.run_kf"][data-outcome="timed out"]')
     assert run_kf.get_attribute("data-count") == "1"
 
@@ -262,9 +278,12 @@ def test_report_page_in_a_browser(graded, browser_page):
     for r in rows:
         totals[r["submission"]] = totals.get(r["submission"], 0) + float(r["points"])
     bars = browser_page.locator("svg.histogram rect.bar")
-    hist = {int(bars.nth(i).get_attribute("data-points")): int(bars.nth(i).get_attribute("data-count"))
-            for i in range(bars.count())}
-    assert hist == {k: sum(1 for t in totals.values() if int(t) == k) for k in range(9)}
+    hist = {
+        int(bars.nth(i).get_attribute("data-points")): int(bars.nth(i).get_attribute("data-count"))
+        for i in range(bars.count())
+    }
+    most = int(sum(float(r["max_points"]) for r in rows if r["submission"] == rows[0]["submission"]))  # the lab's total
+    assert hist == {k: sum(1 for t in totals.values() if int(t) == k) for k in range(most + 1)}
 
     mistakes = browser_page.locator("tr.mistake").all_inner_texts()
     swapped = next(m for m in mistakes if "swapped" in m)
@@ -292,7 +311,9 @@ def test_bad_gradebooks_are_named(tmp_path, capsys):
 
 def test_a_missing_feedback_file_is_said_not_linked(tmp_path):
     path = tmp_path / "g.csv"
-    core.write_gradebook(path, [core.SubmissionGrade("subs/x.ipynb", 1, [core.Row("01.accel_roll", 1, 1, "passed", "ok")])])
+    core.write_gradebook(
+        path, [core.SubmissionGrade("subs/x.ipynb", 1, [core.Row("01.accel_roll", 1, 1, "passed", "ok")])]
+    )
     page = report.write_report(path).read_text(encoding="utf-8")
     assert "subs/x.ipynb <small>(no feedback file)</small>" in page and "<a " not in page
 
@@ -302,29 +323,39 @@ def row_line(name, checkpoint, points, max_points, status, message):
     return ",".join([name, checkpoint, points, max_points, status, message]) + "\n"
 
 
-@pytest.mark.parametrize("points, max_points, status, why", [
-    ("nan", "2", "failed", "should be finite, not 'nan'"),
-    ("1", "inf", "failed", "should be finite"),
-    ("0", "1e6", "failed", "max_points 1e+06 is outside 0 … 1000"),
-    ("-1", "2", "failed", "points -1 is outside 0 … max_points (2)"),
-    ("3", "2", "passed", "points 3 is outside 0 … max_points (2)"),
-    ("2", "2", "great", "status 'great' is not one of passed, failed"),
-])
+@pytest.mark.parametrize(
+    "points, max_points, status, why",
+    [
+        ("nan", "2", "failed", "should be finite, not 'nan'"),
+        ("1", "inf", "failed", "should be finite"),
+        ("0", "1e6", "failed", "max_points 1e+06 is outside 0 … 1000"),
+        ("-1", "2", "failed", "points -1 is outside 0 … max_points (2)"),
+        ("3", "2", "passed", "points 3 is outside 0 … max_points (2)"),
+        ("2", "2", "great", "status 'great' is not one of passed, failed"),
+    ],
+)
 def test_a_hand_edited_gradebook_is_refused_with_file_and_line(tmp_path, capsys, points, max_points, status, why):
     path = tmp_path / "marks.csv"
-    path.write_text(",".join(gradebook.COLUMNS) + "\n" + row_line("alice", "01.kf_update", "2", "2", "passed", "ok")
-                    + row_line("bob", "01.kf_update", points, max_points, status, "ok"), encoding="utf-8")
+    path.write_text(
+        ",".join(gradebook.COLUMNS)
+        + "\n"
+        + row_line("alice", "01.kf_update", "2", "2", "passed", "ok")
+        + row_line("bob", "01.kf_update", points, max_points, status, "ok"),
+        encoding="utf-8",
+    )
     assert main(["report", str(path)]) == 2
     err = capsys.readouterr().err
-    assert f"marks.csv, line 3: " in err and why in err, err
+    assert "marks.csv, line 3: " in err and why in err, err
     assert not path.with_name("marks_report.html").exists()
 
 
 def test_the_report_reads_the_status_column_not_the_words():
     """Each row is counted by its status, whatever its message says (the words are for people)."""
     words = ["timed out: not graded", "not attempted (x)", "GRADER ERROR, regrade", "no function named x", "fine"]
-    grades = [gradebook.SubmissionGrade(f"s{i}", 1, [gradebook.Row("01.x", 0, 1, status, words[i % len(words)])])
-              for i, status in enumerate(Status)]
+    grades = [
+        gradebook.SubmissionGrade(f"s{i}", 1, [gradebook.Row("01.x", 0, 1, status, words[i % len(words)])])
+        for i, status in enumerate(Status)
+    ]
     page = report.render(grades, "t", {})
     assert sorted(re.findall(r'data-outcome="([^"]+)" data-count="1"', page)) == sorted(s.value for s in Status)
     assert set(report.OUTCOMES) == set(Status)  # every status has its colour
@@ -337,8 +368,12 @@ def test_bidi_controls_long_tokens_and_huge_rows_stay_text_and_bounded(tmp_path)
     token = "A" * 5000
     names = [f"s{token}.ipynb", f"evil\u202e{'&' * 100_000}.ipynb", f"{'&' * 100}.ipynb", "plain.ipynb"]  # no file
     messages = [token, '"\u202e' * 50_000, "<" * 100_000, "x"]  # can have the first two names
-    rows = [gradebook.SubmissionGrade(name, 1, [gradebook.Row(f"01.c{k}", 1000 * (k % 2), 1000, Status.FAILED, message)
-                                                for k in range(m)]) for name, message in zip(names, messages)]
+    rows = [
+        gradebook.SubmissionGrade(
+            name, 1, [gradebook.Row(f"01.c{k}", 1000 * (k % 2), 1000, Status.FAILED, message) for k in range(m)]
+        )
+        for name, message in zip(names, messages)
+    ]
     path = tmp_path / "g.csv"
     gradebook.write_gradebook(path, rows)
     for name in gradebook.feedback_names(names)[2:]:
@@ -354,7 +389,9 @@ def test_bidi_controls_long_tokens_and_huge_rows_stay_text_and_bounded(tmp_path)
 
 def test_title_names_the_lab_and_the_gradebooks_date(tmp_path):
     path = tmp_path / "g.csv"
-    gradebook.write_gradebook(path, [gradebook.SubmissionGrade("a", 1, [gradebook.Row("01.x", 1, 1, Status.PASSED, "ok")])])
+    gradebook.write_gradebook(
+        path, [gradebook.SubmissionGrade("a", 1, [gradebook.Row("01.x", 1, 1, Status.PASSED, "ok")])]
+    )
     when = time.mktime((2024, 3, 5, 12, 0, 0, 0, 0, -1))
     os.utime(path, (when, when))
     page = report.write_report(path).read_text(encoding="utf-8")
@@ -369,8 +406,9 @@ def test_grouped_failures_keep_the_number_that_explains_the_mistake():
     cp = next(c for c in CHECKPOINTS if c.name == "01.accel_roll")
     from kfkit import checkpoints as cps
 
-    texts = {report.mistake(core._short(cps.run_checkpoint(cp, accel_roll_half_turn, s).message, cp.name))
-             for s in range(6)}
+    texts = {
+        report.mistake(core._short(cps.run_checkpoint(cp, accel_roll_half_turn, s).message, cp.name)) for s in range(6)
+    }
     assert len(texts) == 1 and "exactly 180° off" in texts.pop()
 
 
@@ -389,7 +427,10 @@ def test_numbers_are_masked_as_the_old_pattern_did_but_in_one_pass():
         assert report.mask_numbers(text) == OLD_NUMBER.sub("#", text), text
     faulthandler.dump_traceback_later(HANG_GUARD_S, exit=True)
     try:
-        assert report.mistake("expected " + "7" * 200_000 + "x, got 1. Hint: h") == "expected " + "7" * 200_000 + "x, got #"
+        assert (
+            report.mistake("expected " + "7" * 200_000 + "x, got 1. Hint: h")
+            == "expected " + "7" * 200_000 + "x, got #"
+        )
         assert report.mistake("got " + "1 " * 100_000) == "got" + " #" * 100_000
     finally:
         faulthandler.cancel_dump_traceback_later()
@@ -399,8 +440,16 @@ def test_long_tokens_wrap_in_a_browser(tmp_path, browser_page):
     """A 5,000-character token in a name, a message and a feedback file: the page stays as wide as the window."""
     token = "W" * 5000
     path = tmp_path / "g.csv"
-    gradebook.write_gradebook(path, [gradebook.SubmissionGrade(f"{token[:200]}.ipynb", 1, [
-        gradebook.Row(f"01.c{k}", 0, 1, Status.FAILED, f"expected 1, got {token}") for k in range(5)])])
+    gradebook.write_gradebook(
+        path,
+        [
+            gradebook.SubmissionGrade(
+                f"{token[:200]}.ipynb",
+                1,
+                [gradebook.Row(f"01.c{k}", 0, 1, Status.FAILED, f"expected 1, got {token}") for k in range(5)],
+            )
+        ],
+    )
     (tmp_path / "g_feedback").mkdir()
     (tmp_path / "g_feedback" / f"{token[:200]}.md").write_text(token)
     browser_page.goto(report.write_report(path).as_uri())
@@ -411,7 +460,7 @@ def test_long_tokens_wrap_in_a_browser(tmp_path, browser_page):
 
 # ------------------------------------------------------------------ the browser: tests/browser/'s (Debian's Chromium)
 @pytest.fixture(scope="module")
-def browser_page(browser):
+def browser_page(browser):  # noqa: F811  (the browser fixture imported from tests/browser/conftest.py)
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     context = browser.new_context(viewport={"width": 1200, "height": 900})
     yield context.new_page()

@@ -1,4 +1,5 @@
 """The kfkit command: exit codes and messages of make-labs, data regenerate and doctor; options refused at the door."""
+
 import json
 import re
 import subprocess
@@ -21,8 +22,9 @@ def test_python_dash_m_kfkit_help():
 def test_make_labs_then_check(tmp_path, capsys):
     sol, labs = tmp_path / "solutions", tmp_path / "labs"
     sol.mkdir()
-    nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(
-        "def f():\n    ### BEGIN SOLUTION\n    return 1\n    ### END SOLUTION")])
+    nb = nbformat.v4.new_notebook(
+        cells=[nbformat.v4.new_code_cell("def f():\n    ### BEGIN SOLUTION\n    return 1\n    ### END SOLUTION")]
+    )
     nbformat.write(nb, sol / "01_x.ipynb")
     assert main(["make-labs", "--check", "--solutions", str(sol), "--labs", str(labs)]) == 1
     assert "missing" in capsys.readouterr().out
@@ -33,7 +35,9 @@ def test_make_labs_then_check(tmp_path, capsys):
 
 def test_data_check_reports_stale_file(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("KFKIT_DATA", str(tmp_path))
-    monkeypatch.setattr(datasets, "BUNDLED", {"01_roll_sine": datasets.BUNDLED["01_roll_sine"]})  # one file: the messages
+    monkeypatch.setattr(
+        datasets, "BUNDLED", {"01_roll_sine": datasets.BUNDLED["01_roll_sine"]}
+    )  # one file: the messages
     assert main(["data", "regenerate"]) == 0
     assert main(["data", "regenerate", "--check"]) == 0
     f = next(tmp_path.glob("*.csv"))
@@ -49,6 +53,7 @@ def test_doctor_prints_a_report(capsys):
 
 
 # --- kfkit capture always answers: options checked at the door, one JSON object with --json ---------------------
+
 
 def run_main(capsys, argv):
     """``kfkit.cli.main(argv)`` on a thread, waited for by an event: (exit code, captured output). The wait's
@@ -128,13 +133,17 @@ def test_argparse_errors_answer_in_json_too(tmp_path, capsys):
     assert code == 2 and "--seconds" in json.loads(printed.out)["error"]  # argparse takes --js for --json
 
 
-@pytest.mark.parametrize("raised, code, error_type, words", [
-    (RuntimeError("a bug"), 1, "UnexpectedError", "unexpected error \\(RuntimeError: a bug\\)"),
-    (KeyboardInterrupt(), 130, "KeyboardInterrupt", "stopped by Ctrl-C"),
-])
+@pytest.mark.parametrize(
+    "raised, code, error_type, words",
+    [
+        (RuntimeError("a bug"), 1, "UnexpectedError", "unexpected error \\(RuntimeError: a bug\\)"),
+        (KeyboardInterrupt(), 130, "KeyboardInterrupt", "stopped by Ctrl-C"),
+    ],
+)
 @pytest.mark.parametrize("as_json", [True, False], ids=["json", "human"])
-def test_an_unexpected_exception_or_ctrl_c_still_gives_one_answer(tmp_path, capsys, monkeypatch, raised, code,
-                                                                  error_type, words, as_json):
+def test_an_unexpected_exception_or_ctrl_c_still_gives_one_answer(
+    tmp_path, capsys, monkeypatch, raised, code, error_type, words, as_json
+):
     from kfkit.capture import recorder
 
     def run(self, progress=None):
@@ -151,30 +160,37 @@ def test_an_unexpected_exception_or_ctrl_c_still_gives_one_answer(tmp_path, caps
         assert re.search(words, printed.err) or (code == 130 and "stopped before any sample arrived" in printed.err)
 
 
-@pytest.mark.parametrize("argv, words", [
-    (["capture", "--port", "bogus://x", "--out", "x.csv", "--json"], "no port has the scheme 'bogus://'"),
-    (["capture", "--port", "virtual", "--rate", "-100", "--out", "x.csv", "--json"], "--rate"),
-    (["capture", "--port", "phyphox://::::", "--out", "x.csv", "--json"], "no host"),
-])
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["capture", "--port", "bogus://x", "--out", "x.csv", "--json"], "no port has the scheme 'bogus://'"),
+        (["capture", "--port", "virtual", "--rate", "-100", "--out", "x.csv", "--json"], "--rate"),
+        (["capture", "--port", "phyphox://::::", "--out", "x.csv", "--json"], "no host"),
+    ],
+)
 def test_the_installed_command_answers_in_json(tmp_path, argv, words):
     """The real entry point (python -m kfkit): one JSON object on stdout, nothing on stderr (these printed a
     traceback and nothing on stdout, or a thread's traceback)."""
-    run = subprocess.run([sys.executable, "-m", "kfkit", *argv], cwd=tmp_path, capture_output=True, text=True,
-                         timeout=120)
+    run = subprocess.run(
+        [sys.executable, "-m", "kfkit", *argv], cwd=tmp_path, capture_output=True, text=True, timeout=120
+    )
     assert run.returncode == 2 and run.stderr == "", run.stderr
     (line,) = run.stdout.splitlines()
     assert words in json.loads(line)["error"]
 
 
-@pytest.mark.parametrize("argv, words", [
-    (["grade", "--lab", "01", "--timeout", "nan", "x.ipynb"], "--timeout"),
-    (["grade", "--lab", "01", "--jobs", "0", "x.ipynb"], "--jobs"),
-    (["grade", "--lab", "01", "--max-memory", "-4", "x.ipynb"], "--max-memory"),
-    (["grade", "--lab", "01", "--seed", "-1", "x.ipynb"], "--seed"),
-    (["demo", "tilt", "--seconds", "-1"], "--seconds"),
-    (["demo", "tilt", "--baud", "0"], "--baud"),
-    (["demo", "tilt", "--port", "bogus://x"], "--port"),
-])
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["grade", "--lab", "01", "--timeout", "nan", "x.ipynb"], "--timeout"),
+        (["grade", "--lab", "01", "--jobs", "0", "x.ipynb"], "--jobs"),
+        (["grade", "--lab", "01", "--max-memory", "-4", "x.ipynb"], "--max-memory"),
+        (["grade", "--lab", "01", "--seed", "-1", "x.ipynb"], "--seed"),
+        (["demo", "tilt", "--seconds", "-1"], "--seconds"),
+        (["demo", "tilt", "--baud", "0"], "--baud"),
+        (["demo", "tilt", "--port", "bogus://x"], "--port"),
+    ],
+)
 def test_every_subcommands_numbers_and_ports_are_checked_at_the_door(capsys, argv, words):
     code, printed = run_main(capsys, argv)
     assert code == 2 and words in printed.err.splitlines()[-1]

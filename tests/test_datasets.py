@@ -1,4 +1,5 @@
 """kfkit.datasets: bundled recordings match their simulations, loading, and physics sanity."""
+
 import numpy as np
 import pytest
 
@@ -95,6 +96,7 @@ def test_kfkit_data_overrides_the_folder(tmp_path, monkeypatch, few_files):
 
 # --- physics sanity on the bundled roll recording -----------------------------------------
 
+
 def test_roll_sine_basic_shape(roll_sine):
     assert roll_sine.rate_hz == 104.0 and len(roll_sine) == 6240
     truth = roll_sine.truth()
@@ -117,7 +119,7 @@ def test_gyro_x_integrates_to_the_roll_change(roll_sine):
     roll = roll_sine["true_roll"]
     per = 104  # 1 s
     starts = range(0, len(p) - per, per)
-    gyro_change = np.array([np.trapezoid(p[k:k + per + 1], dx=1 / 104) for k in starts])
+    gyro_change = np.array([np.trapezoid(p[k : k + per + 1], dx=1 / 104) for k in starts])
     true_change = np.array([roll[k + per] - roll[k] for k in starts])
     assert np.abs(gyro_change - true_change).max() < np.radians(1.0)  # zero-rate level ±1 °/s typ.
     # removing the bias seen at rest (first 5 s) leaves its random walk, 1e-4 rad/s/√s:

@@ -1,4 +1,5 @@
 """Classroom deployment files agree with the kit: Binder/repo2docker installs environment.txt."""
+
 import re
 
 from kfkit.paths import KIT_ROOT

@@ -1,5 +1,6 @@
 """kfkit.discrete against independent oracles: scipy's cont2discrete for the zero-order hold, numerical
 integration of Van Loan's integral, and a Monte Carlo of the continuous-time model itself."""
+
 import numpy as np
 import pytest
 from scipy.integrate import quad_vec
@@ -28,8 +29,9 @@ def test_angle_bias_noise_is_van_loans_integral(N, K, dt):
     Qc = np.diag([N**2, K**2])
     integral, _ = quad_vec(lambda t: expm(ANGLE_BIAS_A * t) @ Qc @ expm(ANGLE_BIAS_A * t).T, 0.0, dt, epsabs=1e-20)
     np.testing.assert_allclose(angle_bias_process_noise(N, K, dt), integral, rtol=1e-9, atol=1e-22)
-    np.testing.assert_allclose(angle_bias_process_noise(N, K, dt), discretize(ANGLE_BIAS_A, np.zeros(2), dt, Qc)[2],
-                               rtol=1e-9, atol=1e-22)
+    np.testing.assert_allclose(
+        angle_bias_process_noise(N, K, dt), discretize(ANGLE_BIAS_A, np.zeros(2), dt, Qc)[2], rtol=1e-9, atol=1e-22
+    )
 
 
 def test_angle_bias_noise_is_what_the_continuous_model_does():

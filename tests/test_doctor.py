@@ -84,12 +84,15 @@ def test_read_pins_skips_comments_and_the_editable_kit(tmp_path):
 def test_a_line_that_is_no_exact_pin_names_file_and_line(healthy, monkeypatch, line):
     env = healthy / "environment.txt"
     env.write_text(f"# pins\nscipy==1.17.1\n{line}\n")
-    with pytest.raises(ValueError, match=rf"environment.txt, line 3: expected an exact pin 'name==version'"):
+    with pytest.raises(ValueError, match=r"environment.txt, line 3: expected an exact pin 'name==version'"):
         doctor.read_pins(env)
     monkeypatch.setattr(doctor, "ENVIRONMENT", env)
     text, ok = doctor.doctor_report()
     assert not ok
-    assert f"❌ cannot read the package list: {env}, line 3: expected an exact pin 'name==version' or '-e .', got {line!r}" in text
+    assert (
+        f"❌ cannot read the package list: {env}, line 3: expected an exact pin 'name==version' or '-e .', got {line!r}"
+        in text
+    )
 
 
 def test_another_version_is_advice_and_a_missing_one_must_be_fixed(healthy, monkeypatch):

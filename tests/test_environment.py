@@ -4,6 +4,7 @@ requirements-test.txt (environment.txt plus the test tools) is what the README a
 Requirement lines are parsed with ``packaging`` and imports mapped to distributions with
 ``importlib.metadata.packages_distributions``, independently of kfkit.doctor's own reader.
 """
+
 import ast
 import os
 import re
@@ -108,7 +109,9 @@ def test_each_lab_imports_only_what_the_student_install_pins(notebook):
             modules |= third_party_modules(ast.parse(python))
     imported = distributions(modules, notebook.name)
     student = pins(ENVIRONMENT)
-    assert not {m: d for m, d in imported.items() if d not in student}, f"{notebook.name} needs a package environment.txt lacks"
+    assert not {m: d for m, d in imported.items() if d not in student}, (
+        f"{notebook.name} needs a package environment.txt lacks"
+    )
 
 
 @pytest.mark.slow
@@ -123,7 +126,11 @@ def test_pytest_starts_with_only_the_student_plugins():
     args = [arg for name in plugins for arg in ("-p", name)]
     done = subprocess.run(
         [sys.executable, "-m", "pytest", *args, "--collect-only", "-q", "tests/test_deployment.py"],
-        cwd=KIT_ROOT, env=env, capture_output=True, text=True, timeout=600,
+        cwd=KIT_ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert done.returncode == 0, f"pytest with only {plugins}:\n{done.stdout[-2000:]}{done.stderr[-2000:]}"
 
@@ -131,8 +138,9 @@ def test_pytest_starts_with_only_the_student_plugins():
 def fenced_commands(section):
     """The lines of the first ```bash block under README heading ``section`` (before the next heading)."""
     readme = (KIT_ROOT / "README.md").read_text(encoding="utf-8")
-    match = re.search(rf"^## {re.escape(section)}\n(?:(?!#|```)[^\n]*\n)*?```bash\n(.*?)\n```", readme,
-                      flags=re.M | re.S)
+    match = re.search(
+        rf"^## {re.escape(section)}\n(?:(?!#|```)[^\n]*\n)*?```bash\n(.*?)\n```", readme, flags=re.M | re.S
+    )
     assert match, f"README.md has no ```bash block under '## {section}'"
     return match[1].splitlines()
 
@@ -141,8 +149,13 @@ def test_readme_quick_start_is_what_a_newcomer_types_in_order():
     """Get the kit, go into it, make and activate a virtual environment, install the student file from the kit's
     root (environment.txt ends in ``-e .``), start JupyterLab on the hand-outs."""
     quick = fenced_commands("Quick start (students)")
-    steps = ["git clone ", "cd kfkit", "python -m venv .venv", "source .venv/bin/activate",
-             "python -m pip install -r environment.txt && jupyter lab labs/"]
+    steps = [
+        "git clone ",
+        "cd kfkit",
+        "python -m venv .venv",
+        "source .venv/bin/activate",
+        "python -m pip install -r environment.txt && jupyter lab labs/",
+    ]
     at = [next((i for i, line in enumerate(quick) if line.startswith(step)), None) for step in steps]
     assert None not in at and at == sorted(at), f"the Quick start's commands are not {steps} in this order: {quick}"
     assert pins(ENVIRONMENT) and ENVIRONMENT.read_text(encoding="utf-8").rstrip().endswith("-e .")
@@ -164,8 +177,16 @@ def test_no_comment_says_the_kernels_results_are_pickled():
     grader-side modules never load a pickle: test_grading.py). environment.txt said "results pickled back": every
     comment, docstring and document of the kit must say what the code does."""
     claim = re.compile(r"\b(results?|outputs?|returns?|answers?)\b[^.;:]*\bpickled\b|\bpickled back\b", re.IGNORECASE)
-    files = [*KIT_ROOT.glob("*.txt"), KIT_ROOT / "README.md", *(KIT_ROOT / "kfkit").rglob("*.py"),
-             *(KIT_ROOT / "solutions").glob("*.ipynb")]
-    said = [f"{path.relative_to(KIT_ROOT)}:{number}: {line.strip()}" for path in files
-            for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1) if claim.search(line)]
+    files = [
+        *KIT_ROOT.glob("*.txt"),
+        KIT_ROOT / "README.md",
+        *(KIT_ROOT / "kfkit").rglob("*.py"),
+        *(KIT_ROOT / "solutions").glob("*.ipynb"),
+    ]
+    said = [
+        f"{path.relative_to(KIT_ROOT)}:{number}: {line.strip()}"
+        for path in files
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1)
+        if claim.search(line)
+    ]
     assert said == [], said

@@ -1,12 +1,13 @@
 """kfkit.exercise_guard in a real IPython shell: unfinished exercises and what depends on them are skipped with
 a note, everything else runs, and finishing an exercise lets the skipped cells run."""
+
 import ast
 
 import nbformat
 import pytest
+from exercise_variants import exercise_cells, python
 from IPython.core.interactiveshell import InteractiveShell
 
-from exercise_variants import exercise_cells, python
 from kfkit.authoring import is_stub
 from kfkit.paths import KIT_ROOT
 
@@ -97,9 +98,11 @@ def test_names_a_cell_binds_before_reading_them_are_its_own(shell):
     "made by a skipped cell" even when a skipped cell also bound them."""
     shell(STUB.format(name="board_time"))
     shell("for v in range(2):\n    labels = board_time(v)\n")  # skipped: v and labels are missing
-    result, out = shell("import contextlib\n"
-                        "for v in range(2):\n    labels = [w * 2 for w in range(v)]\n    print(len(labels))\n"
-                        "with contextlib.nullcontext(5) as port:\n    print(port)\n")
+    result, out = shell(
+        "import contextlib\n"
+        "for v in range(2):\n    labels = [w * 2 for w in range(v)]\n    print(len(labels))\n"
+        "with contextlib.nullcontext(5) as port:\n    print(port)\n"
+    )
     assert result.success and "skipped" not in out and out.split() == ["0", "1", "5"]
 
 
@@ -130,30 +133,38 @@ def test_a_cell_that_redefines_a_stub_and_uses_it_runs(shell):
 def test_a_function_defined_here_is_judged_by_the_names_it_reads_not_its_parameters(shell):
     shell(STUB.format(name="tilt_heading"))
     shell("asked = tilt_heading(1)")  # skipped: 'asked' is missing
-    result, out = shell("def errors(psi, asked):\n    total = 0\n    for a in asked:\n        total += a\n    return total\n"
-                        "print(errors(0, [1, 2]))")
+    result, out = shell(
+        "def errors(psi, asked):\n    total = 0\n    for a in asked:\n        total += a\n    return total\n"
+        "print(errors(0, [1, 2]))"
+    )
     assert result.success and out.strip() == "3"
 
 
 # --- issue 24 §2: the guard never skips correct code -------------------------------------------------------------
 
-@pytest.mark.parametrize("finished", [
-    # raises it for an input it does not handle
-    "def accel_roll(ay, az):\n    if np.ndim(ay) > 1:\n        raise NotImplementedError('2-D input')\n"
-    "    return np.arctan2(ay, az)\n",
-    # the very statement make-labs writes, but only for that input
-    "def accel_roll(ay, az):\n    if np.ndim(ay) > 1:\n        raise NotImplementedError()\n"
-    "    return np.arctan2(ay, az)\n",
-    "def accel_roll(ay, az):\n    if np.ndim(ay) <= 1:\n        return np.arctan2(ay, az)\n    raise NotImplementedError()\n",
-    # catches it
-    "def accel_roll(ay, az):\n    try:\n        return np.arctan2(ay, az)\n    except NotImplementedError:\n        return 0.0\n",
-    # the stub left below the answer, never reached
-    "def accel_roll(ay, az):\n    '''Roll.'''\n    return np.arctan2(ay, az)\n"
-    "    # YOUR CODE HERE\n    raise NotImplementedError()\n",
-    # a helper in it raises it
-    "def accel_roll(ay, az):\n    def two_d():\n        raise NotImplementedError()\n"
-    "    return two_d() if np.ndim(ay) > 1 else np.arctan2(ay, az)\n",
-])
+
+@pytest.mark.parametrize(
+    "finished",
+    [
+        # raises it for an input it does not handle
+        "def accel_roll(ay, az):\n    if np.ndim(ay) > 1:\n        raise NotImplementedError('2-D input')\n"
+        "    return np.arctan2(ay, az)\n",
+        # the very statement make-labs writes, but only for that input
+        "def accel_roll(ay, az):\n    if np.ndim(ay) > 1:\n        raise NotImplementedError()\n"
+        "    return np.arctan2(ay, az)\n",
+        "def accel_roll(ay, az):\n    if np.ndim(ay) <= 1:\n        return np.arctan2(ay, az)\n"
+        "    raise NotImplementedError()\n",
+        # catches it
+        "def accel_roll(ay, az):\n    try:\n        return np.arctan2(ay, az)\n    except NotImplementedError:\n"
+        "        return 0.0\n",
+        # the stub left below the answer, never reached
+        "def accel_roll(ay, az):\n    '''Roll.'''\n    return np.arctan2(ay, az)\n"
+        "    # YOUR CODE HERE\n    raise NotImplementedError()\n",
+        # a helper in it raises it
+        "def accel_roll(ay, az):\n    def two_d():\n        raise NotImplementedError()\n"
+        "    return two_d() if np.ndim(ay) > 1 else np.arctan2(ay, az)\n",
+    ],
+)
 def test_a_finished_function_that_mentions_not_implemented_error_is_not_a_stub(shell, finished):
     """A stub is what make-labs wrote (the raise among the function's own statements, nothing before it that can
     return), not "any function that mentions the exception": every cell that uses a finished one runs."""
@@ -169,20 +180,30 @@ def test_a_finished_function_that_mentions_not_implemented_error_is_not_a_stub(s
 
 def test_a_finished_kf_update_that_catches_not_implemented_error_is_not_a_stub(shell):
     shell(STUB.format(name="kf_update"))
-    shell("def kf_update(x, P, z, r):\n    try:\n        K = P / (P + r)\n    except NotImplementedError:\n        raise\n"
-          "    return x + K * (z - x), (1 - K) * P\n")
+    shell(
+        "def kf_update(x, P, z, r):\n    try:\n        K = P / (P + r)\n    except NotImplementedError:\n"
+        "        raise\n"
+        "    return x + K * (z - x), (1 - K) * P\n"
+    )
     result, out = shell("print(kf_update(0.0, 1.0, 2.0, 1.0))")
     assert result.success and out.strip() == "(1.0, 0.5)"
 
 
-@pytest.mark.parametrize("stub", [
-    STUB.format(name="accel_roll"),
-    "def accel_roll(x):\n    '''Roll (rad).'''\n    x = float(x)\n    # YOUR CODE HERE\n    raise NotImplementedError()\n",
-    "def accel_roll(x):\n    if x < 0:\n        raise ValueError('x < 0')\n    # YOUR CODE HERE\n    raise NotImplementedError()\n",
-    "import functools\ndef logged(f):\n    @functools.wraps(f)\n    def wrapper(*a):\n        return f(*a)\n    return wrapper\n"
-    "@logged\n" + STUB.format(name="accel_roll"),
-    "def logged(f):\n    def wrapper(*a):\n        return f(*a)\n    return wrapper\n@logged\n" + STUB.format(name="accel_roll"),
-])
+@pytest.mark.parametrize(
+    "stub",
+    [
+        STUB.format(name="accel_roll"),
+        "def accel_roll(x):\n    '''Roll (rad).'''\n    x = float(x)\n    # YOUR CODE HERE\n"
+        "    raise NotImplementedError()\n",
+        "def accel_roll(x):\n    if x < 0:\n        raise ValueError('x < 0')\n    # YOUR CODE HERE\n"
+        "    raise NotImplementedError()\n",
+        "import functools\ndef logged(f):\n    @functools.wraps(f)\n    def wrapper(*a):\n        return f(*a)\n"
+        "    return wrapper\n"
+        "@logged\n" + STUB.format(name="accel_roll"),
+        "def logged(f):\n    def wrapper(*a):\n        return f(*a)\n    return wrapper\n@logged\n"
+        + STUB.format(name="accel_roll"),
+    ],
+)
 def test_a_stub_is_recognised_behind_kept_code_and_decorators(shell, stub):
     shell(stub)
     result, out = shell("roll = accel_roll(1.0)\nprint('ran')")
@@ -204,14 +225,18 @@ def test_parameters_and_locals_of_nested_scopes_are_not_names_from_the_notebook(
     like what a skipped cell would have made (r, roll_acc, x0), is not that name: the cell runs."""
     shell(STUB.format(name="accel_roll"))
     shell("roll_acc = accel_roll(1.0)\nr = 0.1\nx0 = 0.0")  # skipped: roll_acc, r and x0 are missing
-    result, out = shell("def helper(z):\n    scale = lambda r: r * 2\n    def inner(roll_acc, *, x0=1):\n"
-                        "        return roll_acc + x0\n    return inner(scale(z))\nprint(helper(1))")
+    result, out = shell(
+        "def helper(z):\n    scale = lambda r: r * 2\n    def inner(roll_acc, *, x0=1):\n"
+        "        return roll_acc + x0\n    return inner(scale(z))\nprint(helper(1))"
+    )
     assert result.success and out.strip() == "3", out
     result, out = shell("print(helper(2))")  # and from a later cell
     assert result.success and out.strip() == "5"
-    result, out = shell("def total(n):\n    def local():\n        x0 = 5\n        return x0\n"
-                        "    return sum(r for r in range(n)) + local() + [roll_acc for roll_acc in (1,)][0]\n"
-                        "print(total(3))")
+    result, out = shell(
+        "def total(n):\n    def local():\n        x0 = 5\n        return x0\n"
+        "    return sum(r for r in range(n)) + local() + [roll_acc for roll_acc in (1,)][0]\n"
+        "print(total(3))"
+    )
     assert result.success and out.strip() == "9", out
     result, out = shell("print(list(map(lambda r: r + 1, [1, 2])), [x0 for x0 in 'ab'])")
     assert result.success and out.strip() == "[2, 3] ['a', 'b']"
@@ -228,18 +253,23 @@ def test_a_nested_scope_still_reads_what_it_does_not_bind(shell):
 def test_an_attribute_named_like_a_stub_is_not_the_stub(shell):
     """``filters.run_kf`` is kfkit's, not the notebook's unwritten run_kf (attribute names are in co_names too)."""
     shell(STUB.format(name="run_kf"))
-    shell("import types\nfilters = types.SimpleNamespace(run_kf=lambda q: 2 * q)\n"
-          "def kf_roll(q):\n    return filters.run_kf(q)\n")
+    shell(
+        "import types\nfilters = types.SimpleNamespace(run_kf=lambda q: 2 * q)\n"
+        "def kf_roll(q):\n    return filters.run_kf(q)\n"
+    )
     result, out = shell("print(kf_roll(2))")
     assert result.success and out.strip() == "4"
 
 
-@pytest.mark.parametrize("binds", [
-    "def init():\n    global x0\n    x0 = 0.5\ninit()",
-    "globals().update(x0=0.5)",
-    "globals()['x0'] = 0.5",
-    "exec('x0 = 0.5')",
-])
+@pytest.mark.parametrize(
+    "binds",
+    [
+        "def init():\n    global x0\n    x0 = 0.5\ninit()",
+        "globals().update(x0=0.5)",
+        "globals()['x0'] = 0.5",
+        "exec('x0 = 0.5')",
+    ],
+)
 @pytest.mark.parametrize("before", ["", "x0 = 1.0\n"])
 def test_a_name_bound_since_by_code_that_ran_is_not_missing(shell, binds, before):
     """A name a skipped cell would have made is missing only until something that runs binds it: a function's
@@ -270,8 +300,9 @@ def test_what_a_skipped_cell_would_have_bound_through_a_global_statement_is_miss
     assert result.success and "it uses x0, made by a cell that needs init, which calls accel_roll" in out
 
 
-CORRECT_KF_UPDATE = ("def kf_update(x, P, z, r):\n    K = P / (P + r)\n"
-                     "    return x + K * (z - x), (1 - K) * P, z - x, P + r\n")
+CORRECT_KF_UPDATE = (
+    "def kf_update(x, P, z, r):\n    K = P / (P + r)\n    return x + K * (z - x), (1 - K) * P, z - x, P + r\n"
+)
 
 
 def test_a_skipped_cell_that_redefines_an_exercise_sets_the_old_one_aside(shell):
@@ -285,7 +316,11 @@ def test_a_skipped_cell_that_redefines_an_exercise_sets_the_old_one_aside(shell)
     result, out = shell("def kf_update(x, P, z, r):\n    return x, P, 0.0, 1.0  # changed since\nx_kf = run_kf(1)")
     assert "it needs run_kf (not written yet)" in out
     result, out = shell("check('01.kf_update', kf_update);")
-    assert result.success and "✅" not in out and "⏳ 01.kf_update: stale: the cell that defines kf_update was skipped" in out
+    assert (
+        result.success
+        and "✅" not in out
+        and "⏳ 01.kf_update: stale: the cell that defines kf_update was skipped" in out
+    )
     result, out = shell("print(filter_one(2.0))")
     assert result.success and "filter_one, which calls kf_update (its cell was skipped)" in out
     shell("def run_kf(q):\n    return q\n")
@@ -312,9 +347,15 @@ def test_a_stale_check_still_says_stale_after_the_guard_is_reloaded(shell):
     assert result.success and "⏳ 01.kf_update: stale" in out
 
 
-@pytest.mark.parametrize("call", ["check('01.run_kf', answer=by_hand);", "check('01.run_kf', by_hand);",
-                                  "check('01.run_kf', lambda **kw: run_kf(**kw));",
-                                  "import functools\ncheck('01.run_kf', functools.partial(run_kf));"])
+@pytest.mark.parametrize(
+    "call",
+    [
+        "check('01.run_kf', answer=by_hand);",
+        "check('01.run_kf', by_hand);",
+        "check('01.run_kf', lambda **kw: run_kf(**kw));",
+        "import functools\ncheck('01.run_kf', functools.partial(run_kf));",
+    ],
+)
 def test_check_cells_always_run(shell, call):
     """However the answer is handed to check (by keyword, a lambda, a partial), the check says 'not attempted'."""
     shell("from kfkit.checkpoints import check")
@@ -329,8 +370,13 @@ LAB_NAMES = sorted(p.name for p in (KIT_ROOT / "labs").glob("*.ipynb"))
 
 
 def _functions(nb):
-    return [node for cell in nb.cells if cell.cell_type == "code"
-            for node in ast.walk(ast.parse(python(cell.source))) if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))]
+    return [
+        node
+        for cell in nb.cells
+        if cell.cell_type == "code"
+        for node in ast.walk(ast.parse(python(cell.source)))
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+    ]
 
 
 @pytest.mark.parametrize("name", LAB_NAMES)
@@ -345,7 +391,9 @@ def test_every_stub_of_a_hand_out_is_one_and_no_function_of_its_solution_is(name
     assert {f.name for f in _functions(lab) if is_stub(f.body)} == exercises
     assert [f.name for f in _functions(solution) if is_stub(f.body)] == []
     ids = {c.id for c in solution.cells if c.cell_type == "code" and "### BEGIN SOLUTION" in c.source}
-    guard = next(t for t in InteractiveShell.instance().input_transformers_post if getattr(t, "is_exercise_guard", False))
+    guard = next(
+        t for t in InteractiveShell.instance().input_transformers_post if getattr(t, "is_exercise_guard", False)
+    )
     assert shell(python(next(c.source for c in lab.cells if c.cell_type == "code")))[0].success  # the imports
     for nb, stubs in ((lab, exercises), (solution, set())):
         for cell in nb.cells:

@@ -1,6 +1,7 @@
 """kfkit.exercise_guard in a Jupyter kernel, where a hand-out runs: ipykernel transforms every cell twice (once in
 do_execute, again in run_cell), and a student runs a skipped cell again after finishing an exercise. Each note
 must give the reason of this moment, and a cell must never be held back by what it itself would have made."""
+
 import nbformat
 import pytest
 from nbclient import NotebookClient
@@ -14,13 +15,17 @@ DONE = "def {name}(x):\n    return 2 * x\n"
 def run():
     """``run(code)`` executes one cell in one kernel (the guard loaded) and returns what it printed."""
     nb = nbformat.v4.new_notebook()
-    client = NotebookClient(nb, timeout=HANG_GUARD_S, startup_timeout=HANG_GUARD_S, allow_errors=False, kernel_name="python3")
+    client = NotebookClient(
+        nb, timeout=HANG_GUARD_S, startup_timeout=HANG_GUARD_S, allow_errors=False, kernel_name="python3"
+    )
     with client.setup_kernel():
+
         def run(code):
             cell = nbformat.v4.new_code_cell(code)
             nb.cells.append(cell)
-            client.execute_cell(cell, len(nb.cells) - 1)   # an error raises CellExecutionError
+            client.execute_cell(cell, len(nb.cells) - 1)  # an error raises CellExecutionError
             return "".join(o.get("text", "") for o in cell.outputs)
+
         run("%load_ext kfkit.exercise_guard")
         yield run
 
@@ -53,8 +58,9 @@ def test_a_note_names_what_is_still_missing_not_what_was_missing_before(run):
     assert run(use).strip() == "4.0"
 
 
-@pytest.mark.parametrize("reads_it", ["total = total + 1", "total += 1", "for total in sorted(total):\n    pass",
-                                      "(total := total * 2)"])
+@pytest.mark.parametrize(
+    "reads_it", ["total = total + 1", "total += 1", "for total in sorted(total):\n    pass", "(total := total * 2)"]
+)
 def test_a_statement_that_reads_a_name_before_rebinding_it_waits_for_it(run, reads_it):
     """An assignment binds its name after its value is evaluated (a loop after its iterable): ``total = total + 1``
     reads the ``total`` a skipped cell never made, and must be skipped, not raise NameError."""
@@ -67,11 +73,15 @@ def test_a_statement_that_reads_a_name_before_rebinding_it_waits_for_it(run, rea
 def test_a_stub_is_told_from_a_finished_function_by_its_source_in_the_kernel(run):
     """ipykernel keeps each cell's source under a file name of its own: the guard reads the stub there."""
     run("import numpy as np")
-    run("def tilt(ay, az):\n    '''Tilt (rad).'''\n    ay = np.asarray(ay)\n"
-        "    # YOUR CODE HERE\n    raise NotImplementedError()\n")
+    run(
+        "def tilt(ay, az):\n    '''Tilt (rad).'''\n    ay = np.asarray(ay)\n"
+        "    # YOUR CODE HERE\n    raise NotImplementedError()\n"
+    )
     assert "it needs tilt (not written yet)" in run("angle = tilt(1.0, 1.0)\nprint('ran')")
-    run("def tilt(ay, az):\n    if np.ndim(ay) > 1:\n        raise NotImplementedError('2-D input')\n"
-        "    return np.arctan2(ay, az)\n")
+    run(
+        "def tilt(ay, az):\n    if np.ndim(ay) > 1:\n        raise NotImplementedError('2-D input')\n"
+        "    return np.arctan2(ay, az)\n"
+    )
     assert run("angle = tilt(1.0, 1.0)\nprint(round(angle, 4))").strip() == "0.7854"
 
 

@@ -6,6 +6,7 @@ compares a filter with itself in another form (run against its stacked steps, a 
 run, a start given to the constructor against one given to reset); the filters' own tests hold their numbers to
 independent oracles (filterpy, scipy, finite differences, χ² bounds).
 """
+
 import dataclasses
 import inspect
 import pkgutil
@@ -20,7 +21,7 @@ from kfkit import datasets
 from kfkit.filters import KalmanFilter
 from kfkit.filters.contract import Filter, FilterRun, Step, TunedFilter
 from kfkit.filters.registry import FILTERS
-from kfkit.frames import G, MAG_FIELD_LONDON
+from kfkit.frames import MAG_FIELD_LONDON, G
 
 FIELD = np.array(MAG_FIELD_LONDON)
 
@@ -29,16 +30,19 @@ def roll_case():
     rng = np.random.default_rng(1)
     w, z = rng.normal(0.0, 0.5, 120), rng.normal(0.2, 0.1, 120)
     z[7::13] = np.nan
-    return {"make": lambda **kw: FILTERS["roll-kf"].cls(**{"dt": 0.01, **kw}), "data": (w, z),
-            "x0": 0.3, "P0": 0.02}
+    return {"make": lambda **kw: FILTERS["roll-kf"].cls(**{"dt": 0.01, **kw}), "data": (w, z), "x0": 0.3, "P0": 0.02}
 
 
 def tilt_case():
     rng = np.random.default_rng(2)
     w, z, ok = rng.normal(0.0, 0.5, 120), rng.normal(0.2, 0.1, 120), rng.random(120) > 0.3
     z[5::17] = np.nan
-    return {"make": lambda **kw: FILTERS["tilt-bias-kf"].cls(**{"dt": 0.01, "accel_gating": "inflate", **kw}),
-            "data": (w, z, ok), "x0": (0.3, 0.01), "P0": [[0.02, 0.001], [0.001, 0.005]]}
+    return {
+        "make": lambda **kw: FILTERS["tilt-bias-kf"].cls(**{"dt": 0.01, "accel_gating": "inflate", **kw}),
+        "data": (w, z, ok),
+        "x0": (0.3, 0.01),
+        "P0": [[0.02, 0.001], [0.001, 0.005]],
+    }
 
 
 def attitude_data(n=200, rate_hz=100.0):
@@ -58,24 +62,37 @@ def attitude_data(n=200, rate_hz=100.0):
 
 
 def euler_case(name):
-    return lambda: {"make": lambda **kw: FILTERS[name].cls(**{"rate_hz": 100.0, "field_n": FIELD, **kw}),
-                    "data": attitude_data(), "x0": (-0.05, 0.25, 0.4), "P0": np.diag([2e-3, 2e-3, 1e-2])}
+    return lambda: {
+        "make": lambda **kw: FILTERS[name].cls(**{"rate_hz": 100.0, "field_n": FIELD, **kw}),
+        "data": attitude_data(),
+        "x0": (-0.05, 0.25, 0.4),
+        "P0": np.diag([2e-3, 2e-3, 1e-2]),
+    }
 
 
 def mekf_case():
     q0 = Rotation.from_euler("ZYX", [0.4, 0.25, -0.05]).as_quat()[[3, 0, 1, 2]]
-    return {"make": lambda **kw: FILTERS["mekf"].cls(**{"rate_hz": 100.0, "field_n": FIELD, **kw}),
-            "data": attitude_data(), "x0": np.r_[q0, 1e-3, -2e-3, 5e-4], "P0": np.diag([2e-3, 2e-3, 1e-2, 1e-5, 1e-5, 1e-5]),
-            "consider": True}
+    return {
+        "make": lambda **kw: FILTERS["mekf"].cls(**{"rate_hz": 100.0, "field_n": FIELD, **kw}),
+        "data": attitude_data(),
+        "x0": np.r_[q0, 1e-3, -2e-3, 5e-4],
+        "P0": np.diag([2e-3, 2e-3, 1e-2, 1e-5, 1e-5, 1e-5]),
+        "consider": True,
+    }
 
 
 def sideslip_case(name):
     def case():
         rec = datasets.load("06_slalom_20kmh").head(6.0)  # starts from rest: the low-speed guard, then the model
         t = rec.t + np.random.default_rng(4).uniform(-2e-4, 2e-4, len(rec))  # a logger's jittery clock
-        return {"make": lambda **kw: FILTERS[name].cls(**{"dt": 0.01, **kw}),
-                "data": (t, rec["delta"], rec["yaw_rate"], rec["ay"], rec["vx"]), "samples": sideslip_samples,
-                "x0": (0.01, 0.02), "P0": np.diag([1e-4, 2e-4])}
+        return {
+            "make": lambda **kw: FILTERS[name].cls(**{"dt": 0.01, **kw}),
+            "data": (t, rec["delta"], rec["yaw_rate"], rec["ay"], rec["vx"]),
+            "samples": sideslip_samples,
+            "x0": (0.01, 0.02),
+            "P0": np.diag([1e-4, 2e-4]),
+        }
+
     return case
 
 
@@ -92,14 +109,30 @@ def kalman_case():
     zs[9::11] = np.nan
 
     def make(x0=None, P0=None, **kw):
-        return KalmanFilter(F, H, np.diag([1e-4, 1e-3]), [[0.1]], np.zeros(2) if x0 is None else x0,
-                            np.eye(2) if P0 is None else P0, B=B, **kw)
+        return KalmanFilter(
+            F,
+            H,
+            np.diag([1e-4, 1e-3]),
+            [[0.1]],
+            np.zeros(2) if x0 is None else x0,
+            np.eye(2) if P0 is None else P0,
+            B=B,
+            **kw,
+        )
+
     return {"make": make, "data": (zs, us), "x0": (0.5, -0.2), "P0": np.diag([0.3, 0.1])}
 
 
-CASES = {"roll-kf": roll_case, "euler-ekf": euler_case("euler-ekf"), "euler-ekf-steps": euler_case("euler-ekf-steps"),
-         "mekf": mekf_case, "tilt-bias-kf": tilt_case, "sideslip-kf": sideslip_case("sideslip-kf"),
-         "sideslip-ekf": sideslip_case("sideslip-ekf"), "kalman-filter": kalman_case}
+CASES = {
+    "roll-kf": roll_case,
+    "euler-ekf": euler_case("euler-ekf"),
+    "euler-ekf-steps": euler_case("euler-ekf-steps"),
+    "mekf": mekf_case,
+    "tilt-bias-kf": tilt_case,
+    "sideslip-kf": sideslip_case("sideslip-kf"),
+    "sideslip-ekf": sideslip_case("sideslip-ekf"),
+    "kalman-filter": kalman_case,
+}
 TUNED = [name for name in CASES if name in FILTERS]
 
 
@@ -114,7 +147,10 @@ def samples(case):
 
 def stacked(steps):
     """The steps' fields as arrays, one row per step (what run must return)."""
-    return {name: np.array([getattr(s, name) for s in steps], dtype=float) for name in ("x", "P", "y", "S", "x_prior", "P_prior")}
+    return {
+        name: np.array([getattr(s, name) for s in steps], dtype=float)
+        for name in ("x", "P", "y", "S", "x_prior", "P_prior")
+    }
 
 
 def assert_rows_equal(run, expected, names):
@@ -122,24 +158,33 @@ def assert_rows_equal(run, expected, names):
     for name in names:
         got = getattr(run, name)
         assert got is not None, f"run.{name} is None"
-        np.testing.assert_allclose(np.asarray(got, dtype=float), expected[name], rtol=1e-9, atol=1e-13, equal_nan=True,
-                                   err_msg=f"run.{name}")
+        np.testing.assert_allclose(
+            np.asarray(got, dtype=float), expected[name], rtol=1e-9, atol=1e-13, equal_nan=True, err_msg=f"run.{name}"
+        )
 
 
 def concatenated(runs):
-    return {name: np.concatenate([getattr(r, name) for r in runs]) for name in ("x", "P", "y", "S", "x_prior", "P_prior")}
+    return {
+        name: np.concatenate([getattr(r, name) for r in runs]) for name in ("x", "P", "y", "S", "x_prior", "P_prior")
+    }
 
 
 # --- every filter is covered ----------------------------------------------------------------------------------
+
 
 def filter_classes():
     """Every class defined in a kfkit.filters module that has a step and a run."""
     found = set()
     for info in pkgutil.iter_modules(kfkit.filters.__path__):
         module = import_module(f"kfkit.filters.{info.name}")
-        found |= {c for _, c in inspect.getmembers(module, inspect.isclass)
-                  if c.__module__ == module.__name__ and not getattr(c, "_is_protocol", False)
-                  and callable(getattr(c, "step", None)) and callable(getattr(c, "run", None))}
+        found |= {
+            c
+            for _, c in inspect.getmembers(module, inspect.isclass)
+            if c.__module__ == module.__name__
+            and not getattr(c, "_is_protocol", False)
+            and callable(getattr(c, "step", None))
+            and callable(getattr(c, "run", None))
+        }
     return found
 
 
@@ -152,6 +197,7 @@ def test_every_filter_class_is_registered_and_checked_here():
 
 
 # --- the contract ---------------------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("name", filters_for())
 def test_keeps_the_protocol_and_its_state_is_a_dataclass(name):
@@ -241,7 +287,9 @@ def test_a_recording_resumed_in_pieces_is_one_run(name):
     pieces = [f.run(*(a[:k] for a in case["data"])), f.run(*(a[k:] for a in case["data"]), resume=True)]
     got = concatenated(pieces)
     for name_ in ("x", "P", "y", "S", "x_prior", "P_prior"):
-        np.testing.assert_allclose(got[name_], getattr(whole, name_), rtol=1e-9, atol=1e-13, equal_nan=True, err_msg=name_)
+        np.testing.assert_allclose(
+            got[name_], getattr(whole, name_), rtol=1e-9, atol=1e-13, equal_nan=True, err_msg=name_
+        )
 
 
 @pytest.mark.parametrize("name", filters_for())
@@ -275,5 +323,8 @@ def test_settings_are_a_frozen_dataclass_named_for_the_filter(name):
     assert type(settings).__name__ in {c.__name__ + "Settings" for c in type(f).__mro__[:-1]}
     first = next(f.name for f in dataclasses.fields(settings) if isinstance(f.default, float))
     changed = dataclasses.replace(settings, **{first: 2 * getattr(settings, first)})
-    assert CASES[name]()["make"](settings=changed).settings == changed == \
-        CASES[name]()["make"](**{first: 2 * getattr(settings, first)}).settings
+    assert (
+        CASES[name]()["make"](settings=changed).settings
+        == changed
+        == CASES[name]()["make"](**{first: 2 * getattr(settings, first)}).settings
+    )

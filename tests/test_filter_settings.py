@@ -1,5 +1,6 @@
 """The filters' settings dataclasses: each docstring's defaults table against the dataclass, one meaning per
 field name across the filters, and the one validation helper (kfkit.filters.contract.check_settings)."""
+
 import ast
 import dataclasses
 import inspect
@@ -8,13 +9,14 @@ import re
 
 import numpy as np
 import pytest
+from test_filter_contract import CASES
 
 from kfkit.filters.contract import check_settings
 from kfkit.filters.mag_gate import MagGate
 from kfkit.filters.mekf import MultiplicativeEKFSettings
 from kfkit.filters.registry import FILTERS
 from kfkit.frames import MAG_FIELD_LONDON
-from test_filter_contract import CASES
+
 
 def settings_classes():
     """Every registered filter's settings class, once (the fast and the stepped Euler EKF share one)."""
@@ -48,7 +50,10 @@ def defaults_table(doc):
             rows[name].append(line.strip())
         else:
             name = None
-    return {name: (" ".join(lines), parse_default(re.split(r" {2,}", lines[-1].strip())[-1])) for name, lines in rows.items()}
+    return {
+        name: (" ".join(lines), parse_default(re.split(r" {2,}", lines[-1].strip())[-1]))
+        for name, lines in rows.items()
+    }
 
 
 def parse_default(text):
@@ -59,8 +64,10 @@ def parse_default(text):
     try:
         return ast.literal_eval(text)
     except (SyntaxError, ValueError):
-        raise ValueError(f"the default {text!r} is neither a number (in °, °/s or °/s/√Hz, or none) nor a literal; "
-                         f"is there one space only before it?") from None
+        raise ValueError(
+            f"the default {text!r} is neither a number (in °, °/s or °/s/√Hz, or none) nor a literal; "
+            f"is there one space only before it?"
+        ) from None
 
 
 def test_the_table_parser_reads_rows_units_and_literals_and_sees_a_wrong_default():
@@ -86,8 +93,10 @@ def test_the_table_parser_reads_rows_units_and_literals_and_sees_a_wrong_default
 
     table = defaults_table(Toy.__doc__)
     assert list(table) == ["rate", "angle", "mode", "gate", "tiny"]
-    assert table["rate"] == ("a rate, rad/s, whose description runs on to a second line                                     "
-                             "0.3 °/s", pytest.approx(math.radians(0.3)))
+    assert table["rate"] == (
+        "a rate, rad/s, whose description runs on to a second line                                     0.3 °/s",
+        pytest.approx(math.radians(0.3)),
+    )
     assert [table[n][1] for n in ("angle", "mode", "gate")] == [pytest.approx(math.radians(10.0)), "skip", None]
     assert mismatches(Toy) == ["tiny: the docstring says 2e-10, the dataclass 2e-11"]
 
@@ -95,8 +104,11 @@ def test_the_table_parser_reads_rows_units_and_literals_and_sees_a_wrong_default
 def mismatches(cls):
     """Fields whose docstring default differs from the dataclass's, and rows or fields the other side lacks."""
     table = defaults_table(cls.__doc__)
-    problems = [f"{name}: in the docstring's table, not a field" for name in table if name not in
-                {f.name for f in dataclasses.fields(cls)}]
+    problems = [
+        f"{name}: in the docstring's table, not a field"
+        for name in table
+        if name not in {f.name for f in dataclasses.fields(cls)}
+    ]
     for f in dataclasses.fields(cls):
         if f.name not in table:
             problems.append(f"{f.name}: a field without a row in the docstring's table")
@@ -166,10 +178,13 @@ def test_each_field_name_has_one_meaning_across_the_filters(cls):
         unit = GLOSSARY[f.name][0]
         assert unit is None or unit in table[f.name][0], f"{cls.__name__}.{f.name}: its row does not say {unit}"
         if f.name.endswith("gate"):
-            assert f.default is None or isinstance(f.default, (int, float)), f"{cls.__name__}.{f.name} is not a threshold"
+            assert f.default is None or isinstance(f.default, (int, float)), (
+                f"{cls.__name__}.{f.name} is not a threshold"
+            )
 
 
 # --- the one validation helper ---------------------------------------------------------------------------------
+
 
 @dataclasses.dataclass(frozen=True)
 class Checked:
@@ -180,20 +195,29 @@ class Checked:
     mode: str = "skip"
 
     def __post_init__(self):
-        check_settings(self, positive=("size", "limit"), non_negative=("offset",), optional=("limit",), flags=("enabled",),
-                       choices={"mode": ("skip", "inflate")})
+        check_settings(
+            self,
+            positive=("size", "limit"),
+            non_negative=("offset",),
+            optional=("limit",),
+            flags=("enabled",),
+            choices={"mode": ("skip", "inflate")},
+        )
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"size": 0.0}, "Checked: size must be a positive number, got 0.0"),
-    ({"size": np.nan}, "Checked: size must be a positive number, got nan"),
-    ({"size": "1"}, "Checked: size must be a positive number, got '1'"),
-    ({"size": True}, "Checked: size must be a positive number, got True"),
-    ({"offset": -1e-9}, "Checked: offset must be a number ≥ 0, got -1e-09"),
-    ({"limit": -1.0}, "Checked: limit must be a positive number or None, got -1.0"),
-    ({"enabled": 1}, "Checked: enabled must be True or False, got 1"),
-    ({"mode": "sometimes"}, "Checked: mode must be one of skip, inflate, got 'sometimes'"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"size": 0.0}, "Checked: size must be a positive number, got 0.0"),
+        ({"size": np.nan}, "Checked: size must be a positive number, got nan"),
+        ({"size": "1"}, "Checked: size must be a positive number, got '1'"),
+        ({"size": True}, "Checked: size must be a positive number, got True"),
+        ({"offset": -1e-9}, "Checked: offset must be a number ≥ 0, got -1e-09"),
+        ({"limit": -1.0}, "Checked: limit must be a positive number or None, got -1.0"),
+        ({"enabled": 1}, "Checked: enabled must be True or False, got 1"),
+        ({"mode": "sometimes"}, "Checked: mode must be one of skip, inflate, got 'sometimes'"),
+    ],
+)
 def test_check_settings_names_the_class_field_expectation_and_value(change, message):
     assert Checked(limit=2.0, offset=0.0, enabled=True, mode="inflate").limit == 2.0
     with pytest.raises(ValueError, match=re.escape(message)):

@@ -1,10 +1,20 @@
 """kfkit.filters against independent oracles: filterpy's KalmanFilter and scipy's DARE."""
+
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 from scipy.linalg import solve_discrete_are
 
-from kfkit.filters import KalmanFilter, RollKF, RollKFSettings, Step, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
+from kfkit.filters import (
+    KalmanFilter,
+    RollKF,
+    RollKFSettings,
+    Step,
+    roll_kf,
+    roll_kf_predict,
+    roll_kf_steady_state,
+    roll_kf_update,
+)
 
 
 def random_stable_system(rng, n, m, with_input):
@@ -130,7 +140,9 @@ def test_roll_kf_matches_filterpy_scalar_filter():
     ref.x, ref.P = np.array([0.1]), np.array([[0.5]])
     for k in range(N):
         ref.predict(u=np.array([omega[k]]))
-        assert (run.x_prior[k], run.P_prior[k]) == pytest.approx((ref.x_prior[0], ref.P_prior[0, 0]), rel=1e-9, abs=1e-12)
+        assert (run.x_prior[k], run.P_prior[k]) == pytest.approx(
+            (ref.x_prior[0], ref.P_prior[0, 0]), rel=1e-9, abs=1e-12
+        )
         if not np.isnan(z[k]):
             ref.update(np.array([z[k]]))
             assert run.y[k] == pytest.approx(ref.y[0], rel=1e-9, abs=1e-12)
@@ -178,19 +190,30 @@ def test_roll_kf_class_is_the_function_form_step_by_step():
         assert (step.x, step.P) == (x, P) == (run.x[k], run.P[k])
 
 
-@pytest.mark.parametrize("make, error, match", [
-    (lambda: RollKFSettings(q_angle=0.0), ValueError, "RollKFSettings: q_angle must be a positive number, got 0.0"),
-    (lambda: RollKFSettings(r=float("nan")), ValueError, "r must be a positive number, got nan"),
-    (lambda: RollKFSettings(r=True), ValueError, "RollKFSettings: r must be a positive number, got True"),
-    (lambda: RollKF(-0.01), ValueError, "RollKF: dt must be a positive number, got -0.01"),
-    (lambda: RollKF(rate_hz=0), ValueError, "RollKF: rate_hz must be a positive number, got 0"),
-    (lambda: RollKF(100.0), ValueError, "RollKF: dt = 100 s is longer than 1 s; if 100 is a sample rate, pass rate_hz=100"),
-    (lambda: RollKF(), TypeError, r"RollKF: give the sample period dt \(s\) or the sample rate rate_hz \(Hz\), got neither"),
-    (lambda: RollKF(0.01, rate_hz=100), TypeError, "RollKF: give the sample period .* not both"),
-    (lambda: RollKF(0.01, qq=1e-6), TypeError, "RollKF: unknown setting qq; RollKFSettings has q_angle, r"),
-    (lambda: RollKF(0.01, {"q_angle": 1e-6}), TypeError, "RollKF: settings must be a RollKFSettings, got dict"),
-    (lambda: RollKF(0.01, x0=[0.1, 0.2]), ValueError, r"RollKF: x0 must have shape \(\), got \(2,\)"),
-])
+@pytest.mark.parametrize(
+    "make, error, match",
+    [
+        (lambda: RollKFSettings(q_angle=0.0), ValueError, "RollKFSettings: q_angle must be a positive number, got 0.0"),
+        (lambda: RollKFSettings(r=float("nan")), ValueError, "r must be a positive number, got nan"),
+        (lambda: RollKFSettings(r=True), ValueError, "RollKFSettings: r must be a positive number, got True"),
+        (lambda: RollKF(-0.01), ValueError, "RollKF: dt must be a positive number, got -0.01"),
+        (lambda: RollKF(rate_hz=0), ValueError, "RollKF: rate_hz must be a positive number, got 0"),
+        (
+            lambda: RollKF(100.0),
+            ValueError,
+            "RollKF: dt = 100 s is longer than 1 s; if 100 is a sample rate, pass rate_hz=100",
+        ),
+        (
+            lambda: RollKF(),
+            TypeError,
+            r"RollKF: give the sample period dt \(s\) or the sample rate rate_hz \(Hz\), got neither",
+        ),
+        (lambda: RollKF(0.01, rate_hz=100), TypeError, "RollKF: give the sample period .* not both"),
+        (lambda: RollKF(0.01, qq=1e-6), TypeError, "RollKF: unknown setting qq; RollKFSettings has q_angle, r"),
+        (lambda: RollKF(0.01, {"q_angle": 1e-6}), TypeError, "RollKF: settings must be a RollKFSettings, got dict"),
+        (lambda: RollKF(0.01, x0=[0.1, 0.2]), ValueError, r"RollKF: x0 must have shape \(\), got \(2,\)"),
+    ],
+)
 def test_bad_roll_settings_are_named(make, error, match):
     with pytest.raises(error, match=match):
         make()

@@ -14,32 +14,48 @@ installs them). The Nucleo logger is not run here: no emulator on these machines
 peripheral with an ISM330DHCX and an IIS2MDC on it, so it is proven by its real build (test_firmware_stm32.py) and by
 the protocol tests on the host (test_firmware_protocol.py), not by running.
 """
+
 import json
 import subprocess
 import sys
 import time
 from dataclasses import dataclass
 
+import arduino_host
 import numpy as np
 import pytest
 import serial
 
-import arduino_host
 from kfkit import datasets
 from kfkit.capture import CaptureError, Recorder, Sample, parse_line
 from kfkit.capture import emulated_uno as E
-from kfkit.checkpoints import lab05
 from kfkit.cli import main
 from kfkit.filters import TiltAttitude, TiltBiasKF, TiltBiasKFSettings, tilt
 from kfkit.io import Recording, load_recording
+from kfkit.labs import lab05
 
 RATE = 100.0  # what the sketches set: SMPLRT_DIV 9 with the DLPF on, 1 kHz / 10
 CYCLES_PER_US = 16  # an Uno's 16 MHz crystal
 #: firmware/tilt_kf's TiltKf as avr-gcc lays it out: nothing is aligned on the AVR, an enum is an int (2 bytes)
-TILT_KF = np.dtype([("qAngle", "<f4"), ("qBias", "<f4"), ("r", "<f4"), ("gate", "<i2"), ("inflation", "<f4"),
-                    ("initialBiasVariance", "<f4"), ("samplePeriod", "<f4"), ("angle", "<f4"), ("bias", "<f4"),
-                    ("p00", "<f4"), ("p01", "<f4"), ("p11", "<f4"), ("innovation", "<f4"),
-                    ("innovationVariance", "<f4"), ("updated", "u1")])
+TILT_KF = np.dtype(
+    [
+        ("qAngle", "<f4"),
+        ("qBias", "<f4"),
+        ("r", "<f4"),
+        ("gate", "<i2"),
+        ("inflation", "<f4"),
+        ("initialBiasVariance", "<f4"),
+        ("samplePeriod", "<f4"),
+        ("angle", "<f4"),
+        ("bias", "<f4"),
+        ("p00", "<f4"),
+        ("p01", "<f4"),
+        ("p11", "<f4"),
+        ("innovation", "<f4"),
+        ("innovationVariance", "<f4"),
+        ("updated", "u1"),
+    ]
+)
 
 
 @pytest.fixture(scope="module")
@@ -98,9 +114,26 @@ def counts(rec) -> np.ndarray:
 
 
 def capture_cli(port, seconds, out, timeout=300):
-    """``kfkit capture --port <port> --seconds <seconds> --out <out> --json`` as a student runs it: (exit code, JSON)."""
-    done = subprocess.run([sys.executable, "-m", "kfkit", "capture", "--port", str(port), "--seconds", str(seconds),
-                           "--out", str(out), "--json"], capture_output=True, text=True, timeout=timeout)
+    """``kfkit capture --port <port> --seconds <seconds> --out <out> --json`` as a student runs it: (exit code,
+    JSON)."""
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "kfkit",
+            "capture",
+            "--port",
+            str(port),
+            "--seconds",
+            str(seconds),
+            "--out",
+            str(out),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
     return done.returncode, json.loads(done.stdout)
 
 
@@ -113,8 +146,11 @@ def assert_served_exactly(captured, served):
 def with_phases(captured, source, first_frame):
     """The capture with the phases of the recording it played (shifted to the frame its first sample read)."""
     shift, end = first_frame / RATE, captured.t[-1] + 1 / RATE
-    phases = [{**p, "start": max(p["start"] - shift, 0.0), "end": min(p["end"] - shift, end)} for p in source.phases
-              if p["end"] - shift > 0 and p["start"] - shift < end]
+    phases = [
+        {**p, "start": max(p["start"] - shift, 0.0), "end": min(p["end"] - shift, end)}
+        for p in source.phases
+        if p["end"] - shift > 0 and p["start"] - shift < end
+    ]
     return Recording({**captured.meta, "phases": phases}, captured.data, captured.path)
 
 
@@ -132,10 +168,15 @@ def test_kfkit_capture_records_every_sample_the_emulated_sensor_produced(toolcha
     assert_served_exactly(captured, served)
     # the sensor sampled the recording at its own rate, as the sketch configured it: one new frame per read, in order
     assert events.rates[-1] == RATE and [w[1:] for w in events.writes] == [
-        (0x6B, 0x01), (0x1A, 0x03), (0x19, 0x09), (0x1B, 0x00), (0x1C, 0x00)]
+        (0x6B, 0x01),
+        (0x1A, 0x03),
+        (0x19, 0x09),
+        (0x1B, 0x00),
+        (0x1C, 0x00),
+    ]
     first = int(served[0, 1])
     np.testing.assert_array_equal(served[:, 1], first + np.arange(n))
-    np.testing.assert_array_equal(served[:, 2:], frames[first:first + n])
+    np.testing.assert_array_equal(served[:, 2:], frames[first : first + n])
     # time is the board's: t_us steps of exactly 10 000 µs of the emulated clock, no jitter, the clock's rate 100 Hz;
     # and the AVR read each sample at its t on that clock (its cycle count, from the first read) to within 0.1 ms
     assert (stats["clock_rate_hz"], stats["dt_mean_us"], stats["jitter_us"]) == (RATE, 10000.0, 0.0)
@@ -170,14 +211,16 @@ def test_a_reader_that_falls_behind_loses_nothing(toolchain, frames, tmp_path):
     cycle count), rather than drop bytes. The reader here reads nothing until the emulator sleeps in that wait (the
     only place it sleeps once running), then everything: every line arrives whole, on the board's unbroken clock."""
     log = tmp_path / "emulator.log"
-    with E.EmulatedUno("mpu6050_logger", frames, loop=False, log=log) as uno:
-        with serial.Serial(uno.port, 115200, timeout=0.2) as port:
-            port.write(b"h")
-            wait_until(lambda: port.in_waiting > 0, "the first bytes")
-            wait_until(lambda: process_state(uno.process.pid) == "S", "the emulator to block on the full pty")
-            received = b""
-            while received.count(b"\n") < 600:
-                received += port.read(4096)
+    with (
+        E.EmulatedUno("mpu6050_logger", frames, loop=False, log=log) as uno,
+        serial.Serial(uno.port, 115200, timeout=0.2) as port,
+    ):
+        port.write(b"h")
+        wait_until(lambda: port.in_waiting > 0, "the first bytes")
+        wait_until(lambda: process_state(uno.process.pid) == "S", "the emulator to block on the full pty")
+        received = b""
+        while received.count(b"\n") < 600:
+            received += port.read(4096)
     events = read_log(log)
     items = [parse_line(line) for line in received.splitlines()[:600]]
     samples = [item for item in items if isinstance(item, Sample)]
@@ -185,7 +228,7 @@ def test_a_reader_that_falls_behind_loses_nothing(toolchain, frames, tmp_path):
     values = np.array([s.values for s in samples])
     np.testing.assert_array_equal(values[:, 1], np.arange(len(samples)))
     np.testing.assert_array_equal(np.diff(values[:, 0]), 10000)
-    np.testing.assert_array_equal(values[:, 2:], events.reads[:len(samples), 2:])
+    np.testing.assert_array_equal(values[:, 2:], events.reads[: len(samples), 2:])
 
 
 @pytest.mark.slow
@@ -206,13 +249,18 @@ def test_the_tilt_sketch_filter_equals_python_over_a_whole_recording(toolchain, 
     assert (rec.stats.bad_lines, rec.stats.dropped, rec.stats.jitter_us, rec.clock_rate_hz()) == (0, 0, 0.0, RATE)
     assert_served_exactly(captured, events.reads[:n])
     # state j (after sample j) is what the RAM held before read j + 1
-    roll, pitch = (np.frombuffer(b"".join(w[i] for w in events.watched[1:n + 1]), TILT_KF) for i in (0, 1))
+    roll, pitch = (np.frombuffer(b"".join(w[i] for w in events.watched[1 : n + 1]), TILT_KF) for i in (0, 1))
     s = roll[0]
-    settings = TiltBiasKFSettings(q_angle=float(s["qAngle"]), q_bias=float(s["qBias"]), r=float(s["r"]),
-                                  accel_gating=tilt.GATINGS[int(s["gate"])], accel_inflation=float(s["inflation"]))
+    settings = TiltBiasKFSettings(
+        q_angle=float(s["qAngle"]),
+        q_bias=float(s["qBias"]),
+        r=float(s["r"]),
+        accel_gating=tilt.GATINGS[int(s["gate"])],
+        accel_inflation=float(s["inflation"]),
+    )
     assert all(np.array_equal(roll[f], pitch[f]) for f in TILT_KF.names[:7])  # both axes: one setting, unchanged
     assert s["samplePeriod"] == np.float32(1 / RATE)
-    assert s["initialBiasVariance"] == np.float32(0.1 ** 2)  # what TiltBiasKF.reset gives P11 (the Python twin's start)
+    assert s["initialBiasVariance"] == np.float32(0.1**2)  # what TiltBiasKF.reset gives P11 (the Python twin's start)
     twin = TiltAttitude("mpu6050", rate_hz=rec.clock_rate_hz(), settings=settings)
     python = []
     for acc, gyr in zip(counts(captured)[:, :3], counts(captured)[:, 3:]):
@@ -224,9 +272,15 @@ def test_the_tilt_sketch_filter_equals_python_over_a_whole_recording(toolchain, 
     board = np.stack([np.column_stack([kf["angle"], kf["bias"]]) for kf in (roll, pitch)], axis=1)
     angle_error = np.abs(board[running, :, 0] - python[running, :, 0])
     bias_error = np.abs(board[running, :, 1] - python[running, :, 1])
-    print(f"on-board filter vs Python over {running.sum()} samples: angle ≤ {angle_error.max():.2e} rad, "
-          f"bias ≤ {bias_error.max():.2e} rad/s")
-    assert angle_error.max() < 1e-5 and bias_error.max() < 2e-6  # float32 (avr-libc) against float64: 3e-7 measured
+    print(
+        f"on-board filter vs Python over {running.sum()} samples: angle ≤ {angle_error.max():.2e} rad, "
+        f"bias ≤ {bias_error.max():.2e} rad/s"
+    )
+    # float32 (avr-libc) against float64: with the shipped tuning (the gyro's own noise) 4.5e-6 rad and 9.5e-6 rad/s at
+    # most, in the first seconds while the bias state's variance is still large; 1.1e-6 rad and 2.7e-7 rad/s from
+    # 12 s on
+    assert angle_error.max() < 1e-5 and bias_error.max() < 2e-5
+    assert angle_error[1000:].max() < 2e-6 and bias_error[1000:].max() < 1e-6
     assert np.abs(python[running, 1, 0]).max() > 1.5  # the recording does reach 90°: not a test of zeros
     # the gates were exercised: updates and coasting on both axes
     assert {0, 1} <= set(roll["updated"][running]) and {0, 1} <= set(pitch["updated"][running])
@@ -238,6 +292,7 @@ def test_the_tilt_sketch_filter_equals_python_over_a_whole_recording(toolchain, 
 
 
 # --- sensor faults: what firmware/mpu6050_logger/README.md promises ---------------------------------------------
+
 
 def test_a_missing_sensor_is_said_on_the_serial_line_and_reported_by_the_capture(toolchain, frames, tmp_path):
     """NACK from power-on: the sketch says '#ERROR,no MPU6050 answers at 0x68…' once a second and sends nothing else;
@@ -269,12 +324,12 @@ def test_a_stuck_bus_costs_the_samples_it_lasts_and_the_logger_carries_on(toolch
     s = rec.stats
     failures = len(s.notes)
     assert set(s.notes) == {"ERROR,MPU6050 read failed"} and 300 / 25 - 1 <= failures <= 300 / 25 + 1
-    (_, t_first, missing), = s.drops  # one gap, starting at the slot the bus stuck in
+    ((_, t_first, missing),) = s.drops  # one gap, starting at the slot the bus stuck in
     assert t_first == pytest.approx(1.0, abs=0.01) and 30 <= missing <= 32 and s.dropped == missing
     assert (s.bad_lines, s.resets, s.jitter_us, rec.clock_rate_hz()) == (0, 0, 0.0, RATE)
     assert s.samples + missing == 250 and captured.t[-1] == pytest.approx(2.49)  # and then to the end
     np.testing.assert_array_equal(np.round(captured.t * 1e6) % 10000, 0)  # the grid holds across the stall
-    np.testing.assert_array_equal(counts(captured), events.reads[:s.samples, 2:])  # every sample served arrives
+    np.testing.assert_array_equal(counts(captured), events.reads[: s.samples, 2:])  # every sample served arrives
     stuck = (events.reads[:, 0] >= 16_000_000) & (events.reads[:, 0] < 20_800_000)
     assert not stuck.any()  # nothing was read while the bus hung
 
@@ -286,20 +341,21 @@ def test_a_sensor_reset_is_noticed_and_the_sensor_configured_again(toolchain, fr
     rec, captured, events = record_with_fault("reset@1", frames, tmp_path)
     s = rec.stats
     assert s.notes == ["ERROR,MPU6050 was reset (power glitch or loose VCC?): configured again"]
-    (_, t_first, missing), = s.drops
+    ((_, t_first, missing),) = s.drops
     assert missing == 1 and t_first == pytest.approx(1.0, abs=0.011) and s.samples == 249
-    (reset_at, kind), = events.faults
+    ((reset_at, kind),) = events.faults
     assert kind == "reset" and reset_at == 16_000_000
     boot = [w[1:] for w in events.writes if w[0] < reset_at]
     assert [w[1:] for w in events.writes if w[0] > reset_at] == boot  # the same configuration again
     asleep = events.reads[:, 1] < 0
     assert asleep.sum() == 1 and not np.any(events.reads[asleep, 2:])  # one read of zeros, the one dropped
-    np.testing.assert_array_equal(counts(captured), events.reads[~asleep][:s.samples, 2:])
+    np.testing.assert_array_equal(counts(captured), events.reads[~asleep][: s.samples, 2:])
     assert np.all(np.abs(counts(captured)[:, 2]) > 8000)  # az ≈ ±1 g throughout: no zero sample recorded
     assert (s.jitter_us, rec.clock_rate_hz()) == (0.0, RATE)
 
 
 # --- kfkit capture --port emulated-uno: lab 00 without a board ----------------------------------------------------
+
 
 def test_kfkit_capture_runs_the_emulated_uno_by_name(toolchain, frames, tmp_path):
     out = tmp_path / "emulated.csv"
@@ -308,7 +364,7 @@ def test_kfkit_capture_runs_the_emulated_uno_by_name(toolchain, frames, tmp_path
     assert (stats["samples"], stats["board"], stats["dropped"], stats["clock_rate_hz"]) == (200, "mpu6050", 0, RATE)
     captured = load_recording(out)
     got = counts(captured)
-    first = next(k for k in range(5) if np.array_equal(got, frames[k:k + 200]))  # the bundled tilt protocol, in order
+    first = next(k for k in range(5) if np.array_equal(got, frames[k : k + 200]))  # the bundled tilt protocol, in order
     assert first <= 1 and captured.meta["source"] == E.EmulatedUno.source
 
 

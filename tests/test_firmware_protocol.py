@@ -1,6 +1,7 @@
 """The firmware against kfkit: the line encoder (firmware/common/kfkit_protocol.h) compiled with gcc,
 and both logger sketches built on the host with g++ against stand-ins declaring the real Arduino and
 ST library APIs (tests/arduino_host.py), their output recorded by kfkit over a pseudo-terminal."""
+
 import os
 import re
 import shutil
@@ -65,12 +66,29 @@ def encoder(tmp_path_factory):
     folder = tmp_path_factory.mktemp("firmware")
     (folder / "main.c").write_text(PROGRAM)
     exe = folder / "encoder"
-    subprocess.run([gcc, "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Werror", "-I", str(FIRMWARE / "common"),
-                    str(folder / "main.c"), "-o", str(exe)], check=True, capture_output=True, text=True)
+    subprocess.run(
+        [
+            gcc,
+            "-std=c99",
+            "-Wall",
+            "-Wextra",
+            "-Wpedantic",
+            "-Werror",
+            "-I",
+            str(FIRMWARE / "common"),
+            str(folder / "main.c"),
+            "-o",
+            str(exe),
+        ],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
 
     def run(commands: str) -> list[bytes]:
         out = subprocess.run([str(exe)], input=commands.encode(), capture_output=True, check=True).stdout
         return out.splitlines(keepends=True)
+
     return run
 
 
@@ -79,18 +97,23 @@ def random_samples(count=300, seed=7):
     rows = []
     for _ in range(count):
         n = int(rng.integers(0, 11))
-        values = [int(v) for v in rng.integers(-2**31, 2**31, n)]
+        values = [int(v) for v in rng.integers(-(2**31), 2**31, n)]
         rows.append((int(rng.integers(0, 2**32)), int(rng.integers(0, 2**16)), values))
-    rows.append((4294967295, 65535, [-2**31, 2**31 - 1, 0, -1, 32767, -32768]))
+    rows.append((4294967295, 65535, [-(2**31), 2**31 - 1, 0, -1, 32767, -32768]))
     rows.append((0, 0, []))
     return rows
 
 
 def test_headers_parse(encoder):
-    lines = encoder("H mpu6050 100 t_us|seq|ax|ay|az|gx|gy|gz accel_fs_g=2,gyro_fs_dps=250\n"
-                    "H nucleo-iks02a1 104 t_us|seq|ax|ay|az|gx|gy|gz|mx|my|mz|mag_new -\n")
+    lines = encoder(
+        "H mpu6050 100 t_us|seq|ax|ay|az|gx|gy|gz accel_fs_g=2,gyro_fs_dps=250\n"
+        "H nucleo-iks02a1 104 t_us|seq|ax|ay|az|gx|gy|gz|mx|my|mz|mag_new -\n"
+    )
     first, second = (C.parse_line(line) for line in lines)
-    assert lines[0] == b"#KFKIT,1,board=mpu6050,rate_hz=100,fields=t_us|seq|ax|ay|az|gx|gy|gz,accel_fs_g=2,gyro_fs_dps=250\n"
+    assert (
+        lines[0]
+        == b"#KFKIT,1,board=mpu6050,rate_hz=100,fields=t_us|seq|ax|ay|az|gx|gy|gz,accel_fs_g=2,gyro_fs_dps=250\n"
+    )
     assert first.board == "mpu6050" and first.params["accel_fs_g"] == "2"
     assert second.fields[-1] == "mag_new" and second.rate_hz == 104.0
 
@@ -111,7 +134,7 @@ def test_every_byte_flip_is_rejected(encoder):
         body = line.rstrip(b"\n")  # the newline frames the line; every byte before it is checked
         for i in range(len(body)):
             for bit in range(8):
-                flipped = body[:i] + bytes([body[i] ^ (1 << bit)]) + body[i + 1:]
+                flipped = body[:i] + bytes([body[i] ^ (1 << bit)]) + body[i + 1 :]
                 if b"\n" in flipped:
                     continue  # a new line break splits the line in two: each part is rejected on its own
                 assert isinstance(C.parse_line(flipped), C.BadLine), (line, i, bit)
@@ -134,8 +157,9 @@ def sketch_header(folder: str) -> bytes:
     """The header a sketch sends, from its #define KFKIT_* lines (what kfkitSendHeader prints)."""
     text = (FIRMWARE / folder / f"{folder}.ino").read_text()
     macros = dict(re.findall(r'#define (KFKIT_\w+) "([^"]*)"', text))
-    return ("#KFKIT,1,board={KFKIT_BOARD},rate_hz={KFKIT_RATE_HZ},fields={KFKIT_FIELDS},{KFKIT_HEADER_EXTRA}\n"
-            .format(**macros).encode())
+    return "#KFKIT,1,board={KFKIT_BOARD},rate_hz={KFKIT_RATE_HZ},fields={KFKIT_FIELDS},{KFKIT_HEADER_EXTRA}\n".format(
+        **macros
+    ).encode()
 
 
 @pytest.mark.parametrize("board", SKETCHES)
@@ -197,10 +221,27 @@ def test_arduino_helpers_with_the_stand_in_core(tmp_path):
     (tmp_path / "host_stream.h").write_text(HOST_STREAM)
     (tmp_path / "main.cpp").write_text(ARDUINO_PROGRAM)
     exe = tmp_path / "arduino"
-    subprocess.run([gxx, "-std=c++11", "-Wall", "-Wextra", "-Werror", "-DARDUINO=10819", "-I", str(tmp_path),
-                    "-I", str(FIRMWARE / "common"), str(tmp_path / "main.cpp"), "-o", str(exe)], check=True)
-    header, sample, message = (C.parse_line(line) for line in subprocess.run([str(exe)], capture_output=True,
-                                                                             check=True).stdout.splitlines())
+    subprocess.run(
+        [
+            gxx,
+            "-std=c++11",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-DARDUINO=10819",
+            "-I",
+            str(tmp_path),
+            "-I",
+            str(FIRMWARE / "common"),
+            str(tmp_path / "main.cpp"),
+            "-o",
+            str(exe),
+        ],
+        check=True,
+    )
+    header, sample, message = (
+        C.parse_line(line) for line in subprocess.run([str(exe)], capture_output=True, check=True).stdout.splitlines()
+    )
     assert header.board == "nucleo-iks02a1" and header.fields[2] == "ax"
     assert sample.values == (4294967000, 65535, -32768, 32767, 0, 1, -1, 2)  # t_us sent unsigned
     assert message == C.Message("ATT", (12.35, -0.0))
@@ -316,7 +357,10 @@ def test_nucleo_logger_matches_its_header_and_streams_every_sample(tmp_path):
     mag = next(line for line in reversed(final) if line.startswith("IIS2MDC"))
     # what the sketch set through ST's API is what its header tells kfkit
     assert "address=0xD7" in acc_gyr  # ISM330DHCX_I2C_ADD_H: SA0 high on the X-NUCLEO-IKS02A1
-    assert f"acc on=1 fs={header.params['accel_fs_g']} odr=104 gyro on=1 fs={header.params['gyro_fs_dps']} odr=104" in acc_gyr
+    assert (
+        f"acc on=1 fs={header.params['accel_fs_g']} odr=104 gyro on=1 fs={header.params['gyro_fs_dps']} odr=104"
+        in acc_gyr
+    )
     assert mag == f"IIS2MDC on=1 odr={header.params['mag_rate_hz']}" and header.rate_hz == 104.0
     samples = [item for item in map(C.parse_line, lines) if isinstance(item, C.Sample)]
     t_us = np.array([s.t_us for s in samples], dtype=np.int64)

@@ -16,15 +16,16 @@ What is not done: running it. No emulator on these machines models the STM32F411
 ISM330DHCX and an IIS2MDC on it, so the Nucleo logger is proven by this real build and by the protocol tests on the
 host, not by running (the Uno's sketches do run: test_firmware_emulated_uno.py).
 """
+
 import os
 import re
 import shutil
 import subprocess
 from pathlib import Path
 
+import arduino_host
 import pytest
 
-import arduino_host
 from kfkit.paths import KIT_ROOT
 
 SKETCH = arduino_host.FIRMWARE / "nucleo_iks02a1_logger" / "nucleo_iks02a1_logger.ino"
@@ -43,13 +44,38 @@ def vendor_or_skip() -> Path:
 def arduino_builder_command(vendor: Path, libraries: Path, build: Path, sketch: Path) -> list:
     """The vendor README's command line: Debian's arm-none-eabi-gcc and the vendored CMSIS stand in for the
     toolchain and CMSIS that platform.txt names (the IDE's xPack gcc 14.2, CMSIS 6.2); 'all' warnings."""
-    return ["arduino-builder", "-compile", "-hardware", "/usr/share/arduino-builder", "-hardware", vendor / "hardware",
-            "-tools", "/usr/share/arduino-builder", "-tools", "/usr/bin", "-libraries", vendor / "libraries",
-            "-libraries", libraries, "-fqbn", FQBN,
-            "-prefs", "runtime.tools.xpack-arm-none-eabi-gcc-14.2.1-1.1.path=/usr",
-            "-prefs", f"runtime.tools.CMSIS-6.2.0.path={vendor / 'tools' / 'CMSIS-6'}",
-            "-prefs", "runtime.tools.STM32Tools.path=/nonexistent", "-prefs", "runtime.tools.ctags.path=/usr/bin",
-            "-warnings", "all", "-verbose", "-build-path", build, sketch]
+    return [
+        "arduino-builder",
+        "-compile",
+        "-hardware",
+        "/usr/share/arduino-builder",
+        "-hardware",
+        vendor / "hardware",
+        "-tools",
+        "/usr/share/arduino-builder",
+        "-tools",
+        "/usr/bin",
+        "-libraries",
+        vendor / "libraries",
+        "-libraries",
+        libraries,
+        "-fqbn",
+        FQBN,
+        "-prefs",
+        "runtime.tools.xpack-arm-none-eabi-gcc-14.2.1-1.1.path=/usr",
+        "-prefs",
+        f"runtime.tools.CMSIS-6.2.0.path={vendor / 'tools' / 'CMSIS-6'}",
+        "-prefs",
+        "runtime.tools.STM32Tools.path=/nonexistent",
+        "-prefs",
+        "runtime.tools.ctags.path=/usr/bin",
+        "-warnings",
+        "all",
+        "-verbose",
+        "-build-path",
+        build,
+        sketch,
+    ]
 
 
 def kit_warnings(output: str) -> list[str]:
@@ -74,22 +100,31 @@ def nucleo_build(tmp_path_factory):
     libraries.mkdir()
     (libraries / "kfkit_common").symlink_to(arduino_host.FIRMWARE / "common", target_is_directory=True)
     (work / "build").mkdir()
-    done = subprocess.run([str(c) for c in arduino_builder_command(vendor, libraries, work / "build", SKETCH)],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        [str(c) for c in arduino_builder_command(vendor, libraries, work / "build", SKETCH)],
+        capture_output=True,
+        text=True,
+    )
     output = done.stdout + done.stderr
     assert done.returncode == 0, f"arduino-builder failed:\n{output[-6000:]}"
     flash = re.search(r"Sketch uses (\d+) bytes .* Maximum is (\d+) bytes", output)
     ram = re.search(r"Global variables use (\d+) bytes .* Maximum is (\d+) bytes", output)
-    sizes = {"flash": int(flash.group(1)), "flash_max": int(flash.group(2)), "ram": int(ram.group(1)),
-             "ram_max": int(ram.group(2))}
+    sizes = {
+        "flash": int(flash.group(1)),
+        "flash_max": int(flash.group(2)),
+        "ram": int(ram.group(1)),
+        "ram_max": int(ram.group(2)),
+    }
     return output, sizes
 
 
 @pytest.mark.slow
 def test_nucleo_logger_builds_for_the_nucleo_f411re_and_fits(nucleo_build):
     output, sizes = nucleo_build
-    print(f"nucleo_iks02a1_logger on the NUCLEO-F411RE: {sizes['flash']} of {sizes['flash_max']} bytes of flash, "
-          f"{sizes['ram']} of {sizes['ram_max']} bytes of RAM")
+    print(
+        f"nucleo_iks02a1_logger on the NUCLEO-F411RE: {sizes['flash']} of {sizes['flash_max']} bytes of flash, "
+        f"{sizes['ram']} of {sizes['ram_max']} bytes of RAM"
+    )
     assert (sizes["flash_max"], sizes["ram_max"]) == (524288, 131072)  # boards.txt: the F411RE's 512 KB and 128 KB
     assert 20_000 < sizes["flash"] < sizes["flash_max"] // 4 and 0 < sizes["ram"] < sizes["ram_max"] // 16
     # what it was built with: ST's libraries and the core from the vendor folder, not something else on the machine
@@ -100,8 +135,9 @@ def test_nucleo_logger_builds_for_the_nucleo_f411re_and_fits(nucleo_build):
 @pytest.mark.slow
 def test_nucleo_logger_compiles_without_a_warning_under_wall_wextra(nucleo_build):
     output, _ = nucleo_build
-    sketch_compile = next(line for line in output.splitlines()
-                          if "nucleo_iks02a1_logger.ino.cpp.o" in line and " -c " in line)
+    sketch_compile = next(
+        line for line in output.splitlines() if "nucleo_iks02a1_logger.ino.cpp.o" in line and " -c " in line
+    )
     assert "-Wall -Wextra" in sketch_compile  # the IDE's "All" compiler warnings reached the sketch
     assert kit_warnings(output) == []
 
@@ -109,10 +145,12 @@ def test_nucleo_logger_compiles_without_a_warning_under_wall_wextra(nucleo_build
 def test_kit_warnings_are_the_kit_files_only():
     """The filter the build test relies on: a warning in the sketch or firmware/common counts, the core's do not."""
     common = arduino_host.FIRMWARE / "common" / "kfkit_protocol.h"
-    output = (f"{SKETCH}:53:9: warning: unused variable 'x' [-Wunused-variable]\n"
-              f"{common}:70:5: warning: comparison of integer expressions of different signedness\n"
-              "/vendor/stm32/cores/arduino/Print.cpp:12:3: warning: unused parameter 'b' [-Wunused-parameter]\n"
-              f"{SKETCH}: In function 'void setup()':\n")
+    output = (
+        f"{SKETCH}:53:9: warning: unused variable 'x' [-Wunused-variable]\n"
+        f"{common}:70:5: warning: comparison of integer expressions of different signedness\n"
+        "/vendor/stm32/cores/arduino/Print.cpp:12:3: warning: unused parameter 'b' [-Wunused-parameter]\n"
+        f"{SKETCH}: In function 'void setup()':\n"
+    )
     assert [w.split(":")[0] for w in kit_warnings(output)] == [str(SKETCH), str(common)]
 
 
@@ -127,7 +165,7 @@ SPI_H = r"""
 inline void digitalWrite(uint32_t, uint32_t) {}
 class SPISettings { public: SPISettings(uint32_t, uint8_t, uint8_t) {} };
 class SPIClass { public: void beginTransaction(SPISettings) {} uint8_t transfer(uint8_t v) { return v; } void endTransaction() {} };
-"""  # what ST's headers use of the SPI library (their SPI paths are not the kit's, but their inline code must compile)
+"""  # noqa: E501  (C++ as C++) what ST's headers use of the SPI library (their paths are not the kit's, but their inline code must compile)
 
 
 def declarations(stand_in: str, cls: str):
@@ -150,8 +188,10 @@ def check_program(cls: str, constructors, methods) -> str:
     lines = [f'#include "{cls}.h"', "#include <type_traits>"]
     for full, required in constructors:
         for params in (full, required):
-            lines.append(f"static_assert(std::is_constructible<{cls}, {', '.join(params)}>::value, "
-                         f'"{cls}({", ".join(params)})");')
+            lines.append(
+                f"static_assert(std::is_constructible<{cls}, {', '.join(params)}>::value, "
+                f'"{cls}({", ".join(params)})");'
+            )
     for i, (ret, name, params) in enumerate(methods):
         lines.append(f"using check{i} = decltype(static_cast<{ret} ({cls}::*)({', '.join(params)})>(&{cls}::{name}));")
     return "\n".join(lines) + "\n"
@@ -162,12 +202,27 @@ def compile_against_st(tmp_path, program: str, library: str):
     gxx = shutil.which("g++")
     if gxx is None:
         pytest.skip("g++ is not installed")
-    for name, text in {"Arduino.h": arduino_host.ARDUINO_H, "Wire.h": arduino_host.WIRE_H, "SPI.h": SPI_H,
-                       "check.cpp": program}.items():
+    for name, text in {
+        "Arduino.h": arduino_host.ARDUINO_H,
+        "Wire.h": arduino_host.WIRE_H,
+        "SPI.h": SPI_H,
+        "check.cpp": program,
+    }.items():
         (tmp_path / name).write_text(text)
-    return subprocess.run([gxx, "-std=c++11", "-fsyntax-only", "-Wall", "-Wno-unused-local-typedefs", f"-I{tmp_path}",
-                           f"-I{vendor / 'libraries' / library / 'src'}", str(tmp_path / "check.cpp")],
-                          capture_output=True, text=True)
+    return subprocess.run(
+        [
+            gxx,
+            "-std=c++11",
+            "-fsyntax-only",
+            "-Wall",
+            "-Wno-unused-local-typedefs",
+            f"-I{tmp_path}",
+            f"-I{vendor / 'libraries' / library / 'src'}",
+            str(tmp_path / "check.cpp"),
+        ],
+        capture_output=True,
+        text=True,
+    )
 
 
 @pytest.mark.parametrize("cls", ST_LIBRARIES)
@@ -179,7 +234,7 @@ def test_stand_ins_declare_the_real_st_api(cls, tmp_path):
     assert constructors and len(methods) >= 12  # the parser found them (ISM330DHCX: 22 methods, IIS2MDC: 13)
     program = check_program(cls, constructors, methods)
     prefix = cls.removesuffix("Sensor")
-    program += f"static_assert({prefix}_OK == 0 && {prefix}_ERROR == -1, \"status values\");\n"
+    program += f'static_assert({prefix}_OK == 0 && {prefix}_ERROR == -1, "status values");\n'
     for name, value in re.findall(r"#define (\w+) (0x\w+)", stand_in):
         program += f'static_assert({name} == {value}, "{name}");\n'
     done = compile_against_st(tmp_path, program, ST_LIBRARIES[cls])

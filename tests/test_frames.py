@@ -1,12 +1,41 @@
 """kfkit.frames against independent oracles (scipy Rotation, finite differences)."""
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from kfkit.frames import (G, Q_NED_ENU, R_NED_ENU, accel_tilt, body_rates_to_euler_rates, dcm_slerp, dcm_to_euler,
-                          dcm_to_quat, enu_to_ned, enu_to_ned_quat, euler_rates_to_body_rates, euler_to_dcm, euler_to_quat,
-                          mount_matrix, quat_conjugate, quat_multiply, quat_rotate, quat_slerp, quat_to_dcm, quat_to_euler,
-                          quat_to_rotvec, random_dcm, rotvec_to_quat, wrap_angle)
+from kfkit.frames import (
+    Q_NED_ENU,
+    R_NED_ENU,
+    G,
+    accel_tilt,
+    body_rates_to_euler_rates,
+    cross_matrix,
+    dcm_slerp,
+    dcm_to_euler,
+    dcm_to_quat,
+    enu_to_ned,
+    enu_to_ned_quat,
+    euler_rates_to_body_rates,
+    euler_to_dcm,
+    euler_to_quat,
+    mount_matrix,
+    quat_conjugate,
+    quat_multiply,
+    quat_multiply_f,
+    quat_normalise_f,
+    quat_rotate,
+    quat_slerp,
+    quat_to_dcm,
+    quat_to_dcm_f,
+    quat_to_euler,
+    quat_to_rotvec,
+    random_dcm,
+    rotvec_to_quat,
+    rotvec_to_quat_f,
+    wrap_angle,
+    wrap_angle_f,
+)
 
 HALF_PI = np.pi / 2
 
@@ -43,18 +72,22 @@ def random_rotations(n, seed):
     each axis and about diagonals (w = 0), the identity, and tiny angles."""
     rng = np.random.default_rng(seed)
     axes = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [1, 0, -1], [0, -1, 1], [1, 1, 1]], float)
-    special = np.concatenate([np.pi * axes / np.linalg.norm(axes, axis=1, keepdims=True),
-                              1e-9 * axes, np.zeros((1, 3))])
+    special = np.concatenate(
+        [np.pi * axes / np.linalg.norm(axes, axis=1, keepdims=True), 1e-9 * axes, np.zeros((1, 3))]
+    )
     return Rotation.concatenate([Rotation.random(n, random_state=rng), Rotation.from_rotvec(special)])
 
 
 # --- quaternions ----------------------------------------------------------------------------
 
+
 def test_euler_to_quat_matches_scipy():
     rng = np.random.default_rng(11)
     roll, pitch, yaw = random_euler(rng, 300)
     q = euler_to_quat(np.column_stack([roll, pitch, yaw]))
-    np.testing.assert_allclose(q, scipy_quat(Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))), atol=1e-12)
+    np.testing.assert_allclose(
+        q, scipy_quat(Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))), atol=1e-12
+    )
     assert euler_to_quat([0.1, 0.2, 0.3]).shape == (4,)
 
 
@@ -94,7 +127,9 @@ def test_quat_multiply_composes_like_scipy():
     sign = np.where(np.sum(product * want, axis=1) < 0, -1.0, 1.0)[:, None]
     np.testing.assert_allclose(product * sign, want, atol=1e-12)
     # broadcasting: one quaternion against many
-    np.testing.assert_allclose(quat_multiply(scipy_quat(a)[0], scipy_quat(b)), quat_multiply(scipy_quat(a)[[0] * len(b)], scipy_quat(b)))
+    np.testing.assert_allclose(
+        quat_multiply(scipy_quat(a)[0], scipy_quat(b)), quat_multiply(scipy_quat(a)[[0] * len(b)], scipy_quat(b))
+    )
 
 
 def test_quat_conjugate_is_scipys_inverse():
@@ -121,6 +156,7 @@ def test_enu_to_ned_quat_rotates_like_the_vector_map():
 
 
 # --- euler_to_dcm -------------------------------------------------------------------------
+
 
 def stacked(roll, pitch, yaw):
     return np.stack(np.broadcast_arrays(roll, pitch, yaw), axis=-1)
@@ -168,6 +204,7 @@ def test_euler_to_dcm_refuses_three_separate_angles_or_a_wrong_shape():
 
 # --- dcm_to_euler -------------------------------------------------------------------------
 
+
 def test_dcm_to_euler_round_trip_away_from_gimbal_lock():
     rng = np.random.default_rng(3)
     angles = random_euler(rng, 300, max_pitch=np.radians(89.0))
@@ -211,6 +248,7 @@ def test_dcm_to_euler_single_attitude():
 
 # --- body rates ↔ Euler rates ---------------------------------------------------------------
 
+
 def test_body_rates_to_euler_rates_inverts_euler_rates_to_body_rates():
     rng = np.random.default_rng(7)
     euler = stacked(*random_euler(rng, 200, max_pitch=np.radians(80.0)))
@@ -231,6 +269,7 @@ def test_body_rates_to_euler_rates_match_scipy_finite_difference():
 
 
 # --- rotation vectors, quat_rotate, slerp, random ------------------------------------------
+
 
 def test_rotvec_pair_matches_scipy_and_round_trips():
     rng = np.random.default_rng(9)
@@ -268,8 +307,9 @@ def test_dcm_slerp_interpolates_a_constant_rate_turn():
     t = np.linspace(0.0, 2.0, 9)
     R = Rotation.from_rotvec(np.outer(t, [0.0, 0.0, 0.7])).as_matrix()  # 0.7 rad/s about down
     t_mid = np.array([0.1, 0.37, 1.93])
-    np.testing.assert_allclose(dcm_slerp(t, R, t_mid), Rotation.from_rotvec(np.outer(t_mid, [0, 0, 0.7])).as_matrix(),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        dcm_slerp(t, R, t_mid), Rotation.from_rotvec(np.outer(t_mid, [0, 0, 0.7])).as_matrix(), atol=1e-12
+    )
 
 
 def test_random_dcm_is_uniform_and_seeded():
@@ -281,6 +321,7 @@ def test_random_dcm_is_uniform_and_seeded():
 
 
 # --- accel_tilt ---------------------------------------------------------------------------
+
 
 def specific_force_at_rest(roll, pitch, yaw):
     """f_b = R_bn · [0, 0, −g] with R_bn from scipy."""
@@ -316,13 +357,16 @@ def test_accel_tilt_rejects_wrong_shape(bad):
 
 # --- wrap_angle ---------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("a", [np.pi, -np.pi])
 def test_wrap_angle_pi_maps_to_plus_pi(a):
     assert wrap_angle(a) == np.pi
 
 
-@pytest.mark.parametrize("a, want", [(0.0, 0.0), (1.0, 1.0), (-1.0, -1.0), (3 * HALF_PI, -HALF_PI),
-                                     (-3 * HALF_PI, HALF_PI), (2 * np.pi, 0.0)])
+@pytest.mark.parametrize(
+    "a, want",
+    [(0.0, 0.0), (1.0, 1.0), (-1.0, -1.0), (3 * HALF_PI, -HALF_PI), (-3 * HALF_PI, HALF_PI), (2 * np.pi, 0.0)],
+)
 def test_wrap_angle_values(a, want):
     assert wrap_angle(a) == pytest.approx(want, abs=1e-12)
 
@@ -344,6 +388,7 @@ def test_wrap_angle_return_types():
 
 
 # --- euler_rates_to_body_rates ------------------------------------------------------------
+
 
 def vee_of_skew(W):
     """ω from a (nearly) skew matrix Ω×, using its skew part."""
@@ -374,18 +419,22 @@ def test_euler_rates_to_body_rates_single_sample():
 
 # --- mount_matrix -------------------------------------------------------------------------
 
+
 def test_mount_matrix_accepts_rotation_as_nested_list():
     spec = Rotation.from_euler("ZYX", [0.3, 0.2, 0.1]).as_matrix().tolist()
     np.testing.assert_allclose(mount_matrix(spec), spec)
     np.testing.assert_array_equal(mount_matrix([[1, 0, 0], [0, -1, 0], [0, 0, -1]]), np.diag([1.0, -1.0, -1.0]))
 
 
-@pytest.mark.parametrize("bad, match", [
-    (np.diag([1.0, 1.0, -1.0]), "rotation"),           # reflection, det −1
-    (2 * np.eye(3), "rotation"),                        # not orthonormal
-    (np.eye(2), "3×3"),                                 # wrong shape
-    ([[1, 0, 0], [0, 1, 0]], "3×3"),
-])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.diag([1.0, 1.0, -1.0]), "rotation"),  # reflection, det −1
+        (2 * np.eye(3), "rotation"),  # not orthonormal
+        (np.eye(2), "3×3"),  # wrong shape
+        ([[1, 0, 0], [0, 1, 0]], "3×3"),
+    ],
+)
 def test_mount_matrix_rejects_non_rotations(bad, match):
     with pytest.raises(ValueError, match=match):
         mount_matrix(bad)
@@ -393,14 +442,17 @@ def test_mount_matrix_rejects_non_rotations(bad, match):
 
 # --- magnetic heading (calibration helper) --------------------------------------------------
 
+
 def _field_in_body(yaw, pitch, roll, field_n=(19.5, 0.3, 45.0)):
     """m_b = R_bn m_n with R_nb from scipy's Rotation (the oracle)."""
     from scipy.spatial.transform import Rotation
+
     return Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll])).inv().apply(field_n)
 
 
 def test_tilt_compensated_heading_recovers_yaw_on_random_attitudes():
     from kfkit.frames import declination, tilt_compensated_heading, wrap_angle
+
     rng = np.random.default_rng(0)
     yaw, pitch, roll = rng.uniform(-np.pi, np.pi, 500), rng.uniform(-1.5, 1.5, 500), rng.uniform(-np.pi, np.pi, 500)
     m_b = _field_in_body(yaw, pitch, roll)
@@ -413,6 +465,7 @@ def test_tilt_compensated_heading_recovers_yaw_on_random_attitudes():
 
 def test_flat_heading_is_right_level_and_wrong_tilted():
     from kfkit.frames import mag_heading, wrap_angle
+
     yaw = np.linspace(-3.1, 3.1, 13)
     level = _field_in_body(yaw, 0 * yaw, 0 * yaw, field_n=(20.0, 0.0, 45.0))
     np.testing.assert_allclose(wrap_angle(mag_heading(level) - yaw), 0.0, atol=1e-12)
@@ -423,6 +476,7 @@ def test_flat_heading_is_right_level_and_wrong_tilted():
 
 def test_heading_rejects_wrong_shapes():
     from kfkit.frames import mag_heading, tilt_compensated_heading
+
     with pytest.raises(ValueError, match="3 components"):
         mag_heading(np.zeros((4, 2)))
     with pytest.raises(ValueError, match="3 components"):
@@ -433,6 +487,7 @@ def test_heading_rejects_wrong_shapes():
 def test_true_heading_with_large_declinations(D_deg, dip_deg):
     """A field D east of true north (and south of the equator for negative dip): ψ_true = atan2(−m_y', m_x') + D."""
     from kfkit.frames import declination, mag_heading, tilt_compensated_heading, wrap_angle
+
     D, dip, B = np.radians(D_deg), np.radians(dip_deg), 48.0
     field_n = B * np.array([np.cos(dip) * np.cos(D), np.cos(dip) * np.sin(D), np.sin(dip)])
     assert declination(field_n) == pytest.approx(D)
@@ -444,9 +499,22 @@ def test_true_heading_with_large_declinations(D_deg, dip_deg):
     np.testing.assert_allclose(wrap_angle(mag_heading(level, declination=D) - yaw), 0.0, atol=1e-9)
 
 
-# --- float-only helpers for hot loops --------------------------------------------------------
+def test_cross_matrix_is_the_cross_product_and_the_small_body_rotation():
+    """[v×]u = v × u (NumPy's cross as the oracle), for one vector and a stack; and R(I + [δθ×]) is scipy's
+    R·exp(δθ) to first order (the body-frame turn the MEKF's error is)."""
+    rng = np.random.default_rng(3)
+    v, u = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    assert np.allclose(np.einsum("nij,nj->ni", cross_matrix(v), u), np.cross(v, u))
+    assert np.allclose(cross_matrix(v[0]) @ u[0], np.cross(v[0], u[0]))
+    R, d = Rotation.random(random_state=4), 1e-6 * rng.normal(size=3)
+    assert np.allclose(
+        R.as_matrix() @ (np.eye(3) + cross_matrix(d)), (R * Rotation.from_rotvec(d)).as_matrix(), atol=1e-11
+    )
+    with pytest.raises(ValueError, match="cross_matrix"):
+        cross_matrix([1.0, 2.0])
 
-from kfkit.frames import quat_multiply_f, quat_normalise_f, quat_to_dcm_f, rotvec_to_quat_f, wrap_angle_f  # noqa: E402
+
+# --- float-only helpers for hot loops --------------------------------------------------------
 
 
 def test_quat_multiply_f_chains_rotations_like_scipy():
@@ -461,13 +529,20 @@ def test_quat_multiply_f_chains_rotations_like_scipy():
 
 def test_quat_to_dcm_f_matches_scipy():
     for rot in random_rotations(60, seed=42):
-        np.testing.assert_allclose(np.reshape(quat_to_dcm_f(tuple(scipy_quat(rot).tolist())), (3, 3)), rot.as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(
+            np.reshape(quat_to_dcm_f(tuple(scipy_quat(rot).tolist())), (3, 3)), rot.as_matrix(), atol=1e-12
+        )
 
 
 def test_rotvec_to_quat_f_is_the_exact_exponential():
     rng = np.random.default_rng(43)
-    vectors = np.concatenate([rng.normal(0.0, 1.5, (60, 3)), [[np.pi, 0.0, 0.0], [0.0, 0.0, 3.0 * np.pi]],
-                              [[1e-9, -2e-9, 3e-10], [0.0, 0.0, 0.0], [1e-7, 0.0, 0.0]]])
+    vectors = np.concatenate(
+        [
+            rng.normal(0.0, 1.5, (60, 3)),
+            [[np.pi, 0.0, 0.0], [0.0, 0.0, 3.0 * np.pi]],
+            [[1e-9, -2e-9, 3e-10], [0.0, 0.0, 0.0], [1e-7, 0.0, 0.0]],
+        ]
+    )
     for v in vectors:
         got = np.array(rotvec_to_quat_f(*v.tolist()))
         want = Rotation.from_rotvec(v).as_quat()[[3, 0, 1, 2]]  # the same turn, not reduced to w ≥ 0

@@ -13,6 +13,7 @@ what it left:
 Expected grades come from what each submission does (which function it breaks, how), never from
 the grader's own output.
 """
+
 import ast
 import base64
 import concurrent.futures as cf
@@ -36,60 +37,42 @@ import numpy as np
 import psutil
 import pytest
 import zmq
+from lab01_notebooks import LAB, SOLUTION, add, append, edit, minimal, read
 
 from kfkit.checkpoints import LABS
 from kfkit.cli import main
-from kfkit.paths import KIT_ROOT
 from kfkit.grading import _kernel_side, core, runner, sandbox, wire
+from kfkit.paths import KIT_ROOT
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
-SOLUTION = KIT_ROOT / "solutions" / "01_roll_kf_1d.ipynb"
-LAB = KIT_ROOT / "labs" / "01_roll_kf_1d.ipynb"
 # lab 01's points as the lab's author set them in kfkit/checkpoints/lab01.py
-POINTS = {"01.accel_roll": 1, "01.kf_predict": 1, "01.kf_update": 2, "01.run_kf": 2, "01.kf_beats_sensors": 2}
-TIMEOUT = 4  # s per cell / call in these tests (the grader's warm-up has loaded the heavy modules)
+POINTS = {
+    "01.accel_roll": 1,
+    "01.fuse_gaussians": 2,
+    "01.kf_predict": 1,
+    "01.kf_update": 2,
+    "01.run_kf": 2,
+    "01.kf_beats_sensors": 2,
+    "01.q_for_time_constant": 2,
+}
+TIMEOUT = 4  # s of CPU per cell / call in these tests (the grader's warm-up has loaded the heavy modules)
+BACKSTOP = int(TIMEOUT * runner.WALL_FACTOR)  # s of wall time after which a cell that computes nothing is stopped
 SEEDS_PER_SOLUTION = 1  # fresh seeds each solution is graded on, in one kernel (lab 01: one per CLI submission)
 KIT_FILE = KIT_ROOT / "kfkit" / "checkpoints" / "lab01.py"
 SITE = Path(sysconfig.get_paths()["purelib"])
-# wall-clock limits for honest notebooks: only safety nets, so that a busy machine fails nobody (lab 04's
-# Monte Carlo cell takes ~30 s of wall time with two other processes on the two cores); CPU time stays limited
+# limits for honest notebooks far above what they need, as safety nets (lab 04's Monte Carlo cell is the longest)
 GENEROUS = core.Limits(cell_timeout=300, total_timeout=1200)
-
-
-def read(path):
-    return nbformat.read(path, as_version=4)
-
-
-def minimal():
-    """Lab 01 reduced to its imports and the cells defining its exercise functions (solved)."""
-    cells = [c for c in read(SOLUTION).cells if c.cell_type == "code"]
-    keep = [cells[0]] + [c for c in cells if "### BEGIN SOLUTION" in c.source and "def " in c.source]
-    return nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(c.source) for c in keep])
-
-
-def edit(nb, old, new):
-    hits = [c for c in nb.cells if old in c.source]
-    assert hits, f"{old!r} not in the notebook"
-    for c in hits:
-        c.source = c.source.replace(old, new)
-    return nb
-
-
-def add(nb, source, at=1):
-    nb.cells.insert(at, nbformat.v4.new_code_cell(source))
-    return nb
-
-
-def append(nb, *sources):
-    nb.cells += [nbformat.v4.new_code_cell(source) for source in sources]
-    return nb
 
 
 #: the cells after a looping kf_update: its check (the one timeout), then a call of it, a use of what that call
 #: would have made, and a call of run_kf, which calls it: affected by the timeout, not faults of their own
-AFTER_THE_LOOP = ['check("01.kf_update", kf_update)', "update_now = kf_update(0.0, 1.0, 0.5, 0.1)", "print(update_now)",
-                  "state = run_kf(np.ones(3), np.ones(3), 0.1, 1, 1, 0, 1)"]
+AFTER_THE_LOOP = [
+    'check("01.kf_update", kf_update)',
+    "update_now = kf_update(0.0, 1.0, 0.5, 0.1)",
+    "print(update_now)",
+    "state = run_kf(np.ones(3), np.ones(3), 0.1, 1, 1, 0, 1)",
+]
 
 
 class Canaries:
@@ -108,9 +91,14 @@ class Canaries:
         # files other people edit meanwhile: the vandal appends a token, and only the token is looked for
         self.token = f"vandal-{secrets.token_hex(8)}"
         self.shared = {"kit module": KIT_FILE, "solution": SOLUTION}
-        self.planted = [instructor / "planted.txt", instructor / "gradebook_feedback" / "planted.md",
-                        KIT_ROOT / "kfkit" / "planted.py", KIT_ROOT / "solutions" / "planted.ipynb",
-                        SITE / "kfkit_planted.pth", Path.home() / f".kfkit-planted-{os.getpid()}"]
+        self.planted = [
+            instructor / "planted.txt",
+            instructor / "gradebook_feedback" / "planted.md",
+            KIT_ROOT / "kfkit" / "planted.py",
+            KIT_ROOT / "solutions" / "planted.ipynb",
+            SITE / "kfkit_planted.pth",
+            Path.home() / f".kfkit-planted-{os.getpid()}",
+        ]
 
     def vandal_cell(self) -> str:
         """Student code trying to change each file and to read the hidden ones.
@@ -122,13 +110,13 @@ class Canaries:
 import os, socket
 attempts, leaked = {{}}, []
 for name, act in {{
-    "append instructor": lambda: open({f['instructor file']!r}, "a").write("x"),
-    "delete instructor": lambda: os.remove({f['instructor file']!r}),
-    "overwrite gradebook": lambda: open({f['earlier gradebook']!r}, "w").write("alice,01.x,100,1,ok"),
-    "append home": lambda: open({f['home file']!r}, "a").write("x"),
-    "delete home": lambda: os.remove({f['home file']!r}),
+    "append instructor": lambda: open({f["instructor file"]!r}, "a").write("x"),
+    "delete instructor": lambda: os.remove({f["instructor file"]!r}),
+    "overwrite gradebook": lambda: open({f["earlier gradebook"]!r}, "w").write("alice,01.x,100,1,ok"),
+    "append home": lambda: open({f["home file"]!r}, "a").write("x"),
+    "delete home": lambda: os.remove({f["home file"]!r}),
     "append kit module": lambda: open({str(KIT_FILE)!r}, "a").write("\\n# {self.token}"),
-    "delete kit file": lambda: os.remove({f['kit file']!r}),
+    "delete kit file": lambda: os.remove({f["kit file"]!r}),
     "append solution": lambda: open({str(SOLUTION)!r}, "a").write(" {self.token}"),
     **{{"plant " + p: (lambda p=p: open(p, "w").write("import os")) for p in {[str(p) for p in self.planted]!r}}},
     "network": lambda: socket.create_connection(("1.1.1.1", 53), timeout=2),
@@ -138,7 +126,7 @@ for name, act in {{
         attempts[name] = "done"
     except Exception as exc:
         attempts[name] = type(exc).__name__
-for path in ({f['instructor file']!r}, {f['home file']!r}, {str(SOLUTION)!r}):
+for path in ({f["instructor file"]!r}, {f["home file"]!r}, {str(SOLUTION)!r}):
     try:
         open(path).read()
         leaked.append(path)
@@ -152,8 +140,7 @@ print(attempts, leaked)
 
     def damage(self) -> list[str]:
         """What the vandal managed: changed or deleted files, planted files."""
-        done = [name for name, path in self.files.items()
-                if not path.exists() or path.read_text() != f"{name}, kept"]
+        done = [name for name, path in self.files.items() if not path.exists() or path.read_text() != f"{name}, kept"]
         done += [name for name, path in self.shared.items() if self.token in path.read_text()]
         return done + [str(p) for p in self.planted if p.exists()]
 
@@ -165,11 +152,13 @@ print(attempts, leaked)
             text = path.read_text()
             for appended in (f"\n# {self.token}", f" {self.token}"):
                 if text.endswith(appended):
-                    path.write_text(text[:-len(appended)])
+                    path.write_text(text[: -len(appended)])
 
 
-HUGE_PRINT = ("print('x' * 30_000_000)\nfor k in range(100):  # 0..99,999 a line each, in 100 messages\n"
-              "    print('\\n'.join(map(str, range(1000 * k, 1000 * k + 1000))))")  # 30.6 MB in all
+HUGE_PRINT = (
+    "print('x' * 30_000_000)\nfor k in range(100):  # 0..99,999 a line each, in 100 messages\n"
+    "    print('\\n'.join(map(str, range(1000 * k, 1000 * k + 1000))))"
+)  # 30.6 MB in all
 ENDLESS_PRINT = "while True:\n    print('y' * 1_000_000, flush=True)"
 
 
@@ -179,24 +168,42 @@ def build(folder: Path, vandal: str):
         "correct_again": minimal(),
         "blank": read(LAB),
         "wrong": edit(minimal(), "np.arctan2(-ay, -az)", "np.arctan2(ay, -az)"),
-        "loop": add(edit(minimal(), "return np.arctan2(-ay, -az)", "while True:\n        pass"),
-                    "import time\nwhile True:  # the student's own infinite loop, outside any exercise\n    time.sleep(0.1)",
-                    at=-1),
-        "stubborn": edit(minimal(), "return np.arctan2(-ay, -az)",
-                         "import signal, time\n    signal.signal(signal.SIGINT, signal.SIG_IGN)  # ignore interrupts"
-                         "\n    while True:\n        time.sleep(0.1)"),
-        "exits": add(add(edit(minimal(), "    y = z - x\n", "    import sys\n    sys.exit(1)\n"),
-                         "import sys\nsys.exit('bye')"), "import os\nos._exit(3)"),
+        "loop": add(
+            edit(minimal(), "return np.arctan2(-ay, -az)", "while True:\n        pass"),
+            "import time\nwhile True:  # the student's own infinite loop, outside any exercise\n    time.sleep(0.1)",
+            at=-1,
+        ),
+        "stubborn": edit(
+            minimal(),
+            "return np.arctan2(-ay, -az)",
+            "import signal, time\n    signal.signal(signal.SIGINT, signal.SIG_IGN)  # ignore interrupts"
+            "\n    while True:\n        time.sleep(0.1)",
+        ),
+        "exits": add(
+            add(edit(minimal(), "    y = z - x\n", "    import sys\n    sys.exit(1)\n"), "import sys\nsys.exit('bye')"),
+            "import os\nos._exit(3)",
+        ),
         "huge_print": add(minimal(), HUGE_PRINT),
-        "loop_update": append(edit(minimal(), "    y = z - x\n", "    while True:\n        pass\n    y = z - x\n"),
-                              *AFTER_THE_LOOP),
-        "busy": append(edit(minimal(), "return x + omega * dt, P + q", "sum(range(2_000))  # slow, but right"
-                            "\n    return x + omega * dt, P + q"),
-                       "for _ in range(10**9):  # a cell that calls a right function too often\n"
-                       "    kf_predict(0.0, 1.0, 0.1, 0.01, 1e-4)", "after = kf_predict(0.0, 1.0, 0.1, 0.01, 1e-4)"),
-        "renamed": edit(edit(minimal(), "def accel_roll(", "def accel_roll_v2("), "def kf_update(", "def kf_update_old("),
+        "loop_update": append(
+            edit(minimal(), "    y = z - x\n", "    while True:\n        pass\n    y = z - x\n"), *AFTER_THE_LOOP
+        ),
+        "busy": append(
+            edit(
+                minimal(),
+                "return x + omega * dt, P + q",
+                "sum(range(2_000))  # slow, but right\n    return x + omega * dt, P + q",
+            ),
+            "for _ in range(10**9):  # a cell that calls a right function too often\n"
+            "    kf_predict(0.0, 1.0, 0.1, 0.01, 1e-4)",
+            "after = kf_predict(0.0, 1.0, 0.1, 0.01, 1e-4)",
+        ),
+        "renamed": edit(
+            edit(minimal(), "def accel_roll(", "def accel_roll_v2("), "def kf_update(", "def kf_update_old("
+        ),
         "syntax": edit(minimal(), "return x + omega * dt, P + q", "return x + omega * dt, P + q)"),
-        "tamper": add(read(LAB), """
+        "tamper": add(
+            read(LAB),
+            """
 import kfkit, kfkit.checkpoints as C, kfkit.filters as F, kfkit.filters.roll as R
 C.run_checkpoint = lambda cp, answer, seed=None: C.CheckResult(cp.name, "passed", 1, 1, cp.points, cp.points, "ok")
 C.compare = lambda *a, **k: None
@@ -208,12 +215,18 @@ def kf_predict(x, P, omega, dt, q):
 F.roll_kf_predict = R.roll_kf_predict = kf_predict
 from kfkit.filters import roll_kf_update as kf_update
 print("✅ 01.kf_predict: 12/12 random cases")
-""", at=-1),
+""",
+            at=-1,
+        ),
         "vandal": add(minimal(), vandal, at=-1),
     }
     for c in subs["correct_again"].cells[1:]:  # tags that would skip cells or excuse errors, ignored
         c.metadata["tags"] = ["skip-execution", "raises-exception"]
-    subs["correct_again"].metadata["kernelspec"] = {"name": "no-such-kernel", "display_name": "nope", "language": "cobol"}
+    subs["correct_again"].metadata["kernelspec"] = {
+        "name": "no-such-kernel",
+        "display_name": "nope",
+        "language": "cobol",
+    }
     for name, nb in subs.items():
         nbformat.write(nb, folder / f"{name}.ipynb")
     (folder / "not_json.ipynb").write_text("this is not JSON {")
@@ -268,21 +281,57 @@ def grading_runs(instructor, tmp_path_factory):
         (subs / "vandal.ipynb").unlink()
     scratch = Path(tempfile.mkdtemp(prefix="kg-", dir="/tmp"))  # the grader's temporary folders (short: sockets)
     out = instructor / "gradebook.csv"
-    cmd = [sys.executable, "-m", "kfkit", "grade", "--lab", "01", "--out", str(out), "--jobs", "2",
-           "--timeout", str(TIMEOUT), "--total-timeout", "120", "submissions", "empty"]
-    logs = [open(tmp_path_factory.mktemp("cli") / name, "w+") for name in ("stdout", "stderr")]
+    cmd = [
+        sys.executable,
+        "-m",
+        "kfkit",
+        "grade",
+        "--lab",
+        "01",
+        "--out",
+        str(out),
+        "--jobs",
+        "2",
+        "--timeout",
+        str(TIMEOUT),
+        "--total-timeout",
+        "120",
+        "submissions",
+        "empty",
+    ]
+    logs = tmp_path_factory.mktemp("cli")
     try:
-        cli = subprocess.Popen(cmd + ([] if isolated else ["--no-sandbox"]), cwd=instructor, stdout=logs[0],
-                               stderr=logs[1], text=True, env={**os.environ, "TMPDIR": str(scratch)})
+        with open(logs / "stdout", "w") as stdout, open(logs / "stderr", "w") as stderr:  # the grader writes its copies
+            cli = subprocess.Popen(
+                cmd + ([] if isolated else ["--no-sandbox"]),
+                cwd=instructor,
+                stdout=stdout,
+                stderr=stderr,
+                text=True,
+                env={**os.environ, "TMPDIR": str(scratch)},
+            )
         others = _grade_every_other_lab(tmp_path_factory, box) if isolated else None
         cli.wait(timeout=900)
         damage = canaries.damage()
     finally:
         canaries.remove()
-    stdout, stderr = (f.seek(0) or f.read() for f in logs)
+    stdout, stderr = ((logs / name).read_text() for name in ("stdout", "stderr"))
     rows, by_sub = graded_rows(out) if out.exists() else ([], {})
-    yield {"isolated": isolated, "damage": damage, "scratch": scratch, "code": cli.returncode, "stdout": stdout,
-           "stderr": stderr, "rows": rows, "subs": by_sub, "dir": instructor, "out": out}, others
+    yield (
+        {
+            "isolated": isolated,
+            "damage": damage,
+            "scratch": scratch,
+            "code": cli.returncode,
+            "stdout": stdout,
+            "stderr": stderr,
+            "rows": rows,
+            "subs": by_sub,
+            "dir": instructor,
+            "out": out,
+        },
+        others,
+    )
     shutil.rmtree(scratch, ignore_errors=True)
 
 
@@ -322,7 +371,8 @@ def test_gradebook_has_one_row_per_checkpoint_and_submission(graded):
 def test_new_user_grades_a_correct_a_wrong_a_looping_and_a_tampering_submission(graded):
     """The issue's "done when": the four gradebook lines an instructor checks by eye."""
     totals = {sub: sum(points(graded, sub).values()) for sub in ("correct", "wrong", "loop", "tamper")}
-    assert totals == {"correct": 8, "wrong": 7, "loop": 7, "tamper": 0}
+    full = sum(POINTS.values())  # a wrong accel_roll loses its 1 point; so does one that loops
+    assert totals == {"correct": full, "wrong": full - 1, "loop": full - 1, "tamper": 0}
     assert "timed out" in message(graded, "loop", "01.accel_roll")
     assert "expected" in message(graded, "wrong", "01.accel_roll")
     out, err = graded["stdout"], graded["stderr"]
@@ -343,9 +393,13 @@ def test_wrong_answer_loses_only_its_points_with_expected_vs_got(graded):
 
 
 def test_infinite_loop_scores_zero_timed_out_and_the_rest_is_graded(graded):
+    """accel_roll loops (busy: stopped after its CPU time), and a cell of the student's sleeps in a loop (stopped by
+    the wall-clock backstop, using next to no CPU)."""
     assert points(graded, "loop") == {**POINTS, "01.accel_roll": 0}
-    assert f"timed out after {TIMEOUT} s" in message(graded, "loop", "01.accel_roll")
-    assert f"timed out after {TIMEOUT} s (interrupted)" in feedback(graded, "loop")  # the student's own loop cell
+    assert message(graded, "loop", "01.accel_roll") == f"accel_roll timed out after {TIMEOUT} s on the grader's cases"
+    sleeper = next(line for line in feedback(graded, "loop").splitlines() if "the cell `import time`" in line)
+    assert "did not finish: used " in sleeper and f" s of CPU in {BACKSTOP} s (interrupted)" in sleeper, sleeper
+    assert float(sleeper.split("used ")[1].split(" s of CPU")[0]) < TIMEOUT
 
 
 def test_a_loop_is_paid_for_once_and_what_follows_from_it_is_not_a_fault(graded):
@@ -367,8 +421,10 @@ def test_a_loop_is_paid_for_once_and_what_follows_from_it_is_not_a_fault(graded)
     assert {rows[cp]["status"] for cp in ("01.kf_update", "01.run_kf", "01.kf_beats_sensors")} == {"timed out"}
     assert rows["01.kf_update"]["message"] == f"kf_update timed out after {TIMEOUT} s on the grader's cases"
     for cp in ("01.run_kf", "01.kf_beats_sensors"):
-        assert rows[cp]["message"] == (f"run_kf calls kf_update, which timed out after {TIMEOUT} s on the grader's "
-                                       "cases for 01.kf_update: not run again"), rows[cp]["message"]
+        assert rows[cp]["message"] == (
+            f"run_kf calls kf_update, which timed out after {TIMEOUT} s on the grader's "
+            "cases for 01.kf_update: not run again"
+        ), rows[cp]["message"]
 
 
 def test_a_function_caught_by_a_cells_timeout_is_still_judged_on_the_graders_cases(graded):
@@ -387,9 +443,13 @@ def test_functions_stopped_in_the_notebook_are_put_back_even_unheard_of(every_la
 
 
 def test_loop_ignoring_interrupts_restarts_the_kernel_and_grading_goes_on(graded):
+    """accel_roll ignores SIGINT and sleeps in a loop: the backstop stops it, the kernel is restarted."""
     assert points(graded, "stubborn") == {**POINTS, "01.accel_roll": 0}
-    msg = message(graded, "stubborn", "01.accel_roll")
-    assert "timed out" in msg and "ignored the interrupt" in msg
+    row = graded["subs"]["stubborn"]["01.accel_roll"]
+    assert row["status"] == "timed out" and row["message"].startswith(
+        "calling accel_roll on the grader's cases: did not finish: used "
+    ), row
+    assert row["message"].endswith(f" s of CPU in {BACKSTOP} s and ignored the interrupt"), row
 
 
 def test_killed_kernel_and_sys_exit(graded):
@@ -406,8 +466,10 @@ def test_huge_print_is_dropped_and_an_endless_one_stopped(graded, every_lab):
     assert points(graded, "huge_print") == POINTS
     grade = every_lab["flood"]
     assert {r.checkpoint: r.points for r in grade.rows} == POINTS, grade.rows
-    assert any(n.startswith("the cell `print('x' * 30_000_000)`") and "printed 30.6 MB of output (discarded)" in n
-               for n in grade.notes), grade.notes
+    assert any(
+        n.startswith("the cell `print('x' * 30_000_000)`") and "printed 30.6 MB of output (discarded)" in n
+        for n in grade.notes
+    ), grade.notes
     endless = next(n for n in grade.notes if n.startswith("the cell `while True:` before the first heading"))
     assert "printed more than 64 MB of output (stopped); the kernel was restarted and this cell skipped" in endless
 
@@ -434,7 +496,11 @@ def test_syntax_error_names_the_failing_cell(graded):
 
 
 def test_files_that_are_not_notebooks(graded):
-    for sub, why in (("not_json", "not valid JSON"), ("binary", "not text"), ("not_notebook", "not a Jupyter notebook")):
+    for sub, why in (
+        ("not_json", "not valid JSON"),
+        ("binary", "not text"),
+        ("not_notebook", "not a Jupyter notebook"),
+    ):
         assert set(points(graded, sub).values()) == {0}
         assert why in message(graded, sub, "01.accel_roll"), sub
 
@@ -470,8 +536,9 @@ def _grade_solution_then_handout(lab, seeds, box):
     """The solution run top to bottom in a fresh kernel and judged on each seed's fresh cases; then
     the hand-out's own cells where it differs from the solution (its exercise stubs: make-labs
     changes nothing else, and tests/test_notebooks.py runs the whole hand-out) and judged again."""
-    solution, handout = (core.read_code_cells(next((KIT_ROOT / folder).glob(f"{lab}_*.ipynb")))
-                         for folder in ("solutions", "labs"))
+    solution, handout = (
+        core.read_code_cells(next((KIT_ROOT / folder).glob(f"{lab}_*.ipynb"))) for folder in ("solutions", "labs")
+    )
     checkpoints = core.lab_checkpoints(lab)
     with runner.KernelRun(solution, box, GENEROUS) as run:
         run.run_notebook()
@@ -505,17 +572,21 @@ def _restore_unheard_stops(box):
         run._quiet(wire.stop_code(["kf_predict"], "{name} stopped", "KFKITx", False), 60)
         run._quiet(wire.stop_code(["kf_update"], "{name} stopped", "KFKITx", True), 60)
         run._restore_functions()
-        return [run.call(name, [args])["results"] for name, args in
-                (("kf_predict", {"x": 0.0, "P": 1.0, "omega": 1.0, "dt": 0.1, "q": 0.5}),
-                 ("kf_update", {"x": 0.0, "P": 1.0, "z": 1.0, "r": 1.0}))]
+        return [
+            run.call(name, [args])["results"]
+            for name, args in (
+                ("kf_predict", {"x": 0.0, "P": 1.0, "omega": 1.0, "dt": 0.1, "q": 0.5}),
+                ("kf_update", {"x": 0.0, "P": 1.0, "z": 1.0, "r": 1.0}),
+            )
+        ]
 
 
 def _grade_every_other_lab(tmp_path_factory, box):
     """Lab 01 is the CLI run's; the others: each solution on a fresh seed, each hand-out once."""
-    slow = tmp_path_factory.mktemp("slow") / "slow.ipynb"  # kf_predict hangs, and so do three cells at the end
-    nb = edit(minimal(), "return x + omega * dt, P + q", "import time\n    while True:\n        time.sleep(0.1)")
+    slow = tmp_path_factory.mktemp("slow") / "slow.ipynb"  # kf_predict loops, and so do three cells at the end
+    nb = edit(minimal(), "return x + omega * dt, P + q", "while True:\n        pass")
     for _ in range(3):
-        add(nb, "import time\ntime.sleep(30)", at=len(nb.cells))
+        add(nb, "while True:  # a loop of the notebook's own\n    pass", at=len(nb.cells))
     nbformat.write(nb, slow)
     seeds = [secrets.randbits(63) for _ in range(SEEDS_PER_SOLUTION)]
     labs = sorted((name[3:] for name in LABS if name != "lab01"), key=lambda lab: lab != "04")  # longest first
@@ -530,8 +601,13 @@ def _grade_every_other_lab(tmp_path_factory, box):
         nbformat.write(add(add(minimal(), HUGE_PRINT), ENDLESS_PRINT, at=-1), flood)
         flood_job = pool.submit(_grade_generously, flood, box)
         restore_job = pool.submit(_restore_unheard_stops, box)
-        return {"labs": {lab: f.result() for lab, f in jobs.items()}, "slow": slow_job.result(),
-                "unsandboxed": plain_job.result(), "flood": flood_job.result(), "restored": restore_job.result()}
+        return {
+            "labs": {lab: f.result() for lab, f in jobs.items()},
+            "slow": slow_job.result(),
+            "unsandboxed": plain_job.result(),
+            "flood": flood_job.result(),
+            "restored": restore_job.result(),
+        }
 
 
 OTHER_LABS = [name[3:] for name in LABS if name != "lab01"]
@@ -571,16 +647,24 @@ def test_every_handed_out_lab_scores_zero_not_attempted(every_lab, lab):
 
 
 def test_hanging_cells_and_functions_leave_time_to_grade_the_others(every_lab):
-    """3 s per cell, 12 s in all: the hanging cells get the notebook's share (12 s less what is
-    kept for 5 calls), kf_predict's calls time out, and kf_update is graded all the same."""
+    """3 s of CPU per cell, 12 s in all: the looping cells get the notebook's share (12 s less the 6 kept for the
+    5 calls): the first is interrupted after 3 s, the second after what is left of the share, the third is not run;
+    kf_predict's call times out, kf_update is graded all the same, and run_kf, which calls kf_predict, fails at
+    once."""
     grade = every_lab["slow"]
     rows = {r.checkpoint: r for r in grade.rows}
     assert rows["01.accel_roll"].points == 1 and rows["01.kf_update"].points == 2, grade.rows
-    assert rows["01.kf_predict"].status == "timed out" and "timed out after 3 s" in rows["01.kf_predict"].message
-    for name in ("01.run_kf", "01.kf_beats_sensors"):  # run_kf calls kf_predict; then the 12 s are over
+    assert rows["01.kf_predict"].status == "timed out"
+    assert rows["01.kf_predict"].message == "kf_predict timed out after 3 s on the grader's cases"
+    for name in ("01.run_kf", "01.kf_beats_sensors"):
         assert rows[name].points == 0 and rows[name].status == "timed out", rows[name]
-    assert any("not run" in note for note in grade.notes), grade.notes
-    assert grade.seconds < 12 + 60  # the total, and a kernel start on a busy machine
+        assert rows[name].message.startswith("run_kf calls kf_predict, which timed out after 3 s"), rows[name]
+    loops = [note for note in grade.notes if note.startswith("the cell `while True:  # a loop of the notebook's own`")]
+    assert len(loops) == 3, grade.notes
+    assert loops[0].endswith(": timed out after 3 s (interrupted)"), loops
+    share_left = float(loops[1].split("timed out after ")[1].split(" s (interrupted)")[0])
+    assert 1 <= share_left < 3, loops  # 6 s less the first cell's 3 and the cells before it; never below 1 s
+    assert ": not run: the notebook had used its share of the total time" in loops[2], loops
 
 
 # ------------------------------------------------------------------ the sandbox itself (no kernel)
@@ -594,7 +678,8 @@ def attempt(name, act):
         res[name] = "done"
     except OSError as exc:
         res[name] = errno.errorcode.get(exc.errno, str(exc.errno))
-attempt("append kit module", lambda: open(os.path.join(kit, "kfkit", "checkpoints", "lab01.py"), "a").write("#kfkit-attack"))
+attempt("append kit module",
+        lambda: open(os.path.join(kit, "kfkit", "checkpoints", "lab01.py"), "a").write("#kfkit-attack"))
 attempt("new kit file", lambda: open(os.path.join(kit, "kfkit", "planted.py"), "w"))
 attempt("chmod kit module", lambda: os.chmod(os.path.join(kit, "kfkit", "checkpoints", "lab01.py"), 0o777))
 attempt("rename kit module", lambda: os.rename(os.path.join(kit, "kfkit", "checkpoints", "lab01.py"),
@@ -637,13 +722,26 @@ def test_sandbox_refuses_writes_hides_instructor_files_and_blocks_the_network(in
         box = sandbox.probe([str(folder)], modes=[mode])
         if box.mode == "none":
             pytest.skip(f"mode {mode} does not work here: {box.warning}")
-        done = sandbox.run_in_sandbox(box, [sys.executable, "-c", ATTACK, str(KIT_ROOT), str(home), str(folder), str(SITE)])
+        done = sandbox.run_in_sandbox(
+            box, [sys.executable, "-c", ATTACK, str(KIT_ROOT), str(home), str(folder), str(SITE)]
+        )
         assert done.returncode == 0, done.stderr
         res = json.loads(done.stdout)
         denied = {"EROFS", "EACCES", "EPERM", "ENOENT"}  # read-only mount, permissions, no capability, hidden
         for name, outcome in res.items():
-            if name.startswith(("append", "new", "chmod", "rename", "plant", "read instructor", "read home",
-                                "read solutions", "remount")):
+            if name.startswith(
+                (
+                    "append",
+                    "new",
+                    "chmod",
+                    "rename",
+                    "plant",
+                    "read instructor",
+                    "read home",
+                    "read solutions",
+                    "remount",
+                )
+            ):
                 assert outcome in denied, (name, outcome)
         assert res["become root"] in denied | {"done"} and res["network"] == "ENETUNREACH"
         assert res["loopback"] == "done"
@@ -656,7 +754,7 @@ def test_sandbox_refuses_writes_hides_instructor_files_and_blocks_the_network(in
         for planted in (KIT_ROOT / "kfkit" / "planted.py", SITE / "planted.pth", Path("/planted")):
             planted.unlink(missing_ok=True)
         if KIT_FILE.read_text().endswith("#kfkit-attack"):
-            KIT_FILE.write_text(KIT_FILE.read_text()[:-len("#kfkit-attack")])
+            KIT_FILE.write_text(KIT_FILE.read_text()[: -len("#kfkit-attack")])
 
 
 def test_a_kit_checked_out_under_tmp_is_visible_read_only(tmp_path):
@@ -670,8 +768,10 @@ def test_a_kit_checked_out_under_tmp_is_visible_read_only(tmp_path):
     tmp_path.chmod(0o755)
     (kit / "module.py").write_text("x = 1")
     box.visible = box.visible + [str(kit)]
-    code = (f"import os\nprint(open({str(kit / 'module.py')!r}).read())\n"
-            f"try:\n    open({str(kit / 'new.py')!r}, 'w')\nexcept OSError as e:\n    print(e.errno)")
+    code = (
+        f"import os\nprint(open({str(kit / 'module.py')!r}).read())\n"
+        f"try:\n    open({str(kit / 'new.py')!r}, 'w')\nexcept OSError as e:\n    print(e.errno)"
+    )
     done = sandbox.run_in_sandbox(box, [sys.executable, "-c", code])
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["x", "=", "1", str(errno.EROFS)]
@@ -702,9 +802,22 @@ def test_no_isolation_is_announced_loudly(tmp_path):
 def test_grading_refuses_without_isolation_unless_told(tmp_path):
     """Without 'unshare' (macOS, a minimal container) nothing is graded unless --no-sandbox."""
     shutil.copy(LAB, tmp_path / "alice.ipynb")
-    done = subprocess.run([sys.executable, "-m", "kfkit", "grade", "--lab", "01", "--out", str(tmp_path / "g.csv"),
-                           str(tmp_path / "alice.ipynb")], capture_output=True, text=True,
-                          env={**os.environ, "PATH": str(tmp_path)})  # no unshare on this PATH
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "kfkit",
+            "grade",
+            "--lab",
+            "01",
+            "--out",
+            str(tmp_path / "g.csv"),
+            str(tmp_path / "alice.ipynb"),
+        ],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PATH": str(tmp_path)},
+    )  # no unshare on this PATH
     assert done.returncode == 2
     assert "cannot isolate" in done.stderr and "--no-sandbox" in done.stderr and "unshare" in done.stderr
     assert not (tmp_path / "g.csv").exists()
@@ -723,14 +836,23 @@ def test_unknown_lab_is_named(tmp_path, capsys):
 
 
 def test_python_dash_m_kfkit_grade_help():
-    out = subprocess.run([sys.executable, "-m", "kfkit", "grade", "--help"], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-m", "kfkit", "grade", "--help"], capture_output=True, text=True, check=True
+    ).stdout
     assert "--jobs" in out and "--timeout" in out and "--update" in out and "--no-sandbox" in out
+    assert "--wall-factor" in out and "CPU seconds per notebook cell" in out
 
 
 def test_summary_reports_pass_rates():
-    grades = [core.SubmissionGrade("a", 1, [core.Row("01.accel_roll", 1, 1, "passed", "")] +
-                                   [core.Row(n, 0, p, "failed", "") for n, p in POINTS.items() if n != "01.accel_roll"]),
-              core.SubmissionGrade("b", 2, [core.Row(n, 0, p, "failed", "") for n, p in POINTS.items()])]
+    grades = [
+        core.SubmissionGrade(
+            "a",
+            1,
+            [core.Row("01.accel_roll", 1, 1, "passed", "")]
+            + [core.Row(n, 0, p, "failed", "") for n, p in POINTS.items() if n != "01.accel_roll"],
+        ),
+        core.SubmissionGrade("b", 2, [core.Row(n, 0, p, "failed", "") for n, p in POINTS.items()]),
+    ]
     text = core.summary(grades, core.lab_checkpoints("01"), sandbox.Sandbox("root", True, ["/x"]))
     line = next(s for s in text.splitlines() if s.startswith("01.accel_roll"))
     assert "1/2" in line and "50 %" in line
@@ -761,9 +883,15 @@ def test_wire_roundtrip_keeps_numbers_shapes_and_containers():
 def test_wire_limits_sizes_and_rejects_malformed_data():
     with pytest.raises(_kernel_side.TooLarge):
         _kernel_side.encode(np.zeros(100), [10])
-    for bad in ({"__ndarray__": [1, 2], "dtype": "f", "shape": [3]}, {"__ndarray__": ["a"], "dtype": "f", "shape": [1]},
-                {"__ndarray__": [1], "dtype": "V", "shape": [1]}, {"__object__": "X", "fields": {"not id": 1}},
-                {"__object__": "X", "fields": {"__class__": 1}}, {"__tuple__": 5}, {"what": 1}):
+    for bad in (
+        {"__ndarray__": [1, 2], "dtype": "f", "shape": [3]},
+        {"__ndarray__": ["a"], "dtype": "f", "shape": [1]},
+        {"__ndarray__": [1], "dtype": "V", "shape": [1]},
+        {"__object__": "X", "fields": {"not id": 1}},
+        {"__object__": "X", "fields": {"__class__": 1}},
+        {"__tuple__": 5},
+        {"what": 1},
+    ):
         with pytest.raises(wire.WireError):
             wire.decode(bad)
     with pytest.raises(wire.WireError):
@@ -792,8 +920,11 @@ def test_grader_side_modules_never_load_pickles():
     modules that run in the grader (the kernel side, which unpickles the grader's inputs, is apart)."""
     for module in (core, wire, runner, sandbox):
         tree = ast.parse(Path(module.__file__).read_text())
-        calls = {f"{n.func.value.id}.{n.func.attr}" for n in ast.walk(tree) if isinstance(n, ast.Call)
-                 and isinstance(n.func, ast.Attribute) and isinstance(n.func.value, ast.Name)}
+        calls = {
+            f"{n.func.value.id}.{n.func.attr}"
+            for n in ast.walk(tree)
+            if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and isinstance(n.func.value, ast.Name)
+        }
         assert not {c for c in calls if c.split(".")[1] in ("loads", "load") and c.split(".")[0] != "json"}, module
 
 
@@ -820,10 +951,27 @@ def test_killing_the_grader_kills_its_kernels(tmp_path):
     """A grader that dies (SIGKILL, OOM) takes its kernels with it: none is left running."""
     scratch = Path(tempfile.mkdtemp(prefix="kg-", dir="/tmp"))
     nbformat.write(add(minimal(), "import time\nwhile True:\n    time.sleep(0.1)", at=-1), tmp_path / "loop.ipynb")
-    grader = subprocess.Popen([sys.executable, "-m", "kfkit", "grade", "--lab", "01", "--jobs", "1", "--timeout", "60",
-                               "--out", str(tmp_path / "g.csv"), str(tmp_path / "loop.ipynb")],
-                              env={**os.environ, "TMPDIR": str(scratch)}, stdout=subprocess.DEVNULL,
-                              stderr=open(tmp_path / "grader.log", "w"))
+    with open(tmp_path / "grader.log", "w") as log:  # the grader writes to its own copy of the file
+        grader = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "kfkit",
+                "grade",
+                "--lab",
+                "01",
+                "--jobs",
+                "1",
+                "--timeout",
+                "60",
+                "--out",
+                str(tmp_path / "g.csv"),
+                str(tmp_path / "loop.ipynb"),
+            ],
+            env={**os.environ, "TMPDIR": str(scratch)},
+            stdout=subprocess.DEVNULL,
+            stderr=log,
+        )
     try:
         for _ in range(360):
             if any("ipykernel_launcher" in " ".join(p.cmdline()) for p in grader_kernels(str(scratch))):

@@ -1,5 +1,6 @@
 """The gradebook and the feedback files, without kernels: round-trips, statuses, --update, names, cell labels, and
 student text in the feedback shown as text."""
+
 import csv
 from html.parser import HTMLParser
 from pathlib import Path
@@ -8,19 +9,32 @@ import nbformat
 import pytest
 
 from kfkit.checkpoints import Status
-from kfkit.paths import KIT_ROOT
 from kfkit.grading import core, sandbox
 from kfkit.grading.quoting import visible_controls
+from kfkit.paths import KIT_ROOT
 
 CHECKPOINTS = core.lab_checkpoints("01")
 BOX = sandbox.Sandbox("root", True, ["/x"])
 AWKWARD = [f"{c}bob.ipynb" for c in ("=", "+", "-", "@", "\t", "\r", "'", "'=")] + [
-    "a,b.ipynb", 'say "hi".ipynb', "two\nlines.ipynb", "plain/alice.ipynb", "=cmd|' /C calc'!A0.ipynb"]
+    "a,b.ipynb",
+    'say "hi".ipynb',
+    "two\nlines.ipynb",
+    "plain/alice.ipynb",
+    "=cmd|' /C calc'!A0.ipynb",
+]
 
 
 def grade_of(name, points, seconds=1.0, message="ok"):
-    rows = [core.Row(cp.name, points if points is not None else cp.points, cp.points,
-                     "passed" if points is None or points == cp.points else "failed", message) for cp in CHECKPOINTS]
+    rows = [
+        core.Row(
+            cp.name,
+            points if points is not None else cp.points,
+            cp.points,
+            "passed" if points is None or points == cp.points else "failed",
+            message,
+        )
+        for cp in CHECKPOINTS
+    ]
     return core.SubmissionGrade(name, 1, rows, seconds=seconds)
 
 
@@ -61,11 +75,16 @@ def test_update_prints_the_whole_class_summary(tmp_path, monkeypatch):
     core.grade([subs], "01", out, progress=False, sandbox=BOX)
     monkeypatch.setattr(core, "_grade_one", lambda task: grade_of(task[1], None))
     grades, text = core.grade([subs / "bob.ipynb"], "01", out, progress=False, sandbox=BOX, update=True)
-    assert [g.submission for g in core.read_gradebook(out)] == ["subs/alice.ipynb", "subs/bob.ipynb", "subs/carol.ipynb"]
+    assert [g.submission for g in core.read_gradebook(out)] == [
+        "subs/alice.ipynb",
+        "subs/bob.ipynb",
+        "subs/carol.ipynb",
+    ]
     assert "the whole gradebook (3 submissions)" in text
     line = next(s for s in text.splitlines() if s.startswith("01.kf_update"))
     assert "1/3" in line and "33 %" in line
-    assert "total: mean 2.67 / 8" in text  # (0 + 8 + 0) / 3
+    total = sum(cp.points for cp in CHECKPOINTS)
+    assert f"total: mean {total / 3:.2f} / {total}" in text  # (0 + all + 0) / 3
     assert (tmp_path / "g_feedback" / "subs" / "bob.md").exists()
 
 
@@ -84,11 +103,20 @@ def test_a_damaged_gradebook_to_update_is_named_before_grading(tmp_path, monkeyp
 
 
 def test_feedback_files_are_named_like_the_submission_and_stay_unique():
-    names = ["submissions/alice.ipynb", "submitted/alice/lab01/01_roll_kf_1d.ipynb",
-             "submitted/bob/lab01/01_roll_kf_1d.ipynb", "/abs/x.ipynb", "../up/x.ipynb", "abs/x.ipynb"]
+    names = [
+        "submissions/alice.ipynb",
+        "submitted/alice/lab01/01_roll_kf_1d.ipynb",
+        "submitted/bob/lab01/01_roll_kf_1d.ipynb",
+        "/abs/x.ipynb",
+        "../up/x.ipynb",
+        "abs/x.ipynb",
+    ]
     files = core.feedback_names(names)
-    assert files[:3] == ["submissions/alice.md", "submitted/alice/lab01/01_roll_kf_1d.md",
-                         "submitted/bob/lab01/01_roll_kf_1d.md"]
+    assert files[:3] == [
+        "submissions/alice.md",
+        "submitted/alice/lab01/01_roll_kf_1d.md",
+        "submitted/bob/lab01/01_roll_kf_1d.md",
+    ]
     assert len(set(files)) == len(files) and not [f for f in files if f.startswith("/") or ".." in Path(f).parts]
 
 
@@ -99,12 +127,19 @@ def test_cells_are_named_by_first_line_function_and_section():
     i = next(k for k, s in enumerate(sources) if "\ndef kf_update(" in "\n" + s)
     code = [c for c in nb.cells if c.cell_type == "code"][i]
     position = nb.cells.index(code)
-    heading = next(line.lstrip("#").strip() for c in reversed(nb.cells[:position]) if c.cell_type == "markdown"
-                   for line in reversed(c.source.splitlines()) if line.startswith("#"))
+    heading = next(
+        line.lstrip("#").strip()
+        for c in reversed(nb.cells[:position])
+        if c.cell_type == "markdown"
+        for line in reversed(c.source.splitlines())
+        if line.startswith("#")
+    )
     assert "kf_update" in labels[i] and labels[i].startswith("the cell `def ")
     assert labels[i].endswith(f'in section "{heading}"')
-    assert core.cell_label("import numpy as np\n\ndef f(x):\n    return x", None) == \
-        "the cell `import numpy as np` (defining f) before the first heading"
+    assert (
+        core.cell_label("import numpy as np\n\ndef f(x):\n    return x", None)
+        == "the cell `import numpy as np` (defining f) before the first heading"
+    )
 
 
 def test_sandbox_description_lists_each_folder_once_and_truthfully():
@@ -119,8 +154,11 @@ def test_sandbox_description_lists_each_folder_once_and_truthfully():
 # ------------------------------------------------------------------ the status column
 def test_every_status_round_trips_through_the_gradebook(tmp_path):
     path = tmp_path / "g.csv"
-    grades = [core.SubmissionGrade("a.ipynb", 1, [core.Row(f"01.c{i}", 0, 1, status, "any words")
-                                                  for i, status in enumerate(Status)])]
+    grades = [
+        core.SubmissionGrade(
+            "a.ipynb", 1, [core.Row(f"01.c{i}", 0, 1, status, "any words") for i, status in enumerate(Status)]
+        )
+    ]
     core.write_gradebook(path, grades)
     assert path.read_text().splitlines()[0] == "submission,checkpoint,points,max_points,status,message"
     assert [r.status for r in core.read_gradebook(path)[0].rows] == list(Status)
@@ -129,9 +167,11 @@ def test_every_status_round_trips_through_the_gradebook(tmp_path):
 def test_a_gradebook_without_the_status_column_still_loads(tmp_path):
     """Written before the column: full points is passed, anything else unknown (the words are not guessed at)."""
     path = tmp_path / "g.csv"
-    path.write_text("submission,checkpoint,points,max_points,message\n"
-                    "a.ipynb,01.kf_update,2,2,12/12 random cases\n"
-                    "a.ipynb,01.run_kf,0,2,timed out: not graded, the submission used up its total time (300 s)\n")
+    path.write_text(
+        "submission,checkpoint,points,max_points,message\n"
+        "a.ipynb,01.kf_update,2,2,12/12 random cases\n"
+        "a.ipynb,01.run_kf,0,2,timed out: not graded, the submission used up its total time (300 s)\n"
+    )
     assert [r.status for r in core.read_gradebook(path)[0].rows] == [Status.PASSED, Status.UNKNOWN]
 
 
@@ -161,9 +201,20 @@ class Markup(HTMLParser):
             self.strong.append(data)
 
 
-HOSTILE = ["<script>window.__kfkit_xss = 1</script>", "<img src=http://example.com/x.png>", "[x](javascript:alert(1))",
-           "\n\n**Score: 8 / 8**\n\n", "<!-- the rest of the file is hidden", "`` ``` `", "right\u202eto left",
-           "| a | b |\n|---|---|", "# heading\n===", "<https://example.com>", "www.example.com", "\x1b[31mred"]
+HOSTILE = [
+    "<script>window.__kfkit_xss = 1</script>",
+    "<img src=http://example.com/x.png>",
+    "[x](javascript:alert(1))",
+    "\n\n**Score: 8 / 8**\n\n",
+    "<!-- the rest of the file is hidden",
+    "`` ``` `",
+    "right\u202eto left",
+    "| a | b |\n|---|---|",
+    "# heading\n===",
+    "<https://example.com>",
+    "www.example.com",
+    "\x1b[31mred",
+]
 
 
 def test_feedback_shows_what_students_wrote_as_text():
@@ -172,11 +223,14 @@ def test_feedback_shows_what_students_wrote_as_text():
     making, the only score the grader's, every string shown (control characters as [U+XXXX])."""
     mistune = pytest.importorskip("mistune")
     name = "subs/<script>alert(1)</script>\u202e.ipynb"
-    rows = [core.Row(cp.name, 0, cp.points, Status.ERROR, f"kf_update(x=1) raised ValueError: {text}")
-            for cp, text in zip(CHECKPOINTS, HOSTILE)]
-    grade = core.SubmissionGrade(name, 3, rows, notes=[f"the cell `x` in section \"{text}\": {text}" for text in HOSTILE])
+    rows = [
+        core.Row(cp.name, 0, cp.points, Status.ERROR, f"kf_update(x=1) raised ValueError: {text}")
+        for cp, text in zip(CHECKPOINTS, HOSTILE)
+    ]
+    grade = core.SubmissionGrade(name, 3, rows, notes=[f'the cell `x` in section "{text}": {text}' for text in HOSTILE])
     page = mistune.create_markdown(escape=False, plugins=["table", "url", "strikethrough"])(
-        core.feedback_markdown(grade, "01", BOX))
+        core.feedback_markdown(grade, "01", BOX)
+    )
     markup = Markup(page)
     assert {tag for tag, _ in markup.tags} <= {"h1", "h2", "p", "strong", "em", "ul", "li", "code"}, markup.tags
     assert [attrs for _, attrs in markup.tags if attrs] == [] and markup.comments == []
@@ -185,3 +239,18 @@ def test_feedback_shows_what_students_wrote_as_text():
     for shown in [name, *(r.message for r in rows), *grade.notes]:
         assert visible_controls(shown) in text, shown
     assert "\u202e" not in text and "\x1b" not in text
+
+
+def test_a_function_the_exercise_guard_set_aside_is_not_attempted_and_says_why():
+    """In the kernel the guard's stand-in raises StaleDefinition; the grader reads its class name from the JSON report
+    and scores it as not attempted, with the guard's reason, not as a crash."""
+    from kfkit.checkpoints import get
+
+    cp = get("01.kf_update")
+    cases = cp.cases(__import__("numpy").random.default_rng(0))
+    why = "the cell that defines kf_update was skipped, as a cell that needs run_kf (not written yet)"
+    row = core.judge(cp, cases, {"results": [{"raised": "StaleDefinition", "message": why}]}, None)
+    assert row.status == Status.NOT_ATTEMPTED and row.points == 0
+    assert "stale" in row.message and "run_kf" in row.message
+    plain = core.judge(cp, cases, {"results": [{"raised": "NotImplementedError", "message": ""}]}, None)
+    assert plain.status == Status.NOT_ATTEMPTED and "still raises NotImplementedError" in plain.message

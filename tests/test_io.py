@@ -1,4 +1,5 @@
 """kfkit.io: recording round trip, validation messages (file + line), Recording helpers."""
+
 import json
 import math
 import re
@@ -11,8 +12,10 @@ from kfkit.sim import simulate_imu, sine_roll, stationary
 
 IDENTITY = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
 #: what a recording with ax and mx columns must carry: each sensor's sensitivity and mounting
-SENSOR_META = {"sensors": {"acc": {"sensitivity": 0.001}, "mag": {"sensitivity": 0.15}},
-               "mount": {"acc": IDENTITY, "mag": IDENTITY}}
+SENSOR_META = {
+    "sensors": {"acc": {"sensitivity": 0.001}, "mag": {"sensitivity": 0.15}},
+    "mount": {"acc": IDENTITY, "mag": IDENTITY},
+}
 HEADER = "# kfkit-recording v1 " + json.dumps({"rate_hz": 100.0, **SENSOR_META}) + "\n"
 COLUMNS = "t,seq,ax,mx,true_roll\n"
 ROWS = ["0.00,0,10,5,0.1\n", "0.01,1,-3,,0.2\n", "0.02,2,7,6,0.3\n"]
@@ -38,8 +41,13 @@ def load_error(path, line):
 
 
 def small_recording():
-    meta = {"board": "test", "rate_hz": 100.0, "description": "roll 30° ±, µT", "nested": {"a": [1, 2.5, None]},
-            **SENSOR_META}
+    meta = {
+        "board": "test",
+        "rate_hz": 100.0,
+        "description": "roll 30° ±, µT",
+        "nested": {"a": [1, 2.5, None]},
+        **SENSOR_META,
+    }
     data = {
         "t": np.arange(5) / 100.0,
         "seq": np.arange(5, dtype=np.int64),
@@ -51,6 +59,7 @@ def small_recording():
 
 
 # --- round trip ---------------------------------------------------------------------------
+
 
 def test_round_trip_preserves_meta_columns_dtypes_and_values(tmp_path):
     rec = small_recording()
@@ -99,19 +108,34 @@ def test_loads_hand_written_file_and_crlf(tmp_path):
 
 # --- bad input: header and column line ----------------------------------------------------
 
-@pytest.mark.parametrize("text, line, expect", [
-    ("", 1, ["empty"]),
-    ("t,seq,ax\n0,0,1\n", 1, ["header", "kfkit recording"]),
-    ('# kfkit-recording v2 {"rate_hz": 100}\n' + COLUMNS + ROWS[0], 1, ["'v2'", "v1"]),
-    ('# kfkit-recording v1 {"rate_hz": }\n' + COLUMNS + ROWS[0], 1, ["not valid JSON"]),
-    ('# kfkit-recording v1 {"board": "x"}\n' + COLUMNS + ROWS[0], 1, ["rate_hz"]),
-    ('# kfkit-recording v1 [1, 2]\n' + COLUMNS + ROWS[0], 1, ["JSON object", "rate_hz"]),
-    (HEADER, 2, ["column line", "t, seq"]),
-    (HEADER + "t,ax,ay\n0,1,2\n", 2, ["t, seq", "'t,ax,ay'"]),
-    (HEADER + "time,seq\n0,1\n", 2, ["t, seq"]),
-    (HEADER + "t,seq,ax,ax\n0,0,1,1\n", 2, ["duplicate", "ax"]),
-], ids=["empty", "not-a-recording", "version", "json", "no-rate", "not-object", "header-only-no-columns",
-        "no-seq", "no-t", "duplicate"])
+
+@pytest.mark.parametrize(
+    "text, line, expect",
+    [
+        ("", 1, ["empty"]),
+        ("t,seq,ax\n0,0,1\n", 1, ["header", "kfkit recording"]),
+        ('# kfkit-recording v2 {"rate_hz": 100}\n' + COLUMNS + ROWS[0], 1, ["'v2'", "v1"]),
+        ('# kfkit-recording v1 {"rate_hz": }\n' + COLUMNS + ROWS[0], 1, ["not valid JSON"]),
+        ('# kfkit-recording v1 {"board": "x"}\n' + COLUMNS + ROWS[0], 1, ["rate_hz"]),
+        ("# kfkit-recording v1 [1, 2]\n" + COLUMNS + ROWS[0], 1, ["JSON object", "rate_hz"]),
+        (HEADER, 2, ["column line", "t, seq"]),
+        (HEADER + "t,ax,ay\n0,1,2\n", 2, ["t, seq", "'t,ax,ay'"]),
+        (HEADER + "time,seq\n0,1\n", 2, ["t, seq"]),
+        (HEADER + "t,seq,ax,ax\n0,0,1,1\n", 2, ["duplicate", "ax"]),
+    ],
+    ids=[
+        "empty",
+        "not-a-recording",
+        "version",
+        "json",
+        "no-rate",
+        "not-object",
+        "header-only-no-columns",
+        "no-seq",
+        "no-t",
+        "duplicate",
+    ],
+)
 def test_bad_header_or_columns(tmp_path, text, line, expect):
     msg = load_error(write(tmp_path, text), line)
     for word in expect:
@@ -135,6 +159,7 @@ def test_missing_file(tmp_path):
 
 # --- bad input: rows ----------------------------------------------------------------------
 
+
 def with_row(index, row):
     """GOOD with data row ``index`` (0-based; file line index + 3) replaced."""
     rows = list(ROWS)
@@ -142,21 +167,37 @@ def with_row(index, row):
     return HEADER + COLUMNS + "".join(rows)
 
 
-@pytest.mark.parametrize("row_index, row, expect", [
-    (1, "0.01,1,-3,0.2\n", ["expected 5 fields", "got 4"]),
-    (2, "0.02,2,7,6,0.3,9\n", ["expected 5 fields", "got 6"]),
-    (1, "0.01,1,1.5,,0.2\n", ["'ax'", "'1.5'", "not an integer"]),
-    (0, "0.00,zero,10,5,0.1\n", ["'seq'", "not an integer"]),
-    (2, "0.02,2,7,6.5,0.3\n", ["'mx'", "not an integer"]),
-    (1, "0.01,1,-3,,abc\n", ["'true_roll'", "'abc'", "not a number"]),
-    (1, "0.01,1,nan,,0.2\n", ["'ax'", "'nan'"]),
-    (1, "nan,1,-3,,0.2\n", ["'t'", "not a finite number"]),
-    (2, "inf,2,7,6,0.3\n", ["'t'", "not a finite number"]),
-    (0, "0.00,0,10,5,-inf\n", ["'true_roll'", "not a finite number"]),
-    (2, "0.005,2,7,6,0.3\n", ["time does not increase", "0.005", "0.01"]),
-    (2, "0.01,2,7,6,0.3\n", ["time does not increase"]),
-], ids=["too-few", "too-many", "float-in-int", "text-in-seq", "float-in-mag", "text-in-float", "nan-in-ax",
-        "nan-t", "inf-t", "inf-float", "t-backwards", "t-repeated"])
+@pytest.mark.parametrize(
+    "row_index, row, expect",
+    [
+        (1, "0.01,1,-3,0.2\n", ["expected 5 fields", "got 4"]),
+        (2, "0.02,2,7,6,0.3,9\n", ["expected 5 fields", "got 6"]),
+        (1, "0.01,1,1.5,,0.2\n", ["'ax'", "'1.5'", "not an integer"]),
+        (0, "0.00,zero,10,5,0.1\n", ["'seq'", "not an integer"]),
+        (2, "0.02,2,7,6.5,0.3\n", ["'mx'", "not an integer"]),
+        (1, "0.01,1,-3,,abc\n", ["'true_roll'", "'abc'", "not a number"]),
+        (1, "0.01,1,nan,,0.2\n", ["'ax'", "'nan'"]),
+        (1, "nan,1,-3,,0.2\n", ["'t'", "not a finite number"]),
+        (2, "inf,2,7,6,0.3\n", ["'t'", "not a finite number"]),
+        (0, "0.00,0,10,5,-inf\n", ["'true_roll'", "not a finite number"]),
+        (2, "0.005,2,7,6,0.3\n", ["time does not increase", "0.005", "0.01"]),
+        (2, "0.01,2,7,6,0.3\n", ["time does not increase"]),
+    ],
+    ids=[
+        "too-few",
+        "too-many",
+        "float-in-int",
+        "text-in-seq",
+        "float-in-mag",
+        "text-in-float",
+        "nan-in-ax",
+        "nan-t",
+        "inf-t",
+        "inf-float",
+        "t-backwards",
+        "t-repeated",
+    ],
+)
 def test_bad_rows(tmp_path, row_index, row, expect):
     msg = load_error(write(tmp_path, with_row(row_index, row)), row_index + 3)
     for word in expect:
@@ -187,6 +228,7 @@ def test_blank_lines_at_the_end_are_ignored(tmp_path):
 
 # --- Recording helpers --------------------------------------------------------------------
 
+
 def test_truth_missing_raises_clear_keyerror():
     rec = Recording({"rate_hz": 100.0}, {"t": np.arange(3) / 100.0, "seq": np.arange(3)})
     with pytest.raises(KeyError, match="truth columns.*simulated"):
@@ -216,10 +258,18 @@ def test_head_keeps_the_first_seconds():
 
 def test_counts_sensor_si_and_body():
     n = 4
-    data = {"t": np.arange(n) / 10.0, "seq": np.arange(n),
-            "ax": np.array([1, 2, 3, 4]), "ay": np.array([10, 20, 30, 40]), "az": np.array([-5, 0, 5, 100])}
-    meta = {"rate_hz": 10.0, "sensors": {"acc": {"sensitivity": 0.5}},
-            "mount": {"acc": [[0, -1, 0], [1, 0, 0], [0, 0, 1]]}}  # 90° about z: not symmetric
+    data = {
+        "t": np.arange(n) / 10.0,
+        "seq": np.arange(n),
+        "ax": np.array([1, 2, 3, 4]),
+        "ay": np.array([10, 20, 30, 40]),
+        "az": np.array([-5, 0, 5, 100]),
+    }
+    meta = {
+        "rate_hz": 10.0,
+        "sensors": {"acc": {"sensitivity": 0.5}},
+        "mount": {"acc": [[0, -1, 0], [1, 0, 0], [0, 0, 1]]},
+    }  # 90° about z: not symmetric
     rec = Recording(meta, data)
     counts = np.column_stack([data["ax"], data["ay"], data["az"]])
     np.testing.assert_array_equal(rec.counts("acc"), counts)
@@ -240,19 +290,34 @@ def test_phase_windows_select_samples_and_survive_a_round_trip(tmp_path):
 
 # --- counts are exact integers; numbers are plain ASCII decimal ------------------------------------
 
-@pytest.mark.parametrize("col, cell, expect", [
-    (2, "1e20", "'ax': '1e20' is not an integer count"),
-    (2, str(2**53 + 1), "'ax': 9007199254740993 is out of range for a count"),  # int64 holds it, float64 would not
-    (2, str(2**70), "'ax': 1180591620717411303424 is out of range"),  # beyond int64: was a raw OverflowError
-    (3, str(-(2**53) - 1), "'mx': -9007199254740993 is out of range"),  # the NaN-able column is float64
-    (3, "1e20", "'mx': '1e20' is not an integer count"),
-    (2, "1_000", "'ax': '1_000' is not an integer count"),  # int() takes it
-    (2, "\u0661\u0662", "is not an integer count"),  # Arabic-Indic "12": int() takes it too
-    (4, "1_0.5", "'true_roll': '1_0.5' is not a number"),  # float() takes it
-    (4, "1e999", "'true_roll': '1e999' is not a finite number"),  # float() makes it inf
-    (1, "1.0", "'seq': '1.0' is not an integer count"),
-], ids=["1e20", "2^53+1", "2^70", "mag-2^53+1", "mag-1e20", "underscore", "unicode-digits", "float-underscore",
-        "overflow", "seq"])
+
+@pytest.mark.parametrize(
+    "col, cell, expect",
+    [
+        (2, "1e20", "'ax': '1e20' is not an integer count"),
+        (2, str(2**53 + 1), "'ax': 9007199254740993 is out of range for a count"),  # int64 holds it, float64 would not
+        (2, str(2**70), "'ax': 1180591620717411303424 is out of range"),  # beyond int64: was a raw OverflowError
+        (3, str(-(2**53) - 1), "'mx': -9007199254740993 is out of range"),  # the NaN-able column is float64
+        (3, "1e20", "'mx': '1e20' is not an integer count"),
+        (2, "1_000", "'ax': '1_000' is not an integer count"),  # int() takes it
+        (2, "\u0661\u0662", "is not an integer count"),  # Arabic-Indic "12": int() takes it too
+        (4, "1_0.5", "'true_roll': '1_0.5' is not a number"),  # float() takes it
+        (4, "1e999", "'true_roll': '1e999' is not a finite number"),  # float() makes it inf
+        (1, "1.0", "'seq': '1.0' is not an integer count"),
+    ],
+    ids=[
+        "1e20",
+        "2^53+1",
+        "2^70",
+        "mag-2^53+1",
+        "mag-1e20",
+        "underscore",
+        "unicode-digits",
+        "float-underscore",
+        "overflow",
+        "seq",
+    ],
+)
 def test_counts_never_pass_through_float_and_numbers_are_plain_decimal(tmp_path, col, cell, expect):
     cells = ROWS[1].rstrip("\n").split(",")
     cells[col] = cell
@@ -279,6 +344,7 @@ def test_the_writer_refuses_a_count_it_would_have_to_round(tmp_path):
 
 # --- metadata ------------------------------------------------------------------------------------
 
+
 def with_meta(changes):
     """GOOD with its metadata changed: {"a.b": value} sets meta["a"]["b"]; a value of ... removes it."""
     meta = {"rate_hz": 100.0, **json.loads(json.dumps(SENSOR_META))}
@@ -294,33 +360,61 @@ def with_meta(changes):
     return "# kfkit-recording v1 " + json.dumps(meta) + "\n" + COLUMNS + "".join(ROWS)
 
 
-@pytest.mark.parametrize("changes, expect", [
-    ({"rate_hz": -104.0}, "'rate_hz' must be a positive finite number (Hz), got -104.0"),
-    ({"rate_hz": 0}, "'rate_hz' must be a positive finite number"),
-    ({"rate_hz": float("nan")}, "'rate_hz' must be a positive finite number (Hz), got nan"),
-    ({"rate_hz": "104"}, "got '104'"),
-    ({"rate_hz": True}, "got True"),
-    ({"rate_hz": None}, "got None"),
-    ({"sensors": ...}, "no 'sensors' object, but the file has columns of acc, mag"),
-    ({"mount": ...}, "no 'mount' object"),
-    ({"sensors.mag": ...}, "sensors.mag.sensitivity must be a positive finite number (SI units per count), got None"),
-    ({"sensors.acc": {"sensitivity": -0.001}}, "sensors.acc.sensitivity must be a positive finite number"),
-    ({"sensors.acc": {"sensitivity": 0}}, "sensors.acc.sensitivity"),
-    ({"sensors.acc": {"sensitivity": "0.001"}}, "sensors.acc.sensitivity"),
-    ({"mount.acc": [[1, 0, 0], [0, 1, 0], [0, 0, -1]]}, "mount.acc must be a 3×3 rotation matrix M_bs"),
-    ({"mount.mag": "flat"}, "mount.mag must be a 3×3 rotation matrix M_bs (body ← sensor; orthonormal, det +1), got 'flat'"),
-    ({"phases": [{"label": "rest", "start": 1.0}]}, "phases[0] must be"),
-    ({"phases": [{"label": "rest", "start": 2.0, "end": 1.0}]}, "with start < end"),
-    ({"phases": "rest"}, "'phases' must be a list"),
-], ids=["rate-negative", "rate-zero", "rate-nan", "rate-text", "rate-bool", "rate-null", "no-sensors", "no-mount",
-        "no-mag-sensor", "sensitivity-negative", "sensitivity-zero", "sensitivity-text", "mount-reflection",
-        "mount-name", "phase-no-end", "phase-backwards", "phases-not-list"])
+@pytest.mark.parametrize(
+    "changes, expect",
+    [
+        ({"rate_hz": -104.0}, "'rate_hz' must be a positive finite number (Hz), got -104.0"),
+        ({"rate_hz": 0}, "'rate_hz' must be a positive finite number"),
+        ({"rate_hz": float("nan")}, "'rate_hz' must be a positive finite number (Hz), got nan"),
+        ({"rate_hz": "104"}, "got '104'"),
+        ({"rate_hz": True}, "got True"),
+        ({"rate_hz": None}, "got None"),
+        ({"sensors": ...}, "no 'sensors' object, but the file has columns of acc, mag"),
+        ({"mount": ...}, "no 'mount' object"),
+        (
+            {"sensors.mag": ...},
+            "sensors.mag.sensitivity must be a positive finite number (SI units per count), got None",
+        ),
+        ({"sensors.acc": {"sensitivity": -0.001}}, "sensors.acc.sensitivity must be a positive finite number"),
+        ({"sensors.acc": {"sensitivity": 0}}, "sensors.acc.sensitivity"),
+        ({"sensors.acc": {"sensitivity": "0.001"}}, "sensors.acc.sensitivity"),
+        ({"mount.acc": [[1, 0, 0], [0, 1, 0], [0, 0, -1]]}, "mount.acc must be a 3×3 rotation matrix M_bs"),
+        (
+            {"mount.mag": "flat"},
+            "mount.mag must be a 3×3 rotation matrix M_bs (body ← sensor; orthonormal, det +1), got 'flat'",
+        ),
+        ({"phases": [{"label": "rest", "start": 1.0}]}, "phases[0] must be"),
+        ({"phases": [{"label": "rest", "start": 2.0, "end": 1.0}]}, "with start < end"),
+        ({"phases": "rest"}, "'phases' must be a list"),
+    ],
+    ids=[
+        "rate-negative",
+        "rate-zero",
+        "rate-nan",
+        "rate-text",
+        "rate-bool",
+        "rate-null",
+        "no-sensors",
+        "no-mount",
+        "no-mag-sensor",
+        "sensitivity-negative",
+        "sensitivity-zero",
+        "sensitivity-text",
+        "mount-reflection",
+        "mount-name",
+        "phase-no-end",
+        "phase-backwards",
+        "phases-not-list",
+    ],
+)
 def test_metadata_the_helpers_read_is_checked_on_loading(tmp_path, changes, expect):
     assert expect in load_error(write(tmp_path, with_meta(changes)), 1)
 
 
 def test_a_recording_without_sensor_columns_needs_no_sensor_metadata(tmp_path):
-    rec = load_recording(write(tmp_path, '# kfkit-recording v1 {"rate_hz": 50}\nt,seq,true_roll\n0,0,0.5\n0.02,1,0.6\n'))
+    rec = load_recording(
+        write(tmp_path, '# kfkit-recording v1 {"rate_hz": 50}\nt,seq,true_roll\n0,0,0.5\n0.02,1,0.6\n')
+    )
     assert rec.columns == ["t", "seq", "true_roll"] and rec.rate_hz == 50.0
 
 
@@ -341,6 +435,7 @@ def test_a_byte_order_mark_is_accepted_by_load_recording_and_load_any(tmp_path):
 
 # --- fuzz: a truncated or garbled file loads the same numbers or raises the loader's own error ---------
 
+
 def fuzz_variants(data: bytes, seed=0, n_garbled=150):
     """(label, bytes): the file cut at every byte of its last 300 and at random offsets, and copies with one
     byte replaced by a character that cannot complete a different number (so a garble is never undetectable)."""
@@ -349,8 +444,8 @@ def fuzz_variants(data: bytes, seed=0, n_garbled=150):
     for k in cuts:
         yield f"cut at {k}", data[:k]
     for k in rng.integers(0, len(data), n_garbled):
-        yield f"byte {k} → x", data[:k] + b"x" + data[k + 1:]
-        yield f"byte {k} → NUL", data[:k] + b"\x00" + data[k + 1:]
+        yield f"byte {k} → x", data[:k] + b"x" + data[k + 1 :]
+        yield f"byte {k} → NUL", data[:k] + b"\x00" + data[k + 1 :]
 
 
 def check_fuzzed(path, load, good: bytes, error, same, names=None, garble=True):
@@ -375,10 +470,13 @@ def check_fuzzed(path, load, good: bytes, error, same, names=None, garble=True):
 
 def same_rows(ref):
     """True when ``rec`` holds the first rows of ``ref`` exactly, in every column they share."""
+
     def check(rec):
         n = len(rec)
-        return 0 < n <= len(ref) and all(np.array_equal(rec[c], ref[c][:n], equal_nan=True)
-                                         for c in rec.columns if c in ref.data)
+        return 0 < n <= len(ref) and all(
+            np.array_equal(rec[c], ref[c][:n], equal_nan=True) for c in rec.columns if c in ref.data
+        )
+
     return check
 
 
@@ -395,6 +493,7 @@ def test_fuzzed_recordings_load_the_same_numbers_or_name_the_file(tmp_path):
 
 
 # --- seq is a 16-bit counter; a number longer than any writer's is refused, shown short ------------------------------
+
 
 @pytest.mark.parametrize("seq", ["-1", "-65536", "65536", "100000"])
 def test_a_seq_outside_the_16_bit_counter_names_file_line_and_field(tmp_path, seq):
@@ -413,11 +512,19 @@ def test_the_writer_refuses_a_seq_the_loader_would_refuse(tmp_path):
     assert load_recording(save_recording(rec, tmp_path / "r.csv"))["seq"].tolist() == [65533, 65534, 65535, 0, 1]
 
 
-@pytest.mark.parametrize("col, cell, expect", [
-    (4, "0." + "0" * 1_000_000 + "1", r"'true_roll': '0.0000000000000000000000'… \(1,000,003 characters\) is longer"),
-    (2, "1" * 65, r"'ax': '111111111111111111111111'… \(65 characters\) is longer"),
-    (0, "x" * 50, r"'t': 'xxxxxxxxxxxxxxxxxxxxxxxx'… \(50 characters\) is not a number"),
-], ids=["1 MB of digits", "65 digits", "50 letters"])
+@pytest.mark.parametrize(
+    "col, cell, expect",
+    [
+        (
+            4,
+            "0." + "0" * 1_000_000 + "1",
+            r"'true_roll': '0.0000000000000000000000'… \(1,000,003 characters\) is longer",
+        ),
+        (2, "1" * 65, r"'ax': '111111111111111111111111'… \(65 characters\) is longer"),
+        (0, "x" * 50, r"'t': 'xxxxxxxxxxxxxxxxxxxxxxxx'… \(50 characters\) is not a number"),
+    ],
+    ids=["1 MB of digits", "65 digits", "50 letters"],
+)
 def test_a_number_longer_than_any_writer_makes_is_refused_and_shown_short(tmp_path, col, cell, expect):
     """A megabyte of digits used to load as 0.0; every message shows a value cut to 24 characters."""
     cells = ROWS[1].rstrip("\n").split(",")
@@ -432,11 +539,15 @@ def test_both_kit_formats_check_their_kind_and_version(tmp_path):
 
     future = tmp_path / "future.csv"
     future.write_text('# kfkit-vehicle v2 {"rate_hz": 100}\nt,delta,yaw_rate,ay,vx\n0,0,0,0,10\n')
-    with pytest.raises(RecordingError, match=r"future\.csv, line 1: unsupported vehicle version 'v2'; this kfkit reads v1"):
+    with pytest.raises(
+        RecordingError, match=r"future\.csv, line 1: unsupported vehicle version 'v2'; this kfkit reads v1"
+    ):
         load_vehicle(future)
     imu = tmp_path / "imu.csv"
     imu.write_text('# kfkit-recording v1 {"rate_hz": 100}\nt,seq\n0,0\n')
-    with pytest.raises(RecordingError, match=r"imu\.csv, line 1: expected the header '# kfkit-vehicle v1 .*load_vehicle_csv"):
+    with pytest.raises(
+        RecordingError, match=r"imu\.csv, line 1: expected the header '# kfkit-vehicle v1 .*load_vehicle_csv"
+    ):
         load_vehicle(imu)
     with pytest.raises(RecordingError, match=r"future\.csv, line 1: expected the header '# kfkit-recording v1"):
         load_recording(future)

@@ -4,6 +4,7 @@ Oracle: rotations composed by scipy (``Rotation.from_rotvec``), independent of k
 derivation's error δθ is a small rotation in the NED frame, R_true = Exp(δθ)·R, so that δθ_N, δθ_E are the tilt
 error and δθ_D the heading error.
 """
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation

@@ -2,15 +2,15 @@
 phyphox export (no truth, no labelled phases; the phone path and its calibration) and the bundled real recording.
 (The bundled phone recording's budget is held at kfkit level by tests/test_phyphox.py, and section 12 of every
 run prints the phone's RMSE, which the export run below checks.)"""
+
 import re
 
 import numpy as np
 import pytest
-
-from kfkit import sim
-from kfkit import phone_sim
-from kfkit.phone_sim import simulate_phone
 from test_calibration_labs import run_solution_on
+
+from kfkit import phone_sim, sim
+from kfkit.phone_sim import simulate_phone
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
 

@@ -1,10 +1,11 @@
 """Metrics, and filter consistency on a simulated linear-Gaussian system (chi-square bounds)."""
+
 import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from kfkit.filters import KalmanFilter, roll_kf
 from kfkit import metrics
+from kfkit.filters import KalmanFilter, roll_kf
 from kfkit.metrics import angle_error, chi2_bounds, fraction_inside, nees, nis, rmse
 
 

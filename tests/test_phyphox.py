@@ -7,6 +7,7 @@ the five separator/decimal variants), not by ``kfkit.readers.phyphox_export``'s 
 readings come from scipy's Rotation applied to the phone's axes as Android documents them (x right,
 y up the screen, z out of it; the accelerometer reads +g on z face up).
 """
+
 import math
 import re
 import shutil
@@ -17,11 +18,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from kfkit import datasets, frames, io, metrics, readers
+from kfkit import datasets, frames, io, metrics, phone_sim, readers
 from kfkit.clocks import OneClock, SampleCounter
 from kfkit.filters import estimate_attitude
 from kfkit.io import RecordingError
-from kfkit import phone_sim
 from kfkit.phone_sim import simulate_phone
 from kfkit.readers import phyphox_export
 from kfkit.sensors import PHONE_LSB, PHONE_MOUNTS, SENSORS
@@ -33,6 +33,7 @@ DEG = np.pi / 180
 
 # --- an independent phyphox writer ------------------------------------------------------------------
 
+
 def java_sci(v: float, decimal=".") -> str:
     """Java DecimalFormat("0.000000000E0"): one digit, nine decimals, exponent without '+' or padding."""
     if math.isnan(v):
@@ -40,7 +41,7 @@ def java_sci(v: float, decimal=".") -> str:
     if v == 0:
         return ("-" if math.copysign(1, v) < 0 else "") + "0" + decimal + "0" * 9 + "E0"
     e = math.floor(math.log10(abs(v)))
-    m = round(abs(v) / 10 ** e, 9)
+    m = round(abs(v) / 10**e, 9)
     if m >= 10:
         m, e = m / 10, e + 1
     digits = f"{m:.9f}".replace(".", decimal)
@@ -64,11 +65,16 @@ def write_set(path, labels, columns, sep=",", decimal=".", ios=False):
     path.write_bytes(text.encode("utf-8"))
 
 
-ANDROID_LABELS = {"acc": ["Acceleration x (m/s^2)", "Acceleration y (m/s^2)", "Acceleration z (m/s^2)"],
-                  "gyr": ["Gyroscope x (rad/s)", "Gyroscope y (rad/s)", "Gyroscope z (rad/s)"],
-                  "mag": ["Magnetic field x (µT)", "Magnetic field y (µT)", "Magnetic field z (µT)"]}
-IOS_LABELS = {"acc": ["X (m/s^2)", "Y (m/s^2)", "Z (m/s^2)"], "gyr": ["X (rad/s)", "Y (rad/s)", "Z (rad/s)"],
-              "mag": ["X (µT)", "Y (µT)", "Z (µT)"]}
+ANDROID_LABELS = {
+    "acc": ["Acceleration x (m/s^2)", "Acceleration y (m/s^2)", "Acceleration z (m/s^2)"],
+    "gyr": ["Gyroscope x (rad/s)", "Gyroscope y (rad/s)", "Gyroscope z (rad/s)"],
+    "mag": ["Magnetic field x (µT)", "Magnetic field y (µT)", "Magnetic field z (µT)"],
+}
+IOS_LABELS = {
+    "acc": ["X (m/s^2)", "Y (m/s^2)", "Z (m/s^2)"],
+    "gyr": ["X (rad/s)", "Y (rad/s)", "Z (rad/s)"],
+    "mag": ["X (µT)", "Y (µT)", "Z (µT)"],
+}
 SETS = {"acc": "Accelerometer", "gyr": "Gyroscope", "mag": "Magnetometer"}
 
 
@@ -76,7 +82,9 @@ def write_simple_experiment(folder, samples, sep=",", decimal=".", ios=False, se
     labels = IOS_LABELS if ios else ANDROID_LABELS
     for k in sensors:
         t, v = samples[k]
-        write_set(folder / f"{SETS[k]}.csv", ["Time (s)"] + labels[k], [t, v[:, 0], v[:, 1], v[:, 2]], sep, decimal, ios)
+        write_set(
+            folder / f"{SETS[k]}.csv", ["Time (s)"] + labels[k], [t, v[:, 0], v[:, 1], v[:, 2]], sep, decimal, ios
+        )
     return folder
 
 
@@ -92,13 +100,14 @@ def tilt_samples(axis, angle_deg, heading_deg=60.0, rates=(100.0, 97.0, 50.0)):
     """A phone at rest flat (top edge at ``heading_deg``) 0–2 s, tilted smoothly by ``angle_deg`` about
     its own ``axis`` ('x' right edge, 'y' top edge) during 2–3 s, at rest tilted 3–5 s.
     Returns ({sensor: (t, values)}, function t → R_ns)."""
+
     def angle(t):
         u = np.clip(t - 2.0, 0.0, 1.0)
-        return np.radians(angle_deg) * u ** 3 * (10 - 15 * u + 6 * u ** 2)
+        return np.radians(angle_deg) * u**3 * (10 - 15 * u + 6 * u**2)
 
     def rate(t):
         u = np.clip(t - 2.0, 0.0, 1.0)
-        return np.radians(angle_deg) * 30 * u ** 2 * (1 - u) ** 2
+        return np.radians(angle_deg) * 30 * u**2 * (1 - u) ** 2
 
     heading = Rotation.from_euler("z", heading_deg, degrees=True)
 
@@ -167,6 +176,7 @@ def test_other_mountings_follow_their_matrices(tmp_path):
 
 # --- formats -------------------------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def tour_samples():
     from kfkit import sim
@@ -175,9 +185,18 @@ def tour_samples():
     return {k: (s.t[k][:1500], s.values[k][:1500]) for k in SENSORS}
 
 
-@pytest.mark.parametrize("sep, decimal, ios", [(",", ".", False), ("\t", ".", False), (";", ".", False),
-                                               ("\t", ",", False), (";", ",", False), (",", ".", True),
-                                               (";", ",", True)])
+@pytest.mark.parametrize(
+    "sep, decimal, ios",
+    [
+        (",", ".", False),
+        ("\t", ".", False),
+        (";", ".", False),
+        ("\t", ",", False),
+        (";", ",", False),
+        (",", ".", True),
+        (";", ",", True),
+    ],
+)
 def test_every_csv_variant_loads_the_same(tmp_path, tour_samples, sep, decimal, ios):
     """Unzipped or zipped: iOS omits the last newline, and its complete last row is kept either way (the folder
     used to drop it: 23,305 rows from a real export's folder, 23,306 from its zip)."""
@@ -208,17 +227,22 @@ def zip_folder(folder, archive, prefix=""):
 def cut_last_row(line: str, how: str) -> str:
     """The last row of an export cut as a copy cut short would leave it."""
     cells = line.split(",")
-    return {"mid-number": ",".join(cells[:3] + [cells[3][:8]]),  # '-1.234567890E-3' → '-1.23456': parses, 1000× off
-            "in the exponent": ",".join(cells[:3] + [cells[3].rsplit("E", 1)[0] + "E"]),
-            "a field missing": ",".join(cells[:3]),
-            "after a separator": ",".join(cells[:3]) + ",",
-            "iOS padding": ",".join(cells[:3] + ['"'])}[how]  # '""' cut after its first quote
+    return {
+        "mid-number": ",".join(cells[:3] + [cells[3][:8]]),  # '-1.234567890E-3' → '-1.23456': parses, 1000× off
+        "in the exponent": ",".join(cells[:3] + [cells[3].rsplit("E", 1)[0] + "E"]),
+        "a field missing": ",".join(cells[:3]),
+        "after a separator": ",".join(cells[:3]) + ",",
+        "iOS padding": ",".join(cells[:3] + ['"']),
+    }[how]  # '""' cut after its first quote
 
 
 @pytest.mark.parametrize("ios", [False, True], ids=["android", "ios"])
-@pytest.mark.parametrize("how", ["mid-number", "in the exponent", "a field missing", "after a separator", "iOS padding"])
-def test_a_visibly_cut_last_row_is_dropped_counted_and_warned_about_wherever_it_comes_from(tmp_path, tour_samples,
-                                                                                            how, ios):
+@pytest.mark.parametrize(
+    "how", ["mid-number", "in the exponent", "a field missing", "after a separator", "iOS padding"]
+)
+def test_a_visibly_cut_last_row_is_dropped_counted_and_warned_about_wherever_it_comes_from(
+    tmp_path, tour_samples, how, ios
+):
     """The class of `1.000000000E-3` cut to `1.000000`: a last row without newline that is not complete (a field
     missing, a number not in phyphox's full format) is dropped, counted, noted and warned about, from a folder as from
     a zip (a zip used to keep it: its CRC proves the file is what was zipped, not what the phone wrote)."""
@@ -229,8 +253,9 @@ def test_a_visibly_cut_last_row_is_dropped_counted_and_warned_about_wherever_it_
     gyro.write_text(head + "\n" + cut_last_row(last, how), encoding="utf-8")
     n = head.count("\n") + 2  # the cut row's line number
     for source in (folder, zip_folder(folder, tmp_path / "cut.zip")):
-        with pytest.warns(UserWarning, match=f"Gyroscope.csv.*, line {n}: the last line has no newline and is cut "
-                                             f"short .*: dropped"):
+        with pytest.warns(
+            UserWarning, match=f"Gyroscope.csv.*, line {n}: the last line has no newline and is cut short .*: dropped"
+        ):
             rec = readers.load_phyphox(source)
         assert rec.meta["phone"]["skipped"]["gyr"]["cut_last_row"] == 1
         (note,) = rec.meta["phone"]["warnings"]
@@ -244,10 +269,14 @@ def test_a_visibly_cut_last_row_is_dropped_counted_and_warned_about_wherever_it_
 def test_zip_folder_and_meta_files_agree(tmp_path, tour_samples):
     folder = write_simple_experiment(tmp_path / "f", tour_samples)
     (folder / "meta").mkdir()
-    (folder / "meta" / "device.csv").write_text('"property","value"\n"accelerometer Name","LSM6DSO Accelerometer"\n'
-                                                '"accelerometer Range","78.4532"\n', encoding="utf-8")
-    (folder / "meta" / "time.csv").write_text('"event","experiment time","system time","system time text"\n'
-                                              '"START",0.000000000E0,1700000000.000,"2023-11-14 22:13:20.000 UTC+00:00"\n')
+    (folder / "meta" / "device.csv").write_text(
+        '"property","value"\n"accelerometer Name","LSM6DSO Accelerometer"\n"accelerometer Range","78.4532"\n',
+        encoding="utf-8",
+    )
+    (folder / "meta" / "time.csv").write_text(
+        '"event","experiment time","system time","system time text"\n'
+        '"START",0.000000000E0,1700000000.000,"2023-11-14 22:13:20.000 UTC+00:00"\n'
+    )
     (folder / "Results.csv").write_text('"Time (s)","Period (s)"\n1.0E0,2.0E0\n')  # another export set: not a sensor
     archive = tmp_path / "phyphox 2024-05-01 10-00-00.zip"
     with zipfile.ZipFile(archive, "w") as z:
@@ -256,7 +285,10 @@ def test_zip_folder_and_meta_files_agree(tmp_path, tour_samples):
     a, b = readers.load_phyphox(folder), readers.load_phyphox(archive)
     for c in a.columns:
         np.testing.assert_array_equal(a[c], b[c])
-    assert a.meta["sensors"]["acc"]["chip"] == "LSM6DSO Accelerometer" and a.meta["sensors"]["acc"]["full_scale"] == 78.4532
+    assert (
+        a.meta["sensors"]["acc"]["chip"] == "LSM6DSO Accelerometer"
+        and a.meta["sensors"]["acc"]["full_scale"] == 78.4532
+    )
     assert b.meta["phone"]["export"] == archive.name
 
 
@@ -264,8 +296,11 @@ def test_raw_data_of_a_single_sensor_experiment(tmp_path, tour_samples):
     """'Acceleration with g' exports Raw Data.csv with an Absolute column; alone it gives an accel-only recording."""
     t, v = tour_samples["acc"]
     raw = tmp_path / "Raw Data.csv"
-    write_set(raw, ["Time (s)"] + ANDROID_LABELS["acc"] + ["Absolute acceleration (m/s^2)"],
-              [t, v[:, 0], v[:, 1], v[:, 2], np.linalg.norm(v, axis=1)])
+    write_set(
+        raw,
+        ["Time (s)"] + ANDROID_LABELS["acc"] + ["Absolute acceleration (m/s^2)"],
+        [t, v[:, 0], v[:, 1], v[:, 2], np.linalg.norm(v, axis=1)],
+    )
     rec = readers.load_phyphox(raw, require=("acc",))
     assert rec.meta["phone"]["time_base"] == "accelerometer" and "gx" not in rec.columns
     np.testing.assert_allclose(rec.t, t, atol=1e-6)  # µs: the kit's time resolution
@@ -300,11 +335,11 @@ def test_streaming_the_merge_in_pieces_gives_the_file_result(tour_samples):
     live = OneClock()
     rng = np.random.default_rng(0)
     cut = np.sort(rng.uniform(tour_samples["gyr"][0][0], tour_samples["gyr"][0][-1], 40))
-    pieces, start = [], {k: 0 for k in tour_samples}
+    pieces, start = [], dict.fromkeys(tour_samples, 0)
     for c in np.append(cut, np.inf):  # a poll: every sensor's samples up to time c
         for k, (t, v) in tour_samples.items():
             stop = int(np.searchsorted(t, c, side="right"))
-            live.push(k, t[start[k]:stop], v[start[k]:stop])
+            live.push(k, t[start[k] : stop], v[start[k] : stop])
             start[k] = stop
         pieces.append(live.pop(final=np.isinf(c)))
     t_live = np.concatenate([p[0] for p in pieces])
@@ -363,8 +398,9 @@ def test_a_400_hz_export_with_timestamp_jitter_shows_no_false_gaps_and_every_rea
     assert np.sum(rounded != 1) >= 5  # what each interval rounded on its own would have shown
     t, v = samples["gyr"]
     lost = [1000, 3000, 3001, 6000, 6002]
-    cut = readers.load_phyphox(write_simple_experiment(tmp_path / "cut", {**samples, "gyr": (np.delete(t, lost),
-                                                                                             np.delete(v, lost, axis=0))}))
+    cut = readers.load_phyphox(
+        write_simple_experiment(tmp_path / "cut", {**samples, "gyr": (np.delete(t, lost), np.delete(v, lost, axis=0))})
+    )
     steps = np.diff(cut["seq"])
     assert int(np.sum(steps - 1)) == len(lost) and sorted(steps[steps > 1].tolist()) == [2, 2, 2, 3]
 
@@ -383,22 +419,37 @@ def test_the_sample_counter_counts_the_same_in_pieces_and_rejects_a_bad_period()
 
 # --- errors -------------------------------------------------------------------------------------------
 
+
 def test_a_missing_sensor_names_the_experiment_to_use(tmp_path, tour_samples):
     folder = write_simple_experiment(tmp_path / "e", tour_samples, sensors=("acc", "mag"))
-    with pytest.raises(RecordingError, match="no gyroscope.*found: accelerometer \\(Accelerometer.csv\\).*simple experiment") as e:
+    with pytest.raises(
+        RecordingError, match="no gyroscope.*found: accelerometer \\(Accelerometer.csv\\).*simple experiment"
+    ) as e:
         readers.load_phyphox(folder)
     assert str(folder) in str(e.value)
     with pytest.raises(RecordingError, match="no magnetometer"):
-        readers.load_phyphox(write_simple_experiment(tmp_path / "f", tour_samples, sensors=("acc", "gyr")),
-                        require=("acc", "gyr", "mag"))
+        readers.load_phyphox(
+            write_simple_experiment(tmp_path / "f", tour_samples, sensors=("acc", "gyr")), require=("acc", "gyr", "mag")
+        )
 
 
-@pytest.mark.parametrize("name, labels", [
-    ("Linear Acceleration.csv", ["Linear Acceleration x (m/s^2)", "Linear Acceleration y (m/s^2)", "Linear Acceleration z (m/s^2)"]),
-    ("Raw Data.csv", ["Linear Acceleration x (m/s^2)", "Linear Acceleration y (m/s^2)", "Linear Acceleration z (m/s^2)"]),
-    ("Linear Accelerometer.csv", ["X (m/s^2)", "Y (m/s^2)", "Z (m/s^2)"]),  # iOS simple experiment
-])
-def test_linear_acceleration_instead_of_the_accelerometer_says_acceleration_with_g(tmp_path, tour_samples, name, labels):
+@pytest.mark.parametrize(
+    "name, labels",
+    [
+        (
+            "Linear Acceleration.csv",
+            ["Linear Acceleration x (m/s^2)", "Linear Acceleration y (m/s^2)", "Linear Acceleration z (m/s^2)"],
+        ),
+        (
+            "Raw Data.csv",
+            ["Linear Acceleration x (m/s^2)", "Linear Acceleration y (m/s^2)", "Linear Acceleration z (m/s^2)"],
+        ),
+        ("Linear Accelerometer.csv", ["X (m/s^2)", "Y (m/s^2)", "Z (m/s^2)"]),  # iOS simple experiment
+    ],
+)
+def test_linear_acceleration_instead_of_the_accelerometer_says_acceleration_with_g(
+    tmp_path, tour_samples, name, labels
+):
     folder = write_simple_experiment(tmp_path / "e", tour_samples, sensors=("gyr",))
     t, v = tour_samples["acc"]
     write_set(folder / name, ["Time (s)"] + labels, [t, v[:, 0], v[:, 1], v[:, 2] - G])
@@ -450,6 +501,7 @@ def test_a_short_row_time_going_back_and_an_empty_file(tmp_path, tour_samples):
 
 # --- the bundled phone recording -------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def bundled_phone():
     return datasets.load("04_phone_attitude_tour")
@@ -475,13 +527,17 @@ def test_bundled_truth_follows_the_mounting(bundled_phone):
     R_land = Rotation.from_euler("ZYX", other.truth()[:, ::-1])
     M_flat, M_land = (np.array(PHONE_MOUNTS[m]) for m in ("flat", "flat_landscape"))
     # R_ns = R_nb M_bs for both: the phone's attitude is one and the same
-    np.testing.assert_allclose((R_flat * Rotation.from_matrix(M_flat)).as_matrix(),
-                               (R_land * Rotation.from_matrix(M_land)).as_matrix(), atol=1e-7)
+    np.testing.assert_allclose(
+        (R_flat * Rotation.from_matrix(M_flat)).as_matrix(),
+        (R_land * Rotation.from_matrix(M_land)).as_matrix(),
+        atol=1e-7,
+    )
     # and at rest the body-frame specific force points along the true "up" of each
     rest = bundled_phone.phase("stationary")
     for rec, R in ((bundled_phone, R_flat), (other, R_land)):
-        np.testing.assert_allclose(rec.body("acc")[rest].mean(axis=0), R[rest].inv().apply([0, 0, -G]).mean(axis=0),
-                                   atol=0.06)
+        np.testing.assert_allclose(
+            rec.body("acc")[rest].mean(axis=0), R[rest].inv().apply([0, 0, -G]).mean(axis=0), atol=0.06
+        )
 
 
 @pytest.mark.parametrize("method", ["euler-ekf", "mekf"])
@@ -489,13 +545,15 @@ def test_lab04_ekf_meets_its_budget_on_the_bundled_phone_recording(bundled_phone
     """Lab 04's budget: roll and pitch RMSE < 1°, yaw < 2° against the truth (phone: the OS has calibrated
     its gyro and magnetometer, so the lab uses the body-frame signals as they are)."""
     rec = bundled_phone
-    result = estimate_attitude(rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz, method=method,
-                               field_n=FIELD_N)
+    result = estimate_attitude(
+        rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz, method=method, field_n=FIELD_N
+    )
     rmse = np.degrees(metrics.rmse(metrics.angle_error(result.euler, rec.truth()), 0.0))
     assert rmse[0] < 1.0 and rmse[1] < 1.0 and rmse[2] < 2.0, rmse
 
 
 # --- a phone recording in the labs: one loader for every source, recordings without truth -----------------------
+
 
 def test_load_any_reads_the_kits_format_and_every_phyphox_export_shape(tmp_path, tour_samples):
     folder = write_simple_experiment(tmp_path / "export", tour_samples)
@@ -514,15 +572,19 @@ def test_load_any_reads_the_kits_format_and_every_phyphox_export_shape(tmp_path,
             np.testing.assert_array_equal(rec[c], from_folder[c], err_msg=f"{path.name}: {c}")
     assert readers.load_any(tmp_path / "Raw Data.csv", require=("acc",)).meta["phone"]["time_base"] == "accelerometer"
     upright = readers.load_any(folder, mount="upright")
-    assert upright.meta["mount_name"] == "upright" and upright.meta["mount"]["acc"] == [list(r) for r in PHONE_MOUNTS["upright"]]
+    assert upright.meta["mount_name"] == "upright" and upright.meta["mount"]["acc"] == [
+        list(r) for r in PHONE_MOUNTS["upright"]
+    ]
     with pytest.raises(FileNotFoundError, match="no recording or phyphox export at .*nowhere"):
         readers.load_any(tmp_path / "nowhere")
     (tmp_path / "notes.csv").write_text("a,b\n1,2\n", encoding="utf-8")
     with pytest.raises(RecordingError, match="notes.csv, line 1: no time column"):
         readers.load_any(tmp_path / "notes.csv")
     with pytest.raises(RecordingError, match="no magnetometer"):
-        readers.load_any(write_simple_experiment(tmp_path / "no_mag", tour_samples, sensors=("acc", "gyr")),
-                    require=("acc", "gyr", "mag"))
+        readers.load_any(
+            write_simple_experiment(tmp_path / "no_mag", tour_samples, sensors=("acc", "gyr")),
+            require=("acc", "gyr", "mag"),
+        )
 
 
 def test_consistency_figure_and_tuning_panel_work_without_truth():
@@ -543,11 +605,13 @@ def test_consistency_figure_and_tuning_panel_work_without_truth():
 @pytest.mark.slow
 def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
     """A student's own phyphox export of lab 01's experiment (rest, then rolls by hand): no truth, no labels."""
-    from kfkit import sim
     from test_calibration_labs import run_solution_on
 
-    motion = sim.sine_roll(duration=40.0, rate_hz=400.0, amplitude=np.radians(30.0), freq_hz=0.1, still=5.0,
-                           vibration_rms=0.3, seed=21)
+    from kfkit import sim
+
+    motion = sim.sine_roll(
+        duration=40.0, rate_hz=400.0, amplitude=np.radians(30.0), freq_hz=0.1, still=5.0, vibration_rms=0.3, seed=21
+    )
     files = phone_sim.simple_experiment_files(simulate_phone(motion, seed=22))
     files.pop(phone_sim.TRUTH_FILE)
     export = phone_sim.write_export(files, tmp_path / "phyphox roll")
@@ -559,13 +623,16 @@ def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
 
 # --- damaged or doubled exports, garbled truth, fuzz ------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def small_export(tmp_path_factory):
     """A short simulated simple-experiment export with its truth file, as a folder and as a zip."""
     from kfkit import sim
 
     samples = simulate_phone(sim.stationary(duration=1.0, rate_hz=100.0), seed=5)
-    folder = phone_sim.write_export(phone_sim.simple_experiment_files(samples), tmp_path_factory.mktemp("small") / "export")
+    folder = phone_sim.write_export(
+        phone_sim.simple_experiment_files(samples), tmp_path_factory.mktemp("small") / "export"
+    )
     return folder, zip_folder(folder, folder.parent / "export.zip"), readers.load_phyphox(folder)
 
 
@@ -605,23 +672,32 @@ def test_a_zip_with_two_exports_is_an_error_and_macos_copies_are_skipped(tmp_pat
 
 def test_duplicate_columns_are_named(tmp_path, tour_samples):
     t, v = tour_samples["acc"]
-    for labels, message in ((["Time (s)", "Time (s)"] + ANDROID_LABELS["acc"], "2 time columns"),
-                            (["Time (s)"] + ANDROID_LABELS["acc"] + ["Acceleration x (m/s^2)"], "two x columns")):
+    for labels, message in (
+        (["Time (s)", "Time (s)"] + ANDROID_LABELS["acc"], "2 time columns"),
+        (["Time (s)"] + ANDROID_LABELS["acc"] + ["Acceleration x (m/s^2)"], "two x columns"),
+    ):
         raw = tmp_path / "Raw Data.csv"
         write_set(raw, labels, [t] * (len(labels) - 3) + [v[:, 0], v[:, 1], v[:, 2]])
         with pytest.raises(RecordingError, match=re.escape(str(raw)) + ", line 1: " + message):
             readers.load_phyphox(raw, require=("acc",))
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda lines: [lines[0].replace('"phases"', '"phases" "')] + lines[1:], r"line 1: the metadata is not valid JSON"),
-    (lambda lines: [lines[0][:40]] + lines[1:], r"line 1: the metadata is not valid JSON"),
-    (lambda lines: lines[:5] + [lines[5].replace(",", ";", 1)] + lines[6:], r"line 6: expected 5 fields"),
-    (lambda lines: lines[:5] + [lines[5].replace("0.", "O.", 1)] + lines[6:], r"line 6: .* is not a number"),
-    (lambda lines: lines[:5] + ["3.5" + lines[5][1:]] + lines[6:], r"line 6: '3.5' is not an integer count"),
-    (lambda lines: lines[:5] + [lines[5].replace(",", ",2", 1)] + lines[6:], r"line 6: not a unit quaternion"),
-    (lambda lines: lines[:-1] + [lines[-1][:-3]], r"line \d+: the last line is cut short"),
-], ids=["json", "json-cut", "fields", "number", "row-index", "not-unit", "cut"])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (
+            lambda lines: [lines[0].replace('"phases"', '"phases" "')] + lines[1:],
+            r"line 1: the metadata is not valid JSON",
+        ),
+        (lambda lines: [lines[0][:40]] + lines[1:], r"line 1: the metadata is not valid JSON"),
+        (lambda lines: lines[:5] + [lines[5].replace(",", ";", 1)] + lines[6:], r"line 6: expected 5 fields"),
+        (lambda lines: lines[:5] + [lines[5].replace("0.", "O.", 1)] + lines[6:], r"line 6: .* is not a number"),
+        (lambda lines: lines[:5] + ["3.5" + lines[5][1:]] + lines[6:], r"line 6: '3.5' is not an integer count"),
+        (lambda lines: lines[:5] + [lines[5].replace(",", ",2", 1)] + lines[6:], r"line 6: not a unit quaternion"),
+        (lambda lines: lines[:-1] + [lines[-1][:-3]], r"line \d+: the last line is cut short"),
+    ],
+    ids=["json", "json-cut", "fields", "number", "row-index", "not-unit", "cut"],
+)
 def test_a_garbled_truth_file_is_named_with_its_line(small_export, tmp_path, edit, message):
     folder = tmp_path / "export"
     shutil.copytree(small_export[0], folder)
@@ -659,14 +735,28 @@ def test_fuzzed_exports_load_the_same_numbers_or_name_the_file(tmp_path, small_e
 
 # --- values a recording cannot hold: named with file, line and column, no NumPy warning ---------------------------
 
-@pytest.mark.parametrize("column, value, words", [
-    (1, "1.000000000E20", r"'1.000000000E20' rad/s is beyond what a phone recording holds \(\|value\| ≤ 21,474.8365"),
-    (3, "-2.147483648E4", r"'-2.147483648E4' rad/s is beyond what a phone recording holds"),  # one LSB past int32
-    (2, "0." + "0" * 1_000_000 + "1", r"'0.0000000000000000000000'… \(1,000,003 characters\) is longer than any number"),
-    (1, "9" * 65, r"'999999999999999999999999'… \(65 characters\) is longer than any number"),
-    (0, "1.000000000E300", r"'1.000000000E300' s is beyond the time a recording holds"),
-    (2, "Infinity", "'Infinity' is not a finite number"), (2, "1E999", "'1E999' is not a finite number"),
-], ids=["1e20", "int32+1", "1 MB of digits", "65 digits", "time 1e300", "Infinity", "1e999"])
+
+@pytest.mark.parametrize(
+    "column, value, words",
+    [
+        (
+            1,
+            "1.000000000E20",
+            r"'1.000000000E20' rad/s is beyond what a phone recording holds \(\|value\| ≤ 21,474.8365",
+        ),
+        (3, "-2.147483648E4", r"'-2.147483648E4' rad/s is beyond what a phone recording holds"),  # one LSB past int32
+        (
+            2,
+            "0." + "0" * 1_000_000 + "1",
+            r"'0.0000000000000000000000'… \(1,000,003 characters\) is longer than any number",
+        ),
+        (1, "9" * 65, r"'999999999999999999999999'… \(65 characters\) is longer than any number"),
+        (0, "1.000000000E300", r"'1.000000000E300' s is beyond the time a recording holds"),
+        (2, "Infinity", "'Infinity' is not a finite number"),
+        (2, "1E999", "'1E999' is not a finite number"),
+    ],
+    ids=["1e20", "int32+1", "1 MB of digits", "65 digits", "time 1e300", "Infinity", "1e999"],
+)
 def test_a_value_a_recording_cannot_hold_names_file_line_column_and_value(tmp_path, tour_samples, column, value, words):
     """These used to load as int64 garbage (1e20 rad/s) or 0.0 (a megabyte of digits), with only a NumPy warning."""
     folder = write_simple_experiment(tmp_path / "e", tour_samples)

@@ -1,23 +1,25 @@
 """The one-call figure and table helpers the notebooks use: units on every axis, Okabe–Ito colours,
 numbers against independent oracles (numpy, scipy), and a recording without truth said, not failed on."""
+
 import matplotlib
 
 matplotlib.use("Agg")
 
-import matplotlib.colors as mcolors  # noqa: E402
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-from scipy.spatial.transform import Rotation  # noqa: E402
-from scipy.stats import chi2  # noqa: E402
+import matplotlib.colors as mcolors
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
-from kfkit import plots  # noqa: E402
+from kfkit import plots
 
 PALETTE = {mcolors.to_hex(c) for c in plots.COLORS.values()}
 
 
 @pytest.fixture
 def attitude():
-    """A yaw that crosses ±180°, roll and pitch swinging; two noisy estimates; a covariance; a magnetometer at half rate."""
+    """A yaw that crosses ±180°, roll and pitch swinging; two noisy estimates; a covariance; a magnetometer at half
+    rate."""
     rng = np.random.default_rng(5)
     t = np.arange(400) / 50.0
     truth = np.column_stack([0.3 * np.sin(t), 0.2 * np.cos(0.7 * t), np.angle(np.exp(1j * (2.8 + 0.2 * t)))])
@@ -49,7 +51,10 @@ def test_imu_signals_have_units_leave_out_empty_magnetometer_rows_and_name_the_p
     t, _, _, _, _, mag = attitude
     gyr = np.column_stack([np.full_like(t, np.radians(10.0)), np.zeros_like(t), np.zeros_like(t)])
     acc = np.tile([0.0, 0.0, -9.80665], (len(t), 1))
-    phases = [{"label": "stationary", "start": 0.0, "end": 1.0}, {"label": "linear_acceleration", "start": 2.0, "end": 3.0}]
+    phases = [
+        {"label": "stationary", "start": 0.0, "end": 1.0},
+        {"label": "linear_acceleration", "start": 2.0, "end": 3.0},
+    ]
     fig = plots.imu_signals(t, gyr, acc, mag, shade=[(2.0, 3.0)], shade_label="slide", phases=phases)
     assert [ax.get_ylabel() for ax in fig.axes] == ["gyro (°/s)", "accel (m/s²)", "mag (µT)"]
     assert fig.axes[-1].get_xlabel() == "time (s)"
@@ -74,7 +79,7 @@ def test_compare_euler_shows_degrees_without_wrap_jumps_and_one_legend(attitude)
 
 def test_tilt_panels_show_roll_and_pitch_in_degrees_with_the_protocol_holds(attitude):
     t, truth, good, _, _, _ = attitude
-    known = np.where(t < 2.0, truth[:, :2].T, np.nan)   # a "hold": the angle known only there
+    known = np.where(t < 2.0, truth[:, :2].T, np.nan)  # a "hold": the angle known only there
     fig = plots.tilt_panels(t, truth, {"KF": ((good[:, 0], good[:, 1]), "kf")}, known=known, shade=[(1.0, 2.0)])
     assert [ax.get_ylabel() for ax in fig.axes] == ["roll (°)", "pitch (°)"]
     for i, ax in enumerate(fig.axes):
@@ -82,9 +87,9 @@ def test_tilt_panels_show_roll_and_pitch_in_degrees_with_the_protocol_holds(atti
         np.testing.assert_allclose(truth_line.get_ydata(), truth[:, i] * 180 / np.pi)
         np.testing.assert_allclose(kf_line.get_ydata(), good[:, i] * 180 / np.pi)
         assert np.isnan(hold_line.get_ydata()).sum() == np.sum(t >= 2.0)
-    assert len(fig.axes[0].patches) == 1 and not fig.axes[1].patches   # shaded on roll only
+    assert len(fig.axes[0].patches) == 1 and not fig.axes[1].patches  # shaded on roll only
     assert [x.get_text() for x in fig.legends[0].get_texts()] == ["truth", "KF", "protocol (holds)"]
-    assert all(ax.get_legend() is None for ax in fig.axes)   # one legend for both panels
+    assert all(ax.get_legend() is None for ax in fig.axes)  # one legend for both panels
     assert line_colours(fig) <= PALETTE
     no_truth = plots.tilt_panels(t, None, {"KF": ((good[:, 0], good[:, 1]), "kf")})
     assert all(len(ax.get_lines()) == 1 for ax in no_truth.axes)
@@ -126,7 +131,9 @@ def test_rmse_table_against_numpy_and_scipy(attitude):
     assert lines[1].startswith("EKF ") and float(lines[1].split()[-1]) == pytest.approx(rotation, abs=0.006)
     assert [float(v) for v in lines[2].split()[-4:-1]] == pytest.approx(table["accel/mag only"], abs=0.006)
     lines.clear()
-    plots.rmse_table({"EKF": good}, truth, rotation=True, title="04_attitude_tour", note="   RMSE (°)", out=lines.append)
+    plots.rmse_table(
+        {"EKF": good}, truth, rotation=True, title="04_attitude_tour", note="   RMSE (°)", out=lines.append
+    )
     assert lines[0] == f"{'04_attitude_tour':26s} {'roll':>6s} {'pitch':>6s} {'yaw':>6s} {'rotation':>9s}   RMSE (°)"
     lines.clear()
     assert plots.rmse_table({"EKF": good}, None, hint="compare by eye", out=lines.append) is None
@@ -159,8 +166,7 @@ def test_consistency_table_against_scipy():
 
 def test_sweep_is_log_log_with_units_and_marks():
     values = np.logspace(-2, 1, 7)
-    fig = plots.sweep(values, {"roll": values**0.5, "pitch": values}, xlabel="σ_a (m/s²)",
-                      marks={"datasheet": 0.006})
+    fig = plots.sweep(values, {"roll": values**0.5, "pitch": values}, xlabel="σ_a (m/s²)", marks={"datasheet": 0.006})
     ax = fig.axes[0]
     assert (ax.get_xscale(), ax.get_yscale()) == ("log", "log")
     assert (ax.get_xlabel(), ax.get_ylabel()) == ("σ_a (m/s²)", "RMSE (°)")
@@ -170,12 +176,20 @@ def test_sweep_is_log_log_with_units_and_marks():
 
 def test_sweep_draws_each_reference_as_a_level_line_in_its_sensors_colour():
     values = np.logspace(-12, -2, 11)
-    fig = plots.sweep(values, {"KF": 1.0 + np.abs(np.log10(values) + 7)}, "q (rad²)", marks={"best q": 1e-7},
-                      references={"accel only": (4.2, "accel"), "gyro only": (9.1, "gyro")})
+    fig = plots.sweep(
+        values,
+        {"KF": 1.0 + np.abs(np.log10(values) + 7)},
+        "q (rad²)",
+        marks={"best q": 1e-7},
+        references={"accel only": (4.2, "accel"), "gyro only": (9.1, "gyro")},
+    )
     ax = fig.axes[0]
     levels = {line.get_label(): line for line in ax.get_lines()}
     for label, y, kind in (("accel only", 4.2, "accel"), ("gyro only", 9.1, "gyro")):
-        assert np.all(np.asarray(levels[label].get_ydata()) == y) and list(levels[label].get_xdata()) == [0, 1]  # axhline
+        assert np.all(np.asarray(levels[label].get_ydata()) == y) and list(levels[label].get_xdata()) == [
+            0,
+            1,
+        ]  # axhline
         assert mcolors.to_hex(levels[label].get_color()) == plots.COLORS[kind].lower()
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["KF", "best q", "accel only", "gyro only"]
     assert plots.sweep(values, {"KF": values}, "q (rad²)").axes[0].get_lines()[-1].get_label() == "KF"  # none asked
@@ -191,14 +205,18 @@ def test_windows_of_and_label_phases_take_both_phase_forms():
 def board_recording(sensors=("acc", "gyr", "mag"), phases=()):
     """A 10 s, 10 Hz recording in counts; the phone's 'flat' mount (body x = sensor y, y = x, z = −z)."""
     from kfkit.io import SENSOR_COLUMNS, Recording
+
     t = np.arange(100) / 10.0
     data = {"t": t}
     for k, sensor in enumerate(sensors):
         for i, col in enumerate(SENSOR_COLUMNS[sensor]):
             data[col] = np.full(len(t), 100.0 * (k + 1) + i)
-    meta = {"rate_hz": 10.0, "phases": list(phases),
-            "sensors": {s: {"sensitivity": 0.01} for s in sensors},
-            "mount": {s: [[0, 1, 0], [1, 0, 0], [0, 0, -1]] for s in sensors}}
+    meta = {
+        "rate_hz": 10.0,
+        "phases": list(phases),
+        "sensors": {s: {"sensitivity": 0.01} for s in sensors},
+        "mount": {s: [[0, 1, 0], [1, 0, 0], [0, 0, -1]] for s in sensors},
+    }
     return Recording(meta, data)
 
 
@@ -207,7 +225,7 @@ def test_recording_signal_is_the_body_frame_in_units_with_runs_of_one_label_name
     rec = board_recording(phases=[{"label": l, "start": s, "end": e} for l, s, e in runs])
     fig, ax = plt_subplots()
     plots.recording_signal(ax, rec, "gyr", title="board: turns")
-    counts = np.array([200.0, 201.0, 202.0])                 # gyro, sensor frame; body = M_bs · counts · 0.01 rad/s
+    counts = np.array([200.0, 201.0, 202.0])  # gyro, sensor frame; body = M_bs · counts · 0.01 rad/s
     expected = np.degrees(np.array([counts[1], counts[0], -counts[2]]) * 0.01)
     assert [line.get_ydata()[0] for line in ax.get_lines()] == pytest.approx(expected)
     assert (ax.get_ylabel(), ax.get_xlabel(), ax.get_title()) == ("angular rate (°/s)", "time (s)", "board: turns")
@@ -238,6 +256,7 @@ def test_recording_signals_show_only_the_sensors_a_recording_has():
 
 def plt_subplots():
     import matplotlib.pyplot as plt
+
     return plt.subplots()
 
 
@@ -246,13 +265,24 @@ def test_allan_draws_the_curves_scaled_and_the_white_noise_line_meets_allantools
     Allan deviation of the same samples, within its sampling error; the K√(τ/3) line is left out without K."""
     allantools = pytest.importorskip("allantools")
     import matplotlib.pyplot as plt
+
     rate, N = 50.0, 0.002
     x = np.random.default_rng(3).normal(0.0, N * np.sqrt(rate), (20000, 3))
     taus = np.array([0.02, 0.1, 1.0, 5.0, 20.0])
     adev = np.column_stack([allantools.oadev(x[:, i], rate=rate, data_type="freq", taus=taus)[1] for i in range(3)])
     fig, ax = plt.subplots()
-    plots.allan(ax, taus, adev, "°/s", scale=np.degrees(1.0), white=("datasheet", N), walk=("bias walk", None),
-                arw=N, minimum=(taus[[-1, -1, -1]], adev[-1]), title="gyro")
+    plots.allan(
+        ax,
+        taus,
+        adev,
+        "°/s",
+        scale=np.degrees(1.0),
+        white=("datasheet", N),
+        walk=("bias walk", None),
+        arw=N,
+        minimum=(taus[[-1, -1, -1]], adev[-1]),
+        title="gyro",
+    )
     curves, _, _, white, arw, _ = ax.get_lines()  # x, y, z, N/√τ, ARW, minimum: no walk line, K is None
     assert (ax.get_xscale(), ax.get_yscale(), ax.get_ylabel()) == ("log", "log", "Allan deviation (°/s)")
     assert curves.get_ydata() == pytest.approx(np.degrees(adev[:, 0]))
@@ -273,18 +303,24 @@ def test_compare_values_shows_its_own_unit_and_compare_angles_stays_in_degrees(a
     t, truth, good, _, _, _ = attitude
     fig = plots.compare_values(t, truth[:, 0], {"KF": (good[:, 0], "kf"), "raw": good[:, 1]}, ylabel="v_y", unit="m/s")
     ax = fig.axes[0]
-    assert [line.get_ydata() for line in ax.get_lines()] == [pytest.approx(v) for v in (truth[:, 0], good[:, 0], good[:, 1])]
+    assert [line.get_ydata() for line in ax.get_lines()] == [
+        pytest.approx(v) for v in (truth[:, 0], good[:, 0], good[:, 1])
+    ]
     assert (ax.get_ylabel(), ax.get_xlabel()) == ("v_y (m/s)", "time (s)") and line_colours(fig) <= PALETTE
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["truth", "KF", "raw"]
     ax = plots.compare_angles(t, truth[:, 0], {"KF": (good[:, 0], "kf")}, ylabel="sideslip β").axes[0]
-    assert ax.get_lines()[0].get_ydata() == pytest.approx(truth[:, 0] * 180.0 / np.pi) and ax.get_ylabel() == "sideslip β (°)"
+    assert (
+        ax.get_lines()[0].get_ydata() == pytest.approx(truth[:, 0] * 180.0 / np.pi)
+        and ax.get_ylabel() == "sideslip β (°)"
+    )
     assert len(plots.compare_values(t, None, {"KF": good[:, 0]}).axes[0].get_lines()) == 1  # no truth: estimates only
 
 
 def test_compare_angles_shades_its_windows_and_names_them_once_in_the_legend(attitude):
     t, truth, good, _, _, _ = attitude
-    ax = plots.compare_angles(t, truth[:, 0], {"KF": (good[:, 0], "kf")}, shade=[(1.0, 2.0), (5.0, 6.0)],
-                              shade_label="sideways shake").axes[0]
+    ax = plots.compare_angles(
+        t, truth[:, 0], {"KF": (good[:, 0], "kf")}, shade=[(1.0, 2.0), (5.0, 6.0)], shade_label="sideways shake"
+    ).axes[0]
     spans = [p.get_x() for p in ax.patches], [p.get_x() + p.get_width() for p in ax.patches]
     assert spans == ([1.0, 5.0], [2.0, 6.0])
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["truth", "KF", "sideways shake"]
@@ -306,7 +342,12 @@ def test_vehicle_signals_are_four_panels_in_degrees_and_km_per_hour():
     from kfkit.io import Recording
 
     t = np.arange(50) / 10.0
-    columns = {"delta": np.full(50, np.pi / 36), "yaw_rate": np.full(50, np.pi / 18), "ay": np.full(50, 2.5), "vx": np.full(50, 10.0)}
+    columns = {
+        "delta": np.full(50, np.pi / 36),
+        "yaw_rate": np.full(50, np.pi / 18),
+        "ay": np.full(50, 2.5),
+        "vx": np.full(50, 10.0),
+    }
     fig = plots.vehicle_signals(Recording({"rate_hz": 10.0}, {"t": t, **columns}), title="drive")
     assert [ax.get_ylabel() for ax in fig.axes] == ["δ (°)", "r (°/s)", "a_y (m/s²)", "V_x (km/h)"]
     assert [ax.get_lines()[0].get_ydata()[0] for ax in fig.axes] == pytest.approx([5.0, 10.0, 2.5, 36.0])
@@ -343,7 +384,7 @@ def test_nis_average_bounds_count_the_valid_samples_in_the_window(every):
     # the drawn average is the mean of the valid values in the window (numpy)
     line = next(ln for ln in ax.lines if "average" in ln.get_label())
     k = 500
-    assert line.get_ydata()[k] == pytest.approx(np.nanmean(values[k - 48:k + 48]), rel=1e-12)
+    assert line.get_ydata()[k] == pytest.approx(np.nanmean(values[k - 48 : k + 48]), rel=1e-12)
 
 
 def test_nis_plot_of_an_update_that_never_happened_draws_no_band():
@@ -362,8 +403,10 @@ def test_rmse_table_rotation_leaves_out_rows_whose_truth_is_missing(attitude):
     lines = []
     plots.rmse_table({"good": good}, gappy, rotation=True, out=lines.append)
     keep = ~np.isnan(gappy[:, 0])
-    angle = (Rotation.from_euler("ZYX", good[keep][:, ::-1]).inv() * Rotation.from_euler("ZYX", truth[keep][:, ::-1])).magnitude()
-    assert float(lines[-1].split()[-1]) == pytest.approx(np.degrees(np.sqrt(np.mean(angle ** 2))), abs=0.006)
+    angle = (
+        Rotation.from_euler("ZYX", good[keep][:, ::-1]).inv() * Rotation.from_euler("ZYX", truth[keep][:, ::-1])
+    ).magnitude()
+    assert float(lines[-1].split()[-1]) == pytest.approx(np.degrees(np.sqrt(np.mean(angle**2))), abs=0.006)
 
 
 def test_consistency_table_nees_leaves_out_steps_without_truth():

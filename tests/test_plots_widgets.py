@@ -1,14 +1,17 @@
 """Figures carry units; the tuning panel re-runs the filter and redraws when a value changes."""
+
 import matplotlib
 
 matplotlib.use("Agg")
 
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-from waiting import HANG_GUARD_S  # noqa: E402
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from waiting import HANG_GUARD_S
 
-from kfkit import filters, plots, widgets  # noqa: E402
-from kfkit.metrics import rmse  # noqa: E402
+from kfkit import filters, plots, sim, widgets
+from kfkit.io import Recording
+from kfkit.metrics import rmse
 
 
 @pytest.fixture
@@ -53,11 +56,6 @@ def test_tuning_panel_reruns_and_redraws(signals):
 
 
 # --- live 3-D attitude view (lab 04) --------------------------------------------------------
-
-from scipy.spatial.transform import Rotation  # noqa: E402
-
-from kfkit import sim  # noqa: E402
-from kfkit.io import Recording  # noqa: E402
 
 
 def enu_from_ned(v):
@@ -150,7 +148,9 @@ def test_live_attitude_applies_a_calibration_and_names_a_bad_method():
     from kfkit.calibration import Calibration
 
     bias = np.array([0.01, -0.02, 0.015])  # rad/s, body frame
-    rec = sim.simulate_imu(sim.stationary(3.0, 104.0, 0.2, -0.1, 1.0), seed=4, gyro_bias=np.diag([1.0, -1.0, -1.0]) @ bias)
+    rec = sim.simulate_imu(
+        sim.stationary(3.0, 104.0, 0.2, -0.1, 1.0), seed=4, gyro_bias=np.diag([1.0, -1.0, -1.0]) @ bias
+    )
     cal = Calibration(gyro_bias=bias.tolist())
     q = widgets.LiveAttitude(calibration=cal).update(rec)
     gyr, acc, mag = cal.apply(rec)
@@ -169,8 +169,11 @@ def test_live_view_follows_the_virtual_board(tmp_path, monkeypatch):
     angles = np.radians([17.0, -11.0, 57.0])
     motion = sim.stationary(20.0, 104.0, *angles)
     with capture.Recorder(capture.VirtualBoard(motion=motion, realtime=False, seed=1), seconds=8) as recorder:
-        view = widgets.AttitudeView.live(lambda: recorder.recording(last_seconds=2.0),
-                                         estimator=widgets.LiveAttitude("mekf", calibration="auto"), start=False)
+        view = widgets.AttitudeView.live(
+            lambda: recorder.recording(last_seconds=2.0),
+            estimator=widgets.LiveAttitude("mekf", calibration="auto"),
+            start=False,
+        )
         assert recorder.done.wait(120)  # a safety net: the board's 8 s end it
         view.poll()
         q = view.latest
@@ -212,14 +215,18 @@ def test_live_attitude_finds_the_boards_calibration_and_shows_a_wrong_one():
     rec = datasets.load("04_attitude_tour").head(5.0)  # the Nucleo unit the bundled calibration belongs to
     q = widgets.LiveAttitude("mekf", calibration="auto").update(rec)
     gyr, acc, mag = load_calibration(board=rec.meta["board"]).apply(rec)
-    np.testing.assert_allclose(q, filters.estimate_attitude(gyr, acc, mag, rec.rate_hz, method="mekf").quat[-1], atol=1e-12)
-    view = widgets.AttitudeView.live(lambda: rec, estimator=widgets.LiveAttitude(calibration=Calibration(board="mpu6050")),
-                                     start=False)
+    np.testing.assert_allclose(
+        q, filters.estimate_attitude(gyr, acc, mag, rec.rate_hz, method="mekf").quat[-1], atol=1e-12
+    )
+    view = widgets.AttitudeView.live(
+        lambda: rec, estimator=widgets.LiveAttitude(calibration=Calibration(board="mpu6050")), start=False
+    )
     view.poll()
     assert view.latest is None and "calibration is for board 'mpu6050'" in view.status.value
 
 
 # --- the live views' timers, through matplotlib's own timer machinery ------------------------------------------
+
 
 def run_timer_on_tornado(timer, stop_when, safety_s=HANG_GUARD_S):
     """Run ``timer`` (ipympl's TimerTornado) on a real tornado IOLoop, as ipykernel does, until ``stop_when()`` or the
@@ -239,11 +246,13 @@ def run_timer_on_tornado(timer, stop_when, safety_s=HANG_GUARD_S):
     loop = asyncio.new_event_loop()
     asyncio.set_event_loop(loop)
     try:
+
         async def until_done():
             timer.start()
             deadline = time.monotonic() + safety_s  # a hang guard only
             while timer._timer is not None and not stop_when() and time.monotonic() < deadline:
                 await asyncio.sleep(0.02)
+
         loop.run_until_complete(until_done())
     finally:
         timer._on_timer = on_timer
@@ -265,16 +274,18 @@ def test_live_view_timer_runs_clean_and_stops_when_the_capture_ends(tmp_path, mo
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
     angles = np.radians([12.0, -8.0, 40.0])
     board = capture.VirtualBoard(motion=sim.stationary(30.0, 104.0, *angles), seed=2)  # real time: many ticks
-    with caplog.at_level(logging.ERROR):
-        with capture.Recorder(board, seconds=1.5) as recorder:
-            view = widgets.AttitudeView.live(recorder, estimator=widgets.LiveAttitude("mekf", calibration="auto"),
-                                             interval_ms=50, start=False)
-            ticks = run_timer_on_tornado(view.timer, stop_when=lambda: False)
-            assert recorder.done.is_set()
+    with caplog.at_level(logging.ERROR), capture.Recorder(board, seconds=1.5) as recorder:
+        view = widgets.AttitudeView.live(
+            recorder, estimator=widgets.LiveAttitude("mekf", calibration="auto"), interval_ms=50, start=False
+        )
+        ticks = run_timer_on_tornado(view.timer, stop_when=lambda: False)
+        assert recorder.done.is_set()
     assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text  # not one traceback
     assert view.timer._timer is None and ticks >= 3  # it ticked while recording, then stopped by itself
     assert view.timer.callbacks == [(view.poll, (), {})]  # and poll was never dropped for returning 0
-    assert view.latest is not None and view.estimator.t_last == pytest.approx(1.5 - 1 / 104, abs=1e-6)  # the last sample
+    assert view.latest is not None and view.estimator.t_last == pytest.approx(
+        1.5 - 1 / 104, abs=1e-6
+    )  # the last sample
     got = Rotation.from_quat(np.r_[view.latest[1:], view.latest[0]])
     assert (Rotation.from_euler("ZYX", angles[::-1]).inv() * got).magnitude() < np.radians(3.0)
 
@@ -313,11 +324,15 @@ def test_tuning_sliders_start_at_their_values_even_outside_the_suggested_range(s
     """A measured r below the lab's range widens the range; the browser's slider grid passes through each
     initial value (value = 10**(min + k·step)), so its read-out shows what panel.values holds."""
     t, truth, gyro, z = signals
-    panel = widgets.tune(lambda q, r: filters.roll_kf(gyro, z, 0.01, q, r).x, t, truth,
-                         {"q": (7.5e-11, 1e-9, 1e-2), "r": (3.3e-4, 1e-3, 1.0)})
+    panel = widgets.tune(
+        lambda q, r: filters.roll_kf(gyro, z, 0.01, q, r).x,
+        t,
+        truth,
+        {"q": (7.5e-11, 1e-9, 1e-2), "r": (3.3e-4, 1e-3, 1.0)},
+    )
     assert panel.values == pytest.approx({"q": 7.5e-11, "r": 3.3e-4}, rel=1e-12)
     for name, slider in panel.sliders.items():
-        assert 10 ** slider.min <= panel.values[name] <= 10 ** slider.max
+        assert 10**slider.min <= panel.values[name] <= 10**slider.max
         k = (np.log10(panel.values[name]) - slider.min) / slider.step
         assert abs(k - round(k)) < 1e-9, f"{name}: its value is not on the slider's grid"
     assert 10 ** panel.sliders["q"].max >= 1e-2 and 10 ** panel.sliders["r"].max >= 1.0  # the suggested range is kept

@@ -1,6 +1,7 @@
 """The bundled real recordings (kfkit.real_data): the resampler against signal theory, the frame and timing
 against physics (gravity at rest, gyro integration vs motion capture), the conversion checked like
 ``data regenerate --check``, attribution, size. Tests that read ../shared/ skip cleanly without it."""
+
 import json
 
 import numpy as np
@@ -17,8 +18,10 @@ from kfkit.paths import data_dir
 FS = 2000.0 / 7.0  # BROAD's rate, Hz
 BROAD_FILES = [name for name in real_data.REAL if "broad" in name]
 SHARED = real_data.shared_dir()
-needs_shared = pytest.mark.skipif(not (SHARED / "broad").is_dir() or not (SHARED / "racetrack").is_dir(),
-                                  reason=f"the originals are not at {SHARED} (set KFKIT_SHARED_DATA)")
+needs_shared = pytest.mark.skipif(
+    not (SHARED / "broad").is_dir() or not (SHARED / "racetrack").is_dir(),
+    reason=f"the originals are not at {SHARED} (set KFKIT_SHARED_DATA)",
+)
 
 
 def _sine(freq, n=20000, fs=FS, phase=0.3):
@@ -42,7 +45,7 @@ def test_antialias_fir_meets_its_specification():
     fs_up = FS * 7
     h = real_data.antialias_fir(fs_up)
     assert len(h) % 2 == 1 and np.allclose(h, h[::-1])  # odd, symmetric: linear phase, whole-sample delay
-    freqs, resp = scipy.signal.freqz(h, worN=2 ** 16, fs=fs_up)
+    freqs, resp = scipy.signal.freqz(h, worN=2**16, fs=fs_up)
     gain = np.abs(resp)
     assert np.max(np.abs(gain[freqs <= real_data.PASS_HZ] - 1.0)) < 2e-3  # Kaiser: ripple ≈ 10^(−60/20)
     assert np.max(gain[freqs >= real_data.STOP_HZ]) < 10 ** (-real_data.STOP_DB / 20) * 1.001
@@ -84,7 +87,9 @@ def test_body_frame_reads_gravity_and_the_accelerometer_tilt_matches_the_motion_
         q_true = euler_to_quat(np.column_stack([rec["true_roll"], rec["true_pitch"], rec["true_yaw"]])[rest])
         seen = np.isfinite(q_true).all(axis=1)
         g_b = Rotation.from_quat(q_true[seen][:, [1, 2, 3, 0]]).inv().apply([0.0, 0.0, -G])  # R_bn(−g_n)
-        angle = np.degrees(np.arccos(np.clip(np.sum(g_b * f[seen], axis=1) / (G * np.linalg.norm(f[seen], axis=1)), -1, 1)))
+        angle = np.degrees(
+            np.arccos(np.clip(np.sum(g_b * f[seen], axis=1) / (G * np.linalg.norm(f[seen], axis=1)), -1, 1))
+        )
         assert np.median(angle) < 0.5, name
 
 
@@ -160,7 +165,9 @@ def test_the_bundled_files_are_what_the_conversion_makes():
 @needs_shared
 def test_data_real_check_names_a_changed_file_and_writes_nothing(tmp_path, capsys):
     for name, entry in real_data.REAL.items():
-        (tmp_path / f"{name}{entry.suffix}").write_text((data_dir() / f"{name}{entry.suffix}").read_text(encoding="utf-8"))
+        (tmp_path / f"{name}{entry.suffix}").write_text(
+            (data_dir() / f"{name}{entry.suffix}").read_text(encoding="utf-8")
+        )
     target = tmp_path / "06_racetrack.csv"
     lines = target.read_text(encoding="utf-8").splitlines(keepends=True)
     lines[500] = lines[500].replace("0", "1", 1)
@@ -181,7 +188,8 @@ def test_racetrack_keeps_the_log_values_and_the_published_parameters():
     rec = datasets.load("06_racetrack")
     meta = rec.meta["vehicle"]
     assert (meta["m"], meta["a"], meta["b"], meta["Cf"], meta["Cr"]) == (982.0, 1.33, 1.07, 70_000.0, 120_000.0)
-    assert abs(meta["Iz"] - 982.0 / 12 * (1.7 ** 2 + 4.09 ** 2)) < 0.1
+    assert abs(meta["Iz"] - 982.0 / 12 * (1.7**2 + 4.09**2)) < 0.1
+    assert "mu" not in meta  # none was published: lab 06 reads the friction from the log (vehicle.peak_friction)
     assert np.allclose(np.diff(rec.t), 0.01, atol=1e-6)
     beta_from_v = np.arctan2(rec["true_vy"], rec["vx"])  # β ≈ v_y / v_x: the log's two measurements agree
     assert np.sqrt(np.mean((beta_from_v - rec["true_beta"]) ** 2)) < np.radians(0.2)

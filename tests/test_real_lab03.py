@@ -1,5 +1,6 @@
 """Lab 03 on the bundled real recordings (BROAD): the magnet's window found from |m| alone, the real-data
 checkpoint's bar and its classic mistakes, and the lab's data source set to "real"."""
+
 from pathlib import Path
 
 import nbformat
@@ -8,11 +9,12 @@ import pytest
 from nbclient import NotebookClient
 from scipy.spatial.transform import Rotation
 from test_checkpoints_every import solution_namespace
+from waiting import HANG_GUARD_S
 
 from kfkit import calibration, datasets
 from kfkit.checkpoints import get, lab03, run_checkpoint
 from kfkit.io import Recording
-from waiting import HANG_GUARD_S
+from kfkit.labs import lab03 as lab03_support
 
 SOLUTION = Path(__file__).resolve().parents[1] / "solutions" / "03_mag_alignment_heading.ipynb"
 
@@ -21,7 +23,7 @@ def with_magnet(rec, start, end, h_body):
     """``rec`` with a constant field ``h_body`` (µT, body frame) added to its magnetometer for start ≤ t < end:
     a magnet fixed on the board is a hard iron, the same in the body frame however the board turns."""
     on = (rec.t >= start) & (rec.t < end)
-    M = np.array(rec.meta["mount"]["mag"])                  # body ← sensor; sensor = Mᵀ body
+    M = np.array(rec.meta["mount"]["mag"])  # body ← sensor; sensor = Mᵀ body
     counts = np.round((h_body @ M) / rec.meta["sensors"]["mag"]["sensitivity"]).astype(int)
     data = dict(rec.data)
     for i, column in enumerate(("mx", "my", "mz")):
@@ -30,10 +32,10 @@ def with_magnet(rec, start, end, h_body):
 
 
 def test_an_undisturbed_trial_has_no_magnet():
-    rec = datasets.load("01_broad_slow_rotation")   # BROAD trial 02: no magnet anywhere
-    mask, B, sigma = lab03.magnet_window(rec)
+    rec = datasets.load("01_broad_slow_rotation")  # BROAD trial 02: no magnet anywhere
+    mask, B, sigma = lab03_support.magnet_window(rec)
     assert not mask.any()
-    assert 40 < B < 50 and 0.3 < sigma < 1.0       # µT: the lab's field and the sensor's noise at rest
+    assert 40 < B < 50 and 0.3 < sigma < 1.0  # µT: the lab's field and the sensor's noise at rest
 
 
 @pytest.mark.parametrize("h_body", [[0.0, 0.0, -8.0], [10.0, -8.0, 4.0]])
@@ -42,9 +44,11 @@ def test_the_magnet_window_is_where_a_magnet_was_added(h_body):
     board turns, where |m| crosses B) is found to within the running median's half width. (A magnet whose field
     changes |m| at rest by less than 5σ is seen only once the board turns: |m| is all the detector looks at.)"""
     rec = with_magnet(datasets.load("01_broad_slow_rotation"), 30.0, 70.0, np.array(h_body))
-    mask, _, _ = lab03.magnet_window(rec)
+    mask, _, _ = lab03_support.magnet_window(rec)
     start, end = rec.t[mask][[0, -1]]
-    assert abs(start - 30.0) <= lab03.MAGNET_SMOOTH_S / 2 and abs(end - 70.0) <= lab03.MAGNET_SMOOTH_S / 2
+    assert (
+        abs(start - 30.0) <= lab03_support.MAGNET_SMOOTH_S / 2 and abs(end - 70.0) <= lab03_support.MAGNET_SMOOTH_S / 2
+    )
 
 
 def test_trial_34s_magnet_goes_on_at_rest_and_off_before_the_motions_end():
@@ -52,11 +56,11 @@ def test_trial_34s_magnet_goes_on_at_rest_and_off_before_the_motions_end():
     (the gyro still reads a board at rest) and off well before it ends; the rests before and after read the
     plain field, the rest with the magnet tens of σ below it."""
     rec = datasets.load(lab03.REAL_MAGNET)
-    mask, B, sigma = lab03.magnet_window(rec)
+    mask, B, sigma = lab03_support.magnet_window(rec)
     on_at, off_at = rec.t[mask][[0, -1]]
-    (move_from, move_to), = [(p["start"], p["end"]) for p in rec.phases if p["label"] == "movement"]
+    ((move_from, move_to),) = [(p["start"], p["end"]) for p in rec.phases if p["label"] == "movement"]
     assert on_at < move_from and move_to - off_at > 30.0
-    assert np.linalg.norm(rec.body("gyr")[np.searchsorted(rec.t, on_at) - 10]) < 0.05   # rad/s: at rest
+    assert np.linalg.norm(rec.body("gyr")[np.searchsorted(rec.t, on_at) - 10]) < 0.05  # rad/s: at rest
     norm = np.linalg.norm(rec.body("mag"), axis=1)
     rest = rec.phase("rest")
     for outside in (rest & (rec.t < on_at), rest & (rec.t > off_at)):
@@ -70,7 +74,9 @@ def test_the_real_checkpoints_bar_lies_between_a_right_fit_and_no_fit():
     (case,) = get("03.real_magnet").cases(np.random.default_rng(0))
     bar = lab03.REAL_BAR_FACTOR * case.expected["off"]
     h, S = calibration.fit_mag_calibration(case.args["mag"], case.args["field_norm"])
-    fitted = lab03.true_tilt_heading_error(calibration.apply_mag_calibration(case.args["mag"], h, S), case.expected["truth"])
+    fitted = lab03.true_tilt_heading_error(
+        calibration.apply_mag_calibration(case.args["mag"], h, S), case.expected["truth"]
+    )
     assert fitted < bar < case.expected["on"] / 2
     assert run_checkpoint(get("03.real_magnet"), calibration.fit_mag_calibration).ok
 
@@ -90,8 +96,8 @@ def test_the_heading_error_helper_is_scipys_yaw_on_a_rotated_field():
 
 
 MISTAKES = [  # (function, text of the model answer, mistaken text): each fails on the real magnet, named
-    ("mag_calibration", "return centre + scale * h, S", "return centre, S"),   # the mean of the readings as h
-    ("mag_calibration", "return centre + scale * h, S", "return h, S"),        # h left in the scaled units
+    ("mag_calibration", "return centre + scale * h, S", "return centre, S"),  # the mean of the readings as h
+    ("mag_calibration", "return centre + scale * h, S", "return h, S"),  # h left in the scaled units
 ]
 
 
@@ -109,7 +115,7 @@ def test_a_wrong_shape_is_named():
 
 
 def test_real_headings_are_refused_with_what_to_do():
-    load = solution_namespace("03")["load"]
+    load = lab03_support.load
     with pytest.raises(ValueError, match="BROAD has no headings protocol; leave it None"):
         load("real", "03_headings")
 
@@ -123,8 +129,14 @@ def test_the_lab_runs_on_the_real_imu_and_finds_its_alignment():
     for name in ("AXIS_TURNS", "MAG_ROTATIONS"):
         assert f"{name} = None" in cell.source
         cell.source = cell.source.replace(f"{name} = None", f'{name} = "real"')
-    NotebookClient(nb, timeout=HANG_GUARD_S, startup_timeout=HANG_GUARD_S, allow_errors=False, kernel_name="python3",   # raises on any error, naming the cell
-                   resources={"metadata": {"path": str(SOLUTION.parent)}}).execute()
+    NotebookClient(
+        nb,
+        timeout=HANG_GUARD_S,
+        startup_timeout=HANG_GUARD_S,
+        allow_errors=False,
+        kernel_name="python3",  # raises on any error, naming the cell
+        resources={"metadata": {"path": str(SOLUTION.parent)}},
+    ).execute()
     printed = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
     assert "Warning" not in printed
     assert "D from the turns: [1 1 1] → M_bs(mag) = [1, -1, -1]" in printed

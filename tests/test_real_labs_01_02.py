@@ -1,11 +1,12 @@
 """Labs 01 and 02 on the bundled real recordings (issue 17): the excerpt lab 01 cuts, the physics its section 10
 states, and what lab 02's section 8 reads off the real rest, each against an oracle outside the lab's code."""
+
 import numpy as np
 import pytest
+from test_checkpoints_every import solution_namespace
 
 from kfkit import datasets, filters, frames, metrics
-from kfkit.checkpoints.lab01 import REAL_MAX_PITCH, REAL_RECORDING, real_excerpt
-from test_checkpoints_every import solution_namespace
+from kfkit.labs.lab01 import REAL_MAX_PITCH, REAL_RECORDING, real_excerpt
 
 
 @pytest.fixture(scope="module")
@@ -19,20 +20,20 @@ def test_the_excerpt_is_the_first_rest_and_the_rotation_about_x_up_to_the_first_
     n = len(excerpt)
     np.testing.assert_array_equal(excerpt.t, full.t[:n])
     moving = full.phase("movement")
-    assert not np.any(np.abs(full["true_pitch"][:n][moving[:n]]) > REAL_MAX_PITCH)   # NaN compares False
-    assert moving[n] and abs(full["true_pitch"][n]) > REAL_MAX_PITCH                  # the very next sample
+    assert not np.any(np.abs(full["true_pitch"][:n][moving[:n]]) > REAL_MAX_PITCH)  # NaN compares False
+    assert moving[n] and abs(full["true_pitch"][n]) > REAL_MAX_PITCH  # the very next sample
     assert excerpt.phase("rest").sum() == (full.phase("rest") & (full.t < full.t[n])).sum() > 30 * full.rate_hz
 
 
 def test_the_excerpt_roll_is_the_motion_capture_roll_made_continuous(excerpt):
-    original = datasets.load(REAL_RECORDING)["true_roll"][:len(excerpt)]
+    original = datasets.load(REAL_RECORDING)["true_roll"][: len(excerpt)]
     roll = excerpt["true_roll"]
     np.testing.assert_array_equal(np.isnan(roll), np.isnan(original))
     seen = ~np.isnan(roll)
     np.testing.assert_allclose(frames.wrap_angle(roll[seen] - original[seen]), 0.0, atol=1e-12)
-    assert np.all(np.abs(np.diff(roll[seen])) < np.pi / 2)          # no jump of 2π left
-    assert np.ptp(roll[seen]) > 1.5 * np.pi                          # and it does pass ±180°: the unwrap mattered
-    assert np.nanmax(np.abs(datasets.load(REAL_RECORDING)["true_roll"])) <= np.pi   # the bundled file's stays wrapped
+    assert np.all(np.abs(np.diff(roll[seen])) < np.pi / 2)  # no jump of 2π left
+    assert np.ptp(roll[seen]) > 1.5 * np.pi  # and it does pass ±180°: the unwrap mattered
+    assert np.nanmax(np.abs(datasets.load(REAL_RECORDING)["true_roll"])) <= np.pi  # the bundled file's stays wrapped
 
 
 def test_the_euler_roll_rate_explains_the_motion_capture_better_than_the_roll_rate_alone(excerpt):
@@ -57,15 +58,22 @@ def test_the_euler_roll_rate_explains_the_motion_capture_better_than_the_roll_ra
 
 
 def test_on_the_real_imu_the_lab_01_filter_beats_each_sensor_alone(excerpt):
-    """Section 10's claim, with the lab's recipe (bias, x0, r, q from the first rest) and kfkit's filter, and
-    filterpy's KalmanFilter run on the same inputs as the oracle for the estimates."""
+    """Section 10's claim, with the lab's recipe (bias, x0 and r from the first rest, q = N²Δt with N the Allan
+    deviation at τ = 1 s of the IMU's rest lab 02 reads, here by allantools) and kfkit's filter, and filterpy's
+    KalmanFilter run on the same inputs as the oracle for the estimates."""
     from filterpy.kalman import KalmanFilter
+
+    allantools = pytest.importorskip("allantools")
 
     rest, moving, dt = excerpt.phase("rest"), excerpt.phase("movement"), 1.0 / excerpt.rate_hz
     gyr, acc, truth = excerpt.body("gyr")[:, 0], excerpt.body("acc"), excerpt["true_roll"]
     gyro = gyr - gyr[rest].mean()
     z = np.unwrap(np.arctan2(-acc[:, 1], -acc[:, 2]))
-    x0, r, q = z[rest].mean(), z[rest].var(), gyro[rest].var() * dt**2
+    lab02_rest = datasets.load("02_broad_rest")
+    N = allantools.oadev(lab02_rest.body("gyr")[:, 0], rate=lab02_rest.rate_hz, data_type="freq", taus=np.array([1.0]))[
+        1
+    ][0]
+    x0, r, q = z[rest].mean(), z[rest].var(), N**2 * dt
     ours = filters.roll_kf(gyro, z, dt, q, r, x0, P0=r).x
 
     kf = KalmanFilter(dim_x=1, dim_z=1, dim_u=1)

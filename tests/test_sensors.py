@@ -1,27 +1,39 @@
 """kfkit.sensors: datasheet arithmetic (done here, independently), counts ↔ SI, boards."""
+
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from kfkit import sensors
-from kfkit.sensors import (BOARDS, MPU6050_GY521, NUCLEO_IKS02A1, board, counts_to_si, iis2mdc_mag,
-                           ism330dhcx_accel, ism330dhcx_gyro, mpu6050_accel, mpu6050_gyro)
+from kfkit.sensors import (
+    BOARDS,
+    MPU6050_GY521,
+    NUCLEO_IKS02A1,
+    board,
+    counts_to_si,
+    iis2mdc_mag,
+    ism330dhcx_accel,
+    ism330dhcx_gyro,
+    mpu6050_accel,
+    mpu6050_gyro,
+)
 
 g = 9.80665
 deg = math.pi / 180
 
 # (spec, SI per LSB worked out from the datasheet figure, full scale in SI)
 DATASHEET = {
-    "mpu_acc_2g": (mpu6050_accel(2), g / 16384, 2 * g),          # 16384 LSB/g
-    "mpu_acc_16g": (mpu6050_accel(16), g / 2048, 16 * g),        # 2048 LSB/g
-    "mpu_gyr_250": (mpu6050_gyro(250), deg / 131, 250 * deg),    # 131 LSB/(°/s)
+    "mpu_acc_2g": (mpu6050_accel(2), g / 16384, 2 * g),  # 16384 LSB/g
+    "mpu_acc_16g": (mpu6050_accel(16), g / 2048, 16 * g),  # 2048 LSB/g
+    "mpu_gyr_250": (mpu6050_gyro(250), deg / 131, 250 * deg),  # 131 LSB/(°/s)
     "mpu_gyr_2000": (mpu6050_gyro(2000), deg / 16.4, 2000 * deg),
-    "ism_acc_4g": (ism330dhcx_accel(4), 0.122e-3 * g, 4 * g),    # 0.122 mg/LSB
+    "ism_acc_4g": (ism330dhcx_accel(4), 0.122e-3 * g, 4 * g),  # 0.122 mg/LSB
     "ism_acc_2g": (ism330dhcx_accel(2), 0.061e-3 * g, 2 * g),
     "ism_gyr_500": (ism330dhcx_gyro(500), 17.5e-3 * deg, 500 * deg),  # 17.5 mdps/LSB
     "ism_gyr_2000": (ism330dhcx_gyro(2000), 70e-3 * deg, 2000 * deg),
-    "iis2mdc": (iis2mdc_mag(), 0.15, 5000.0),                    # 1.5 mgauss/LSB = 0.15 µT; ±50 G
+    "iis2mdc": (iis2mdc_mag(), 0.15, 5000.0),  # 1.5 mgauss/LSB = 0.15 µT; ±50 G
 }
 SPECS = list(DATASHEET.values())
 IDS = list(DATASHEET)
@@ -58,8 +70,9 @@ def test_to_counts_round_trip_within_half_lsb(spec, lsb, fs):
 def test_to_counts_rounds_to_nearest():
     spec = ism330dhcx_gyro(500)
     s = spec.sensitivity
-    np.testing.assert_array_equal(spec.to_counts([0.4 * s, 0.6 * s, -0.4 * s, -0.6 * s, 7.3 * s, -7.7 * s]),
-                                  [0, 1, 0, -1, 7, -8])
+    np.testing.assert_array_equal(
+        spec.to_counts([0.4 * s, 0.6 * s, -0.4 * s, -0.6 * s, 7.3 * s, -7.7 * s]), [0, 1, 0, -1, 7, -8]
+    )
 
 
 @pytest.mark.parametrize("spec, lsb, fs", SPECS, ids=IDS)
@@ -87,7 +100,9 @@ def test_to_si_and_counts_to_si():
     assert mpu6050_gyro(250).to_si(131) == pytest.approx(deg)
 
 
-@pytest.mark.parametrize("spec, unit", [(ism330dhcx_accel(), "m/s^2"), (ism330dhcx_gyro(), "rad/s"), (iis2mdc_mag(), "uT")])
+@pytest.mark.parametrize(
+    "spec, unit", [(ism330dhcx_accel(), "m/s^2"), (ism330dhcx_gyro(), "rad/s"), (iis2mdc_mag(), "uT")]
+)
 def test_metadata_carries_what_converts_counts_back(spec, unit):
     meta = spec.metadata()
     assert meta == {"chip": spec.chip, "full_scale": spec.full_scale, "sensitivity": spec.sensitivity, "unit": unit}
@@ -127,5 +142,5 @@ def test_unknown_board_names_known_boards():
 
 
 def test_specs_are_frozen():
-    with pytest.raises(Exception):
+    with pytest.raises(dataclasses.FrozenInstanceError):
         sensors.iis2mdc_mag().sensitivity = 1.0

@@ -2,6 +2,7 @@
 
 The KF runs as ``estimate_sideslip(..., model=linear_model)`` (:func:`estimate_kf`); the default
 saturating-tyre EKF has its own tests (test_sideslip_ekf.py)."""
+
 import math
 import warnings
 
@@ -11,8 +12,16 @@ from filterpy.kalman import KalmanFilter as FilterpyKF
 
 from kfkit import datasets, discrete
 from kfkit import vehicle as V
-from kfkit.filters import (SideslipKF, SideslipKFSettings, SideslipRun, Step, copied_kinematic_kf, estimate_sideslip,
-                           kinematic_sideslip, sideslip_step)
+from kfkit.filters import (
+    SideslipKF,
+    SideslipKFSettings,
+    SideslipRun,
+    Step,
+    copied_kinematic_kf,
+    estimate_sideslip,
+    kinematic_sideslip,
+    sideslip_step,
+)
 from kfkit.metrics import chi2_bounds, nees, rmse
 
 CAR = V.BicycleParams()
@@ -48,7 +57,7 @@ def test_matches_filterpy_on_the_linear_model():
     kf = FilterpyKF(dim_x=2, dim_z=2, dim_u=1)
     kf.F, kf.B, _ = discrete.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))
     kf.Q = discrete.discretize(A, B, 0.01, np.diag([1e-4, 1e-3]))[2]
-    kf.H, kf.R = C, np.diag([0.003 ** 2, 0.05 ** 2])
+    kf.H, kf.R = C, np.diag([0.003**2, 0.05**2])
     kf.x, kf.P = np.zeros(2), np.diag([math.radians(2.0) ** 2] * 2)
     xs, Ps, priors = [], [], []
     for k in range(len(t)):
@@ -139,7 +148,7 @@ def test_speed_bins_do_not_change_the_estimate():
 def filterpy_reference(t, delta, yaw_rate, ay, vx, model_at):
     """filterpy's KalmanFilter with the matrices ``model_at(k, dt)`` → (Ad, Bd, Qd, C, D) of each step."""
     kf = FilterpyKF(dim_x=2, dim_z=2, dim_u=1)
-    kf.R, kf.x, kf.P = np.diag([0.003 ** 2, 0.05 ** 2]), np.zeros(2), np.diag([math.radians(2.0) ** 2] * 2)
+    kf.R, kf.x, kf.P = np.diag([0.003**2, 0.05**2]), np.zeros(2), np.diag([math.radians(2.0) ** 2] * 2)
     dt0 = float(np.median(np.diff(t)))
     beta = np.empty(len(t))
     for k in range(len(t)):
@@ -152,9 +161,11 @@ def filterpy_reference(t, delta, yaw_rate, ay, vx, model_at):
 
 def exact_model(vx):
     """The model discretised at each sample's own speed and interval (no bins)."""
+
     def model_at(k, dt):
         A, B, C, D = V.linear_model(CAR, vx[k])
         return discrete.discretize(A, B, dt, np.diag([1e-4, 1e-3])) + (C, D)
+
     return model_at
 
 
@@ -184,7 +195,7 @@ def test_low_speed_guard_hands_over_to_the_model_when_starting_from_a_crawl():
     # below v_min: the kinematic β = bδ/L (up to 2° here), well within its stated σ; above: the model's estimate
     assert np.max(err[low]) < math.radians(0.15) and np.all(err[low] < 2 * np.sqrt(res.P[low, 0, 0]))
     handover = int(np.argmax(~low))
-    assert np.max(err[handover + 50:]) < math.radians(0.1)
+    assert np.max(err[handover + 50 :]) < math.radians(0.1)
 
 
 def test_tuning_and_speed_bins_are_validated():
@@ -200,14 +211,17 @@ def good_inputs(n=50):
     return {"t": t, "delta": np.zeros(n), "yaw_rate": np.zeros(n), "ay": np.zeros(n), "vx": np.full(n, 10.0)}
 
 
-@pytest.mark.parametrize("change, message", [
-    (lambda d: d["ay"].__setitem__(7, np.nan), r"ay\[7\] is nan \(at t = 0.07 s\); 1 non-finite"),
-    (lambda d: d.update(vx=d["vx"][:-1]), r"mismatched lengths: t 50, delta 50, yaw_rate 50, ay 50, vx 49"),
-    (lambda d: d["vx"].__setitem__(3, -1.0), r"vx\[3\] = -1.0 m/s is negative"),
-    (lambda d: d["t"].__setitem__(5, 0.02), r"t must increase; t\[5\] = 0.02 s after t\[4\] = 0.04 s"),
-    (lambda d: d.update(delta=np.zeros((50, 1))), r"delta must be a 1-D array"),
-    (lambda d: d.update({k: v[:1] for k, v in d.items()}), r"at least 2 samples, got 1"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda d: d["ay"].__setitem__(7, np.nan), r"ay\[7\] is nan \(at t = 0.07 s\); 1 non-finite"),
+        (lambda d: d.update(vx=d["vx"][:-1]), r"mismatched lengths: t 50, delta 50, yaw_rate 50, ay 50, vx 49"),
+        (lambda d: d["vx"].__setitem__(3, -1.0), r"vx\[3\] = -1.0 m/s is negative"),
+        (lambda d: d["t"].__setitem__(5, 0.02), r"t must increase; t\[5\] = 0.02 s after t\[4\] = 0.04 s"),
+        (lambda d: d.update(delta=np.zeros((50, 1))), r"delta must be a 1-D array"),
+        (lambda d: d.update({k: v[:1] for k, v in d.items()}), r"at least 2 samples, got 1"),
+    ],
+)
 def test_bad_input_gives_a_clear_error(change, message):
     d = good_inputs()
     change(d)
@@ -228,7 +242,7 @@ def test_one_step_with_the_bias_state_matches_filterpy():
     Ab, Bb, Cb = np.pad(A, ((0, 1), (0, 1))), np.vstack([B, [[0.0]]]), np.hstack([C, [[0.0], [1.0]]])
     Ad, Bd, Qd = discrete.discretize(Ab, Bb, 0.01, np.diag([1e-4, 1e-3, 1e-5]))
     L = rng.normal(0, 0.05, (3, 3))
-    x, P, R = rng.normal(0, 0.05, 3), L @ L.T + 1e-4 * np.eye(3), np.diag([0.003 ** 2, 0.05 ** 2])
+    x, P, R = rng.normal(0, 0.05, 3), L @ L.T + 1e-4 * np.eye(3), np.diag([0.003**2, 0.05**2])
     z, d_prev, d = np.array([0.1, 2.0]), 0.02, 0.03
     got = sideslip_step(x, P, d_prev, z, d, Ad, Bd, Qd, Cb, D, R)
     kf = FilterpyKF(dim_x=3, dim_z=2, dim_u=1)

@@ -1,4 +1,5 @@
 """kfkit.sim: simulated sensors against physics (scipy rotations) and noise statistics."""
+
 import dataclasses
 import math
 
@@ -7,20 +8,30 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from kfkit import sensors
+from kfkit import sim as _sim
 from kfkit.frames import accel_tilt
 from kfkit.sim import Motion, sample_times, simulate_imu, sine_roll, stationary
 
 g = 9.80665
 deg = math.pi / 180
-FIELD_N = np.array([19.5, 0.3, 45.0])   # µT, NED
-Z_UP = np.diag([1.0, -1.0, -1.0])        # acc/gyr mounting on both boards (design doc)
+FIELD_N = np.array([19.5, 0.3, 45.0])  # µT, NED
+Z_UP = np.diag([1.0, -1.0, -1.0])  # acc/gyr mounting on both boards (design doc)
 NUCLEO_MAG = np.diag([-1.0, -1.0, 1.0])  # Z_UP · (180° about y)
 
 # independent datasheet figures: SI per LSB and noise density (SI/√Hz)
-LSB = {("nucleo-iks02a1", "acc"): 0.122e-3 * g, ("nucleo-iks02a1", "gyr"): 17.5e-3 * deg,
-       ("nucleo-iks02a1", "mag"): 0.15, ("mpu6050", "acc"): g / 16384, ("mpu6050", "gyr"): deg / 131}
-DENSITY = {("nucleo-iks02a1", "acc"): 60e-6 * g, ("nucleo-iks02a1", "gyr"): 5e-3 * deg,
-           ("mpu6050", "acc"): 400e-6 * g, ("mpu6050", "gyr"): 0.005 * deg}
+LSB = {
+    ("nucleo-iks02a1", "acc"): 0.122e-3 * g,
+    ("nucleo-iks02a1", "gyr"): 17.5e-3 * deg,
+    ("nucleo-iks02a1", "mag"): 0.15,
+    ("mpu6050", "acc"): g / 16384,
+    ("mpu6050", "gyr"): deg / 131,
+}
+DENSITY = {
+    ("nucleo-iks02a1", "acc"): 60e-6 * g,
+    ("nucleo-iks02a1", "gyr"): 5e-3 * deg,
+    ("mpu6050", "acc"): 400e-6 * g,
+    ("mpu6050", "gyr"): 0.005 * deg,
+}
 RATE = {"nucleo-iks02a1": 104.0, "mpu6050": 100.0}
 MAG_RMS = 0.3  # IIS2MDC, 3 mgauss
 
@@ -32,8 +43,7 @@ def R_bn(roll, pitch, yaw):
 
 def simulate_still(roll=0.0, pitch=0.0, yaw=0.0, board="nucleo-iks02a1", seconds=20.0, seed=0, **kw):
     """A stationary board with no bias and no bias walk (only white noise and quantisation)."""
-    kw = {"gyro_bias": [0.0, 0.0, 0.0], "accel_bias": [0.0, 0.0, 0.0],
-          "gyro_bias_rw": 0.0, "accel_bias_rw": 0.0, **kw}
+    kw = {"gyro_bias": [0.0, 0.0, 0.0], "accel_bias": [0.0, 0.0, 0.0], "gyro_bias_rw": 0.0, "accel_bias_rw": 0.0, **kw}
     return simulate_imu(stationary(seconds, RATE[board], roll, pitch, yaw), board=board, seed=seed, **kw)
 
 
@@ -49,6 +59,7 @@ def assert_mean_close(samples, want, board, sensor):
 
 
 # --- stationary physics -------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("board", ["nucleo-iks02a1", "mpu6050"])
 def test_level_board_at_rest(board):
@@ -84,8 +95,15 @@ def test_non_symmetric_mounting_is_applied_both_ways():
     mount = {k: M.round(12).tolist() for k in ("acc", "gyr", "mag")}
     turned = dataclasses.replace(sensors.NUCLEO_IKS02A1, mount=mount)
     angles = (25 * deg, -15 * deg, 40 * deg)
-    rec = simulate_imu(stationary(20.0, 104.0, *angles), board=turned, seed=2, gyro_bias=[0, 0, 0],
-                       accel_bias=[0, 0, 0], gyro_bias_rw=0, accel_bias_rw=0)
+    rec = simulate_imu(
+        stationary(20.0, 104.0, *angles),
+        board=turned,
+        seed=2,
+        gyro_bias=[0, 0, 0],
+        accel_bias=[0, 0, 0],
+        gyro_bias_rw=0,
+        accel_bias_rw=0,
+    )
     f_b = R_bn(*angles) @ [0.0, 0.0, -g]
     assert_mean_close(rec.sensor_si("acc"), M.T @ f_b, "nucleo-iks02a1", "acc")
     assert_mean_close(rec.body("acc"), f_b, "nucleo-iks02a1", "acc")
@@ -136,6 +154,7 @@ def test_default_biases_are_drawn_and_recorded():
 
 # --- noise --------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("board", ["nucleo-iks02a1", "mpu6050"])
 @pytest.mark.parametrize("sensor", ["gyr", "acc"])
 def test_white_noise_std_is_density_times_sqrt_rate(board, sensor):
@@ -162,6 +181,7 @@ def test_gyro_bias_random_walk_scale():
 
 # --- seeds --------------------------------------------------------------------------------
 
+
 def test_same_seed_same_data():
     a = simulate_imu(sine_roll(duration=5.0, vibration_rms=0.2), seed=7)
     b = simulate_imu(sine_roll(duration=5.0, vibration_rms=0.2), seed=7)
@@ -179,10 +199,13 @@ def test_different_seed_different_data():
 
 # --- saturation ---------------------------------------------------------------------------
 
+
 def constant_motion(omega_b=(0, 0, 0), acc_n=(0, 0, 0), seconds=1.0, rate=104.0):
     t = sample_times(seconds, rate)
     n = len(t)
-    return Motion(t, rate, np.zeros((n, 3)), np.tile(omega_b, (n, 1)).astype(float), np.tile(acc_n, (n, 1)).astype(float))
+    return Motion(
+        t, rate, np.zeros((n, 3)), np.tile(omega_b, (n, 1)).astype(float), np.tile(acc_n, (n, 1)).astype(float)
+    )
 
 
 def test_gyro_saturates_at_full_scale():
@@ -194,14 +217,20 @@ def test_gyro_saturates_at_full_scale():
 
 
 def test_mpu_accel_saturates_at_int16():
-    rec = simulate_imu(constant_motion(acc_n=(50.0, 0.0, 0.0), rate=100.0), board="mpu6050", seed=0,
-                       accel_bias=[0, 0, 0], accel_bias_rw=0)
+    rec = simulate_imu(
+        constant_motion(acc_n=(50.0, 0.0, 0.0), rate=100.0),
+        board="mpu6050",
+        seed=0,
+        accel_bias=[0, 0, 0],
+        accel_bias_rw=0,
+    )
     # f_b = a − g_n = [50, 0, −g]; sensor x = body x; ±2 g = 32768 LSB → register limit
     assert np.all(rec["ax"] == 32767)
     assert_mean_close(rec.body("acc")[:, 1:], [0.0, -g], "mpu6050", "acc")  # the other axes are fine
 
 
 # --- sine_roll ----------------------------------------------------------------------------
+
 
 def test_sine_roll_body_rate_is_the_roll_derivative():
     m = sine_roll(duration=40.0, rate_hz=104.0, shakes=())
@@ -215,7 +244,9 @@ def test_sine_roll_body_rate_is_the_roll_derivative():
 def test_sine_roll_amplitude_and_frequency():
     m = sine_roll(duration=60.0, amplitude=np.radians(30.0), freq_hz=0.1, still=5.0)
     later = m.t > 6.0  # after the 1 s envelope
-    np.testing.assert_allclose(m.euler[later, 0], np.radians(30.0) * np.sin(2 * np.pi * 0.1 * (m.t[later] - 5.0)), atol=1e-12)
+    np.testing.assert_allclose(
+        m.euler[later, 0], np.radians(30.0) * np.sin(2 * np.pi * 0.1 * (m.t[later] - 5.0)), atol=1e-12
+    )
 
 
 def test_sine_roll_starts_at_rest():
@@ -243,6 +274,7 @@ def test_sine_roll_vibration_is_seeded_white_noise():
 
 
 # --- magnetometer rate --------------------------------------------------------------------
+
 
 def test_mag_rows_at_a_lower_rate():
     rec = simulate_still(seconds=20.0)  # board default: mag 50 Hz, IMU 104 Hz
@@ -272,6 +304,7 @@ def test_board_without_mag_has_no_mag_columns():
 
 # --- recording layout ---------------------------------------------------------------------
 
+
 def test_recording_columns_times_and_truth():
     m = sine_roll(duration=3.0)
     rec = simulate_imu(m, seed=0)
@@ -296,10 +329,11 @@ def test_sample_times():
 
 # --- attitude motions (lab 04) --------------------------------------------------------------
 
-from kfkit import sim as _sim  # noqa: E402
-
-ATTITUDE_MOTIONS = {"attitude_tour": lambda: _sim.attitude_tour(vibration_rms=0.1, seed=1),
-                    "pitch_over": _sim.pitch_over, "yaw_sweeps": _sim.yaw_sweeps}
+ATTITUDE_MOTIONS = {
+    "attitude_tour": lambda: _sim.attitude_tour(vibration_rms=0.1, seed=1),
+    "pitch_over": _sim.pitch_over,
+    "yaw_sweeps": _sim.yaw_sweeps,
+}
 
 
 def scipy_attitude(euler):
@@ -374,7 +408,9 @@ def test_pitch_over_goes_through_vertical():
     nose = scipy_attitude(m.euler).apply([1.0, 0.0, 0.0])  # body x in NED
     assert nose[:, 2].min() < -np.cos(1 * deg) and nose[:, 2].max() > np.cos(1 * deg)  # straight up, straight down
     hold = (m.t > 9.2) & (m.t < 10.8)  # held at 110° nose up: past vertical, the nose points backwards
-    want = Rotation.from_euler("ZYX", [30, 110, 0], degrees=True).as_euler("ZYX", degrees=True)  # scipy's canonical triple
+    want = Rotation.from_euler("ZYX", [30, 110, 0], degrees=True).as_euler(
+        "ZYX", degrees=True
+    )  # scipy's canonical triple
     got = np.degrees(m.euler[hold].mean(axis=0))[::-1]
     np.testing.assert_allclose(got, want, atol=1e-6)
     assert got[1] == pytest.approx(70.0) and abs(got[2]) == pytest.approx(180.0)
@@ -407,7 +443,9 @@ def test_no_mag_disturbance_draws_nothing_extra():
 
 def test_bad_mag_disturbance_inputs_are_named():
     m = stationary(2.0, 104.0)
-    with pytest.raises(ValueError, match="mag_disturbance must be one NED vector per sample, shape \\(208, 3\\); got \\(3,\\)"):
+    with pytest.raises(
+        ValueError, match="mag_disturbance must be one NED vector per sample, shape \\(208, 3\\); got \\(3,\\)"
+    ):
         simulate_imu(m, mag_disturbance=np.ones(3))
     with pytest.raises(ValueError, match="no phase 'mag_disturbance'"):
         _sim.mag_disturbance(m)
@@ -424,13 +462,22 @@ def test_euler_moves_are_smooth_steps():
 
 # --- calibration motions and imperfections (calibration helper) ------------------------------
 
+
 def test_imperfections_default_to_nothing_and_are_recorded():
     from kfkit.sim import simulate_imu, stationary
+
     plain = simulate_imu(stationary(2.0, 104.0), seed=5)
     same = simulate_imu(stationary(2.0, 104.0), seed=5, accel_scale=None, mag_hard_iron=None)
-    assert plain.meta == same.meta and all(np.array_equal(plain.data[k], same.data[k], equal_nan=True) for k in plain.data)
-    iron = simulate_imu(stationary(2.0, 104.0), seed=5, accel_scale=[1.0, 1.0, 1.1], mag_hard_iron=[30.0, 0.0, 0.0],
-                        mag_soft_iron=2 * np.eye(3))
+    assert plain.meta == same.meta and all(
+        np.array_equal(plain.data[k], same.data[k], equal_nan=True) for k in plain.data
+    )
+    iron = simulate_imu(
+        stationary(2.0, 104.0),
+        seed=5,
+        accel_scale=[1.0, 1.0, 1.1],
+        mag_hard_iron=[30.0, 0.0, 0.0],
+        mag_soft_iron=2 * np.eye(3),
+    )
     assert iron.meta["sim"]["mag_hard_iron"] == [30.0, 0.0, 0.0] and iron.meta["sim"]["accel_scale"][2] == 1.1
     # soft iron doubles the field, hard iron adds 30 µT on sensor x (the same random draws otherwise)
     fresh = ~np.isnan(plain["mx"])
@@ -443,6 +490,7 @@ def test_imperfections_default_to_nothing_and_are_recorded():
 def test_six_faces_labels_the_axis_that_reads_plus_g():
     from kfkit.frames import G
     from kfkit.sim import simulate_imu, six_faces
+
     m = six_faces(seed=2)
     assert sorted(p[2] for p in m.phases) == sorted(["x_up", "x_down", "y_up", "y_down", "z_up", "z_down"])
     rec = simulate_imu(m, seed=0, accel_bias=np.zeros(3), gyro_bias=np.zeros(3))
@@ -456,7 +504,9 @@ def test_six_faces_labels_the_axis_that_reads_plus_g():
 
 def test_calibration_motions_rates_match_their_attitudes():
     from scipy.spatial.transform import Rotation
+
     from kfkit.sim import axis_turns, heading_steps, mag_rotations, six_faces
+
     for m in (six_faces(), mag_rotations(duration=30.0), axis_turns(), heading_steps()):
         R = Rotation.from_euler("ZYX", m.euler[:, ::-1])
         step = (R[:-1].inv() * R[1:]).as_rotvec() * m.rate_hz  # body rate between samples, finite difference
@@ -465,7 +515,9 @@ def test_calibration_motions_rates_match_their_attitudes():
 
 def test_mag_rotations_cover_the_sphere_and_axis_turns_label_each_axis():
     from scipy.spatial.transform import Rotation
+
     from kfkit.sim import axis_turns, mag_rotations
+
     m = mag_rotations()
     u = Rotation.from_euler("ZYX", m.euler[:, ::-1]).inv().apply([19.5, 0.3, 45.0])
     u /= np.linalg.norm(u, axis=1, keepdims=True)
@@ -476,4 +528,6 @@ def test_mag_rotations_cover_the_sphere_and_axis_turns_label_each_axis():
         inside = (turns.t >= t0) & (turns.t < t1)
         axis = "xyz".index(label[-1])
         others = [i for i in range(3) if i != axis]
-        assert np.abs(turns.omega_b[inside][:, axis]).max() > 0.3 and np.abs(turns.omega_b[inside][:, others]).max() < 1e-9
+        assert (
+            np.abs(turns.omega_b[inside][:, axis]).max() > 0.3 and np.abs(turns.omega_b[inside][:, others]).max() < 1e-9
+        )

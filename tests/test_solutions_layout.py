@@ -3,6 +3,7 @@ what a figure shows right under it, not after another code cell's printout.
 
 Read from the solutions' stored outputs (they are what nbval validates and what the hand-outs are made from).
 """
+
 import ast
 import re
 
@@ -11,7 +12,7 @@ import pytest
 
 from kfkit.paths import KIT_ROOT
 
-SOLUTIONS = sorted((KIT_ROOT / "solutions").glob("[0-9][0-9]_*.ipynb"))
+SOLUTIONS = sorted((KIT_ROOT / "solutions").glob("[0-9][0-9]*_*.ipynb"))
 
 
 def draws_a_figure(cell):
@@ -20,8 +21,14 @@ def draws_a_figure(cell):
 
 def unexplained_figures(cells):
     """Indices of the cells whose figure is not followed by a markdown cell of text (a heading starts a new topic)."""
-    return [i for i, cell in enumerate(cells) if draws_a_figure(cell) and not (
-        i + 1 < len(cells) and cells[i + 1].cell_type == "markdown" and not cells[i + 1].source.startswith("#"))]
+    return [
+        i
+        for i, cell in enumerate(cells)
+        if draws_a_figure(cell)
+        and not (
+            i + 1 < len(cells) and cells[i + 1].cell_type == "markdown" and not cells[i + 1].source.startswith("#")
+        )
+    ]
 
 
 @pytest.mark.parametrize("path", SOLUTIONS, ids=lambda p: p.stem)
@@ -32,9 +39,14 @@ def test_every_figure_is_explained_in_the_very_next_cell(path):
 
 
 def test_a_figure_followed_by_a_printout_a_heading_or_nothing_is_unexplained():
-    figure = nbformat.v4.new_code_cell("plot()", outputs=[nbformat.v4.new_output("display_data", {"image/png": "iVBOR"})])
-    printout, heading, text = (nbformat.v4.new_code_cell("print(1)"), nbformat.v4.new_markdown_cell("## 2. Next"),
-                               nbformat.v4.new_markdown_cell("The curve falls because …"))
+    figure = nbformat.v4.new_code_cell(
+        "plot()", outputs=[nbformat.v4.new_output("display_data", {"image/png": "iVBOR"})]
+    )
+    printout, heading, text = (
+        nbformat.v4.new_code_cell("print(1)"),
+        nbformat.v4.new_markdown_cell("## 2. Next"),
+        nbformat.v4.new_markdown_cell("The curve falls because …"),
+    )
     assert unexplained_figures([figure, text, figure, printout, text, figure, heading, figure]) == [2, 5, 7]
 
 
@@ -57,7 +69,7 @@ def unrevealed_predictions(cells):
             bad.append(i)
             continue
         ran, answered = False, False
-        for later in cells[i + 1:]:
+        for later in cells[i + 1 :]:
             if later.cell_type == "markdown" and later.source.startswith("#"):
                 break
             ran = ran or later.cell_type == "code"
@@ -90,7 +102,9 @@ def numbers_given_away(solution_cells, lab_cells):
 def test_every_prediction_is_run_then_revealed_and_the_hand_out_gives_no_number_away(path):
     solution = nbformat.read(path, as_version=4).cells
     lab = nbformat.read(KIT_ROOT / "labs" / path.name, as_version=4).cells
-    assert unrevealed_predictions(solution) == [], f"{path.name}: prompts without a reveal cell after the cells they ask about"
+    assert unrevealed_predictions(solution) == [], (
+        f"{path.name}: prompts without a reveal cell after the cells they ask about"
+    )
     assert numbers_given_away(solution, lab) == {}, f"{path.name}: folded explanations quote the bundled run's numbers"
     for cell in lab:
         if tagged(cell, "reveal"):
@@ -148,9 +162,15 @@ def test_each_lab_states_its_core_time_and_keeps_to_two_hours(path):
 
 def test_core_minutes_leaves_out_optional_sections():
     md, code = nbformat.v4.new_markdown_cell, nbformat.v4.new_code_cell
-    cells = [md("# Lab\n" + "word " * 400), code("### BEGIN SOLUTION\nx = 1\n### END SOLUTION"), code("plot()"),
-             md("## 9. Extra (optional)\n" + "word " * 2000), code("### BEGIN SOLUTION\n### END SOLUTION"),
-             md("### 9.1 deeper"), md("## 10. Questions")]
+    cells = [
+        md("# Lab\n" + "word " * 400),
+        code("### BEGIN SOLUTION\nx = 1\n### END SOLUTION"),
+        code("plot()"),
+        md("## 9. Extra (optional)\n" + "word " * 2000),
+        code("### BEGIN SOLUTION\n### END SOLUTION"),
+        md("### 9.1 deeper"),
+        md("## 10. Questions"),
+    ]
     assert core_minutes(cells) == pytest.approx((1 + 400 + 2) / 200 + 10 + 1)  # "Lab", 400 words, "10 Questions"
 
 
@@ -175,5 +195,6 @@ def checkpoint_imports(cells) -> set[str]:
 
 @pytest.mark.parametrize("path", SOLUTIONS, ids=lambda p: p.stem)
 def test_a_lab_imports_only_check_from_the_checkpoints(path):
-    assert checkpoint_imports(nbformat.read(path, as_version=4).cells) == set(), \
+    assert checkpoint_imports(nbformat.read(path, as_version=4).cells) == set(), (
         f"{path.name}: a lab's data preparation and truth helpers live in kfkit.labs, not kfkit.checkpoints"
+    )

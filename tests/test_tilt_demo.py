@@ -1,4 +1,5 @@
 """`kfkit demo tilt`: $ATT lines, the virtual board's attitude option, the game's core, the CLI."""
+
 import math
 import time
 
@@ -11,8 +12,8 @@ from kfkit.capture import Message, VirtualBoard, encode_message, parse_line
 from kfkit.cli import main
 from kfkit.demo import RaceGame, controls, driving_motion, road_center
 
-
 # --- $ATT lines ---------------------------------------------------------------------------------
+
 
 def test_att_line_round_trip_and_checksum():
     line = encode_message("ATT", (12.5, -3.25))
@@ -61,14 +62,18 @@ def test_virtual_board_emits_att_lines_that_track_the_truth():
 
 # --- the game's core --------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("roll, pitch, want", [
-    (0.0, 0.0, (0.0, 0.0)),
-    (1.9, -1.9, (0.0, 0.0)),          # inside the 2° dead zone
-    (30.0, -30.0, (1.0, 1.0)),        # full right, full throttle (nose down)
-    (-45.0, 60.0, (-1.0, -1.0)),      # clipped
-    (16.0, 9.0, (0.5, -0.25)),        # (16 − 2) / 28, −(9 − 2) / 28
-    (float("nan"), 5.0, (0.0, -3 / 28)),
-])
+
+@pytest.mark.parametrize(
+    "roll, pitch, want",
+    [
+        (0.0, 0.0, (0.0, 0.0)),
+        (1.9, -1.9, (0.0, 0.0)),  # inside the 2° dead zone
+        (30.0, -30.0, (1.0, 1.0)),  # full right, full throttle (nose down)
+        (-45.0, 60.0, (-1.0, -1.0)),  # clipped
+        (16.0, 9.0, (0.5, -0.25)),  # (16 − 2) / 28, −(9 − 2) / 28
+        (float("nan"), 5.0, (0.0, -3 / 28)),
+    ],
+)
 def test_controls(roll, pitch, want):
     assert controls(roll, pitch) == pytest.approx(want)
 
@@ -98,6 +103,7 @@ def test_bad_dt():
 
 
 # --- the stream and the game, end to end --------------------------------------------------------------
+
 
 @pytest.mark.slow
 def test_att_lines_from_the_virtual_board_drive_the_game_by_board_time():
@@ -135,25 +141,35 @@ def test_stream_says_why_there_are_no_att_lines(monkeypatch):
     import kfkit.demo as demo
 
     monkeypatch.setattr(demo, "NO_ATTITUDE_S", 1.0)
-    with VirtualBoard(board="mpu6050", realtime=False) as board:  # raw samples, no attitude=True
-        with pytest.raises(demo.DemoError, match=f"{board.port} sends samples but no \\$ATT lines: flash firmware/mpu6050_tilt_kf"):
-            demo.run_tilt_demo(board.port, seconds=5.0, headless=True)
-    with VirtualBoard(board="mpu6050", faults={"silent": True}) as board:
-        with pytest.raises(demo.DemoError, match=f"nothing received from {board.port}"):
-            demo.run_tilt_demo(board.port, seconds=5.0, headless=True)
+    with (
+        VirtualBoard(board="mpu6050", realtime=False) as board,  # raw samples, no attitude=True
+        pytest.raises(
+            demo.DemoError, match=f"{board.port} sends samples but no \\$ATT lines: flash firmware/mpu6050_tilt_kf"
+        ),
+    ):
+        demo.run_tilt_demo(board.port, seconds=5.0, headless=True)
+    with (
+        VirtualBoard(board="mpu6050", faults={"silent": True}) as board,
+        pytest.raises(demo.DemoError, match=f"nothing received from {board.port}"),
+    ):
+        demo.run_tilt_demo(board.port, seconds=5.0, headless=True)
 
 
 def test_unplugged_board_is_named():
     import kfkit.demo as demo
 
     motion = driving_motion()
-    with VirtualBoard(board="mpu6050", motion=motion, attitude=True, realtime=False, loop=False,
-                      faults={"disconnect": 700}) as board:
-        with pytest.raises(demo.DemoError, match=f"{board.port} stopped sending .*: board unplugged\\?"):
-            demo.run_tilt_demo(board.port, seconds=30.0, headless=True)
+    with (
+        VirtualBoard(
+            board="mpu6050", motion=motion, attitude=True, realtime=False, loop=False, faults={"disconnect": 700}
+        ) as board,
+        pytest.raises(demo.DemoError, match=f"{board.port} stopped sending .*: board unplugged\\?"),
+    ):
+        demo.run_tilt_demo(board.port, seconds=30.0, headless=True)
 
 
 # --- the command ----------------------------------------------------------------------------------------
+
 
 @pytest.mark.slow
 def test_demo_runs_headless_against_the_virtual_board(capsys):
@@ -192,7 +208,7 @@ class FakeStream:
         self.latest = attitudes[-1] if attitudes else None
 
     def take(self, limit=None):
-        out, self.queue = self.queue[:limit], self.queue[len(self.queue[:limit]):]
+        out, self.queue = self.queue[:limit], self.queue[len(self.queue[:limit]) :]
         return out
 
     def waiting_for(self):
@@ -247,8 +263,13 @@ def test_demo_window_opens_and_closes_after_its_seconds(tmp_path):
     if shutil.which("xvfb-run") is None:
         pytest.skip("xvfb-run is not installed (apt-get install xvfb): the window path is not tried here")
     env = {**os.environ, "MPLBACKEND": "TkAgg"}
-    run = subprocess.run(["xvfb-run", "-a", sys.executable, "-m", "kfkit", "demo", "tilt", "--port", "virtual",
-                          "--seconds", "3"], capture_output=True, text=True, timeout=60, env=env)
+    run = subprocess.run(
+        ["xvfb-run", "-a", sys.executable, "-m", "kfkit", "demo", "tilt", "--port", "virtual", "--seconds", "3"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+    )
     assert run.returncode == 0, run.stderr
     assert "bad lines 0" in run.stdout and " s driven" in run.stdout
 
@@ -259,8 +280,9 @@ def test_notebook_panel_timer_stops_when_the_board_is_unplugged_and_after_close(
     gone and stops; after close() the drive button cannot restart it."""
     from kfkit.demo import TiltDemoPanel
 
-    board = VirtualBoard(board="mpu6050", motion=driving_motion(), attitude=True, realtime=False, loop=False,
-                         faults={"disconnect": 400}).start()
+    board = VirtualBoard(
+        board="mpu6050", motion=driving_motion(), attitude=True, realtime=False, loop=False, faults={"disconnect": 400}
+    ).start()
     try:
         panel = TiltDemoPanel(board.port)
         panel.timer.start()

@@ -1,4 +1,5 @@
 """kfkit.vehicle: bicycle models against physics and independent oracles, scenarios, vehicle CSVs."""
+
 import json
 import math
 import warnings
@@ -21,11 +22,18 @@ CAR = V.BicycleParams()
 
 
 def random_params(rng):
-    return V.BicycleParams(m=rng.uniform(900, 2500), Iz=rng.uniform(1200, 4500), a=rng.uniform(0.9, 1.5),
-                           b=rng.uniform(1.2, 1.8), Cf=rng.uniform(6e4, 2e5), Cr=rng.uniform(6e4, 2.5e5))
+    return V.BicycleParams(
+        m=rng.uniform(900, 2500),
+        Iz=rng.uniform(1200, 4500),
+        a=rng.uniform(0.9, 1.5),
+        b=rng.uniform(1.2, 1.8),
+        Cf=rng.uniform(6e4, 2e5),
+        Cr=rng.uniform(6e4, 2.5e5),
+    )
 
 
 # --- parameters ----------------------------------------------------------------------------
+
 
 def test_default_car_understeers_with_the_textbook_gradient():
     assert CAR.a * CAR.Cf < CAR.b * CAR.Cr
@@ -40,6 +48,7 @@ def test_bad_parameters_are_named(field, value):
 
 
 # --- the linear model ----------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("vx", [0.0, -3.0, float("nan")])
 def test_linear_model_refuses_a_speed_it_would_divide_by(vx):
@@ -90,9 +99,11 @@ def test_steady_state_yaw_gain_matches_the_understeer_formula():
         L = p.a + p.b
         K = p.m / L * (p.b / p.Cf - p.a / p.Cr)
         beta, r, ay = V.steady_state(p, vx, delta)
-        assert r == pytest.approx(vx / (L + K * vx ** 2) * delta, rel=1e-9)
+        assert r == pytest.approx(vx / (L + K * vx**2) * delta, rel=1e-9)
         # sideslip at steady state: β = (b/L − m a V_x² / (L² Cr)) δ / (1 + K V_x²/L)   (same textbook)
-        assert beta == pytest.approx((p.b / L - p.m * p.a * vx ** 2 / (L ** 2 * p.Cr)) * delta / (1 + K * vx ** 2 / L), rel=1e-9)
+        assert beta == pytest.approx(
+            (p.b / L - p.m * p.a * vx**2 / (L**2 * p.Cr)) * delta / (1 + K * vx**2 / L), rel=1e-9
+        )
 
 
 @pytest.mark.parametrize("vx", [20 / 3.6, 15.0, 80 / 3.6])
@@ -141,8 +152,8 @@ def test_observability_yaw_rate_only_vs_with_lateral_acceleration():
     assert np.linalg.matrix_rank(obs(A, C[:1])) == 2 and np.linalg.matrix_rank(obs(A, C)) == 2
     # yaw rate alone sees β only through the weak yaw moment (b Cr − a Cf) β / Iz: observable in theory,
     # poorly in practice. Steady-state σ_β with the kit's sensor noise (0.003 rad/s, 0.05 m/s²):
-    yaw_only = steady_beta_std(A, B, C[:1], np.array([[0.003 ** 2]]))
-    both = steady_beta_std(A, B, C, np.diag([0.003 ** 2, 0.05 ** 2]))
+    yaw_only = steady_beta_std(A, B, C[:1], np.array([[0.003**2]]))
+    both = steady_beta_std(A, B, C, np.diag([0.003**2, 0.05**2]))
     assert both < math.radians(0.05) and yaw_only > 5 * both
     # a neutral-steer car (a Cf = b Cr): β leaves no trace in r at all
     neutral = V.BicycleParams(Cf=CAR.b * CAR.Cr / CAR.a)
@@ -155,6 +166,7 @@ def test_observability_yaw_rate_only_vs_with_lateral_acceleration():
 
 
 # --- discretisation ------------------------------------------------------------------------
+
 
 def with_bias_state(A, B):
     """The lab's augmented model [β, r, b_ay]: a random-walk bias (A gets a zero row and column)."""
@@ -177,7 +189,8 @@ def test_zoh_matches_scipy_cont2discrete():
 
 @pytest.mark.slow
 def test_van_loan_matches_numerical_integration():
-    """Qd = ∫₀^dt e^{As} Qc e^{Aᵀs} ds by adaptive quadrature (scipy quad_vec), not by another matrix exponential trick."""
+    """Qd = ∫₀^dt e^{As} Qc e^{Aᵀs} ds by adaptive quadrature (scipy quad_vec), not by another matrix exponential
+    trick."""
     rng = np.random.default_rng(4)
     for vx, dt, bias in [(3.0, 0.01, False), (22.0, 0.02, False), (40.0, 0.1, False), (8.0, 0.01, True)]:
         A, B, *_ = V.linear_model(random_params(rng), vx)
@@ -185,13 +198,14 @@ def test_van_loan_matches_numerical_integration():
             A, B = with_bias_state(A, B)
         Qc = np.diag(rng.uniform(1e-5, 1e-2, len(A)))
         _, _, Qd = discrete.discretize(A, B, dt, Qc)
-        ref, _ = quad_vec(lambda s: expm(A * s) @ Qc @ expm(A * s).T, 0.0, dt, epsabs=1e-16, epsrel=1e-11)
+        ref, _ = quad_vec(lambda s, A=A, Qc=Qc: expm(A * s) @ Qc @ expm(A * s).T, 0.0, dt, epsabs=1e-16, epsrel=1e-11)
         np.testing.assert_allclose(Qd, ref, rtol=1e-8, atol=1e-18)
         assert np.all(np.linalg.eigvalsh(Qd) > 0)
         np.testing.assert_array_equal(Qd, Qd.T)
 
 
 # --- the nonlinear model -------------------------------------------------------------------
+
 
 def test_magic_formula_initial_slope_is_the_cornering_stiffness():
     front, rear = V.axle_tyres(CAR)
@@ -226,10 +240,11 @@ def test_truth_model_refuses_a_standstill():
 
 # --- scenarios and sensors -----------------------------------------------------------------
 
+
 @pytest.mark.parametrize("kmh, spacing, peak", [(20.0, 9.0, 3.0), (80.0, 18.0, 4.0)])
 def test_slalom_passes_a_cone_every_half_period_at_the_asked_ay(kmh, spacing, peak):
     d = V.slalom(kmh, cone_spacing=spacing, peak_ay=peak)
-    (t0, t1, label), = d.phases
+    ((t0, t1, label),) = d.phases
     assert label == "slalom" and (t1 - t0) * kmh / 3.6 == pytest.approx(10 * spacing)
     inside = (d.t > t0) & (d.t < t1)
     crossings = d.t[inside][1:][np.diff(np.sign(d.delta[inside])) != 0]
@@ -268,6 +283,7 @@ def test_simulated_sensors_have_their_noise_and_recorded_bias():
 
 # --- vehicle CSVs --------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def short_drive():
     d = V.slalom(80.0, cone_spacing=18.0, cones=2, lead=0.2)
@@ -286,7 +302,9 @@ def test_vehicle_recording_round_trip(tmp_path, short_drive):
 def test_load_vehicle_rejects_an_imu_recording(tmp_path):
     path = tmp_path / "imu.csv"
     path.write_text('# kfkit-recording v1 {"rate_hz": 100}\nt,seq\n0,0\n')
-    with pytest.raises(RecordingError, match=r"imu\.csv, line 1: expected the header '# kfkit-vehicle v1.*load_vehicle_csv"):
+    with pytest.raises(
+        RecordingError, match=r"imu\.csv, line 1: expected the header '# kfkit-vehicle v1.*load_vehicle_csv"
+    ):
         kio.load_vehicle(path)
 
 
@@ -296,8 +314,14 @@ Time [ms];Steer [deg];YawRate [deg/s];LatAcc [g];Speed [km/h];Beta [deg]
 10;1.5;2.5;0.2;36.0;0.6
 20;2.0;3.0;0.3;37.0;0.7
 """
-MAPPING = {"t": "Time [ms]", "delta": "Steer [deg]", "yaw_rate": "YawRate [deg/s]", "ay": "LatAcc [g]",
-           "vx": "Speed [km/h]", "true_beta": "Beta [deg]"}
+MAPPING = {
+    "t": "Time [ms]",
+    "delta": "Steer [deg]",
+    "yaw_rate": "YawRate [deg/s]",
+    "ay": "LatAcc [g]",
+    "vx": "Speed [km/h]",
+    "true_beta": "Beta [deg]",
+}
 UNITS = {"t": "ms", "delta": "deg", "yaw_rate": "deg/s", "ay": "g", "vx": "km/h", "true_beta": "deg"}
 
 
@@ -318,15 +342,33 @@ def test_student_csv_is_mapped_and_converted_to_si(tmp_path):
     assert rec.rate_hz == pytest.approx(100.0)
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda s: s.replace("LatAcc [g]", "Lateral"), r"mycar\.csv, line 2: no column 'LatAcc \[g\]' for ay \(columns in the file: .*Lateral"),
-    (lambda s: s.replace("10;1.5;2.5", "10;1,5;2.5"), r"mycar\.csv, line 4: column 'Steer \[deg\]' \(delta\): '1,5' is not a number"),
-    (lambda s: s.replace("10;1.5;2.5;0.2", "10;1.5;2.5;"), r"mycar\.csv, line 4: column 'LatAcc \[g\]' \(ay\): is empty"),
-    (lambda s: s.replace("20;2.0;3.0", "20;2.0;nan"), r"mycar\.csv, line 5: column 'YawRate \[deg/s\]' \(yaw_rate\): 'nan' is not a finite"),
-    (lambda s: s.replace("20;2.0", "5;2.0"), r"mycar\.csv, line 5: time \(column 'Time \[ms\]'\) does not increase: 5 after 10"),
-    (lambda s: s.replace("10;1.5;2.5;0.2;36.0;0.6", "10;1.5"), r"mycar\.csv, line 4: expected 6 fields"),
-    (lambda s: s.split("\n")[0] + "\n" + s.split("\n")[1] + "\n", r"mycar\.csv, line 3: no data rows"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (
+            lambda s: s.replace("LatAcc [g]", "Lateral"),
+            r"mycar\.csv, line 2: no column 'LatAcc \[g\]' for ay \(columns in the file: .*Lateral",
+        ),
+        (
+            lambda s: s.replace("10;1.5;2.5", "10;1,5;2.5"),
+            r"mycar\.csv, line 4: column 'Steer \[deg\]' \(delta\): '1,5' is not a number",
+        ),
+        (
+            lambda s: s.replace("10;1.5;2.5;0.2", "10;1.5;2.5;"),
+            r"mycar\.csv, line 4: column 'LatAcc \[g\]' \(ay\): is empty",
+        ),
+        (
+            lambda s: s.replace("20;2.0;3.0", "20;2.0;nan"),
+            r"mycar\.csv, line 5: column 'YawRate \[deg/s\]' \(yaw_rate\): 'nan' is not a finite",
+        ),
+        (
+            lambda s: s.replace("20;2.0", "5;2.0"),
+            r"mycar\.csv, line 5: time \(column 'Time \[ms\]'\) does not increase: 5 after 10",
+        ),
+        (lambda s: s.replace("10;1.5;2.5;0.2;36.0;0.6", "10;1.5"), r"mycar\.csv, line 4: expected 6 fields"),
+        (lambda s: s.split("\n")[0] + "\n" + s.split("\n")[1] + "\n", r"mycar\.csv, line 3: no data rows"),
+    ],
+)
 def test_student_csv_errors_name_file_line_and_column(tmp_path, edit, message):
     with pytest.raises(RecordingError, match=message):
         load_vehicle_csv(student_csv(tmp_path, edit(STUDENT)), MAPPING, UNITS, delimiter=";")
@@ -345,13 +387,19 @@ def test_student_csv_mapping_and_unit_mistakes(tmp_path):
 
 
 def test_student_csv_speed_zero_is_a_stop_negative_is_an_error(tmp_path):
-    stopped = load_vehicle_csv(student_csv(tmp_path, STUDENT.replace("20;2.0;3.0;0.3;37.0", "20;2.0;3.0;0.3;0.0")),
-                                 MAPPING, UNITS, delimiter=";")
+    stopped = load_vehicle_csv(
+        student_csv(tmp_path, STUDENT.replace("20;2.0;3.0;0.3;37.0", "20;2.0;3.0;0.3;0.0")),
+        MAPPING,
+        UNITS,
+        delimiter=";",
+    )
     assert stopped["vx"][-1] == 0.0  # standing still is data; the filter's low-speed guard handles it
     res = estimate_sideslip(*(stopped[c] for c in kio.VEHICLE_COLUMNS), CAR)
     assert res.low_speed[-1] and np.all(np.isfinite(res.beta))
     reversing = student_csv(tmp_path, STUDENT.replace("20;2.0;3.0;0.3;37.0", "20;2.0;3.0;0.3;-2.5"))
-    with pytest.raises(RecordingError, match=r"mycar\.csv, line 5: column 'Speed \[km/h\]' \(vx\): -2\.5 km/h is negative"):
+    with pytest.raises(
+        RecordingError, match=r"mycar\.csv, line 5: column 'Speed \[km/h\]' \(vx\): -2\.5 km/h is negative"
+    ):
         load_vehicle_csv(reversing, MAPPING, UNITS, delimiter=";")
 
 
@@ -365,12 +413,17 @@ def test_student_csv_row_shape_and_header_mistakes(tmp_path):
         load_vehicle_csv(student_csv(tmp_path, extra), MAPPING, UNITS, delimiter=";")
     twice = STUDENT.replace("Beta [deg]", "Speed [km/h]")
     with pytest.raises(RecordingError, match=r"mycar\.csv, line 2: column 'Speed \[km/h\]' \(for vx\) appears 2 times"):
-        load_vehicle_csv(student_csv(tmp_path, twice), {k: v for k, v in MAPPING.items() if k != "true_beta"},
-                           UNITS, delimiter=";")
+        load_vehicle_csv(
+            student_csv(tmp_path, twice), {k: v for k, v in MAPPING.items() if k != "true_beta"}, UNITS, delimiter=";"
+        )
 
 
 def test_student_csv_time_starts_at_zero_and_steering_wheel_angle_is_divided(tmp_path):
-    text = STUDENT.replace("\n0;", "\n1700000000000;").replace("\n10;", "\n1700000000010;").replace("\n20;", "\n1700000000020;")
+    text = (
+        STUDENT.replace("\n0;", "\n1700000000000;")
+        .replace("\n10;", "\n1700000000010;")
+        .replace("\n20;", "\n1700000000020;")
+    )
     rec = load_vehicle_csv(student_csv(tmp_path, text), MAPPING, UNITS, delimiter=";", steer_ratio=16.0)
     np.testing.assert_allclose(rec.t, [0.0, 0.01, 0.02], atol=1e-9)
     assert rec.meta["t0"] == pytest.approx(1.7e9)
@@ -383,15 +436,27 @@ def logger_export(rec, path, flip=(), kmh=True):
     """A bundled drive written as a logger would: own column names, degrees, km/h, g, trailing ';'."""
     sign = {c: (-1.0 if c in flip else 1.0) for c in ("delta", "yaw_rate", "ay")}
     lines = ["# logger export", "Zeit [s];Lenkwinkel [deg];Gierrate [deg/s];Querbeschl [g];v [km/h];beta [deg];"]
-    for row in zip(rec.t, sign["delta"] * np.degrees(rec["delta"]), sign["yaw_rate"] * np.degrees(rec["yaw_rate"]),
-                   sign["ay"] * rec["ay"] / G, rec["vx"] * (3.6 if kmh else 1.0), np.degrees(rec["true_beta"])):
+    for row in zip(
+        rec.t,
+        sign["delta"] * np.degrees(rec["delta"]),
+        sign["yaw_rate"] * np.degrees(rec["yaw_rate"]),
+        sign["ay"] * rec["ay"] / G,
+        rec["vx"] * (3.6 if kmh else 1.0),
+        np.degrees(rec["true_beta"]),
+    ):
         lines.append(";".join(f"{v:.10g}" for v in row) + ";")
     path.write_text("\n".join(lines) + "\n")
     return path
 
 
-LOGGER = {"t": "Zeit [s]", "delta": "Lenkwinkel [deg]", "yaw_rate": "Gierrate [deg/s]", "ay": "Querbeschl [g]",
-          "vx": "v [km/h]", "true_beta": "beta [deg]"}
+LOGGER = {
+    "t": "Zeit [s]",
+    "delta": "Lenkwinkel [deg]",
+    "yaw_rate": "Gierrate [deg/s]",
+    "ay": "Querbeschl [g]",
+    "vx": "v [km/h]",
+    "true_beta": "beta [deg]",
+}
 LOGGER_UNITS = {"delta": "deg", "yaw_rate": "deg/s", "ay": "g", "vx": "km/h", "true_beta": "deg"}
 
 
@@ -405,14 +470,19 @@ def test_a_logger_export_of_a_drive_loads_back_to_the_same_si_signals(tmp_path, 
     assert sign_check(*(short_drive[c] for c in ("delta", "yaw_rate", "ay", "vx"))) == []
 
 
-@pytest.mark.parametrize("flip, advice", [
-    (("ay",), r"a_y has the wrong sign: pass negate=\('ay',\)"),
-    (("yaw_rate",), r"the yaw rate has the wrong sign: pass negate=\('yaw_rate',\)"),
-    (("yaw_rate", "ay"), r"negate=\('yaw_rate', 'ay'\) if the logger's axes are y right, z down"),
-])
+@pytest.mark.parametrize(
+    "flip, advice",
+    [
+        (("ay",), r"a_y has the wrong sign: pass negate=\('ay',\)"),
+        (("yaw_rate",), r"the yaw rate has the wrong sign: pass negate=\('yaw_rate',\)"),
+        (("yaw_rate", "ay"), r"negate=\('yaw_rate', 'ay'\) if the logger's axes are y right, z down"),
+    ],
+)
 def test_flipped_signs_are_named_and_negate_fixes_them(tmp_path, short_drive, flip, advice):
     path = logger_export(short_drive, tmp_path / "frd.csv", flip=flip)
-    with pytest.warns(UserWarning, match=r"frd\.csv: in the turns \(\d+ samples\) the signs of δ, r and a_y disagree.*" + advice):
+    with pytest.warns(
+        UserWarning, match=r"frd\.csv: in the turns \(\d+ samples\) the signs of δ, r and a_y disagree.*" + advice
+    ):
         load_vehicle_csv(path, LOGGER, LOGGER_UNITS, delimiter=";")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -424,6 +494,7 @@ def test_flipped_signs_are_named_and_negate_fixes_them(tmp_path, short_drive, fl
 
 # --- bad input to the loaders: cut lines, metadata, numbers, fuzz --------------------------------------------
 
+
 def test_load_vehicle_rejects_a_cut_last_line_bad_metadata_and_duplicate_columns(tmp_path, short_drive):
     path = kio.save_vehicle(short_drive, tmp_path / "drive.csv")
     text = path.read_text()
@@ -432,19 +503,23 @@ def test_load_vehicle_rejects_a_cut_last_line_bad_metadata_and_duplicate_columns
     with pytest.raises(RecordingError, match=r"cut\.csv, line \d+: the last line is cut short"):
         kio.load_vehicle(cut)
     header, rest = text.split("\n", 1)
-    meta = json.loads(header[len(kio.VEHICLE_MAGIC):])
+    meta = json.loads(header[len(kio.VEHICLE_MAGIC) :])
     for rate in (0, -100.0, float("nan"), "100", None):
         bad = tmp_path / "rate.csv"
         bad.write_text(kio.VEHICLE_MAGIC + json.dumps({**meta, "rate_hz": rate}) + "\n" + rest)
         with pytest.raises(RecordingError, match=r"rate\.csv, line 1: .*'rate_hz' must be a positive finite number"):
             kio.load_vehicle(bad)
     phases = tmp_path / "phases.csv"
-    phases.write_text(kio.VEHICLE_MAGIC + json.dumps({**meta, "phases": [{"label": "x", "start": 3, "end": 1}]}) + "\n" + rest)
+    phases.write_text(
+        kio.VEHICLE_MAGIC + json.dumps({**meta, "phases": [{"label": "x", "start": 3, "end": 1}]}) + "\n" + rest
+    )
     with pytest.raises(RecordingError, match=r"phases\.csv, line 1: metadata phases\[0\]"):
         kio.load_vehicle(phases)
     dup = tmp_path / "dup.csv"
     columns, rows = rest.split("\n", 1)
-    dup.write_text(header + "\n" + columns + ",vx\n" + "\n".join(r + ",1" for r in rows.rstrip("\n").split("\n")) + "\n")
+    dup.write_text(
+        header + "\n" + columns + ",vx\n" + "\n".join(r + ",1" for r in rows.rstrip("\n").split("\n")) + "\n"
+    )
     with pytest.raises(RecordingError, match=r"dup\.csv, line 2: duplicate column names: vx"):
         kio.load_vehicle(dup)
     bom = tmp_path / "bom.csv"
@@ -462,19 +537,33 @@ def test_student_csv_drops_a_last_line_without_newline_with_a_warning(tmp_path):
         assert load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";").meta["warnings"] == []
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda s: s.replace("10;1.5;2.5", "10;1_5;2.5"), r"line 4: column 'Steer \[deg\]' \(delta\): '1_5' is not a number"),
-    (lambda s: s.replace("10;1.5;2.5", "10;1e999;2.5"), r"line 4: column 'Steer \[deg\]' \(delta\): '1e999' is not a finite"),
-    (lambda s: s.replace("10;1.5;2.5", "10;\u0661;2.5"), r"line 4: column 'Steer \[deg\]' \(delta\): .* is not a number"),
-    (lambda s: "\n".join(s.split("\n")[:3]) + "\n", r"line 3: only one data row"),
-], ids=["underscore", "overflow", "unicode-digit", "one-row"])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (
+            lambda s: s.replace("10;1.5;2.5", "10;1_5;2.5"),
+            r"line 4: column 'Steer \[deg\]' \(delta\): '1_5' is not a number",
+        ),
+        (
+            lambda s: s.replace("10;1.5;2.5", "10;1e999;2.5"),
+            r"line 4: column 'Steer \[deg\]' \(delta\): '1e999' is not a finite",
+        ),
+        (
+            lambda s: s.replace("10;1.5;2.5", "10;\u0661;2.5"),
+            r"line 4: column 'Steer \[deg\]' \(delta\): .* is not a number",
+        ),
+        (lambda s: "\n".join(s.split("\n")[:3]) + "\n", r"line 3: only one data row"),
+    ],
+    ids=["underscore", "overflow", "unicode-digit", "one-row"],
+)
 def test_student_csv_numbers_are_plain_decimal_and_a_drive_has_two_rows(tmp_path, edit, message):
     with pytest.raises(RecordingError, match=r"mycar\.csv, " + message):
         load_vehicle_csv(student_csv(tmp_path, edit(STUDENT)), MAPPING, UNITS, delimiter=";")
 
 
-@pytest.mark.parametrize("loader, where", [("load_vehicle", "row"), ("load_vehicle_csv", "row"),
-                                           ("load_vehicle_csv", "header")])  # load_vehicle splits its header itself
+@pytest.mark.parametrize(
+    "loader, where", [("load_vehicle", "row"), ("load_vehicle_csv", "row"), ("load_vehicle_csv", "header")]
+)  # load_vehicle splits its header itself
 def test_a_field_beyond_the_csv_modules_limit_names_file_and_line(tmp_path, short_drive, loader, where):
     """csv's own "field larger than field limit (131072)" used to escape with no file or line."""
     path = kio.save_vehicle(short_drive, tmp_path / "drive.csv")
@@ -482,8 +571,11 @@ def test_a_field_beyond_the_csv_modules_limit_names_file_and_line(tmp_path, shor
     at = 1 if where == "header" else 9  # the column line, or a data row
     lines[at] = '"' + "9" * 200_000 + '",' + lines[at]
     path.write_text("\n".join(lines))
-    with pytest.raises(RecordingError, match=rf"drive\.csv, line {at + 1}: not readable as CSV \(field larger than "
-                                             r"field limit"):
+    with pytest.raises(
+        RecordingError,
+        match=rf"drive\.csv, line {at + 1}: not readable as CSV \(field larger than "
+        r"field limit",
+    ):
         if loader == "load_vehicle":
             kio.load_vehicle(path)
         else:
@@ -500,6 +592,11 @@ def test_fuzzed_vehicle_files_load_the_same_numbers_or_name_the_file(tmp_path, s
     ref = load_vehicle_csv(student_csv(tmp_path), MAPPING, UNITS, delimiter=";")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the dropped-line warnings are the point elsewhere
-        outcome = check_fuzzed(tmp_path / "fuzzed.csv", lambda p: load_vehicle_csv(p, MAPPING, UNITS, delimiter=";"),
-                               STUDENT.encode(), RecordingError, same_rows(ref))
+        outcome = check_fuzzed(
+            tmp_path / "fuzzed.csv",
+            lambda p: load_vehicle_csv(p, MAPPING, UNITS, delimiter=";"),
+            STUDENT.encode(),
+            RecordingError,
+            same_rows(ref),
+        )
     assert outcome["rejected"] > 100 and outcome["loaded"] > 0

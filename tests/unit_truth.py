@@ -10,6 +10,7 @@ the labs work in, with the standard uncertainties of the labs' estimates of it:
 - the ellipsoid fit (hard iron h, symmetric S): the linearised covariance σ² (JᵀJ)⁻¹ of the residuals
   ‖S(mᵢ − h)‖ − B at the truth.
 """
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -20,15 +21,20 @@ from kfkit.unit_errors import BOARD_UNITS
 #: the simulated units (kfkit.unit_errors: what the bundled recordings and the virtual boards are made with)
 UNITS = BOARD_UNITS
 
+
 def body_truth(rec) -> dict:
     """The unit of ``rec``'s board in the body frame of ``rec``'s mounting (a signed permutation per sensor):
     gyro_bias (rad/s), accel_bias (m/s²), accel_scale, and for a magnetometer mag_hard_iron (µT) and the soft-iron
     correction mag_S = (M W Mᵀ)⁻¹ an exact fit finds; the walks K as gyro_bias_rw, accel_bias_rw."""
     unit = UNITS[rec.meta["board"]]
     M = {k: mount_matrix(v) for k, v in rec.meta["mount"].items()}
-    truth = {"gyro_bias": M["gyr"] @ np.asarray(unit["gyro_bias"]), "accel_bias": M["acc"] @ np.asarray(unit["accel_bias"]),
-             "accel_scale": np.abs(M["acc"]) @ np.asarray(unit["accel_scale"]),
-             "gyro_bias_rw": unit["gyro_bias_rw"], "accel_bias_rw": unit["accel_bias_rw"]}
+    truth = {
+        "gyro_bias": M["gyr"] @ np.asarray(unit["gyro_bias"]),
+        "accel_bias": M["acc"] @ np.asarray(unit["accel_bias"]),
+        "accel_scale": np.abs(M["acc"]) @ np.asarray(unit["accel_scale"]),
+        "gyro_bias_rw": unit["gyro_bias_rw"],
+        "accel_bias_rw": unit["accel_bias_rw"],
+    }
     if "mag" in M:
         truth["mag_hard_iron"] = M["mag"] @ np.asarray(unit["mag_hard_iron"])
         truth["mag_S"] = np.linalg.inv(M["mag"] @ np.asarray(unit["mag_soft_iron"]) @ M["mag"].T)
@@ -69,7 +75,7 @@ def six_face_target(rec, motion, faces=("x", "y", "z")):
     the axis up/down, b + s ⊙ (f̄⁺ + f̄⁻)/2 and s ⊙ (f̄⁺ − f̄⁻)/(2g): the unit's b and s, moved by the tilt of the
     simulated table. Returns (bias, scale, sd_bias, sd_scale)."""
     truth = body_truth(rec)
-    euler = motion.euler[:len(rec)]
+    euler = motion.euler[: len(rec)]
     R_nb = Rotation.from_euler("ZYX", euler[:, ::-1]).as_matrix()
     f_b = np.einsum("nji,j->ni", R_nb, [0.0, 0.0, -G])  # R_bn [0, 0, −g]
     sigma, t = sample_sigma(rec, "acc"), walk_times(rec)

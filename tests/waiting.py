@@ -6,6 +6,7 @@ a duration: :func:`wait_until` polls a condition and gives up only after :data:`
 against a hang (a test that would otherwise never end), far beyond any busy machine's delay. When the guard
 fires, the message says what was awaited and what was last seen.
 """
+
 from __future__ import annotations
 
 import time

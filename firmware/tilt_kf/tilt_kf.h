@@ -39,7 +39,7 @@ typedef struct {
     float initialBiasVariance; /**< P11 after TiltKfReset, (rad/s)² */
 } TiltKfSettings;
 
-/** Defaults: the tuned values of lab 05 for an MPU6050 at 100 Hz, skip gate. */
+/** Defaults for an MPU6050 at 100 Hz, skip gate, tuned for motion: qAngle, qBias from the gyro's noise (lab 02). */
 extern const TiltKfSettings tiltKfDefaultSettings;
 
 /** Filter state. Treat as opaque; read it with the getters. */

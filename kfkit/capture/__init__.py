@@ -14,22 +14,75 @@
 
 It builds on the sensors, simulators and filters below it, never on datasets, plots or widgets.
 """
+
+from .errors import (
+    BoardDisconnectedError,
+    CaptureError,
+    NoDataError,
+    PortAddressError,
+    PortBusyError,
+    PortNotFoundError,
+    PortPermissionError,
+    ProtocolVersionError,
+    WrongBaudError,
+)
 from .guided import PROTOCOLS, dataset_name, protocol_motion, protocol_steps, record_protocol, sphere_coverage
-from .errors import (BoardDisconnectedError, CaptureError, NoDataError, PortAddressError, PortBusyError,
-                     PortNotFoundError, PortPermissionError, ProtocolVersionError, WrongBaudError)
 from .ports import KNOWN_USB_IDS, NAMED_PORTS, BoardPort, check_port, find_boards, open_port, resolve_auto
-from .protocol import (BadLine, Header, Message, Note, Sample, board_time, checksum, encode_header, encode_message,
-                       encode_sample, parse_line)
+from .protocol import (
+    BadLine,
+    Header,
+    Message,
+    Note,
+    Sample,
+    board_time,
+    checksum,
+    encode_header,
+    encode_message,
+    encode_sample,
+    parse_line,
+)
 from .recorder import DEFAULT_BAUD, CaptureStats, Recorder, capture, header_metadata
 from .virtual import FAULT_KINDS, VirtualBoard
 
 __all__ = [
-    "PROTOCOLS", "dataset_name", "protocol_motion", "protocol_steps", "record_protocol", "sphere_coverage",
-    "KNOWN_USB_IDS", "NAMED_PORTS", "BoardDisconnectedError", "BoardPort", "CaptureError", "NoDataError",
-    "PortAddressError", "PortBusyError", "PortNotFoundError", "PortPermissionError", "ProtocolVersionError",
-    "WrongBaudError", "check_port", "find_boards", "open_port", "resolve_auto",
-    "BadLine", "Header", "Message", "Note", "Sample", "board_time", "checksum", "encode_header", "encode_message",
-    "encode_sample", "parse_line",
-    "DEFAULT_BAUD", "CaptureStats", "Recorder", "capture", "header_metadata",
-    "FAULT_KINDS", "VirtualBoard",
+    "PROTOCOLS",
+    "dataset_name",
+    "protocol_motion",
+    "protocol_steps",
+    "record_protocol",
+    "sphere_coverage",
+    "KNOWN_USB_IDS",
+    "NAMED_PORTS",
+    "BoardDisconnectedError",
+    "BoardPort",
+    "CaptureError",
+    "NoDataError",
+    "PortAddressError",
+    "PortBusyError",
+    "PortNotFoundError",
+    "PortPermissionError",
+    "ProtocolVersionError",
+    "WrongBaudError",
+    "check_port",
+    "find_boards",
+    "open_port",
+    "resolve_auto",
+    "BadLine",
+    "Header",
+    "Message",
+    "Note",
+    "Sample",
+    "board_time",
+    "checksum",
+    "encode_header",
+    "encode_message",
+    "encode_sample",
+    "parse_line",
+    "DEFAULT_BAUD",
+    "CaptureStats",
+    "Recorder",
+    "capture",
+    "header_metadata",
+    "FAULT_KINDS",
+    "VirtualBoard",
 ]

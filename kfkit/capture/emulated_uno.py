@@ -15,6 +15,7 @@ libsimavr-dev`` (elsewhere avr-gcc, simavr's headers and library, and the Arduin
 The emulator's clock is the AVR's cycle count: it runs as fast as the machine allows (``realtime=True`` holds
 it to the wall clock, for watching), and waits when the host reads slowly, so nothing is lost either way.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -71,8 +72,9 @@ def _run(command, what: str):
     return done
 
 
-def build_avr_image(sketch: Path, work: Path, include=(), sources=(), libraries=("Wire",), mcu="atmega328p",
-                    variant="standard") -> AvrImage:
+def build_avr_image(
+    sketch: Path, work: Path, include=(), sources=(), libraries=("Wire",), mcu="atmega328p", variant="standard"
+) -> AvrImage:
     """Compile and link ``sketch`` (an .ino) for an Arduino Uno with avr-gcc, the Arduino AVR core and
     ``libraries``, with the flags of the core's platform.txt for ``arduino:avr:uno`` (without -flto, which
     Debian's avr-gcc 5.4 links without). The kit's own code (the sketch, firmware/common, ``sources``, more
@@ -80,9 +82,11 @@ def build_avr_image(sketch: Path, work: Path, include=(), sources=(), libraries=
     gxx, gcc, size = (shutil.which(tool) for tool in ("avr-g++", "avr-gcc", "avr-size"))
     core_dir = avr_core()
     if not (gxx and gcc and size and (core_dir / "cores" / "arduino" / "Arduino.h").exists()):
-        raise EmulatorUnavailable(f"building for the Uno needs avr-gcc and the Arduino AVR core ({core_dir} has none): "
-                                  f"sudo apt-get install {AVR_PACKAGES} (or point KFKIT_ARDUINO_AVR at "
-                                  f"arduino-cli's packages/arduino/hardware/avr/<version>)")
+        raise EmulatorUnavailable(
+            f"building for the Uno needs avr-gcc and the Arduino AVR core ({core_dir} has none): "
+            f"sudo apt-get install {AVR_PACKAGES} (or point KFKIT_ARDUINO_AVR at "
+            f"arduino-cli's packages/arduino/hardware/avr/<version>)"
+        )
     work = Path(work)
     core, lib_dirs = core_dir / "cores" / "arduino", [core_dir / "libraries" / name / "src" for name in libraries]
     includes = [f"-I{core}", f"-I{core_dir / 'variants' / variant}", f"-I{FIRMWARE / 'common'}"]
@@ -90,8 +94,18 @@ def build_avr_image(sketch: Path, work: Path, include=(), sources=(), libraries=
     includes += [f"-I{folder}" for folder in include]
     defines = [f"-mmcu={mcu}", "-DF_CPU=16000000L", "-DARDUINO=10807", "-DARDUINO_AVR_UNO", "-DARDUINO_ARCH_AVR"]
     c_flags = ["-c", "-Os", "-std=gnu11", "-ffunction-sections", "-fdata-sections", *defines, *includes]
-    cpp_flags = ["-c", "-Os", "-std=gnu++11", "-fpermissive", "-fno-exceptions", "-ffunction-sections", "-fdata-sections",
-                 "-fno-threadsafe-statics", *defines, *includes]
+    cpp_flags = [
+        "-c",
+        "-Os",
+        "-std=gnu++11",
+        "-fpermissive",
+        "-fno-exceptions",
+        "-ffunction-sections",
+        "-fdata-sections",
+        "-fno-threadsafe-statics",
+        *defines,
+        *includes,
+    ]
     core_sources = sorted(core.glob("*.c")) + sorted(core.glob("*.cpp")) + sorted(core.glob("*.S"))
     for d in lib_dirs:
         core_sources += sorted(d.rglob("*.c")) + sorted(d.rglob("*.cpp"))
@@ -115,18 +129,37 @@ def build_avr_image(sketch: Path, work: Path, include=(), sources=(), libraries=
     _run([gcc, f"-mmcu={mcu}", "-Os", "-Wl,--gc-sections", "-o", elf, *objects, "-lm"], f"linking {Path(sketch).name}")
     sizes = _run([size, "-A", elf], "avr-size").stdout
     section = {m.group(1): int(m.group(2)) for m in re.finditer(r"^\.(\w+)\s+(\d+)", sizes, re.M)}
-    return AvrImage(elf, section.get("text", 0) + section.get("data", 0), section.get("data", 0) + section.get("bss", 0))
+    return AvrImage(
+        elf, section.get("text", 0) + section.get("data", 0), section.get("data", 0) + section.get("bss", 0)
+    )
 
 
 def build_emulator(work: Path) -> Path:
     """Compile ``firmware/emulator/uno_mpu6050.c`` against simavr (``-Wall -Wextra -Werror``); returns the program."""
     gcc = shutil.which("gcc")
     if gcc is None or not (SIMAVR_INCLUDE / "sim_avr.h").exists():
-        raise EmulatorUnavailable(f"the Uno emulator needs gcc and simavr's headers and library ({SIMAVR_INCLUDE} "
-                                  f"has none): sudo apt-get install {EMULATOR_PACKAGES}")
+        raise EmulatorUnavailable(
+            f"the Uno emulator needs gcc and simavr's headers and library ({SIMAVR_INCLUDE} "
+            f"has none): sudo apt-get install {EMULATOR_PACKAGES}"
+        )
     program = Path(work) / "uno_mpu6050"
-    _run([gcc, "-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-isystem", SIMAVR_INCLUDE, EMULATOR_SOURCE, "-o", program,
-          "-lsimavr"], "building the Uno emulator")
+    _run(
+        [
+            gcc,
+            "-std=c99",
+            "-O2",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-isystem",
+            SIMAVR_INCLUDE,
+            EMULATOR_SOURCE,
+            "-o",
+            program,
+            "-lsimavr",
+        ],
+        "building the Uno emulator",
+    )
     return program
 
 
@@ -164,8 +197,12 @@ def sketch_image(sketch: str) -> AvrImage:
 
     def build(work: Path):
         extra = [FIRMWARE / name for name in SKETCHES[sketch]]
-        image = build_avr_image(FIRMWARE / sketch / f"{sketch}.ino", work, include=extra,
-                                sources=[p for d in extra for p in sorted(d.glob("*.c"))])
+        image = build_avr_image(
+            FIRMWARE / sketch / f"{sketch}.ino",
+            work,
+            include=extra,
+            sources=[p for d in extra for p in sorted(d.glob("*.c"))],
+        )
         (work / "image.json").write_text(json.dumps({"elf": image.elf.name, "flash": image.flash, "ram": image.ram}))
         for obj in work.glob("*.o"):  # keep the image only
             obj.unlink()
@@ -184,8 +221,10 @@ def recording_frames(rec) -> np.ndarray:
     """An MPU6050 recording's raw counts as the emulator plays them, (N, 6) ints: ax ay az gx gy gz."""
     board, rate = rec.meta.get("board"), rec.rate_hz
     if board != "mpu6050" or abs(rate - 100.0) > 0.5:
-        raise ValueError(f"the emulated Uno's MPU6050 plays MPU6050 counts at the 100 Hz its sketches set; "
-                         f"{rec.path or 'this recording'} is {board} at {rate:g} Hz")
+        raise ValueError(
+            f"the emulated Uno's MPU6050 plays MPU6050 counts at the 100 Hz its sketches set; "
+            f"{rec.path or 'this recording'} is {board} at {rate:g} Hz"
+        )
     return np.column_stack([rec.counts("acc"), rec.counts("gyr")]).astype(np.int64)
 
 
@@ -210,7 +249,9 @@ class EmulatedUno:
 
     source = "capture (emulated Uno: simavr)"  # the recording's metadata "source"
 
-    def __init__(self, sketch="mpu6050_logger", frames=None, *, loop=None, realtime=False, faults=(), watch=(), log=None):
+    def __init__(
+        self, sketch="mpu6050_logger", frames=None, *, loop=None, realtime=False, faults=(), watch=(), log=None
+    ):
         if sketch not in SKETCHES:
             raise ValueError(f"EmulatedUno runs one of {', '.join(SKETCHES)}, not {sketch!r}")
         self.sketch, self.realtime, self.faults, self.watch = sketch, realtime, list(faults), list(watch)
@@ -220,7 +261,9 @@ class EmulatedUno:
         self.playing = getattr(frames, "path", None) or "given counts"
         self.frames = recording_frames(frames) if hasattr(frames, "counts") else np.asarray(frames)
         if self.frames.ndim != 2 or self.frames.shape[1] != 6 or not len(self.frames):
-            raise ValueError(f"EmulatedUno: frames must be (N, 6) counts ax ay az gx gy gz, got shape {self.frames.shape}")
+            raise ValueError(
+                f"EmulatedUno: frames must be (N, 6) counts ax ay az gx gy gz, got shape {self.frames.shape}"
+            )
         if np.any((self.frames < -32768) | (self.frames > 32767)):
             raise ValueError("EmulatedUno: frames hold int16 counts (−32768 … 32767)")
         self.log = Path(log) if log is not None else None
@@ -229,21 +272,28 @@ class EmulatedUno:
         self.process = None
         self._work = None
 
-    def start(self) -> "EmulatedUno":
+    def start(self) -> EmulatedUno:
         program = emulator_program()
         self.image = sketch_image(self.sketch)
         self._work = tempfile.TemporaryDirectory(prefix="kfkit-emulated-uno-")
         work = Path(self._work.name)
         np.savetxt(work / "frames.txt", self.frames, fmt="%d")
-        command = [program, self.image.elf, work / "frames.txt", *(["--loop"] if self.loop else []),
-                   *(["--realtime"] if self.realtime else []), *(["--log", self.log] if self.log else [])]
+        command = [
+            program,
+            self.image.elf,
+            work / "frames.txt",
+            *(["--loop"] if self.loop else []),
+            *(["--realtime"] if self.realtime else []),
+            *(["--log", self.log] if self.log else []),
+        ]
         for address, length in self.watch:
             command += ["--watch", f"{address:x}:{length}"]
         for fault in self.faults:
             command += ["--fault", fault]
         with open(work / "stderr", "w") as errors:
-            self.process = subprocess.Popen([str(c) for c in command], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                            stderr=errors)
+            self.process = subprocess.Popen(
+                [str(c) for c in command], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=errors
+            )
         line = self.process.stdout.readline().decode(errors="replace")
         if not line.startswith("pty "):
             self.process.wait()

@@ -3,6 +3,7 @@
 :class:`CaptureError` is the family; a board's port raises the first group (:mod:`.ports`,
 :mod:`.recorder`), a phone running phyphox the :class:`PhoneError` group (:mod:`.phyphox_http`).
 """
+
 from __future__ import annotations
 
 

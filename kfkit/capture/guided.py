@@ -9,6 +9,7 @@ A label's prompt is one text, or a list of texts for the label's segments in tim
 windows, each cut where the board starts or stops moving (the six headings share one label and
 get one prompt each; an axis turn's window gets five: rest, turn, rest, turn back, rest).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -64,72 +65,139 @@ _TILT_PROMPTS = {
 }
 # Lab 03's alignment check (sim.axis_turns): per axis, rest / turn 90° / rest / turn back / rest, one phase.
 _TURN_PROMPTS = {
-    "turn_x": ["lay the board flat and still, printed X arrow pointing away from you",
-               "roll it 90° about its X arrow, right edge down (printed Y arrow pointing up)",
-               "hold it on its right edge, still",
-               "roll it back flat",
-               "flat and still"],
-    "turn_y": ["flat and still (the nose goes up next)",
-               "pitch the nose up 90° (printed X arrow pointing up), turning about the Y arrow",
-               "hold it standing on its back edge, still",
-               "lower the nose back flat",
-               "flat and still"],
-    "turn_z": ["flat and still (a turn on the table next)",
-               "turn it 90° clockwise (seen from above), flat on the table",
-               "hold still",
-               "turn it back anticlockwise to where it was",
-               "flat and still"],
+    "turn_x": [
+        "lay the board flat and still, printed X arrow pointing away from you",
+        "roll it 90° about its X arrow, right edge down (printed Y arrow pointing up)",
+        "hold it on its right edge, still",
+        "roll it back flat",
+        "flat and still",
+    ],
+    "turn_y": [
+        "flat and still (the nose goes up next)",
+        "pitch the nose up 90° (printed X arrow pointing up), turning about the Y arrow",
+        "hold it standing on its back edge, still",
+        "lower the nose back flat",
+        "flat and still",
+    ],
+    "turn_z": [
+        "flat and still (a turn on the table next)",
+        "turn it 90° clockwise (seen from above), flat on the table",
+        "hold still",
+        "turn it back anticlockwise to where it was",
+        "flat and still",
+    ],
 }
 # Lab 03's heading test (sim.heading_steps): headings east of true north, flat, then tilted in reverse order.
 HEADINGS_DEG = (0, 60, 120, 180, 240, 300)
 HEADING_TILT_DEG = (20, -15)  # (roll, pitch) of the tilted rests
-_POINTS = {0: "north", 60: "east-north-east", 120: "east-south-east", 180: "south", 240: "west-south-west",
-           300: "west-north-west"}
+_POINTS = {
+    0: "north",
+    60: "east-north-east",
+    120: "east-south-east",
+    180: "south",
+    240: "west-south-west",
+    300: "west-north-west",
+}
 
 
 def _heading_prompt(deg, tilted, first):
     where = "north" if deg == 0 else f"{_POINTS[deg]} ({deg}° clockwise from north)"
     where = f"nose (printed X arrow) pointing {where}, still"
     if not tilted:
-        return f"flat on the table, {where}" + ("; find true north first (a map, or a phone's compass set to "
-                                                "true north), away from steel and magnets" if first else "")
+        return f"flat on the table, {where}" + (
+            "; find true north first (a map, or a phone's compass set to true north), away from steel and magnets"
+            if first
+            else ""
+        )
     roll, pitch = HEADING_TILT_DEG
-    how = (f"tilt the board, right edge about {roll}° down and nose about {-pitch}° down (prop up its back-left "
-           f"corner on a book), " if first else "keep the tilt, ")
+    how = (
+        f"tilt the board, right edge about {roll}° down and nose about {-pitch}° down (prop up its back-left "
+        f"corner on a book), "
+        if first
+        else "keep the tilt, "
+    )
     return how + where
 
 
-_HEADING_PROMPTS = {"heading_flat": [_heading_prompt(d, False, i == 0) for i, d in enumerate(HEADINGS_DEG)],
-                    "heading_tilted": [_heading_prompt(d, True, i == 0) for i, d in enumerate(HEADINGS_DEG[::-1])]}
+_HEADING_PROMPTS = {
+    "heading_flat": [_heading_prompt(d, False, i == 0) for i, d in enumerate(HEADINGS_DEG)],
+    "heading_tilted": [_heading_prompt(d, True, i == 0) for i, d in enumerate(HEADINGS_DEG[::-1])],
+}
 _NUCLEO, _MPU = "nucleo-iks02a1", "mpu6050"
 
-PROTOCOLS = {p.name: p for p in (
-    GuidedProtocol("stationary", "Stationary (2 min): bias and noise", _NUCLEO,
-                   {_NUCLEO: "02_stationary", _MPU: "05_stationary"},
-                   lambda r, s, **kw: _stationary(r, s, **kw), {"duration": 120.0}, {"duration": 5.0},
-                   {"stationary": "leave the board flat and still on the table; do not touch it"}),
-    GuidedProtocol("six-faces", "Six faces: accelerometer bias and scale", _NUCLEO,
-                   {_NUCLEO: "02_six_faces", _MPU: "05_six_faces"},
-                   lambda r, s, **kw: sim.six_faces(rate_hz=r, seed=s, **kw), {"hold": 5.0, "move": 3.0},
-                   {"hold": 1.0, "move": 1.5}, _FACE_PROMPTS),
-    GuidedProtocol("tilt", "Tilt protocol: 0°, 90°, 0° per axis (lab 05)", _MPU,
-                   {_MPU: "05_tilt_protocol", _NUCLEO: "05_tilt_protocol"},
-                   lambda r, s, **kw: sim.tilt_protocol(rate_hz=r, seed=s, **kw), {"hold": 2.0, "move": 1.5},
-                   {"hold": 0.6, "move": 1.0}, _TILT_PROMPTS, "turn smoothly to the next angle: {next}"),
-    GuidedProtocol("mag-rotations", "Magnetometer rotations: figure-eights over the sphere", _NUCLEO,
-                   {_NUCLEO: "03_mag_rotations"}, lambda r, s, **kw: sim.mag_rotations(rate_hz=r, seed=s, **kw),
-                   {"duration": 60.0}, {"duration": 8.0},
-                   {"mag_rotations": "tumble the board slowly in figure-eights, turning it over too, until the "
-                                     "sphere coverage passes 90 %; stay away from steel and magnets"}),
-    GuidedProtocol("axis-turns", "Axis turns: 90° about x, y, z and back (lab 03)", _NUCLEO, {_NUCLEO: "03_axis_turns"},
-                   lambda r, s, **kw: sim.axis_turns(rate_hz=r, **kw), {"hold": 3.0, "move": 3.0},
-                   {"hold": 1.0, "move": 1.5}, _TURN_PROMPTS, "keep it flat and still"),
-    GuidedProtocol("headings", "Headings: six flat, then six tilted (lab 03)", _NUCLEO, {_NUCLEO: "03_headings"},
-                   lambda r, s, **kw: sim.heading_steps(np.radians(HEADINGS_DEG), np.radians(HEADING_TILT_DEG),
-                                                        rate_hz=r, **kw),
-                   {"hold": 4.0, "move": 4.0}, {"hold": 1.0, "move": 1.5}, _HEADING_PROMPTS,
-                   "turn the board to the next heading: {next}"),
-)}
+PROTOCOLS = {
+    p.name: p
+    for p in (
+        GuidedProtocol(
+            "stationary",
+            "Stationary (2 min): bias and noise",
+            _NUCLEO,
+            {_NUCLEO: "02_stationary", _MPU: "05_stationary"},
+            lambda r, s, **kw: _stationary(r, s, **kw),
+            {"duration": 120.0},
+            {"duration": 5.0},
+            {"stationary": "leave the board flat and still on the table; do not touch it"},
+        ),
+        GuidedProtocol(
+            "six-faces",
+            "Six faces: accelerometer bias and scale",
+            _NUCLEO,
+            {_NUCLEO: "02_six_faces", _MPU: "05_six_faces"},
+            lambda r, s, **kw: sim.six_faces(rate_hz=r, seed=s, **kw),
+            {"hold": 5.0, "move": 3.0},
+            {"hold": 1.0, "move": 1.5},
+            _FACE_PROMPTS,
+        ),
+        GuidedProtocol(
+            "tilt",
+            "Tilt protocol: 0°, 90°, 0° per axis (lab 05)",
+            _MPU,
+            {_MPU: "05_tilt_protocol", _NUCLEO: "05_tilt_protocol"},
+            lambda r, s, **kw: sim.tilt_protocol(rate_hz=r, seed=s, **kw),
+            {"hold": 2.0, "move": 1.5},
+            {"hold": 0.6, "move": 1.0},
+            _TILT_PROMPTS,
+            "turn smoothly to the next angle: {next}",
+        ),
+        GuidedProtocol(
+            "mag-rotations",
+            "Magnetometer rotations: figure-eights over the sphere",
+            _NUCLEO,
+            {_NUCLEO: "03_mag_rotations"},
+            lambda r, s, **kw: sim.mag_rotations(rate_hz=r, seed=s, **kw),
+            {"duration": 60.0},
+            {"duration": 8.0},
+            {
+                "mag_rotations": "tumble the board slowly in figure-eights, turning it over too, until the "
+                "sphere coverage passes 90 %; stay away from steel and magnets"
+            },
+        ),
+        GuidedProtocol(
+            "axis-turns",
+            "Axis turns: 90° about x, y, z and back (lab 03)",
+            _NUCLEO,
+            {_NUCLEO: "03_axis_turns"},
+            lambda r, s, **kw: sim.axis_turns(rate_hz=r, **kw),
+            {"hold": 3.0, "move": 3.0},
+            {"hold": 1.0, "move": 1.5},
+            _TURN_PROMPTS,
+            "keep it flat and still",
+        ),
+        GuidedProtocol(
+            "headings",
+            "Headings: six flat, then six tilted (lab 03)",
+            _NUCLEO,
+            {_NUCLEO: "03_headings"},
+            lambda r, s, **kw: sim.heading_steps(
+                np.radians(HEADINGS_DEG), np.radians(HEADING_TILT_DEG), rate_hz=r, **kw
+            ),
+            {"hold": 4.0, "move": 4.0},
+            {"hold": 1.0, "move": 1.5},
+            _HEADING_PROMPTS,
+            "turn the board to the next heading: {next}",
+        ),
+    )
+}
 
 
 def _protocol(name) -> GuidedProtocol:
@@ -147,8 +215,10 @@ def dataset_name(name: str, board: str | None = None) -> str:
     board = board or p.board
     if board not in p.datasets:
         why = " (it has no magnetometer)" if get_board(board).mag is None else ""
-        raise ValueError(f"the {name} protocol is not recorded with the {board}{why}; "
-                         f"record it with the {' or the '.join(p.datasets)}")
+        raise ValueError(
+            f"the {name} protocol is not recorded with the {board}{why}; "
+            f"record it with the {' or the '.join(p.datasets)}"
+        )
     return p.datasets[board]
 
 
@@ -227,8 +297,9 @@ def protocol_capture_options(name: str, port, board=None, quick=False, fast=Fals
     return len(motion.t) / motion.rate_hz, steps, options
 
 
-def record_protocol(name: str, port="virtual", out=None, board=None, quick=False, fast=False, seed=0,
-                    baud=115200, prompt=print):
+def record_protocol(
+    name: str, port="virtual", out=None, board=None, quick=False, fast=False, seed=0, baud=115200, prompt=print
+):
     """Record guided protocol ``name`` into ``out``; ``prompt(text)`` gets each instruction as it comes due.
 
     Returns the Recording (phases labelled in its metadata). See :func:`protocol_capture_options`.
@@ -246,8 +317,9 @@ def record_protocol(name: str, port="virtual", out=None, board=None, quick=False
             shown[0] += 1
 
     say(0)  # the first instruction applies from the start
-    return capture(port, seconds, out, baud=baud, progress=lambda _, rec: say(steps.index(step_at(steps, rec.elapsed))),
-                   **options)
+    return capture(
+        port, seconds, out, baud=baud, progress=lambda _, rec: say(steps.index(step_at(steps, rec.elapsed))), **options
+    )
 
 
 def step_at(steps, t: float):

@@ -24,8 +24,10 @@ timestamps shows as dropped samples; its jitter is the recording's.
 Options ride on the address: ``phyphox://HOST:PORT?mount=upright&poll=0.2`` (mount: a name in
 :data:`kfkit.sensors.PHONE_MOUNTS`). Without a port, 8080 (Android's default; iPhones use 80).
 """
+
 from __future__ import annotations
 
+import contextlib
 import errno
 import http.client
 import json
@@ -42,19 +44,30 @@ import numpy as np
 from ..clocks import OneClock, SampleCounter
 from ..readers.phyphox_export import KINDS, SOURCES
 from ..sensors import DEFAULT_PHONE_MOUNT, PHONE_BOARD, phone_counts, phone_mount, phone_sensor_metadata
-from .errors import (PhoneError, PhoneExperimentError, PhoneStoppedError, PhoneUnreachableError, PortAddressError,
-                     RemoteAccessOffError)
+from .errors import (
+    PhoneError,
+    PhoneExperimentError,
+    PhoneStoppedError,
+    PhoneUnreachableError,
+    PortAddressError,
+    RemoteAccessOffError,
+)
 from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_sample
 
 SCHEME = "phyphox://"
 DEFAULT_PORT = 8080
-SIMPLE_EXPERIMENT = ("in phyphox tap '+' → 'New simple experiment', tick Accelerometer, Gyroscope and Magnetometer, "
-                     "open it and allow remote access again (⋮ menu)")
+SIMPLE_EXPERIMENT = (
+    "in phyphox tap '+' → 'New simple experiment', tick Accelerometer, Gyroscope and Magnetometer, "
+    "open it and allow remote access again (⋮ menu)"
+)
 
 
 #: what may ride on a phone's address (``?mount=upright&poll=0.2``), with what each takes
-URL_OPTIONS = {"mount": "a phone mounting (kfkit.sensors.PHONE_MOUNTS)", "poll": "seconds between requests, > 0",
-               "timeout": "seconds one request may take, > 0"}
+URL_OPTIONS = {
+    "mount": "a phone mounting (kfkit.sensors.PHONE_MOUNTS)",
+    "poll": "seconds between requests, > 0",
+    "timeout": "seconds one request may take, > 0",
+}
 URL_FORM = f"{SCHEME}HOST[:PORT][?mount=NAME&poll=S&timeout=S], e.g. {SCHEME}192.168.0.42:8080"
 _HOST = re.compile(r"[A-Za-z0-9._:%-]+")  # a name, an IPv4 address or (inside [ ]) an IPv6 one
 
@@ -62,12 +75,13 @@ _HOST = re.compile(r"[A-Za-z0-9._:%-]+")  # a name, an IPv4 address or (inside [
 def parse_url(url: str) -> tuple[str, int, dict]:
     """``phyphox://HOST[:PORT][?key=value…]`` → (host, port, options), the options of :data:`URL_OPTIONS`
     (``poll`` and ``timeout`` as floats). Raises :class:`PortAddressError` naming the address and what is wrong."""
+
     def bad(why):
         return PortAddressError(f"phone address {url!r}: {why}; a phone's address is {URL_FORM}")
 
     if not url.startswith(SCHEME):
         raise bad(f"it does not start with {SCHEME}")
-    parts = urlsplit("http://" + url[len(SCHEME):])
+    parts = urlsplit("http://" + url[len(SCHEME) :])
     if not parts.hostname:
         raise bad("no host: give the address phyphox shows under 'Allow remote access'")
     try:
@@ -77,11 +91,17 @@ def parse_url(url: str) -> tuple[str, int, dict]:
     if not _HOST.fullmatch(parts.hostname):
         raise bad(f"{parts.hostname!r} is not a host name or IP address")
     if port == 0 or parts.path not in ("", "/") or parts.fragment:
-        raise bad("the port after ':' must be a whole number 1 … 65535" if port == 0 else "nothing may follow the port but ?options")
+        raise bad(
+            "the port after ':' must be a whole number 1 … 65535"
+            if port == 0
+            else "nothing may follow the port but ?options"
+        )
     options = dict(parse_qsl(parts.query, keep_blank_values=True))
     for key, text in options.items():
         if key not in URL_OPTIONS:
-            raise bad(f"unknown option {key!r}; the options are " + ", ".join(f"{k} ({v})" for k, v in URL_OPTIONS.items()))
+            raise bad(
+                f"unknown option {key!r}; the options are " + ", ".join(f"{k} ({v})" for k, v in URL_OPTIONS.items())
+            )
         if key == "mount":
             try:
                 phone_mount(text)
@@ -113,21 +133,25 @@ class PhyphoxClient:
                 body = response.read()
         except urllib.error.HTTPError as e:
             detail = e.read()[:200].decode("utf-8", "replace")
-            hint = (": phyphox older than 1.1.6 has no /config, or this is not phyphox" if e.code == 404 else "")
+            hint = ": phyphox older than 1.1.6 has no /config, or this is not phyphox" if e.code == 404 else ""
             raise PhoneError(f"{self.base}{path} answered HTTP {e.code} ({detail.strip() or e.reason}){hint}") from None
         except urllib.error.URLError as e:
             raise self._connection_error(e.reason) from None
-        except (TimeoutError, socket.timeout) as e:
+        except TimeoutError as e:
             raise self._connection_error(e) from None
         except (ConnectionError, http.client.HTTPException) as e:
-            raise PhoneError(f"{self.base} closed the connection ({e.__class__.__name__}: {e}): is the phone still on "
-                             f"the network with phyphox in front?") from None
+            raise PhoneError(
+                f"{self.base} closed the connection ({e.__class__.__name__}: {e}): is the phone still on "
+                f"the network with phyphox in front?"
+            ) from None
         try:
             return json.loads(body)
         except ValueError:
             shown = body[:60].decode("utf-8", "replace")
-            raise PhoneError(f"{self.base}{path} answered, but not with phyphox's JSON (got {shown!r}): is "
-                             f"{self.host}:{self.port} the address phyphox shows under 'Allow remote access'?") from None
+            raise PhoneError(
+                f"{self.base}{path} answered, but not with phyphox's JSON (got {shown!r}): is "
+                f"{self.host}:{self.port} the address phyphox shows under 'Allow remote access'?"
+            ) from None
 
     def _connection_error(self, reason) -> PhoneError:
         where = f"{self.host}:{self.port}"
@@ -135,16 +159,25 @@ class PhyphoxClient:
             return RemoteAccessOffError(
                 f"nothing listens on {where} (connection refused): the phone is there, but phyphox's remote access "
                 f"is off or on another port. In phyphox open the experiment, tap ⋮ → 'Allow remote access' and use "
-                f"the address it then shows (port 8080 on Android, 80 on an iPhone)")
+                f"the address it then shows (port 8080 on Android, 80 on an iPhone)"
+            )
         if isinstance(reason, socket.gaierror):
-            return PhoneUnreachableError(f"cannot find the phone {self.host!r} ({reason.strerror}): type the "
-                                         f"address phyphox shows under 'Allow remote access', e.g. 192.168.0.42:8080")
+            return PhoneUnreachableError(
+                f"cannot find the phone {self.host!r} ({reason.strerror}): type the "
+                f"address phyphox shows under 'Allow remote access', e.g. 192.168.0.42:8080"
+            )
         if isinstance(reason, (TimeoutError, socket.timeout)) or getattr(reason, "errno", None) in (
-                errno.EHOSTUNREACH, errno.ENETUNREACH, errno.EHOSTDOWN, errno.ETIMEDOUT):
+            errno.EHOSTUNREACH,
+            errno.ENETUNREACH,
+            errno.EHOSTDOWN,
+            errno.ETIMEDOUT,
+        ):
             return PhoneUnreachableError(
                 f"no answer from {where} within {self.timeout:g} s: the phone is not reachable. Is this computer on "
                 f"the same Wi-Fi as the phone (guest and campus networks often keep devices apart)? Is the phone's "
-                f"screen on with phyphox in front (a phone in standby stops serving)? Is the address the one phyphox shows?")
+                f"screen on with phyphox in front (a phone in standby stops serving)? Is the address the one phyphox "
+                f"shows?"
+            )
         return PhoneUnreachableError(f"cannot reach {where}: {reason}")
 
     def config(self) -> dict:
@@ -194,9 +227,11 @@ def check_experiment(config: dict, require=("acc", "gyr")) -> dict[str, dict[str
             continue
         msg = f"the experiment open in phyphox ({title!r}) has no {KINDS[need]} (it has: {found})."
         if need == "acc" and ("lin" in sensors or "gra" in sensors):
-            msg += (" It measures the linear acceleration (gravity removed); the filters need the accelerometer's "
-                    "specific force with gravity: tick 'Accelerometer' (not 'Linear Acceleration') in a simple "
-                    "experiment, as in phyphox's 'Acceleration with g'.")
+            msg += (
+                " It measures the linear acceleration (gravity removed); the filters need the accelerometer's "
+                "specific force with gravity: tick 'Accelerometer' (not 'Linear Acceleration') in a simple "
+                "experiment, as in phyphox's 'Acceleration with g'."
+            )
         raise PhoneExperimentError(f"{msg} To record acc + gyro + mag at once: {SIMPLE_EXPERIMENT}")
     return sensors
 
@@ -212,8 +247,18 @@ class PhyphoxPort:
     :class:`PhoneError` (what arrived is saved by the recorder).
     """
 
-    def __init__(self, url: str, read_timeout=0.05, http_timeout=3.0, poll_s=0.1, mount=DEFAULT_PHONE_MOUNT,
-                 require=("acc", "gyr"), start_s=3.0, stall_s=2.0, min_rows=20):
+    def __init__(
+        self,
+        url: str,
+        read_timeout=0.05,
+        http_timeout=3.0,
+        poll_s=0.1,
+        mount=DEFAULT_PHONE_MOUNT,
+        require=("acc", "gyr"),
+        start_s=3.0,
+        stall_s=2.0,
+        min_rows=20,
+    ):
         host, port, options = parse_url(url)
         self.url, self.read_timeout = url, float(read_timeout)
         self.poll_s = float(options.get("poll", poll_s))
@@ -229,8 +274,10 @@ class PhyphoxPort:
         except PhoneError:
             meta = {}
         self.device = {k: v for k, v in meta.items() if isinstance(v, str) or v is None}
-        self.chips = {k: (meta.get("sensors") or {}).get(name, {}).get("Name")
-                      for k, name in (("acc", "accelerometer"), ("gyr", "gyroscope"), ("mag", "magnetic_field"))}
+        self.chips = {
+            k: (meta.get("sensors") or {}).get(name, {}).get("Name")
+            for k, name in (("acc", "accelerometer"), ("gyr", "gyroscope"), ("mag", "magnetic_field"))
+        }
         first = self.client.get([(self.sensors[k]["t"], "") for k in self.kinds])
         self.session = first["status"]["session"]
         self._threshold = {k: self._last_value(first, k) for k in self.kinds}  # skip what was recorded before
@@ -238,15 +285,24 @@ class PhyphoxPort:
         countdown = 0.0
         if not first["status"]["measuring"]:
             if not self.client.start():
-                raise PhoneExperimentError(f"phyphox on {host}:{port} refused to start {self.title!r} (a Bluetooth "
-                                           f"device it needs not connected?): press play on the phone and try again")
+                raise PhoneExperimentError(
+                    f"phyphox on {host}:{port} refused to start {self.title!r} (a Bluetooth "
+                    f"device it needs not connected?): press play on the phone and try again"
+                )
             self._started = True
             status = self.client.get([])["status"]
             if status.get("timedRun") and not status.get("measuring"):
                 countdown = float(status.get("countDown", 0.0)) / 1000.0  # ms: a timed run starts after its delay
         self.clock = OneClock(base="gyr", interpolated=("acc",), held=("mag",) if "mag" in self.kinds else ())
-        self.info = {"url": url, "experiment": self.title, "crc32": config.get("crc32"), "device": self.device,
-                     "buffers": self.sensors, "time_base": "gyroscope", "merge": self.clock.stats}
+        self.info = {
+            "url": url,
+            "experiment": self.title,
+            "crc32": config.get("crc32"),
+            "device": self.device,
+            "buffers": self.sensors,
+            "time_base": "gyroscope",
+            "merge": self.clock.stats,
+        }
         self._rows: list = []
         self._out = bytearray()
         self._closed = False
@@ -260,8 +316,9 @@ class PhyphoxPort:
                     got = ", ".join(f"{KINDS[k]} until {v:.2f} s" for k, v in self._threshold.items() if v is not None)
                     raise PhoneStoppedError(
                         f"phyphox on {host}:{port} is measuring {self.title!r} but sent no gyroscope + accelerometer "
-                        f"rows in {start_s:g} s (phone data: {got or 'none'}): is the phone's screen on with phyphox in "
-                        f"front, and are its sensors available on this phone?")
+                        f"rows in {start_s:g} s (phone data: {got or 'none'}): is the phone's screen on with phyphox "
+                        f"in front, and are its sensors available on this phone?"
+                    )
                 time.sleep(self.poll_s)
                 self._poll()
         except BaseException:
@@ -289,14 +346,17 @@ class PhyphoxPort:
         response = self.client.get(self._request())
         status = response.get("status", {})
         if status.get("session") != self.session:
-            raise PhoneStoppedError("another experiment was opened on the phone (phyphox's session changed): "
-                                    "start a new capture")
+            raise PhoneStoppedError(
+                "another experiment was opened on the phone (phyphox's session changed): start a new capture"
+            )
         buffers = response.get("buffer", {})
         new = False
         for k in self.kinds:
             b = self.sensors[k]
-            cols = [np.array([np.nan if v is None else v for v in buffers.get(b[c], {}).get("buffer", [])], dtype=float)
-                    for c in ("t", "x", "y", "z")]
+            cols = [
+                np.array([np.nan if v is None else v for v in buffers.get(b[c], {}).get("buffer", [])], dtype=float)
+                for c in ("t", "x", "y", "z")
+            ]
             n = min(len(c) for c in cols)
             table = np.column_stack([c[:n] for c in cols]) if n else np.zeros((0, 4))
             table = table[np.isfinite(table).all(axis=1)]
@@ -314,18 +374,25 @@ class PhyphoxPort:
             self._last_new = now
         elif self.header is not None and now - self._last_new > self.stall_s:
             if not status.get("measuring", False):
-                raise PhoneStoppedError("the phone stopped measuring (paused in phyphox, or its timed run ended): "
-                                        "what arrived is saved; start a new capture to go on")
-            raise PhoneStoppedError(f"the phone is measuring but sent no new gyroscope samples for {self.stall_s:g} s: "
-                                    f"its data was cleared, or phyphox went to the background; start a new capture")
+                raise PhoneStoppedError(
+                    "the phone stopped measuring (paused in phyphox, or its timed run ended): "
+                    "what arrived is saved; start a new capture to go on"
+                )
+            raise PhoneStoppedError(
+                f"the phone is measuring but sent no new gyroscope samples for {self.stall_s:g} s: "
+                f"its data was cleared, or phyphox went to the background; start a new capture"
+            )
 
     def _start_stream(self):
         t = np.concatenate([r[0] for r in self._rows])
         self.nominal_dt = float(np.median(np.diff(t)))
         self.rate_hz = round(1.0 / self.nominal_dt, 2)
-        self._counter = SampleCounter(self.nominal_dt)  # a gap in the gyro's timestamps is dropped samples, jitter is not
+        self._counter = SampleCounter(
+            self.nominal_dt
+        )  # a gap in the gyro's timestamps is dropped samples, jitter is not
         self.fields = ("t_us", "seq", "ax", "ay", "az", "gx", "gy", "gz") + (
-            ("mx", "my", "mz", "mag_new") if "mag" in self.kinds else ())
+            ("mx", "my", "mz", "mag_new") if "mag" in self.kinds else ()
+        )
         self.header = encode_header(PHONE_BOARD, self.rate_hz, self.fields, source="phyphox")
         self._out += self.header
         self._encode()
@@ -335,8 +402,12 @@ class PhyphoxPort:
             counts = {k: phone_counts(k, values[k]) for k in self.kinds}
             seq = self._counter.count(t)
             for i, ti in enumerate(t.tolist()):
-                row = [round(ti * 1e6) % MICROS_MODULO, int(seq[i]) % SEQ_MODULO,
-                       *counts["acc"][i].tolist(), *counts["gyr"][i].tolist()]
+                row = [
+                    round(ti * 1e6) % MICROS_MODULO,
+                    int(seq[i]) % SEQ_MODULO,
+                    *counts["acc"][i].tolist(),
+                    *counts["gyr"][i].tolist(),
+                ]
                 if "mag" in self.kinds:
                     m = counts["mag"][i]
                     fresh = bool(np.isfinite(m).all())
@@ -382,16 +453,20 @@ class PhyphoxPort:
             return
         self._closed = True
         if self._started:
-            try:
+            with contextlib.suppress(PhoneError):  # the phone is gone: nothing to stop
                 self.client.stop()
-            except PhoneError:
-                pass  # the phone is gone: nothing to stop
 
     def header_metadata(self, header) -> dict:
         """The recording's metadata: phone counts, the mounting, and what phyphox said about itself.
         ``meta["phone"]["merge"]`` is the live merge statistics (updated until the capture ends)."""
-        return {"board": PHONE_BOARD, "rate_hz": header.rate_hz, "source": "capture (phone, phyphox remote access)",
-                "units": {"t": "s", "sensors": "counts (see sensors.*.sensitivity)"},
-                "protocol": {"version": header.version, "header": "#" + header.text},
-                "sensors": {k: phone_sensor_metadata(k, self.chips[k]) for k in self.kinds},
-                "mount": {k: self.M.tolist() for k in self.kinds}, "mount_name": self.mount_name, "phone": self.info}
+        return {
+            "board": PHONE_BOARD,
+            "rate_hz": header.rate_hz,
+            "source": "capture (phone, phyphox remote access)",
+            "units": {"t": "s", "sensors": "counts (see sensors.*.sensitivity)"},
+            "protocol": {"version": header.version, "header": "#" + header.text},
+            "sensors": {k: phone_sensor_metadata(k, self.chips[k]) for k in self.kinds},
+            "mount": {k: self.M.tolist() for k in self.kinds},
+            "mount_name": self.mount_name,
+            "phone": self.info,
+        }

@@ -1,4 +1,5 @@
 """Finding boards (USB VID:PID) and opening a port, with errors that say what to do (:mod:`.errors`)."""
+
 from __future__ import annotations
 
 import errno
@@ -6,8 +7,8 @@ import importlib.util
 import os
 import re
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 from urllib.parse import urlsplit
 
 from .errors import CaptureError, PortAddressError, PortBusyError, PortNotFoundError, PortPermissionError
@@ -51,9 +52,11 @@ _HOST_PORT_SCHEMES = ("socket", "rfc2217")  # pyserial's network ports: HOST:POR
 def port_forms() -> str:
     """The forms a port takes, for messages."""
     named = "; ".join(f"'{name}' ({p.description})" for name, p in NAMED_PORTS.items())
-    return (f"'{AUTO}' (the one board plugged in); {named}; a device path (/dev/ttyACM0, /dev/ttyUSB0, COM3); "
-            f"{URL_FORM} (a phone running phyphox); or a pyserial URL: socket://HOST:PORT, rfc2217://HOST:PORT, "
-            f"hwgrep://VID:PID, loop://")
+    return (
+        f"'{AUTO}' (the one board plugged in); {named}; a device path (/dev/ttyACM0, /dev/ttyUSB0, COM3); "
+        f"{URL_FORM} (a phone running phyphox); or a pyserial URL: socket://HOST:PORT, rfc2217://HOST:PORT, "
+        f"hwgrep://VID:PID, loop://"
+    )
 
 
 def check_port(port) -> str:
@@ -61,6 +64,7 @@ def check_port(port) -> str:
     ``phyphox://HOST[:PORT]`` (:func:`~kfkit.capture.phyphox_http.parse_url`) or a URL whose scheme pyserial knows
     (``socket://`` and ``rfc2217://`` with HOST:PORT). Otherwise :class:`PortAddressError` naming the port and listing
     the forms. Whether a device exists is for :func:`open_port` to find (:class:`PortNotFoundError`)."""
+
     def bad(why):
         return PortAddressError(f"port {port!r}: {why}. A port is {port_forms()}")
 
@@ -136,7 +140,9 @@ class BoardPort:
         return self.board is not None
 
     def __str__(self):
-        what = f"{self.guess} → probably {self.board}" if self.known else f"unknown USB serial device ({self.description})"
+        what = (
+            f"{self.guess} → probably {self.board}" if self.known else f"unknown USB serial device ({self.description})"
+        )
         return f"{self.port} [{self.vid_pid}] {what}"
 
 
@@ -173,8 +179,10 @@ def resolve_auto() -> tuple[BoardPort, str]:
         raise PortNotFoundError(f"port='auto' found {len(known)} boards; pass one of them as port: {_list_text(known)}")
     if len(boards) == 1:
         return boards[0], f"auto: no known board, using the only USB serial port {boards[0]}"
-    raise PortNotFoundError(f"port='auto' found no board ({_list_text(boards)}). Plug the board in with a data "
-                            "USB cable, or use port='virtual' to practise with the virtual board")
+    raise PortNotFoundError(
+        f"port='auto' found no board ({_list_text(boards)}). Plug the board in with a data "
+        "USB cable, or use port='virtual' to practise with the virtual board"
+    )
 
 
 def open_port(port: str, baud: int = 115200, timeout: float = 0.05):
@@ -201,8 +209,10 @@ def open_port(port: str, baud: int = 115200, timeout: float = 0.05):
             forms = "" if _looks_like_a_device(port) else f". A port is {port_forms()}"
             raise PortNotFoundError(f"port {port} not found; {_list_text(find_boards())}{forms}") from None
         if code in (errno.EBUSY, errno.EAGAIN) or (windows and "PermissionError" in text):
-            raise PortBusyError(f"port {port} is busy: another program has it open (a serial monitor, the Arduino "
-                                "IDE, another notebook or kfkit capture?); close it and try again") from None
+            raise PortBusyError(
+                f"port {port} is busy: another program has it open (a serial monitor, the Arduino "
+                "IDE, another notebook or kfkit capture?); close it and try again"
+            ) from None
         if code == errno.EACCES:
             raise PortPermissionError(f"permission denied opening {port}{_permission_hint(port)}") from None
         raise CaptureError(f"cannot open {port}: {e}") from None
@@ -224,7 +234,11 @@ def _permission_hint(port: str) -> str:
     except (OSError, KeyError):
         gid, group = None, "dialout"
     if gid is not None and gid in os.getgroups():
-        return (f"; you are in its group '{group}', so check its mode with `ls -l {port}` (or log out and in "
-                "again if you joined the group recently)")
-    return (f"; serial ports belong to the group '{group}' and you are not in it: "
-            f"sudo usermod -aG {group} $USER   (then log out and in again)")
+        return (
+            f"; you are in its group '{group}', so check its mode with `ls -l {port}` (or log out and in "
+            "again if you joined the group recently)"
+        )
+    return (
+        f"; serial ports belong to the group '{group}' and you are not in it: "
+        f"sudo usermod -aG {group} $USER   (then log out and in again)"
+    )

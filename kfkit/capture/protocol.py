@@ -22,6 +22,7 @@ ASCII lines, ``\\n``-terminated (a ``\\r`` before it is ignored)::
 
 Host → board: single characters, ``h`` (send the header) and ``s`` (start/stop streaming).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -124,7 +125,7 @@ def _split_checksum(line: bytes):
     star = line.rfind(b"*")
     if star < 0:
         return line[1:], None
-    body, wanted = line[1:star], _HEX.get(line[star + 1:])
+    body, wanted = line[1:star], _HEX.get(line[star + 1 :])
     if wanted is None:
         raise ValueError("the checksum after '*' must be two upper-case hex digits")
     return body, checksum(body) == wanted
@@ -146,7 +147,7 @@ def parse_line(line: bytes):
         if star < 0 or len(line) - star != 3:
             return BadLine("malformed", "a sample line must end in *HH (two hex digits)", line)
         body = line[1:star]
-        wanted = _HEX.get(line[star + 1:])
+        wanted = _HEX.get(line[star + 1 :])
         if wanted is None:
             return BadLine("malformed", "the checksum after '*' is not two upper-case hex digits", line)
         got = reduce(xor, body, 0)
@@ -164,8 +165,9 @@ def parse_line(line: bytes):
         if len(values) < 2:
             return BadLine("malformed", "a sample needs at least t_us and seq", line)
         if values[0] >> 32 or values[1] >> 16:  # non-zero for a negative value too
-            return BadLine("malformed", f"t_us must be in [0, 2^32) and seq in [0, 2^16), got {values[0]}, {values[1]}",
-                           line)
+            return BadLine(
+                "malformed", f"t_us must be in [0, 2^32) and seq in [0, 2^16), got {values[0]}, {values[1]}", line
+            )
         if len(values) > 2 and (min(values[2:]) < INT32_MIN or max(values[2:]) > INT32_MAX):
             return BadLine("malformed", "a field is outside the protocol's int32 range [-2^31, 2^31)", line)
         return values

@@ -20,6 +20,7 @@ Magnetometer: the Nucleo sketch sends ``mx,my,mz`` on every line (the last readi
 a last field ``mag_new`` (1 = a new reading, 0 = a repeat); rows with ``mag_new = 0`` get NaN
 magnetometer cells, the recording format's "no new sample".
 """
+
 from __future__ import annotations
 
 import math
@@ -49,9 +50,13 @@ _SPEC_AT_RANGE = {  # chip → (accel spec at ±g, gyro spec at ±°/s), for hea
 
 def header_metadata(header: Header) -> dict:
     """Recording metadata from a board header: sensitivities and mounts from ``kfkit.sensors``."""
-    meta = {"board": header.board, "rate_hz": header.rate_hz, "source": "capture",
-            "units": {"t": "s", "sensors": "counts (see sensors.*.sensitivity)"},
-            "protocol": {"version": header.version, "header": "#" + header.text}}
+    meta = {
+        "board": header.board,
+        "rate_hz": header.rate_hz,
+        "source": "capture",
+        "units": {"t": "s", "sensors": "counts (see sensors.*.sensitivity)"},
+        "protocol": {"version": header.version, "header": "#" + header.text},
+    }
     try:
         b = sensors.board(header.board)
     except ValueError:
@@ -103,10 +108,30 @@ class Recorder:
     samples arrived also says where they are saved.
     """
 
-    def __init__(self, port="auto", baud=DEFAULT_BAUD, out=None, *, seconds=None, phases=None, virtual=None,
-                 request_header=True, no_data_s=3.0, garbage_s=2.0, flush_s=0.5, read_timeout=0.05):
-        require_positive("Recorder", none_ok=("seconds",), seconds=seconds, no_data_s=no_data_s, garbage_s=garbage_s,
-                         flush_s=flush_s, read_timeout=read_timeout)
+    def __init__(
+        self,
+        port="auto",
+        baud=DEFAULT_BAUD,
+        out=None,
+        *,
+        seconds=None,
+        phases=None,
+        virtual=None,
+        request_header=True,
+        no_data_s=3.0,
+        garbage_s=2.0,
+        flush_s=0.5,
+        read_timeout=0.05,
+    ):
+        require_positive(
+            "Recorder",
+            none_ok=("seconds",),
+            seconds=seconds,
+            no_data_s=no_data_s,
+            garbage_s=garbage_s,
+            flush_s=flush_s,
+            read_timeout=read_timeout,
+        )
         if isinstance(baud, bool) or not isinstance(baud, (int, np.integer)) or baud <= 0:
             raise ValueError(f"Recorder: baud must be a whole number > 0, got {baud!r}")
         self.port, self.baud, self.seconds = port, int(baud), seconds
@@ -137,7 +162,7 @@ class Recorder:
         self._mag_index = None
 
     # -- life cycle --------------------------------------------------------------------------------
-    def start(self) -> "Recorder":
+    def start(self) -> Recorder:
         if self._thread is not None:
             raise CaptureError("this Recorder has already been started; make a new one for a new capture")
         port = self.port
@@ -237,10 +262,15 @@ class Recorder:
                     self._fail(type(e), str(e))
                     break
                 except Exception as e:  # SerialException/OSError: the device went away
-                    failed = getattr(self.board, "error", None)  # a board object that stopped on an error closes its port
+                    failed = getattr(
+                        self.board, "error", None
+                    )  # a board object that stopped on an error closes its port
                     if failed is not None:
-                        self._fail(CaptureError, f"{self.description} stopped on an error ({type(failed).__name__}: "
-                                   f"{failed}); please report it")
+                        self._fail(
+                            CaptureError,
+                            f"{self.description} stopped on an error ({type(failed).__name__}: "
+                            f"{failed}); please report it",
+                        )
                     else:
                         self._fail(BoardDisconnectedError, f"the board disconnected ({self.device}: {e})")
                     break
@@ -268,17 +298,22 @@ class Recorder:
                 if self.header is None or self.stats.samples == 0:
                     self._check_startup(now - self._t_open)
                 elif now - last_data >= self.no_data_s:
-                    self._fail(NoDataError, f"{self.device}: the board stopped sending {now - last_data:.1f} s ago, "
-                               f"after {self.stats.samples} samples{self._notes()}: a loose cable, a crashed "
-                               f"sketch or another program that took the port")
+                    self._fail(
+                        NoDataError,
+                        f"{self.device}: the board stopped sending {now - last_data:.1f} s ago, "
+                        f"after {self.stats.samples} samples{self._notes()}: a loose cable, a crashed "
+                        f"sketch or another program that took the port",
+                    )
                 if self.error is not None:
                     break
                 if self._file is not None and now - last_flush >= self.flush_s:
                     self._file.flush()
                     last_flush = now
         except Exception as e:  # a bug must not end a capture silently: say so, keep what arrived
-            self._fail(CaptureError, f"{self.device}: the recorder stopped on an unexpected error ({e!r}); "
-                       "please report it with the file")
+            self._fail(
+                CaptureError,
+                f"{self.device}: the recorder stopped on an unexpected error ({e!r}); please report it with the file",
+            )
         finally:
             if self._file is not None:
                 self._file.flush()
@@ -295,30 +330,50 @@ class Recorder:
         s = self.stats
         valid = s.samples + s.before_header + (self.header is not None) + len(s.notes)  # a '#' note is protocol v1
         if waited >= self.garbage_s and s.bytes >= 20 and valid <= 0.1 * (valid + s.bad_lines):
-            hint = ("check Serial.begin(...) in the sketch" if self.baud == DEFAULT_BAUD
-                    else f"pass baud={DEFAULT_BAUD} (kfkit capture --baud {DEFAULT_BAUD})")
-            self._fail(WrongBaudError, f"{self.device}: {s.bytes} bytes in {waited:.1f} s but no valid protocol line, "
-                       f"which is what a wrong baud rate looks like: kfkit sketches send at {DEFAULT_BAUD} baud and "
-                       f"this port is open at {self.baud}; {hint}")
+            hint = (
+                "check Serial.begin(...) in the sketch"
+                if self.baud == DEFAULT_BAUD
+                else f"pass baud={DEFAULT_BAUD} (kfkit capture --baud {DEFAULT_BAUD})"
+            )
+            self._fail(
+                WrongBaudError,
+                f"{self.device}: {s.bytes} bytes in {waited:.1f} s but no valid protocol line, "
+                f"which is what a wrong baud rate looks like: kfkit sketches send at {DEFAULT_BAUD} baud and "
+                f"this port is open at {self.baud}; {hint}",
+            )
         elif waited >= self.no_data_s and s.before_header and self.header is None:
-            self._fail(CaptureError, f"{self.device}: {s.before_header} samples but no #KFKIT header in {waited:.1f} s, "
-                       f"although 'h' was sent: is the sketch from this kit ({SKETCHES})?")
+            self._fail(
+                CaptureError,
+                f"{self.device}: {s.before_header} samples but no #KFKIT header in {waited:.1f} s, "
+                f"although 'h' was sent: is the sketch from this kit ({SKETCHES})?",
+            )
         elif waited >= self.no_data_s and self.header is not None and s.samples == 0:
-            self._fail(NoDataError, f"{self.device}: the board sent its header but no samples in {waited:.1f} s: "
-                       f"it may be stopped (the 's' command toggles streaming) or its sensor failed to start"
-                       f"{self._notes()}; press the board's reset button")
+            self._fail(
+                NoDataError,
+                f"{self.device}: the board sent its header but no samples in {waited:.1f} s: "
+                f"it may be stopped (the 's' command toggles streaming) or its sensor failed to start"
+                f"{self._notes()}; press the board's reset button",
+            )
         elif waited >= self.no_data_s and self.header is None and s.notes and not s.before_header:
-            self._fail(NoDataError, f"{self.device}: no header and no samples in {waited:.1f} s, only notes from the board"
-                       f"{self._notes()}: its sketch runs but cannot start; fix what it says, then press the board's "
-                       f"reset button")
+            self._fail(
+                NoDataError,
+                f"{self.device}: no header and no samples in {waited:.1f} s, only notes from the board"
+                f"{self._notes()}: its sketch runs but cannot start; fix what it says, then press the board's "
+                f"reset button",
+            )
         elif waited >= self.no_data_s and valid == 0 and s.bytes < 20:
             notes = self._notes() + (f" except {s.bytes} stray bytes" if s.bytes else "")
-            self._fail(NoDataError, f"{self.device}: nothing received in {waited:.1f} s{notes}. Check that the logger "
-                       f"sketch is flashed ({SKETCHES}), press the board's reset button, and that no other "
-                       f"program reads the port")
+            self._fail(
+                NoDataError,
+                f"{self.device}: nothing received in {waited:.1f} s{notes}. Check that the logger "
+                f"sketch is flashed ({SKETCHES}), press the board's reset button, and that no other "
+                f"program reads the port",
+            )
 
     def _notes(self) -> str:
-        return f" (the board said: {'; '.join(dict.fromkeys(self.stats.notes))})" if self.stats.notes else ""  # each once
+        return (
+            f" (the board said: {'; '.join(dict.fromkeys(self.stats.notes))})" if self.stats.notes else ""
+        )  # each once
 
     def _handle(self, line: bytes):
         item = parse_line(line)
@@ -328,9 +383,12 @@ class Recorder:
             if item.kind == "checksum":
                 self.stats.bad_checksum += 1
             elif item.kind == "version":
-                self._fail(ProtocolVersionError, f"{self.device}: the board speaks an unknown protocol ({item.detail}): "
-                           f"{line[:60].decode('ascii', 'replace')!r}. Flash the sketch from this kit's firmware/ "
-                           f"folder, or update kfkit")
+                self._fail(
+                    ProtocolVersionError,
+                    f"{self.device}: the board speaks an unknown protocol ({item.detail}): "
+                    f"{line[:60].decode('ascii', 'replace')!r}. Flash the sketch from this kit's firmware/ "
+                    f"folder, or update kfkit",
+                )
             elif item.kind == "malformed":
                 self.stats.malformed += 1
         elif isinstance(item, Header):
@@ -354,11 +412,14 @@ class Recorder:
             self._mag_cols = [self.columns.index(f) for f in ("mx", "my", "mz") if f in self.columns]
             if self.out is not None:
                 self.out.parent.mkdir(parents=True, exist_ok=True)
-                self._file = open(self.out, "w", encoding="utf-8", newline="\n")
+                self._file = open(self.out, "w", encoding="utf-8", newline="\n")  # noqa: SIM115  (open for the capture; _finish_file closes it)
                 self._file.write(format_header(self._file_meta(), self.columns))
         elif header.fields != self.header.fields or header.board != self.header.board:
-            self._fail(CaptureError, f"{self.device}: the board header changed mid-capture, from "
-                       f"{self.header.text!r} to {header.text!r}; start a new capture")
+            self._fail(
+                CaptureError,
+                f"{self.device}: the board header changed mid-capture, from "
+                f"{self.header.text!r} to {header.text!r}; start a new capture",
+            )
         else:  # the same header again: an answer to 'h', or a board that restarted (setup() sends it)
             self.timeline.header_again()
 
@@ -388,7 +449,8 @@ class Recorder:
     # -- results ------------------------------------------------------------------------------------------
     def clock_rate_hz(self) -> float:
         """The sample rate of the board's own clock over the whole capture so far, Hz (NaN before two samples):
-        :meth:`Timeline.clock_rate_hz`. A board's header states a nominal rate; a phone's is a guess from its first rows."""
+        :meth:`Timeline.clock_rate_hz`. A board's header states a nominal rate; a phone's is a guess from its first
+        rows."""
         return self.timeline.clock_rate_hz() if self.timeline is not None else float("nan")
 
     def _file_meta(self, final=False) -> dict:
@@ -419,7 +481,7 @@ class Recorder:
                 rows = list(self._rows)
             else:
                 rate = self.header.rate_hz if self.header else 1.0
-                rows = self._rows[-int(last_seconds * rate * 1.5 + 16):]
+                rows = self._rows[-int(last_seconds * rate * 1.5 + 16) :]
         cols = self.columns or ["t", "seq"]
         # column by column from the parsed values: counts go to int64 directly (never through float), so the
         # final file holds exactly what was streamed
@@ -442,8 +504,10 @@ class Recorder:
             save_recording(self.recording(), tmp)
             os.replace(tmp, self.out)
         if self.error is not None and self.stats.samples:  # a capture cut short: say where its data is
-            self.error = type(self.error)(f"{self.error}; every sample received ({self.stats.samples} samples, "
-                                          f"{self.stats.duration_s:.2f} s) is saved in {self.out}")
+            self.error = type(self.error)(
+                f"{self.error}; every sample received ({self.stats.samples} samples, "
+                f"{self.stats.duration_s:.2f} s) is saved in {self.out}"
+            )
 
 
 def capture(port="auto", seconds=10.0, out=None, baud=DEFAULT_BAUD, progress=None, **options) -> Recording:

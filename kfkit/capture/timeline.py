@@ -17,6 +17,7 @@ sequence numbers and the clock say happened between samples:
 The board clock's rate over the capture, r = 10⁶ · Σ(g + 1) / ΣΔ (resets left out), and the mean and
 spread of Δ between consecutive samples (no gap, no reset) come from the same sums.
 """
+
 from __future__ import annotations
 
 import math
@@ -75,10 +76,12 @@ class CaptureStats:
             first += f" (t = 0 … {self.duration_s:.2f} s): effective rate {self.rate_hz:.2f} Hz"
         if math.isfinite(self.dt_mean_us):
             first += f", interval {self.dt_mean_us:.1f} µs, jitter {self.jitter_us:.1f} µs rms"
-        lines = [first,
-                 f"bad lines      {self.bad_lines} ({self.bad_checksum} bad checksum, {self.malformed} malformed)",
-                 f"dropped        {self.dropped}" + (f": {drops}" if self.drops else ""),
-                 f"board resets   {self.resets}" + (f", before sample {resets}" if self.resets else "")]
+        lines = [
+            first,
+            f"bad lines      {self.bad_lines} ({self.bad_checksum} bad checksum, {self.malformed} malformed)",
+            f"dropped        {self.dropped}" + (f": {drops}" if self.drops else ""),
+            f"board resets   {self.resets}" + (f", before sample {resets}" if self.resets else ""),
+        ]
         return "\n".join(lines)
 
 

@@ -32,8 +32,10 @@ a list of positions or a probability per sample, drawn from ``seed``):
 | garbage     | (True) sends random bytes at the line rate, as a wrong baud rate looks    |
 | silent      | (True) sends nothing at all, as a board without the sketch                |
 """
+
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import inspect
 import os
@@ -47,11 +49,11 @@ import tty
 import numpy as np
 
 from .. import sim
+from ..filters.tilt import TiltAttitude
 from ..frames import G
 from ..sensors import BOARDS
 from ..sensors import board as get_board
 from ..unit_errors import BOARD_UNITS, resolve_unit
-from ..filters.tilt import TiltAttitude
 from .protocol import MICROS_MODULO, SEQ_MODULO, encode_header, encode_message, encode_sample
 
 FAULT_KINDS = ("corrupt", "drop", "truncate", "reset", "disconnect", "stall", "garbage", "silent")
@@ -122,16 +124,35 @@ class VirtualBoard:
                  at start, after a reset, and each time ``s`` starts streaming again
     """
 
-    def __init__(self, rate_hz=None, board="nucleo-iks02a1", motion=None, faults=None, seed=0, *,
-                 unit="bundled", realtime=True, loop=True, start_us=0, start_seq=0, chunk_s=1.0, sim_options=None,
-                 extra_lines=(), attitude=False, protocol_version=1):
+    def __init__(
+        self,
+        rate_hz=None,
+        board="nucleo-iks02a1",
+        motion=None,
+        faults=None,
+        seed=0,
+        *,
+        unit="bundled",
+        realtime=True,
+        loop=True,
+        start_us=0,
+        start_seq=0,
+        chunk_s=1.0,
+        sim_options=None,
+        extra_lines=(),
+        attitude=False,
+        protocol_version=1,
+    ):
         self.board = get_board(board) if isinstance(board, str) else board
         if motion is not None and rate_hz is not None and abs(float(rate_hz) - motion.rate_hz) > 1e-9:
             raise ValueError(f"rate_hz={rate_hz} differs from the motion's rate {motion.rate_hz} Hz")
         if rate_hz is None:
             rate_hz = motion.rate_hz if motion is not None else self.board.rate_hz
-        if isinstance(rate_hz, bool) or not isinstance(rate_hz, (int, float, np.integer, np.floating)) or not (
-                0.0 < rate_hz <= MAX_RATE_HZ):
+        if (
+            isinstance(rate_hz, bool)
+            or not isinstance(rate_hz, (int, float, np.integer, np.floating))
+            or not (0.0 < rate_hz <= MAX_RATE_HZ)
+        ):
             raise ValueError(f"VirtualBoard: rate_hz must be a number > 0 and ≤ {MAX_RATE_HZ:g} Hz, got {rate_hz!r}")
         self.rate_hz = float(rate_hz)
         self.motion, self.loop, self.realtime = motion, loop, realtime
@@ -141,8 +162,10 @@ class VirtualBoard:
         reserved = {"motion", "board", "seed", "mag_rate_hz"}  # the board sets these itself
         unknown = sorted(set(self.sim_options) - (set(inspect.signature(sim.simulate_imu).parameters) - reserved))
         if unknown:
-            raise ValueError(f"sim_options: {', '.join(unknown)} cannot be set; give sim.simulate_imu keywords "
-                             f"other than {', '.join(sorted(reserved))}")
+            raise ValueError(
+                f"sim_options: {', '.join(unknown)} cannot be set; give sim.simulate_imu keywords "
+                f"other than {', '.join(sorted(reserved))}"
+            )
         self.bias_rw = {key: float(self.sim_options.pop(f"{key}_rw", 0.0)) for key in ("gyro_bias", "accel_bias")}
         self._bias0 = {key: np.asarray(self.sim_options.pop(key, np.zeros(3)), float) for key in self.bias_rw}
         self.extra_lines = list(extra_lines)
@@ -171,7 +194,7 @@ class VirtualBoard:
         self.port = None
 
     # -- life cycle ------------------------------------------------------------------------------
-    def start(self) -> "VirtualBoard":
+    def start(self) -> VirtualBoard:
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no echo, no line editing: bytes pass unchanged
         os.set_blocking(self._master, False)
@@ -192,10 +215,8 @@ class VirtualBoard:
             fd = getattr(self, name)
             if fd is not None:
                 setattr(self, name, None)
-                try:
+                with contextlib.suppress(OSError):
                     os.close(fd)
-                except OSError:
-                    pass
 
     def __enter__(self):
         return self.start() if self._thread is None else self
@@ -234,19 +255,33 @@ class VirtualBoard:
             total = len(self.motion.t) if self.motion is not None else None
             start = 0
             while total is None or start < total:
-                n = int(round(self.chunk_s * rate)) if total is None else min(int(round(self.chunk_s * rate)), total - start)
+                n = (
+                    int(round(self.chunk_s * rate))
+                    if total is None
+                    else min(int(round(self.chunk_s * rate)), total - start)
+                )
                 if self.motion is None:
                     m = sim.stationary(n / rate, rate)
                     m.t = (start + np.arange(n)) / rate
                 else:
                     s = slice(start, start + n)
-                    m = sim.Motion(self.motion.t[s], rate, self.motion.euler[s], self.motion.omega_b[s], self.motion.acc_n[s])
+                    m = sim.Motion(
+                        self.motion.t[s], rate, self.motion.euler[s], self.motion.omega_b[s], self.motion.acc_n[s]
+                    )
                 biases = {}
                 for key, density in self.bias_rw.items():  # b_k = b₀ + Σ_{j≤k} w_j, w ~ N(0, K²/rate)
                     path = walk[key] + np.cumsum(walk_rng.normal(0.0, density / np.sqrt(rate), (n, 3)), axis=0)
                     walk[key], biases[key] = path[-1], bias0[key] + path
-                rec = sim.simulate_imu(m, board=b, seed=[self.seed, chunk_index], mag_rate_hz=mag_rate, **biases,
-                                       gyro_bias_rw=0.0, accel_bias_rw=0.0, **self.sim_options)
+                rec = sim.simulate_imu(
+                    m,
+                    board=b,
+                    seed=[self.seed, chunk_index],
+                    mag_rate_hz=mag_rate,
+                    **biases,
+                    gyro_bias_rw=0.0,
+                    accel_bias_rw=0.0,
+                    **self.sim_options,
+                )
                 cols = [rec[c].astype(np.int64) for c in ("ax", "ay", "az", "gx", "gy", "gz")]
                 if b.mag is not None:
                     k = start + np.arange(n)
@@ -273,7 +308,7 @@ class VirtualBoard:
         digits = [i for i in range(1, star) if 48 <= line[i] <= 57]
         i = digits[int(self._rng.integers(len(digits)))]
         new = 48 + (line[i] - 48 + 1 + int(self._rng.integers(9))) % 10  # a different digit
-        return line[:i] + bytes([new]) + line[i + 1:]
+        return line[:i] + bytes([new]) + line[i + 1 :]
 
     def _start_attitude(self) -> bytes:
         """(attitude=True) What the sketch does at each start: new filters, and the note to keep still."""

@@ -18,14 +18,15 @@ and accelerometer's bias random walks (:data:`kfkit.unit_errors.PHONE_UNIT`) run
 sensor, as a real phone's biases do.
 While measuring, its experiment clock runs at ``speed`` × real time, or (``step_s``) moves on by
 ``step_s`` seconds at each ``/get``, so that the phone runs exactly as fast as it is polled whatever
-the machine's load (tests); the buffers hold every sample up to it. Faults for tests: ``refuse_start`` (start answers false), ``pause_at`` (the phone
-pauses itself at that experiment time, s), ``hang_after`` (after that many ``/get`` requests it
-stops answering, as a phone that left the network).
+the machine's load (tests); the buffers hold every sample up to it. Faults for tests: ``refuse_start`` (start
+answers false), ``pause_at`` (the phone pauses itself at that experiment time, s), ``hang_after`` (after that many
+``/get`` requests it stops answering, as a phone that left the network).
 
     python -m kfkit.capture.virtual_phone [--experiment simple] [--speed 1]
 
 serves one until Ctrl-C and prints the ``phyphox://`` address to record from.
 """
+
 from __future__ import annotations
 
 import json
@@ -69,10 +70,12 @@ _ACC = ("Acceleration x (m/s^2)", "Acceleration y (m/s^2)", "Acceleration z (m/s
 _GYR = ("Gyroscope x (rad/s)", "Gyroscope y (rad/s)", "Gyroscope z (rad/s)")
 _MAG = ("Magnetic field x (µT)", "Magnetic field y (µT)", "Magnetic field z (µT)")
 _LIN = ("Linear Acceleration x (m/s^2)", "Linear Acceleration y (m/s^2)", "Linear Acceleration z (m/s^2)")
-_SIMPLE = {"acc": _android("accelerometer", "acc", "acc", "acc_time", "Accelerometer", _ACC),
-           "gyr": _android("gyroscope", "gyr", "gyr", "gyr_time", "Gyroscope", _GYR),
-           "mag": _android("magnetic_field", "mag", "mag", "mag_time", "Magnetometer", _MAG),
-           "lin": _android("linear_acceleration", "lin", "lin", "lin_time", "Linear Acceleration", _LIN)}
+_SIMPLE = {
+    "acc": _android("accelerometer", "acc", "acc", "acc_time", "Accelerometer", _ACC),
+    "gyr": _android("gyroscope", "gyr", "gyr", "gyr_time", "Gyroscope", _GYR),
+    "mag": _android("magnetic_field", "mag", "mag", "mag_time", "Magnetometer", _MAG),
+    "lin": _android("linear_acceleration", "lin", "lin", "lin_time", "Linear Acceleration", _LIN),
+}
 
 #: name → (title, inputs): Android's simple experiments (phyphox-android SimpleExperimentCreator)
 #: and two of its single-sensor experiments (phyphox-experiments: gyroscope, linear_accelerometer)
@@ -81,8 +84,10 @@ EXPERIMENTS = {
     "simple-no-mag": ("Phone IMU", (_SIMPLE["acc"], _SIMPLE["gyr"])),
     "simple-linear": ("Phone IMU", (_SIMPLE["lin"], _SIMPLE["gyr"], _SIMPLE["mag"])),
     "gyroscope": ("Gyroscope", (_android("gyroscope", "gyr", "gyr", "gyr_time", "Raw Data", _GYR),)),
-    "acceleration-without-g": ("Acceleration (without g)",
-                               (_android("linear_acceleration", "lin", "acc", "acc_time", "Raw Data", _LIN),)),
+    "acceleration-without-g": (
+        "Acceleration (without g)",
+        (_android("linear_acceleration", "lin", "acc", "acc_time", "Raw Data", _LIN),),
+    ),
 }
 
 
@@ -115,8 +120,19 @@ class VirtualPhone:
     faults       {"refuse_start": True, "pause_at": s, "hang_after": n}; see the module docstring
     """
 
-    def __init__(self, motion=None, experiment="simple", seed=0, speed=1.0, autostart=False, rates=None,
-                 drop=0.0, faults=None, mount=DEFAULT_PHONE_MOUNT, step_s=None):
+    def __init__(
+        self,
+        motion=None,
+        experiment="simple",
+        seed=0,
+        speed=1.0,
+        autostart=False,
+        rates=None,
+        drop=0.0,
+        faults=None,
+        mount=DEFAULT_PHONE_MOUNT,
+        step_s=None,
+    ):
         if experiment not in EXPERIMENTS:
             raise ValueError(f"unknown experiment {experiment!r}; known: {', '.join(EXPERIMENTS)}")
         self.title, self.inputs = EXPERIMENTS[experiment]
@@ -128,7 +144,9 @@ class VirtualPhone:
         self.faults = dict(faults or {})
         unknown = set(self.faults) - {"refuse_start", "pause_at", "hang_after"}
         if unknown:
-            raise ValueError(f"unknown fault(s) {', '.join(sorted(unknown))}; known: refuse_start, pause_at, hang_after")
+            raise ValueError(
+                f"unknown fault(s) {', '.join(sorted(unknown))}; known: refuse_start, pause_at, hang_after"
+            )
         self.session = uuid.uuid4().hex[:6]
         self.requests = {"get": 0, "control": 0, "config": 0, "keep_alive": 0}  # keep_alive: asked to keep a connection
         self._buffers = {name: (inp, i) for inp in self.inputs for i, name in enumerate(inp.buffers)}
@@ -178,8 +196,14 @@ class VirtualPhone:
     def _loop(self, k):
         while len(self._loops) <= k:
             i = len(self._loops)
-            s = simulate_phone(self.motion, seed=self.seed + 1000 * self._generation + i, rates=self.rates,
-                                     drop=self.drop, mount=self.mount, unit=_UNIT_WITHOUT_WALKS)
+            s = simulate_phone(
+                self.motion,
+                seed=self.seed + 1000 * self._generation + i,
+                rates=self.rates,
+                drop=self.drop,
+                mount=self.mount,
+                unit=_UNIT_WITHOUT_WALKS,
+            )
             shift = i * self._duration - float(self.motion.t[0])
             data = {}
             for sensor in SENSORS:
@@ -198,8 +222,9 @@ class VirtualPhone:
         w_k ~ N(0, K²·(t_k − t_{k−1})) with K the phone unit's density."""
         t_last, b_last = self._walk[sensor]
         dt = np.maximum(np.diff(np.concatenate([[t_last], t])), 0.0)
-        path = b_last + np.cumsum(self._walk_rng.normal(0.0, 1.0, (len(t), 3)) * (_BIAS_WALKS[sensor] * np.sqrt(dt))[:, None],
-                                  axis=0)
+        path = b_last + np.cumsum(
+            self._walk_rng.normal(0.0, 1.0, (len(t), 3)) * (_BIAS_WALKS[sensor] * np.sqrt(dt))[:, None], axis=0
+        )
         if len(t):
             self._walk[sensor] = (float(t[-1]), path[-1])
         return path
@@ -217,22 +242,50 @@ class VirtualPhone:
     # -- the endpoints ---------------------------------------------------------------------------------
     def config(self) -> dict:
         buffers = [{"name": name, "size": 0} for inp in self.inputs for name in inp.buffers]
-        inputs = [{"source": inp.source, "outputs": [{c: b} for c, b in zip(_COMPONENTS, inp.buffers)]}
-                  for inp in self.inputs]
-        export = [{"set": inp.export[0], "sources": [{"label": "Time (s)", "buffer": inp.buffers[3]}]
-                   + [{"label": label, "buffer": b} for label, b in zip(inp.export[1], inp.buffers)]}
-                  for inp in self.inputs]
-        return {"crc32": f"{zlib.crc32(repr(self.inputs).encode()):x}", "title": self.title, "localTitle": self.title,
-                "category": "New experiment", "localCategory": "New experiment", "buffers": buffers,
-                "inputs": inputs, "export": export}
+        inputs = [
+            {"source": inp.source, "outputs": [{c: b} for c, b in zip(_COMPONENTS, inp.buffers)]} for inp in self.inputs
+        ]
+        export = [
+            {
+                "set": inp.export[0],
+                "sources": [{"label": "Time (s)", "buffer": inp.buffers[3]}]
+                + [{"label": label, "buffer": b} for label, b in zip(inp.export[1], inp.buffers)],
+            }
+            for inp in self.inputs
+        ]
+        return {
+            "crc32": f"{zlib.crc32(repr(self.inputs).encode()):x}",
+            "title": self.title,
+            "localTitle": self.title,
+            "category": "New experiment",
+            "localCategory": "New experiment",
+            "buffers": buffers,
+            "inputs": inputs,
+            "export": export,
+        }
 
     def meta(self) -> dict:
         specs = {"accelerometer": PHONE_ACCEL, "gyroscope": PHONE_GYRO, "magnetic_field": PHONE_MAG}
-        sensors = {name: {"Name": f"{spec.chip} (simulated)", "Vendor": "kfkit", "Range": f"{spec.full_scale:.6g}",
-                          "Resolution": f"{spec.sensitivity:g}"} for name, spec in specs.items()}
-        return {"version": "1.2.0", "build": "1020000", "fileFormat": "1.19", "deviceModel": "kfkit virtual phone",
-                "deviceBrand": "kfkit", "deviceManufacturer": "kfkit", "deviceBaseOS": "", "deviceRelease": "simulation",
-                "sensors": sensors}
+        sensors = {
+            name: {
+                "Name": f"{spec.chip} (simulated)",
+                "Vendor": "kfkit",
+                "Range": f"{spec.full_scale:.6g}",
+                "Resolution": f"{spec.sensitivity:g}",
+            }
+            for name, spec in specs.items()
+        }
+        return {
+            "version": "1.2.0",
+            "build": "1020000",
+            "fileFormat": "1.19",
+            "deviceModel": "kfkit virtual phone",
+            "deviceBrand": "kfkit",
+            "deviceManufacturer": "kfkit",
+            "deviceBaseOS": "",
+            "deviceRelease": "simulation",
+            "sensors": sensors,
+        }
 
     def get(self, params) -> tuple[int, str]:
         """(HTTP status, JSON text) for /get with the query's (name, value) pairs."""
@@ -269,7 +322,7 @@ class VirtualPhone:
                 values = ",".join(format_number(float(x)) for x in shown)
                 parts.append(f'"{name}":{{"size":0,"updateMode":"{mode}","buffer":[{values}]}}')
             status = {"session": self.session, "measuring": self.measuring, "timedRun": False, "countDown": 0}
-        return 200, '{"buffer":{\n' + ",\n".join(parts) + "\n},\n\"status\":" + json.dumps(status) + "\n}\n"
+        return 200, '{"buffer":{\n' + ",\n".join(parts) + '\n},\n"status":' + json.dumps(status) + "\n}\n"
 
     def control(self, params) -> dict:
         cmd = dict(params).get("cmd")
@@ -303,7 +356,7 @@ class VirtualPhone:
         """What to record from: ``phyphox://127.0.0.1:PORT``."""
         return f"phyphox://{self.address}"
 
-    def start(self) -> "VirtualPhone":
+    def start(self) -> VirtualPhone:
         phone_ = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -320,8 +373,12 @@ class VirtualPhone:
         self._server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
         self._server.daemon_threads = True
         self._server.block_on_close = False
-        self._thread = threading.Thread(target=self._server.serve_forever, kwargs={"poll_interval": 0.05},
-                                        name=f"kfkit-virtual-phone {self.address}", daemon=True)
+        self._thread = threading.Thread(
+            target=self._server.serve_forever,
+            kwargs={"poll_interval": 0.05},
+            name=f"kfkit-virtual-phone {self.address}",
+            daemon=True,
+        )
         self._thread.start()
         return self
 
@@ -383,8 +440,10 @@ class VirtualPhone:
 def main(argv=None) -> int:
     import argparse
 
-    parser = argparse.ArgumentParser(prog="python -m kfkit.capture.virtual_phone",
-                                     description="Serve a simulated phone as phyphox's remote access on 127.0.0.1.")
+    parser = argparse.ArgumentParser(
+        prog="python -m kfkit.capture.virtual_phone",
+        description="Serve a simulated phone as phyphox's remote access on 127.0.0.1.",
+    )
     parser.add_argument("--experiment", choices=list(EXPERIMENTS), default="simple")
     parser.add_argument("--motion", choices=["still", "attitude-tour"], default="attitude-tour")
     parser.add_argument("--speed", type=float, default=1.0, help="experiment seconds per second (default: %(default)s)")
@@ -392,8 +451,10 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     motion = sim.attitude_tour(rate_hz=400.0) if args.motion == "attitude-tour" else None
     with VirtualPhone(motion, args.experiment, args.seed, args.speed) as vp:
-        print(f"virtual phone serving; record with:  kfkit capture --port {vp.url} --seconds 30 --out phone.csv",
-              flush=True)
+        print(
+            f"virtual phone serving; record with:  kfkit capture --port {vp.url} --seconds 30 --out phone.csv",
+            flush=True,
+        )
         try:
             while True:
                 time.sleep(1.0)

@@ -13,6 +13,7 @@ The hint matches the kind of failure (:func:`failure_hint`): a checkpoint's own 
 for wrong numbers; an exception gets the hint of its kind (:data:`EXCEPTION_KINDS`: a function that cannot
 take arrays, shapes that do not fit, …), NaN or inf and an answer of the wrong form (count, shape, None) theirs.
 """
+
 from __future__ import annotations
 
 import enum
@@ -21,11 +22,11 @@ import pkgutil
 import re
 import textwrap
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
-
 
 
 @dataclass
@@ -157,8 +158,14 @@ def nonfinite_problem(got, expected=None, where="") -> str | None:
         return next((p for k, v in got.items() if (p := nonfinite_problem(v, None, f"{where}[{k!r}]"))), None)
     if isinstance(got, (tuple, list)) and not _numeric(got):
         same = isinstance(expected, (tuple, list)) and len(expected) == len(got)
-        return next((p for i, v in enumerate(got)
-                     if (p := nonfinite_problem(v, expected[i] if same else None, f"{where}output {i + 1} of {len(got)}"))), None)
+        return next(
+            (
+                p
+                for i, v in enumerate(got)
+                if (p := nonfinite_problem(v, expected[i] if same else None, f"{where}output {i + 1} of {len(got)}"))
+            ),
+            None,
+        )
     if not _numeric(got):
         return None
     g = np.asarray(got, dtype=float)
@@ -175,8 +182,10 @@ def nonfinite_problem(got, expected=None, where="") -> str | None:
         return f"{label}got {kinds} where a finite number is expected"
     first = np.unravel_index(int(np.argmax(bad)), g.shape)
     index = int(first[0]) if g.ndim == 1 else tuple(int(i) for i in first)
-    return (f"{label}{_count(int(bad.sum()))} of {_count(g.size)} values are {kinds} (the first at index {index}): "
-            "every value must be a finite number")
+    return (
+        f"{label}{_count(int(bad.sum()))} of {_count(g.size)} values are {kinds} (the first at index {index}): "
+        "every value must be a finite number"
+    )
 
 
 def _numeric(value) -> bool:
@@ -232,8 +241,9 @@ def compare(expected, got, rtol=1e-6, atol=1e-9) -> str | None:
 
 def structural(problem: str | None) -> bool:
     """True when :func:`compare`'s ``problem`` is about the answer's form (count, shape, type), not its values."""
-    return problem is not None and any(p in problem for p in ("shape mismatch", "expected a number or array", " values: ",
-                                                              " value: "))  # "got 1 value: …" too
+    return problem is not None and any(
+        p in problem for p in ("shape mismatch", "expected a number or array", " values: ", " value: ")
+    )  # "got 1 value: …" too
 
 
 def matches(rtol=1e-6, atol=1e-9) -> Callable:
@@ -254,31 +264,58 @@ class ExceptionKind:
 
 #: The kinds of exception, tried in order; the first that matches gives the hint (:func:`failure_hint`).
 EXCEPTION_KINDS = (
-    ExceptionKind(("TypeError", "ValueError"), ("0-dimensional arrays", "length-1 arrays", "size-1 arrays",
-                                                "truth value of an array"),
-                  "{function} is called with NumPy arrays, whole columns at once as the lab calls it: use NumPy's "
-                  "functions (np.arctan2, np.sqrt, np.sin, …), not math's, which take one number, and np.where "
-                  "instead of an if on an array"),
-    ExceptionKind(("ValueError", "IndexError", "LinAlgError", "AxisError"),
-                  ("broadcast", "core dimension", "not aligned", "reshape", "out of bounds", "too many indices",
-                   "dimension", "must be square", "shape"),
-                  "two arrays' shapes do not fit together: print the shape of each input and of what you build from "
-                  "it (x.shape), and check the order of each matrix product (A @ B needs A's columns = B's rows)"),
-    ExceptionKind(("TypeError",), ("positional argument", "keyword argument"),
-                  "the check calls {function}({parameters}) by these names: keep the exercise's parameters as given"),
-    ExceptionKind(("NameError", "UnboundLocalError"), (),
-                  "a name {function} uses is not defined: define it inside the function (or run the cell that "
-                  "defines it first), and check its spelling"),
-    ExceptionKind(("ZeroDivisionError",), (),
-                  "a division by zero: which input can be zero here, and what must the function give then?"),
-    ExceptionKind(("ValueError",), ("math domain error",),
-                  "math.sqrt, asin or acos got a number outside its domain: check the sign, or clip a ratio into "
-                  "[−1, 1] (np.clip) where rounding can push it just outside"),
+    ExceptionKind(
+        ("TypeError", "ValueError"),
+        ("0-dimensional arrays", "length-1 arrays", "size-1 arrays", "truth value of an array"),
+        "{function} is called with NumPy arrays, whole columns at once as the lab calls it: use NumPy's "
+        "functions (np.arctan2, np.sqrt, np.sin, …), not math's, which take one number, and np.where "
+        "instead of an if on an array",
+    ),
+    ExceptionKind(
+        ("ValueError", "IndexError", "LinAlgError", "AxisError"),
+        (
+            "broadcast",
+            "core dimension",
+            "not aligned",
+            "reshape",
+            "out of bounds",
+            "too many indices",
+            "dimension",
+            "must be square",
+            "shape",
+        ),
+        "two arrays' shapes do not fit together: print the shape of each input and of what you build from "
+        "it (x.shape), and check the order of each matrix product (A @ B needs A's columns = B's rows)",
+    ),
+    ExceptionKind(
+        ("TypeError",),
+        ("positional argument", "keyword argument"),
+        "the check calls {function}({parameters}) by these names: keep the exercise's parameters as given",
+    ),
+    ExceptionKind(
+        ("NameError", "UnboundLocalError"),
+        (),
+        "a name {function} uses is not defined: define it inside the function (or run the cell that "
+        "defines it first), and check its spelling",
+    ),
+    ExceptionKind(
+        ("ZeroDivisionError",),
+        (),
+        "a division by zero: which input can be zero here, and what must the function give then?",
+    ),
+    ExceptionKind(
+        ("ValueError",),
+        ("math domain error",),
+        "math.sqrt, asin or acos got a number outside its domain: check the sign, or clip a ratio into "
+        "[−1, 1] (np.clip) where rounding can push it just outside",
+    ),
 )
 OTHER_EXCEPTION_HINT = "run {function} yourself on the input shown, to see which line raises and why"
-NONFINITE_HINT = ("NaN or inf comes from 0/0, a square root or arcsin of a number out of range, a log of 0, or a NaN "
-                  "in the inputs (a magnetometer row without a sample): print the values on that input step by step "
-                  "to find where it first appears")
+NONFINITE_HINT = (
+    "NaN or inf comes from 0/0, a square root or arcsin of a number out of range, a log of 0, or a NaN "
+    "in the inputs (a magnetometer row without a sample): print the values on that input step by step "
+    "to find where it first appears"
+)
 NONE_HINT = "a function returns None when no return statement runs: does {function} end with return …?"
 FORM_HINT = "return {form}, as the exercise's docstring says"
 _FORM_WORDS = re.compile(r"\b(got shapes? \(|has shape \()")  # judges' own words for a wrong shape
@@ -299,8 +336,14 @@ def _form(expected) -> str | None:
     return None
 
 
-def failure_hint(cp: Checkpoint, case: Case, exc: BaseException | None = None, got=None, problem: str | None = None,
-                 nonfinite: bool = False) -> str:
+def failure_hint(
+    cp: Checkpoint,
+    case: Case,
+    exc: BaseException | None = None,
+    got=None,
+    problem: str | None = None,
+    nonfinite: bool = False,
+) -> str:
     """The hint for the first failure of ``cp``, by its kind: an exception by :data:`EXCEPTION_KINDS`; NaN or inf;
     None returned; an answer of the wrong form (compare's count, shape or type problems, a judge's "got shape");
     and only for wrong numbers the checkpoint's own hint."""
@@ -308,8 +351,10 @@ def failure_hint(cp: Checkpoint, case: Case, exc: BaseException | None = None, g
     if exc is not None:
         classes = {c.__name__ for c in type(exc).__mro__}
         text = str(exc)
-        kind = next((k for k in EXCEPTION_KINDS if classes & set(k.names) and (not k.words or any(w in text for w in k.words))),
-                    None)
+        kind = next(
+            (k for k in EXCEPTION_KINDS if classes & set(k.names) and (not k.words or any(w in text for w in k.words))),
+            None,
+        )
         return (kind.hint if kind is not None else OTHER_EXCEPTION_HINT).format(**names)
     if nonfinite:
         return NONFINITE_HINT
@@ -317,8 +362,11 @@ def failure_hint(cp: Checkpoint, case: Case, exc: BaseException | None = None, g
         return NONE_HINT.format(**names)
     if structural(problem) or _FORM_WORDS.search(problem or ""):
         form = _form(case.expected)
-        return FORM_HINT.format(form=form) if form else FORM_HINT.format(form="what the exercise asks for (how many "
-                                                                              "values, each of which shape)")
+        return (
+            FORM_HINT.format(form=form)
+            if form
+            else FORM_HINT.format(form="what the exercise asks for (how many values, each of which shape)")
+        )
     return cp.hint
 
 
@@ -333,26 +381,40 @@ def run_checkpoint(cp: Checkpoint, answer: Callable, seed=None) -> CheckResult:
         except NotImplementedError as exc:
             if getattr(exc, "stale_definition", False):  # the exercise guard set an older definition aside: it says why
                 return CheckResult(cp.name, Status.NOT_ATTEMPTED, 0, total, 0, cp.points, f"⏳ {head}stale: {exc}")
-            stub = traceback.extract_tb(exc.__traceback__)[-1].name   # where it was raised: a given function may call a stub
-            what = cp.function if stub in (cp.function, getattr(answer, "__name__", None)) else f"{cp.function} calls {stub}, which"
-            msg = f"⏳ {head}not attempted yet ({what} still raises NotImplementedError: fill it in, run its cell, then this one)"
+            stub = traceback.extract_tb(exc.__traceback__)[
+                -1
+            ].name  # where it was raised: a given function may call a stub
+            what = (
+                cp.function
+                if stub in (cp.function, getattr(answer, "__name__", None))
+                else f"{cp.function} calls {stub}, which"
+            )
+            msg = (
+                f"⏳ {head}not attempted yet ({what} still raises NotImplementedError: fill it in, run its cell, "
+                f"then this one)"
+            )
             return CheckResult(cp.name, Status.NOT_ATTEMPTED, 0, total, 0, cp.points, msg)
         except Exception as exc:  # the student's code failed: report it, never crash the notebook
             where = f"on {case.label}, " if case.label else ""
-            msg = (f"❌ {head}{where}{call_repr(cp.function, case.args)} raised {type(exc).__name__}: {exc}. "
-                   f"Hint: {failure_hint(cp, case, exc)}")
+            msg = (
+                f"❌ {head}{where}{call_repr(cp.function, case.args)} raised {type(exc).__name__}: {exc}. "
+                f"Hint: {failure_hint(cp, case, exc)}"
+            )
             return CheckResult(cp.name, Status.ERROR, passed, total, 0, cp.points, msg)
         nonfinite = nonfinite_problem(got, case.expected)
         returned_none = got is None and case.expected is not None  # no judge needs to see it (a missing return)
-        problem = nonfinite or (f"got None, expected {_form(case.expected) or 'a value'}" if returned_none
-                                else cp.judge(case, got))
+        problem = nonfinite or (
+            f"got None, expected {_form(case.expected) or 'a value'}" if returned_none else cp.judge(case, got)
+        )
         if problem is None:
             passed += 1
         elif first_failure is None:
             first_failure = f"{case.label or call_repr(cp.function, case.args)}: {problem}"
             hint = failure_hint(cp, case, got=got, problem=problem, nonfinite=nonfinite is not None)
     if passed == total:
-        return CheckResult(cp.name, Status.PASSED, passed, total, cp.points, cp.points, f"✅ {head}{passed}/{total} {cp.what}")
+        return CheckResult(
+            cp.name, Status.PASSED, passed, total, cp.points, cp.points, f"✅ {head}{passed}/{total} {cp.what}"
+        )
     msg = f"❌ {head}{passed}/{total} {cp.what}; first failure {first_failure}. Hint: {hint}"
     return CheckResult(cp.name, Status.FAILED, passed, total, 0, cp.points, msg)
 

@@ -1,4 +1,5 @@
 """Checkpoints of lab 00 (setup and capture): the protocol's checksum and the board's clock."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -42,9 +43,21 @@ def _judge_time(case, got):
 
 
 register(
-    Checkpoint("00.checksum", "line_checksum", _checksum_cases, _judge_checksum, points=1,
-               hint="start from 0 and XOR (^) every byte of the body in turn; iterating over bytes gives ints."),
-    Checkpoint("00.board_time", "board_time", _time_cases, _judge_time, points=2,
-               hint="the first sample is t = 0; each step is (t_us[k] − t_us[k−1]) mod 2³² microseconds, "
-                    "so a wrap from 4294967290 to 20 is a step of 26 µs, not minus 71 minutes."),
+    Checkpoint(
+        "00.checksum",
+        "line_checksum",
+        _checksum_cases,
+        _judge_checksum,
+        points=1,
+        hint="start from 0 and XOR (^) every byte of the body in turn; iterating over bytes gives ints.",
+    ),
+    Checkpoint(
+        "00.board_time",
+        "board_time",
+        _time_cases,
+        _judge_time,
+        points=2,
+        hint="the first sample is t = 0; each step is (t_us[k] − t_us[k−1]) mod 2³² microseconds, "
+        "so a wrap from 4294967290 to 20 is a step of 26 µs, not minus 71 minutes.",
+    ),
 )

@@ -1,12 +1,21 @@
 """Checkpoints of lab 03 (magnetometer alignment, calibration and heading)."""
+
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import median_filter
 
 from .. import calibration, datasets
-from ..frames import (MAG_FIELD_LONDON, accel_tilt, declination, euler_to_dcm, mag_heading, random_dcm,
-                      tilt_compensated_heading, wrap_angle)
+from ..frames import (
+    MAG_FIELD_LONDON,
+    accel_tilt,
+    declination,
+    euler_to_dcm,
+    mag_heading,
+    random_dcm,
+    tilt_compensated_heading,
+    wrap_angle,
+)
+from ..labs.lab03 import magnet_window
 from ..metrics import angle_error, rmse
 from ..sensors import iis2mdc_mag
 from . import Case, Checkpoint, compare, fmt, fmt_pair, matches, register, structural
@@ -17,8 +26,10 @@ PROPER_SIGNS = [np.diag(d) for d in ([1, 1, 1], [-1, 1, -1], [-1, -1, 1], [1, -1
 
 def _counts_cases(rng):
     sens = iis2mdc_mag().sensitivity
-    return [Case({"counts": c}, c * sens, f"{c.shape[0]} random count triples")
-            for c in (rng.integers(-3000, 3000, (int(rng.integers(1, 20)), 3)) for _ in range(6))]
+    return [
+        Case({"counts": c}, c * sens, f"{c.shape[0]} random count triples")
+        for c in (rng.integers(-3000, 3000, (int(rng.integers(1, 20)), 3)) for _ in range(6))
+    ]
 
 
 def _judge_counts(case, got):
@@ -51,7 +62,9 @@ def _alignment_cases(rng):
         sizes = rng.permutation([rng.uniform(*SMALL_SWING), rng.uniform(*LARGE_SWING), rng.uniform(0.5, 1.5)])
         directions = rng.permutation([1, -1, rng.choice([-1, 1])])
         turns = {axis: turn_angles(rng, D[i, i], sizes[i], directions[i]) for i, axis in enumerate("xyz")}
-        cases.append(Case({"turns": turns}, D, f"turns whose magnetometer senses are {np.diag(D).astype(int).tolist()}"))
+        cases.append(
+            Case({"turns": turns}, D, f"turns whose magnetometer senses are {np.diag(D).astype(int).tolist()}")
+        )
     return cases
 
 
@@ -107,9 +120,14 @@ def _judge_ellipsoid(case, got):
     norms = np.linalg.norm((case.args["mag"] - h) @ S.T, axis=1)
     if not np.isclose(np.mean(norms), B, rtol=1e-3):
         if _like(S, np.linalg.inv(S_true)) and not _like(S, S_true):
-            return ("S is the inverse of the correction: it holds the ellipsoid's radii (A^−½); the correction that "
-                    "maps the ellipsoid onto a sphere is B·A^½ (√w, not 1/√w, from eigh)")
-        return f"the hard iron is right but calibrated norms average {np.mean(norms):.2f} µT, not B = {B:.2f}: scale S by B"
+            return (
+                "S is the inverse of the correction: it holds the ellipsoid's radii (A^−½); the correction that "
+                "maps the ellipsoid onto a sphere is B·A^½ (√w, not 1/√w, from eigh)"
+            )
+        return (
+            f"the hard iron is right but calibrated norms average {np.mean(norms):.2f} µT, not B = {B:.2f}:"
+            " scale S by B"
+        )
     worst = np.abs(S - S_true).max()
     if worst > SOFT_IRON_TOL:
         return f"largest |S − W⁻¹| = {worst:.4f} (allowed {SOFT_IRON_TOL:g}); expected S ≈ {fmt(S_true)}"
@@ -135,17 +153,31 @@ def _heading_cases(rng):
     for _ in range(10):
         roll, pitch, yaw = rng.uniform(-1.2, 1.2), rng.uniform(-1.2, 1.2), rng.uniform(-np.pi, np.pi)
         decl = float(rng.choice([0.0, D]))  # 0: magnetic heading; D: true heading
-        cases.append(Case({"m_b": _tilted_reading(yaw, pitch, roll), "roll": roll, "pitch": pitch, "declination": decl},
-                          wrap_angle(yaw - D + decl)))
+        cases.append(
+            Case(
+                {"m_b": _tilted_reading(yaw, pitch, roll), "roll": roll, "pitch": pitch, "declination": decl},
+                wrap_angle(yaw - D + decl),
+            )
+        )
     for magnetic, decl in ((np.pi - D / 2, D), (-np.pi + 0.05, -0.1)):
         roll, pitch = rng.uniform(-0.8, 0.8, 2)
-        cases.append(Case({"m_b": _tilted_reading(magnetic + D, pitch, roll), "roll": roll, "pitch": pitch, "declination": decl},
-                          wrap_angle(magnetic + decl), f"a magnetic heading of {np.degrees(magnetic):.2f}° with declination "
-                                                      f"{np.degrees(decl):+.2f}° (the sum crosses ±180°)"))
+        cases.append(
+            Case(
+                {"m_b": _tilted_reading(magnetic + D, pitch, roll), "roll": roll, "pitch": pitch, "declination": decl},
+                wrap_angle(magnetic + decl),
+                f"a magnetic heading of {np.degrees(magnetic):.2f}° with declination "
+                f"{np.degrees(decl):+.2f}° (the sum crosses ±180°)",
+            )
+        )
     n = 25
     roll, pitch, yaw = rng.uniform(-1.2, 1.2, n), rng.uniform(-1.2, 1.2, n), rng.uniform(-np.pi, np.pi, n)
-    cases.append(Case({"m_b": _tilted_reading(yaw, pitch, roll), "roll": roll, "pitch": pitch, "declination": D},
-                      wrap_angle(yaw), f"{n} readings at once (m_b of shape ({n}, 3), roll and pitch of shape ({n},))"))
+    cases.append(
+        Case(
+            {"m_b": _tilted_reading(yaw, pitch, roll), "roll": roll, "pitch": pitch, "declination": D},
+            wrap_angle(yaw),
+            f"{n} readings at once (m_b of shape ({n}, 3), roll and pitch of shape ({n},))",
+        )
+    )
     return cases
 
 
@@ -173,7 +205,11 @@ def _judge_heading(case, got):
     want, have = fmt_pair(e[k], g[k])
     text = f"expected {want} rad, got {have}" + (f" at index {k[0]}" if e.ndim else "")
     if not bad.any():
-        return None if not outside.any() else text + " — the same direction, but not wrapped to (−π, π]: wrap after adding the declination"
+        return (
+            None
+            if not outside.any()
+            else text + " — the same direction, but not wrapped to (−π, π]: wrap after adding the declination"
+        )
     if np.allclose(np.abs(err), np.pi, atol=1e-6):
         return text + " — exactly 180° off: both atan2 arguments have the wrong sign"
     if np.allclose(wrap_angle(g + e), 0.0, atol=1e-6):
@@ -187,11 +223,14 @@ def _judge_heading(case, got):
 
 # --- the bundled recordings ------------------------------------------------------------------------
 
+
 def heading_errors(hard_iron, soft_iron):
     """RMS heading error (rad) on 03_headings's rests with a magnetometer calibration (h, S):
     tilt-compensated, roll and pitch from the (reference-)calibrated accelerometer, declination added."""
     rec = datasets.load("03_headings")
-    ref = calibration.load_calibration(rec.meta["board"], path=datasets.data_dir() / f"calibration_{rec.meta['board']}.json")
+    ref = calibration.load_calibration(
+        rec.meta["board"], path=datasets.data_dir() / f"calibration_{rec.meta['board']}.json"
+    )
     _, acc, _ = ref.apply(rec)
     mag = calibration.apply_mag_calibration(rec.body("mag"), hard_iron, soft_iron)
     rest = (rec.phase("heading_flat") | rec.phase("heading_tilted")) & np.isfinite(mag[:, 0])
@@ -215,35 +254,16 @@ def _judge_heading_recording(case, got):
         return f"expected (hard_iron (3,), soft_iron (3, 3)), got something else ({e})"
     if np.degrees(after) < HEADING_LIMIT_DEG:
         return None
-    return (f"RMS heading error {np.degrees(after):.1f}° after your calibration (uncalibrated: "
-            f"{np.degrees(case.expected):.1f}°), allowed {HEADING_LIMIT_DEG:g}°")
+    return (
+        f"RMS heading error {np.degrees(after):.1f}° after your calibration (uncalibrated: "
+        f"{np.degrees(case.expected):.1f}°), allowed {HEADING_LIMIT_DEG:g}°"
+    )
 
 
 # --- the real recording: BROAD trial 34, a magnet attached to the IMU -------------------------------------
 
 REAL_MAGNET = "03_broad_attached_magnet"
-MAGNET_SIGMAS = 5.0     # the magnet is on where |m| (smoothed) is this many noise σ from the rests' field
-MAGNET_SMOOTH_S = 0.5   # s: the running median of |m| that is judged, so single noisy samples do not count
-REAL_BAR_FACTOR = 2.0   # the calibrated heading error allowed, × the same IMU's error with the magnet off
-
-
-def magnet_window(rec):
-    """Where a magnet sits on the board, from |m| alone, and the field without it.
-
-    B (µT) is the median |m| over the ``rest`` phases, σ its noise there (1.4826·MAD, robust to a few seconds
-    with the magnet); the magnet is on from the first to the last sample where the running median of |m| over
-    :data:`MAGNET_SMOOTH_S` lies more than :data:`MAGNET_SIGMAS`·σ from B (in between, the magnet's field can
-    add to the Earth's to about B, so the samples between count too). Returns (mask (N,), B, σ)."""
-    norm = np.linalg.norm(rec.body("mag"), axis=1)
-    rest = norm[rec.phase("rest")]
-    B = float(np.median(rest))
-    sigma = float(1.4826 * np.median(np.abs(rest - B)))
-    width = max(1, int(round(MAGNET_SMOOTH_S * rec.rate_hz))) | 1
-    off = np.flatnonzero(np.abs(median_filter(norm, size=width, mode="nearest") - B) > MAGNET_SIGMAS * sigma)
-    mask = np.zeros(len(rec), dtype=bool)
-    if off.size:
-        mask[off[0]:off[-1] + 1] = True
-    return mask, B, sigma
+REAL_BAR_FACTOR = 2.0  # the calibrated heading error allowed, × the same IMU's error with the magnet off
 
 
 def true_tilt_heading_error(mag, truth):
@@ -261,8 +281,11 @@ def _real_magnet_cases(rng):
     moving = rec.phase("movement")
     mag, truth = rec.body("mag"), rec.truth()
     on, off = magnet & moving, moving & ~magnet
-    budget = {"on": true_tilt_heading_error(mag[on], truth[on]), "off": true_tilt_heading_error(mag[off], truth[off]),
-              "truth": truth[on]}
+    budget = {
+        "on": true_tilt_heading_error(mag[on], truth[on]),
+        "off": true_tilt_heading_error(mag[off], truth[off]),
+        "truth": truth[on],
+    }
     return [Case({"mag": mag[on], "field_norm": B}, budget, "BROAD trial 34, the tumbling with the magnet on")]
 
 
@@ -280,30 +303,133 @@ def _judge_real_magnet(case, got):
     allowed = REAL_BAR_FACTOR * budget["off"]
     if after <= allowed:
         return None
-    return (f"with your fit the heading errs by {np.degrees(after):.1f}° RMS while the magnet is on (uncalibrated "
-            f"{np.degrees(budget['on']):.1f}°, the same IMU with the magnet off {np.degrees(budget['off']):.1f}°), "
-            f"allowed {np.degrees(allowed):.1f}°: your hard iron h = {fmt(h)} µT is not the magnet's")
+    return (
+        f"with your fit the heading errs by {np.degrees(after):.1f}° RMS while the magnet is on (uncalibrated "
+        f"{np.degrees(budget['on']):.1f}°, the same IMU with the magnet off {np.degrees(budget['off']):.1f}°), "
+        f"allowed {np.degrees(allowed):.1f}°: your hard iron h = {fmt(h)} µT is not the magnet's"
+    )
+
+
+# --- questions: the hard iron a heading budget allows ------------------------------------------------------
+
+
+def _budget_cases(rng):
+    """Fields of any strength, dip and declination (|D| 5–25°, so B_N alone is not B_h) and heading budgets of 5–30°
+    (so tan ε is not sin ε): the answer is B_h·sin ε."""
+    cases = []
+    for _ in range(8):
+        B_h, dip = rng.uniform(5.0, 35.0), rng.uniform(np.radians(-75), np.radians(75))
+        decl = rng.choice([-1, 1]) * rng.uniform(np.radians(5), np.radians(25))
+        field = np.array([B_h * np.cos(decl), B_h * np.sin(decl), B_h * np.tan(dip)])
+        eps = rng.uniform(5.0, 30.0)
+        cases.append(
+            Case(
+                {"field_ned": field, "max_error_deg": eps},
+                B_h * np.sin(np.radians(eps)),
+                f"field {fmt(field)} µT (N, E, D), at most {eps:.1f}°",
+            )
+        )
+    return cases
+
+
+def _judge_budget(case, got):
+    """Within 1e-6 relative of B_h·sin ε; names the total field, B_N alone, tan for sin and degrees as radians."""
+    try:
+        g = float(got)
+    except (TypeError, ValueError):
+        return f"expected one number (µT), got {type(got).__name__}"
+    want = case.expected
+    if np.isclose(g, want, rtol=1e-6):
+        return None
+    text = f"expected {want:.4f} µT, got {g:.4f}"
+    field, eps = case.args["field_ned"], np.radians(case.args["max_error_deg"])
+    B_h = np.hypot(field[0], field[1])
+    slips = {
+        "only the horizontal field B_h = √(B_N² + B_E²) turns the heading, not the whole field |B|": np.linalg.norm(
+            field
+        )
+        * np.sin(eps),
+        "B_h = √(B_N² + B_E²): the east component is part of the horizontal field too": abs(field[0]) * np.sin(eps),
+        "the worst hard iron is perpendicular to the field it leaves, not to the true field: sin ε, not tan ε": B_h
+        * np.tan(eps),
+        "the budget is in degrees: convert it to radians before the sine": B_h * np.sin(case.args["max_error_deg"]),
+    }
+    for why, value in slips.items():
+        if np.isclose(g, value, rtol=1e-6):
+            return f"{text} — {why}"
+    return text
 
 
 register(
-    Checkpoint("03.counts_to_ut", "counts_to_ut", _counts_cases, _judge_counts, points=1,
-               hint="the IIS2MDC gives 1.5 mG per count; convert gauss to µT."),
-    Checkpoint("03.alignment", "alignment_from_turns", _alignment_cases, matches(), points=2,
-               hint="per axis, does the magnetometer's angle go the same way as the gyro's (+1) or the opposite way "
-                    "(−1)? Compare signs over the whole turn (e.g. the sign of Σ gyro·mag), not the sizes."),
-    Checkpoint("03.mag_calibration", "mag_calibration", _ellipsoid_cases, _judge_ellipsoid, points=3,
-               hint="fit the quadric [x², y², z², 2xy, 2xz, 2yz, x, y, z, 1]·p = 0 (last right singular vector), "
-                    "h = −Q⁻¹p_lin/2, A = Q/(hᵀQh − c), S = B·A^½ from eigh."),
-    Checkpoint("03.flat_heading", "flat_heading", _flat_cases, _judge_heading, points=1,
-               hint="level, m_x = B_h cos ψ and m_y = −B_h sin ψ."),
-    Checkpoint("03.tilt_heading", "tilt_heading", _heading_cases, _judge_heading, points=2,
-               hint="de-rotate by roll (about x) then pitch (about y) into the level frame, then use the flat formula "
-                    "and add the declination."),
-    Checkpoint("03.heading_error", "mag_calibration", _calibration_recording_cases, _judge_heading_recording, points=2,
-               what="bundled recording",
-               hint="if 03.mag_calibration passes, check that you pass only rows with a magnetometer sample (no NaN)."),
-    Checkpoint("03.real_magnet", "mag_calibration", _real_magnet_cases, _judge_real_magnet, points=1,
-               what="bundled real recording",
-               hint="h is the fitted ellipsoid's centre in µT (undo the centring and scaling); the mean of the readings "
-                    "is that centre only when the tumbling covers the sphere evenly, which a real one never does."),
+    Checkpoint(
+        "03.counts_to_ut",
+        "counts_to_ut",
+        _counts_cases,
+        _judge_counts,
+        points=1,
+        hint="the IIS2MDC gives 1.5 mG per count; convert gauss to µT.",
+    ),
+    Checkpoint(
+        "03.alignment",
+        "alignment_from_turns",
+        _alignment_cases,
+        matches(),
+        points=2,
+        hint="per axis, does the magnetometer's angle go the same way as the gyro's (+1) or the opposite way "
+        "(−1)? Compare signs over the whole turn (e.g. the sign of Σ gyro·mag), not the sizes.",
+    ),
+    Checkpoint(
+        "03.mag_calibration",
+        "mag_calibration",
+        _ellipsoid_cases,
+        _judge_ellipsoid,
+        points=3,
+        hint="fit the quadric [x², y², z², 2xy, 2xz, 2yz, x, y, z, 1]·p = 0 (last right singular vector), "
+        "h = −Q⁻¹p_lin/2, A = Q/(hᵀQh − c), S = B·A^½ from eigh.",
+    ),
+    Checkpoint(
+        "03.flat_heading",
+        "flat_heading",
+        _flat_cases,
+        _judge_heading,
+        points=1,
+        hint="level, m_x = B_h cos ψ and m_y = −B_h sin ψ.",
+    ),
+    Checkpoint(
+        "03.tilt_heading",
+        "tilt_heading",
+        _heading_cases,
+        _judge_heading,
+        points=2,
+        hint="de-rotate by roll (about x) then pitch (about y) into the level frame, then use the flat formula "
+        "and add the declination.",
+    ),
+    Checkpoint(
+        "03.heading_error",
+        "mag_calibration",
+        _calibration_recording_cases,
+        _judge_heading_recording,
+        points=2,
+        what="bundled recording",
+        hint="if 03.mag_calibration passes, check that you pass only rows with a magnetometer sample (no NaN).",
+    ),
+    Checkpoint(
+        "03.real_magnet",
+        "mag_calibration",
+        _real_magnet_cases,
+        _judge_real_magnet,
+        points=1,
+        what="bundled real recording",
+        hint="h is the fitted ellipsoid's centre in µT (undo the centring and scaling); the mean of the readings "
+        "is that centre only when the tumbling covers the sphere evenly, which a real one never does.",
+    ),
+    Checkpoint(
+        "03.hard_iron_budget",
+        "hard_iron_budget_ut",
+        _budget_cases,
+        _judge_budget,
+        points=1,
+        hint="draw the horizontal field B_h and a hard iron h of fixed length in every direction: the reading "
+        "B_h + h turns furthest from B_h when h is perpendicular to the reading, not to B_h.",
+    ),
 )

@@ -2,31 +2,74 @@
 
 Every expected value comes from kfkit's reference (:mod:`kfkit.filters.euler_ekf`); the
 Jacobian is judged against central finite differences of kfkit's h(x), so any correct H passes.
-``04.real_ekf`` runs the student's filter on a real recording (BROAD trial 06, bundled): its bar is
-kfkit's result on the same samples plus the error of the optical truth itself, measured at rest.
+The student's ``run_ekf`` feeds each step the midpoint rate ½(ω_{k−1} + ω_k): its references run kfkit's filter on
+:func:`kfkit.labs.lab04.midpoint_rates`. ``04.real_ekf`` runs the student's filter on a real recording (BROAD trial 06,
+bundled): its bar is kfkit's result on the same samples plus the error of the optical truth itself, measured at rest.
+The recordings, the real excerpts and their truth come from :mod:`kfkit.labs.lab04`, which the notebook uses too.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
-from .. import datasets
-from ..calibration import Calibration, calibration_for, gyro_bias
-from ..filters.euler_ekf import (EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement, euler_ekf_predict,
-                                 euler_ekf_update, euler_process_noise)
-from ..filters.attitude_run import learn_field
+from ..filters.euler_ekf import (
+    EulerAttitudeEKFSettings,
+    attitude_jacobian,
+    attitude_measurement,
+    euler_ekf_predict,
+    euler_ekf_update,
+    euler_process_noise,
+)
 from ..filters.euler_ekf_fast import FastEulerAttitudeEKF
-from ..frames import MAG_FIELD_LONDON, body_rates_to_euler_rates, euler_to_dcm, euler_to_quat, wrap_angle
-from ..metrics import angle_error, attitude_rmse, rmse
+from ..frames import (
+    MAG_FIELD_LONDON,
+    body_rates_to_euler_rates,
+    euler_to_quat,
+    wrap_angle,
+)
+from ..labs.lab04 import (
+    ACCEL_GATE,
+    BURST_ACCEL,
+    BURSTS,
+    REAL_MOVING_SECONDS,
+    REAL_RECORDING,
+    RECORDING,
+    TURNS,
+    accelerated,
+    bundled_inputs,
+    midpoint_rates,
+    movement_start,
+    noise_free_turns,
+    real_inputs,
+    truth_error_at_rest,
+)
+from ..metrics import angle_error, attitude_rmse, nis, rmse
 from . import Case, Checkpoint, compare, fmt, matches, register, structural
 
-RECORDING = "04_attitude_tour"
 #: the full filter must reach these RMSEs on the bundled recording (rad): roll, pitch, yaw
 RMSE_LIMITS = np.radians([1.0, 1.0, 2.0])
-#: … and, with a gyro bias it was not told about, these: the calibrated gyro alone stays within the
-#: limits above on this recording, so this case is the one that shows the updates are at work
-#: (kfkit's reference: 1.4°, 1.1°, 2.8°; the gyro alone: 9.2°, 8.0°, 5.6°)
-EXTRA_GYRO_BIAS = np.radians([0.3, -0.3, 0.2])
+#: … and, with a gyro bias it was not told about (EXTRA_BIAS on x and y, or on z alone, the signs drawn), these. The
+#: calibrated gyro alone stays within the limits above on this recording, so these cases show the updates at work:
+#: the tilt bias needs the accelerometer (kfkit: roll, pitch ≤ 1.6°; the gyro alone drifts by tens of degrees), the
+#: heading bias the magnetometer throughout (kfkit: yaw 3.4–3.6°; a filter that uses only its first magnetometer
+#: sample drifts to 9–10°)
+EXTRA_BIAS = np.radians(0.3)
 BIASED_RMSE_LIMITS = np.radians([3.0, 3.0, 5.0])
+#: the noise-free turns: kfkit, fed the midpoint rate, stays within 0.002°; fed the rate at the step's end, 0.2–0.4°
+TURN_RMSE_LIMITS = np.radians([0.05, 0.05, 0.05])
+TILT_ADVICE = "the gyro alone drifts like this: are the accelerometer and magnetometer updates applied?"
+HEADING_ADVICE = (
+    "the heading drifts with the gyro's bias: only the magnetometer can hold it, so every new magnetometer "
+    "sample must be used, not only the first"
+)
+GATE_ADVICE = (
+    "the filter follows the accelerated specific force: where |‖f‖ − g| > accel_gate, is R's accelerometer "
+    "block inflated?"
+)
+TURN_ADVICE = (
+    "the estimate runs about half a sample ahead of the truth while turning: the step from t_{k−1} to t_k "
+    "needs the mean rate over it, ½(ω_{k−1} + ω_k), not the sample at its end"
+)
 ANGLES = ("roll", "pitch", "yaw")
 
 
@@ -42,14 +85,20 @@ def _random_field(rng):
 
 def _random_cov(rng, n, scale):
     A = rng.normal(0.0, scale, (n, n))
-    return A @ A.T + np.eye(n) * scale ** 2
+    return A @ A.T + np.eye(n) * scale**2
 
 
 # --- 04.euler_rates ---------------------------------------------------------------------------
 
+
 def _euler_rates_cases(rng):
-    cases = [Case({"euler": np.array([0.3, 0.0, 0.0]), "omega_b": np.array([0.0, 0.0, 0.5])},
-                  body_rates_to_euler_rates([0.3, 0.0, 0.0], [0.0, 0.0, 0.5]), "euler_rates(φ = 17°, θ = 0, r = 0.5 rad/s)")]
+    cases = [
+        Case(
+            {"euler": np.array([0.3, 0.0, 0.0]), "omega_b": np.array([0.0, 0.0, 0.5])},
+            body_rates_to_euler_rates([0.3, 0.0, 0.0], [0.0, 0.0, 0.5]),
+            "euler_rates(φ = 17°, θ = 0, r = 0.5 rad/s)",
+        )
+    ]
     for _ in range(11):
         e, w = _random_state(rng), rng.normal(0.0, 1.0, 3)
         cases.append(Case({"euler": e, "omega_b": w}, body_rates_to_euler_rates(e, w)))
@@ -66,12 +115,17 @@ def _judge_euler_rates(case, got):
     if np.allclose(g, case.args["omega_b"]):
         return problem + " — these are the body rates p, q, r unchanged: Euler angle rates differ from them (φ̇ = p + …)"
     u = q * np.sin(phi) + r * np.cos(phi)
-    if np.allclose(g[:2], case.expected[:2]) and np.isclose(g[2], u / np.cos(phi)) and not np.isclose(np.cos(phi), np.cos(theta)):
+    if (
+        np.allclose(g[:2], case.expected[:2])
+        and np.isclose(g[2], u / np.cos(phi))
+        and not np.isclose(np.cos(phi), np.cos(theta))
+    ):
         return problem + " — ψ̇ looks divided by cos φ: the widely copied mistake"
     return problem
 
 
 # --- 04.predict -------------------------------------------------------------------------------
+
 
 def crossing_rate(x, psi_dot):
     """A body rate ω_b that turns the yaw at ``psi_dot`` (rad/s) at state x, with φ̇ = θ̇ = 0: the rate
@@ -119,9 +173,15 @@ def _unwrapped(x, want) -> str:
 
 # --- 04.measurement and 04.jacobian -------------------------------------------------------------
 
+
 def _measurement_cases(rng):
-    cases = [Case({"x": np.zeros(3), "field_n": np.array(MAG_FIELD_LONDON)},
-                  attitude_measurement(np.zeros(3), MAG_FIELD_LONDON), "measurement(level, facing north, London)")]
+    cases = [
+        Case(
+            {"x": np.zeros(3), "field_n": np.array(MAG_FIELD_LONDON)},
+            attitude_measurement(np.zeros(3), MAG_FIELD_LONDON),
+            "measurement(level, facing north, London)",
+        )
+    ]
     for _ in range(11):
         x, m = _random_state(rng), _random_field(rng)
         cases.append(Case({"x": x, "field_n": m}, attitude_measurement(x, m)))
@@ -163,37 +223,97 @@ def _judge_jacobian(case, got):
         return None
     where = []
     for j in np.flatnonzero(bad.any(axis=0)):
-        parts = [part for part, rows in (("accelerometer rows", slice(0, 3)), ("magnetometer rows", slice(3, 6)))
-                 if bad[rows, j].any()]
+        parts = [
+            part
+            for part, rows in (("accelerometer rows", slice(0, 3)), ("magnetometer rows", slice(3, 6)))
+            if bad[rows, j].any()
+        ]
         where.append(f"∂h/∂{'φθψ'[j]} ({', '.join(parts)})")
     first = int(np.flatnonzero(bad.any(axis=0))[0])
-    return (f"columns {'; '.join(where)} differ from finite differences of h: "
-            f"expected {fmt(fd[:, first])}, got {fmt(H[:, first])}")
+    return (
+        f"columns {'; '.join(where)} differ from finite differences of h: "
+        f"expected {fmt(fd[:, first])}, got {fmt(H[:, first])}"
+    )
 
 
 # --- 04.numerical_jacobian --------------------------------------------------------------------
 
+#: the first cases: h_i(x) = b_i + a_iᵀx + ½ xᵀC_i x with curvatures C of this size, judged this tightly. A central
+#: difference is exact on a quadratic (its error is ε²·h‴/6 and h‴ = 0), up to rounding (≈ 1e-16·|h|/ε: 1e-10 at
+#: ε = 1e-6); a one-sided difference is off by ε·C_jj/2, which no step ε brings below the tolerance: 5e-6 at ε = 1e-8
+#: (where rounding is already 1e-8), 5e-4 at 1e-6.
+QUADRATIC, QUADRATIC_CURVATURE, QUADRATIC_TOL = "a quadratic h(x)", 1e3, 1e-7
+
+
+def _quadratic(rng):
+    """A random h(x) = b + A x + ½ [xᵀC_i x]_i (4 outputs, 3 inputs), a point x near 0 (|h| ≈ 1: small rounding)
+    and its Jacobian A + [C_i x]_i."""
+    A, b = rng.normal(0.0, 1.0, (4, 3)), rng.normal(0.0, 1.0, 4)
+    C = rng.normal(0.0, QUADRATIC_CURVATURE, (4, 3, 3))
+    C = C + np.swapaxes(C, 1, 2)
+    x = rng.normal(0.0, 1e-3, 3)
+    return (lambda v: b + A @ v + 0.5 * np.einsum("i,kij,j->k", v, C, v)), x, A + C @ x
+
+
 def _numerical_jacobian_cases(rng):
     cases = []
     for i in range(4):
-        A, b = rng.normal(0.0, 3.0, (4, 3)), rng.normal(0.0, 1.0, 4)
-        x = rng.normal(0.0, 1.0, 3)
-        cases.append(Case({"h": (lambda v, A=A, b=b: A @ v + b), "x": x}, A, f"a linear h(x) = A x + b (4×3, case {i + 1})"))
-    for i in range(8):
+        h, x, jac = _quadratic(rng)
+        cases.append(
+            Case(
+                {"h": h, "x": x},
+                jac,
+                f"{QUADRATIC} = b + A x + ½ xᵀC x (case {i + 1}), on which a central difference is exact",
+            )
+        )
+    for _ in range(8):
         x, m = _random_state(rng), _random_field(rng)
-        cases.append(Case({"h": (lambda v, m=m: attitude_measurement(v, m)), "x": x}, attitude_jacobian(x, m),
-                          f"kfkit's attitude h(x) at x = {fmt(x)}"))
+        cases.append(
+            Case(
+                {"h": (lambda v, m=m: attitude_measurement(v, m)), "x": x},
+                attitude_jacobian(x, m),
+                f"kfkit's attitude h(x) at x = {fmt(x)}",
+            )
+        )
     return cases
 
 
+def one_sided_step(h, x, difference, delta=1e-3):
+    """The step ε with which a one-sided difference of ``h`` at ``x`` is off by ``difference`` (got − the Jacobian,
+    m × n): (h(x + εe_j) − h(x))/ε − ∂h/∂x_j ≈ (ε/2)·∂²h/∂x_j², one ε for every entry (the second derivatives by
+    central second differences with step ``delta``); None if ``difference`` does not have that shape."""
+    x = np.asarray(x, dtype=float)
+    h0 = np.asarray(h(x), dtype=float)
+    curvature = np.column_stack(
+        [
+            (np.asarray(h(x + e), float) - 2 * h0 + np.asarray(h(x - e), float)) / delta**2
+            for e in np.eye(len(x)) * delta
+        ]
+    )
+    pattern = 0.5 * curvature
+    if not np.any(pattern):
+        return None
+    eps = float(np.sum(difference * pattern) / np.sum(pattern * pattern))
+    return eps if np.linalg.norm(difference - eps * pattern) <= 0.1 * np.linalg.norm(difference) else None
+
+
 def _judge_numerical_jacobian(case, got):
-    problem = compare(case.expected, got, rtol=1e-5, atol=1e-5)
-    if problem is not None and "shape" in problem:
-        return problem + " — one row per output of h, one column per state"
+    tol = QUADRATIC_TOL if case.label.startswith(QUADRATIC) else 1e-5
+    problem = compare(case.expected, got, rtol=tol, atol=tol)
+    if problem is None or structural(problem):
+        return problem and problem + " — one row per output of h, one column per state"
+    eps = one_sided_step(case.args["h"], case.args["x"], np.asarray(got, dtype=float) - case.expected)
+    if eps is not None:
+        return (
+            problem + f" — a one-sided difference (h(x {'+' if eps > 0 else '−'} ε eⱼ) − h(x))/(±ε), "
+            f"ε ≈ {abs(eps):.1g}: its error ε·h″/2 falls only as ε does, until rounding stops it; the "
+            "central difference's ε²·h‴/6 is far smaller"
+        )
     return problem
 
 
 # --- 04.update --------------------------------------------------------------------------------
+
 
 def _about_down(angle):
     """Rz(angle): a turn about the NED down axis."""
@@ -215,7 +335,7 @@ def _update_cases(rng):
         P = _random_cov(rng, 3, np.radians(rng.uniform(1.0, 5.0)))
         sa, sm = rng.uniform(0.05, 0.5), rng.uniform(0.3, 2.0)
         noise = rng.normal(0.0, 1.0, 6) * np.r_[[sa] * 3, [sm] * 3]
-        R = np.diag([sa ** 2] * 3 + [sm ** 2] * 3)
+        R = np.diag([sa**2] * 3 + [sm**2] * 3)
         if i < 2:
             z = attitude_measurement(x_true, m) + noise
             step = wrap_angle(euler_ekf_update(x, P, z, R, m)[0][2] - x[2])
@@ -225,8 +345,9 @@ def _update_cases(rng):
         if i % 3 == 2:
             z[3:] = np.nan  # no new magnetometer sample
         args = {"x": x, "P": P, "z": z, "R": R, "field_n": m}
-        label = (f"a{' magnetometer-less (NaN)' if i % 3 == 2 else ''} update at x = {fmt(x)}"
-                 + (" (the yaw crosses ±180°)" if i < 2 else ""))
+        label = f"a{' magnetometer-less (NaN)' if i % 3 == 2 else ''} update at x = {fmt(x)}" + (
+            " (the yaw crosses ±180°)" if i < 2 else ""
+        )
         cases.append(Case(args, euler_ekf_update(**args), label))
     return cases
 
@@ -243,54 +364,47 @@ def _judge_update(case, got):
 
 # --- 04.ekf_rmse ------------------------------------------------------------------------------
 
-def bundled_inputs():
-    """Lab 04's inputs: the bundled recording corrected with the calibration that belongs to it, the
-    bundled unit's (:func:`kfkit.calibration.calibration_for`; the student's own file is not used, so
-    every grader agrees).
-
-    Returns (recording, gyr rad/s, acc m/s², mag µT), body frame.
-    """
-    rec = datasets.load(RECORDING)
-    gyr, acc, mag = calibration_for(rec).apply(rec)
-    return rec, gyr, acc, mag
-
-
-#: The gated run: the recording with BURSTS horizontal accelerations of BURST_ACCEL m/s² for BURST_SECONDS each
-#: (random start and direction), judged at the plain limits with ``accel_gate`` = ACCEL_GATE. A horizontal a
-#: tilts the measured specific force by atan(a/g) = 31° and lengthens it by √(g² + a²) − g = 1.7 m/s² > the gate,
-#: so a gated filter rides the bursts on the gyro (kfkit: ≤ 0.3° RMSE on every angle), while a filter that ignores
-#: ``accel_gate`` follows the tilted force (1.5–4° roll/pitch, 5–8° yaw RMSE over 50 seeds).
-BURSTS, BURST_ACCEL, BURST_SECONDS, ACCEL_GATE = 4, 6.0, 2.0, 1.0
-
-
-def accelerated(acc, truth, t, rng):
-    """``acc`` plus the specific force R_bn·a_n of BURSTS horizontal accelerations a_n (NED), and their mask."""
-    a_n, during = np.zeros_like(acc), np.zeros(len(t), bool)
-    slots = np.linspace(t[0] + 3.0, t[-1] - 3.0 - BURST_SECONDS, BURSTS + 1)
-    for t0, t1 in zip(slots[:-1], slots[1:]):
-        start = rng.uniform(t0, t1 - BURST_SECONDS)
-        w = (t >= start) & (t < start + BURST_SECONDS)
-        heading = rng.uniform(-np.pi, np.pi)
-        a_n[w] = BURST_ACCEL * np.array([np.cos(heading), np.sin(heading), 0.0])
-        during |= w
-    R_bn = np.swapaxes(euler_to_dcm(truth), -1, -2)
-    return acc + np.einsum("nij,nj->ni", R_bn, a_n), during
-
 
 def _rmse_cases(rng):
     rec, gyr, acc, mag = bundled_inputs()
     tuning = EulerAttitudeEKFSettings()  # the lab's defaults
-    args = {"gyr": gyr, "acc": acc, "mag": mag, "rate_hz": rec.rate_hz, "gyro_noise": tuning.gyro_noise,
-            "accel_noise": tuning.accel_noise, "mag_noise": tuning.mag_noise, "field_n": np.array(MAG_FIELD_LONDON)}
-    biased = dict(args, gyr=gyr + EXTRA_GYRO_BIAS)
-    bias = ", ".join(f"{v:+.1f}" for v in np.degrees(EXTRA_GYRO_BIAS))
+    args = {
+        "gyr": gyr,
+        "acc": acc,
+        "mag": mag,
+        "rate_hz": rec.rate_hz,
+        "gyro_noise": tuning.gyro_noise,
+        "accel_noise": tuning.accel_noise,
+        "mag_noise": tuning.mag_noise,
+        "field_n": np.array(MAG_FIELD_LONDON),
+    }
+    tilt_bias = EXTRA_BIAS * np.r_[rng.choice([-1.0, 1.0], 2), 0.0]
+    heading_bias = EXTRA_BIAS * np.r_[0.0, 0.0, rng.choice([-1.0, 1.0])]
     pushed, _ = accelerated(acc, rec.truth(), rec.t, rng)
-    return [Case(args, (rec.truth(), RMSE_LIMITS), f"the bundled recording {RECORDING} (calibrated)"),
-            Case(biased, (rec.truth(), BIASED_RMSE_LIMITS),
-                 f"{RECORDING} with an extra gyro bias of ({bias}) °/s the filter does not know about"),
-            Case(dict(args, acc=pushed, accel_gate=ACCEL_GATE), (rec.truth(), RMSE_LIMITS),
-                 f"{RECORDING} with {BURSTS} bursts of {BURST_ACCEL:g} m/s² linear acceleration and accel_gate = "
-                 f"{ACCEL_GATE:g} m/s²")]
+    w, f, m, turns_truth = noise_free_turns(rng)
+    turns = dict(args, gyr=w, acc=f, mag=m, rate_hz=104.0)
+    truth = rec.truth()
+
+    def biased(bias):
+        shown = ", ".join(f"{v:+.1f}" for v in np.degrees(bias))
+        return f"{RECORDING} with an extra gyro bias of ({shown}) °/s the filter does not know about"
+
+    return [
+        Case(args, (truth, RMSE_LIMITS, ""), f"the bundled recording {RECORDING} (calibrated)"),
+        Case(dict(args, gyr=gyr + tilt_bias), (truth, BIASED_RMSE_LIMITS, TILT_ADVICE), biased(tilt_bias)),
+        Case(dict(args, gyr=gyr + heading_bias), (truth, BIASED_RMSE_LIMITS, HEADING_ADVICE), biased(heading_bias)),
+        Case(
+            dict(args, acc=pushed, accel_gate=ACCEL_GATE),
+            (truth, RMSE_LIMITS, GATE_ADVICE),
+            f"{RECORDING} with {BURSTS} bursts of {BURST_ACCEL:g} m/s² linear acceleration and accel_gate = "
+            f"{ACCEL_GATE:g} m/s²",
+        ),
+        Case(
+            turns,
+            (turns_truth, TURN_RMSE_LIMITS, TURN_ADVICE),
+            f"{TURNS} fast turns (up to 6 rad/s) seen by noise-free sensors",
+        ),
+    ]
 
 
 def _estimate(got, rows):
@@ -307,87 +421,53 @@ def _estimate(got, rows):
 
 
 def _judge_rmse(case, got):
-    truth, limits = case.expected
+    truth, limits, advice = case.expected
     x, problem = _estimate(got, len(truth))
     if x is None:
         return problem
     err = rmse(angle_error(x, truth), 0.0)
-    over = [f"{name} RMSE {np.degrees(e):.2f}° (limit {np.degrees(lim):.0f}°)"
-            for name, e, lim in zip(ANGLES, err, limits) if not e < lim]
-    if over and limits is BIASED_RMSE_LIMITS:
-        over.append("the gyro alone drifts like this: are the accelerometer and magnetometer updates applied?")
-    if over and case.args.get("accel_gate") is not None:
-        over.append("the filter follows the accelerated specific force: where |‖f‖ − g| > accel_gate, is R's "
-                    "accelerometer block inflated?")
-    return None if not over else "; ".join(over)
+    over = [
+        f"{name} RMSE {np.degrees(e):.2g}° (limit {np.degrees(lim):.2g}°)"
+        for name, e, lim in zip(ANGLES, err, limits)
+        if not e < lim
+    ]
+    return None if not over else "; ".join(over + [advice] * bool(advice))
 
 
 # --- 04.real_ekf ------------------------------------------------------------------------------
 
-#: the real recording judged (BROAD trial 06) and how much of it: the whole first rest (where the gyro bias and the
-#: field are learned), then the first REAL_MOVING_SECONDS of rotations by hand, up to 7 rad/s and 77° of pitch (the
-#: fast part after them, up to 16 rad/s, breaks every Euler EKF at 100 Hz and is shown, not judged)
-REAL_RECORDING, REAL_MOVING_SECONDS = "04_broad_fast_rotation", 30.0
-#: the part of the first rest the truth's own error is measured on (s): before anything moves
-TRUTH_CHECK_SECONDS = 10.0
-
-
-def rest_calibration(rec) -> Calibration:
-    """A BROAD recording's calibration: the dataset comes calibrated by its authors, but its gyro keeps a
-    bias, measured as in lab 02: the mean rate over the first rest (rad/s); nothing else is corrected."""
-    first_rest = rec.phase("rest") & (rec.t < rec.phases[0]["end"])
-    return Calibration(board=rec.meta["board"], rate_hz=rec.rate_hz, gyro_bias=gyro_bias(rec.body("gyr")[first_rest]),
-                       source=f"{rec.meta['source']}: calibrated by its authors; gyro bias = mean of the first rest")
-
-
-def movement_start(rec) -> float:
-    """When the recording's first movement phase starts (s from its first sample)."""
-    moving = rec.phase("movement")
-    if not moving.any():
-        raise ValueError(f"recording {rec.path or ''}: its 'movement' phase holds no sample")
-    return float(rec.t[np.argmax(moving)] - rec.t[0])
-
-
-def real_inputs(name=REAL_RECORDING, seconds=None, moving_seconds=None):
-    """A bundled BROAD excerpt as lab 04 uses it: (recording, gyr rad/s, acc m/s², mag µT, field_n µT NED
-    learned at the start (magnetic north, as the truth's), truth quaternions body → NED (NaN where the
-    markers were not seen), BROAD's movement mask); only the first ``seconds`` if given, or only up to
-    ``moving_seconds`` after the first movement starts (the whole first rest kept)."""
-    rec = datasets.load(name)
-    if moving_seconds is not None:
-        seconds = movement_start(rec) + moving_seconds
-    rec = rec if seconds is None else rec.head(seconds)
-    gyr, acc, mag = rest_calibration(rec).apply(rec)
-    return rec, gyr, acc, mag, learn_field(acc, mag), euler_to_quat(rec.truth()), rec.phase("movement")
-
-
-def truth_error_at_rest(rec, acc, mag, seconds=TRUTH_CHECK_SECONDS):
-    """How far the optical truth itself is from what the IMU senses, before anything moves (rad): the angle
-    between the accelerometer's "down" and the truth's (the sensor-to-marker alignment, the accelerometer's
-    bias) and the heading of the measured field in the truth's frame (the truth's north against the
-    magnetometer's, which is the filter's), combined as √(inclination² + heading²)."""
-    still = (rec.t - rec.t[0] < seconds) & rec.phase("rest") & ~np.isnan(rec["true_roll"])
-    R_nb = euler_to_dcm(rec.truth()[still])
-    f_n = np.einsum("nij,nj->ni", R_nb, acc[still]).mean(axis=0)
-    m_n = np.einsum("nij,nj->ni", R_nb, mag[still]).mean(axis=0)
-    return float(np.hypot(np.arccos(-f_n[2] / np.linalg.norm(f_n)), np.arctan2(m_n[1], m_n[0])))
-
 
 def _real_cases(rng):
     """One case: the real recording's first rest and REAL_MOVING_SECONDS of movement, with the lab's tuning and gate.
-    The bar is kfkit's Euler EKF (the same equations, settings and start) on the same samples, plus the truth's own
+    The bar is kfkit's Euler EKF (the same equations, settings, start and midpoint rate) on the same samples, plus the
+    truth's own
     error at rest: a filter that is right reproduces the reference, so its error against this truth can exceed the
     reference's only by what the truth cannot resolve."""
     rec, gyr, acc, mag, field_n, q_true, moving = real_inputs(moving_seconds=REAL_MOVING_SECONDS)
     tuning = EulerAttitudeEKFSettings()
-    args = {"gyr": gyr, "acc": acc, "mag": mag, "rate_hz": rec.rate_hz, "gyro_noise": tuning.gyro_noise,
-            "accel_noise": tuning.accel_noise, "mag_noise": tuning.mag_noise, "field_n": field_n,
-            "accel_gate": ACCEL_GATE}
-    reference = FastEulerAttitudeEKF(rate_hz=rec.rate_hz, settings=tuning, field_n=field_n, accel_gate=ACCEL_GATE).run(gyr, acc, mag)
+    args = {
+        "gyr": gyr,
+        "acc": acc,
+        "mag": mag,
+        "rate_hz": rec.rate_hz,
+        "gyro_noise": tuning.gyro_noise,
+        "accel_noise": tuning.accel_noise,
+        "mag_noise": tuning.mag_noise,
+        "field_n": field_n,
+        "accel_gate": ACCEL_GATE,
+    }
+    reference = FastEulerAttitudeEKF(rate_hz=rec.rate_hz, settings=tuning, field_n=field_n, accel_gate=ACCEL_GATE).run(
+        midpoint_rates(gyr), acc, mag
+    )
     ref_rmse = attitude_rmse(euler_to_quat(reference.euler), q_true, moving)["total"]
-    return [Case(args, (q_true, moving, ref_rmse, truth_error_at_rest(rec, acc, mag)),
-                 f"the real recording {REAL_RECORDING} (BROAD trial 06): its {movement_start(rec):.0f} s at rest and "
-                 f"the first {REAL_MOVING_SECONDS:g} s of movement")]
+    return [
+        Case(
+            args,
+            (q_true, moving, ref_rmse, truth_error_at_rest(rec, acc, mag)),
+            f"the real recording {REAL_RECORDING} (BROAD trial 06): its {movement_start(rec):.0f} s at rest and "
+            f"the first {REAL_MOVING_SECONDS:g} s of movement",
+        )
+    ]
 
 
 def _judge_real(case, got):
@@ -400,35 +480,237 @@ def _judge_real(case, got):
     limit = np.degrees(ref_rmse + truth_error)
     if errors["total"] <= limit:
         return None
-    return (f"total rotation error RMSE {errors['total']:.2f}° over the movement (heading {errors['heading']:.2f}°, "
-            f"inclination {errors['inclination']:.2f}°), limit {limit:.2f}° = kfkit's {np.degrees(ref_rmse):.2f}° + "
-            f"the truth's own {np.degrees(truth_error):.2f}°")
+    return (
+        f"total rotation error RMSE {errors['total']:.2f}° over the movement (heading {errors['heading']:.2f}°, "
+        f"inclination {errors['inclination']:.2f}°), limit {limit:.2f}° = kfkit's {np.degrees(ref_rmse):.2f}° + "
+        f"the truth's own {np.degrees(truth_error):.2f}°"
+    )
+
+
+# --- 04.nis_per_row ---------------------------------------------------------------------------
+
+
+def _innovations(rng, n=300, m=6):
+    """A filter's innovations as run_ekf keeps them: y (n, m) ~ N(0, S_k) with S_k (m × m) random, its rows strongly
+    correlated (a shared attitude error), and on every other sample the last three rows NaN in y and S (no
+    magnetometer update); S's size varies over the run, as a filter's does."""
+    y, S = np.full((n, m), np.nan), np.full((n, m, m), np.nan)
+    for k in range(n):
+        L = rng.normal(0.0, 1.0, (m, m)) + np.eye(m) * rng.uniform(0.3, 1.0)
+        S_k = (L @ L.T) * rng.uniform(0.1, 10.0) ** 2
+        rows = m if k % 2 == 0 else 3
+        S[k, :rows, :rows] = S_k[:rows, :rows]
+        y[k, :rows] = rng.multivariate_normal(np.zeros(rows), S_k[:rows, :rows]) * rng.uniform(0.5, 2.0)
+    return y, S
+
+
+def _nis_cases(rng):
+    cases = []
+    for rows in ([0, 1, 2], [3, 4, 5], [0, 1, 2], [3, 4, 5], [2], [1, 2, 3, 4]):
+        y, S = _innovations(rng)
+        samples = rng.uniform(size=len(y)) < rng.uniform(0.3, 0.9)
+        used = samples & ~np.isnan(y[:, rows]).any(axis=1)
+        expected = nis(y[used][:, rows], S[used][:, rows][:, :, rows]).mean() / len(rows)
+        what = {0: "accelerometer", 3: "magnetometer"}.get(rows[0], "some") if len(rows) == 3 else "some"
+        cases.append(
+            Case(
+                {"y": y, "S": S, "rows": rows, "samples": samples},
+                float(expected),
+                f"the {what} rows {rows} of {len(y)} innovations, {samples.sum()} samples selected",
+            )
+        )
+    return cases
+
+
+def nis_mistakes(y, S, rows, samples):
+    """What the classic mistakes give: {what they forgot: value}."""
+    used = samples & ~np.isnan(y[:, rows]).any(axis=1)
+    y_r, S_r = y[used][:, rows], S[used][:, rows][:, :, rows]
+    per_sample = nis(y_r, S_r)
+    diagonal = np.sum(y_r**2 / np.diagonal(S_r, axis1=1, axis2=2), axis=1)
+    mistakes = {
+        "not divided by the number of rows: the NIS of r rows averages r, so per row it is the NIS / r": (
+            per_sample.mean()
+        ),
+        "only the diagonal of S: the rows' innovations are correlated (one attitude error moves them all), so "
+        "the NIS needs the whole block S_rr⁻¹": diagonal.mean() / len(rows),
+    }
+    S_full = S[used]
+    if not np.isnan(S_full).any():
+        inverse_block = np.linalg.inv(S_full)[:, rows][:, :, rows]
+        mistakes[
+            "rows of the whole S⁻¹: the NIS of some rows needs the inverse of their own block, (S_rr)⁻¹, not the "
+            "block of S⁻¹"
+        ] = np.einsum("ni,nij,nj->n", y_r, inverse_block, y_r).mean() / len(rows)
+    everywhere = ~np.isnan(y[:, rows]).any(axis=1)
+    mistakes["every updated sample, not only those in `samples`"] = nis(
+        y[everywhere][:, rows], S[everywhere][:, rows][:, :, rows]
+    ).mean() / len(rows)
+    return mistakes
+
+
+def _judge_nis(case, got):
+    problem = compare(case.expected, got, rtol=1e-6, atol=1e-9)
+    if problem is None or structural(problem):
+        return problem
+    for what, value in nis_mistakes(**case.args).items():
+        if np.isclose(float(np.asarray(got, dtype=float)), value, rtol=1e-6):
+            return f"{problem} — {what}"
+    return problem
+
+
+# --- 04.coast_seconds -------------------------------------------------------------------------
+
+
+def coast_time(sigma0, sigma, gyro_noise, rate_hz):
+    """How long (s) a level board's yaw σ takes from ``sigma0`` to ``sigma`` on the gyro alone: Q_ψψ = (σ_ω Δt)² per
+    step, so σ² = σ0² + n (σ_ω Δt)² after n steps, t = nΔt = (σ² − σ0²) / (σ_ω² Δt). Any one angle unit."""
+    dt = 1.0 / rate_hz
+    return (sigma**2 - sigma0**2) / (gyro_noise * dt) ** 2 * dt
+
+
+def _coast_cases(rng):
+    cases = [
+        Case(
+            {"sigma0": 0.2, "sigma": 2.0, "gyro_noise": 0.3, "rate_hz": 104.0},
+            coast_time(0.2, 2.0, 0.3, 104.0),
+            "this lab's filter: σ_ψ from 0.2° to 2°, σ_ω = 0.3 °/s at 104 Hz",
+        )
+    ]
+    for _ in range(11):
+        args = {
+            "sigma0": rng.uniform(0.05, 1.0),
+            "sigma": rng.uniform(1.5, 10.0),
+            "gyro_noise": rng.uniform(0.02, 1.0),
+            "rate_hz": float(rng.choice([50.0, 100.0, 104.0, 200.0, 400.0])),
+        }
+        cases.append(Case(args, coast_time(**args)))
+    return cases
+
+
+def _judge_coast(case, got):
+    problem = compare(case.expected, got, rtol=1e-4, atol=0.0)
+    if problem is None or structural(problem):
+        return problem
+    a, value = case.args, float(np.asarray(got, dtype=float))
+    dt = 1.0 / a["rate_hz"]
+    mistakes = {
+        "that is the number of steps: multiply by Δt for seconds": case.expected / dt,
+        "the start σ0 is left out: the variance grows from σ0², not from 0": coast_time(
+            0.0, a["sigma"], a["gyro_noise"], a["rate_hz"]
+        ),
+        "σ grows like this only if σ's add: it is the variances that add, step by step": (a["sigma"] - a["sigma0"])
+        / (a["gyro_noise"] * dt)
+        * dt,
+        "Q per step is (σ_ω Δt)², the rate's noise integrated over one step, not σ_ω² Δt": (
+            a["sigma"] ** 2 - a["sigma0"] ** 2
+        )
+        / (a["gyro_noise"] ** 2 * dt)
+        * dt,
+    }
+    for what, wrong in mistakes.items():
+        if np.isclose(value, wrong, rtol=1e-4):
+            return f"{problem} — {what}"
+    return problem
 
 
 register(
-    Checkpoint("04.euler_rates", "euler_rates", _euler_rates_cases, _judge_euler_rates, points=1,
-               hint="φ̇ = p + (q sin φ + r cos φ) tan θ, θ̇ = q cos φ − r sin φ, ψ̇ = (q sin φ + r cos φ)/cos θ: "
-                    "it is the pitch θ that makes Euler angles singular."),
-    Checkpoint("04.predict", "ekf_predict", _predict_cases, _judge_predict, points=2,
-               hint="x⁻ = x + f(x, ω)·dt with ψ wrapped to (−π, π]; P⁻ = F P Fᵀ + Q with F = I + dt·A and A the "
-                    "Jacobian ∂f/∂x given above (its third column is zero). Return (x, P)."),
-    Checkpoint("04.measurement", "measurement", _measurement_cases, matches(), points=1,
-               hint="h = [R_bn·(0, 0, −g); R_bn·m_n] with R_bn = R_nbᵀ and R_nb = Rz(ψ) Ry(θ) Rx(φ) "
-                    "(frames.euler_to_dcm); level and facing north it is [0, 0, −g, m_N, m_E, m_D]."),
-    Checkpoint("04.jacobian", "jacobian", _jacobian_cases, _judge_jacobian, points=2, what="random states",
-               hint="column j is ∂h/∂xⱼ; the accelerometer rows do not depend on ψ (gravity is vertical), and "
-                    "∂R_bn/∂ψ = (∂R_nb/∂ψ)ᵀ — compare your columns one by one with numerical_jacobian."),
-    Checkpoint("04.numerical_jacobian", "numerical_jacobian", _numerical_jacobian_cases, _judge_numerical_jacobian,
-               points=1, hint="column j is (h(x + ε eⱼ) − h(x − ε eⱼ)) / 2ε; with ε around 1e-6 both rounding "
-                              "and truncation errors stay below 1e-8."),
-    Checkpoint("04.update", "ekf_update", _update_cases, _judge_update,
-               points=2, hint="y = z − h(x), S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x + K y (ψ wrapped), P = (I − K H) P; "
-                              "with NaN in z[3:] keep only the first three rows of z, h, H and R. Return (x, P, y, S)."),
-    Checkpoint("04.ekf_rmse", "run_ekf", _rmse_cases, _judge_rmse, points=2, what="runs on the bundled recording",
-               hint="initialise from the first accelerometer and magnetometer samples, then predict with every gyro "
-                    "sample and update with every accelerometer sample, adding the magnetometer rows only when a new "
-                    "magnetometer sample arrived; if 04.predict and 04.update pass, look at dt, Q and R."),
-    Checkpoint("04.real_ekf", "run_ekf", _real_cases, _judge_real, points=1, what="runs on a bundled real recording",
-               hint="if 04.ekf_rmse passes, the real recording differs: every row has a magnetometer sample, the "
-                    "truth has gaps (NaN), the rotations are fast; run_ekf must take them as they come."),
+    Checkpoint(
+        "04.euler_rates",
+        "euler_rates",
+        _euler_rates_cases,
+        _judge_euler_rates,
+        points=1,
+        hint="φ̇ = p + (q sin φ + r cos φ) tan θ, θ̇ = q cos φ − r sin φ, ψ̇ = (q sin φ + r cos φ)/cos θ: "
+        "it is the pitch θ that makes Euler angles singular.",
+    ),
+    Checkpoint(
+        "04.predict",
+        "ekf_predict",
+        _predict_cases,
+        _judge_predict,
+        points=2,
+        hint="x⁻ = x + f(x, ω)·dt with ψ wrapped to (−π, π]; P⁻ = F P Fᵀ + Q with F = I + dt·A and A the "
+        "Jacobian ∂f/∂x given above (its third column is zero). Return (x, P).",
+    ),
+    Checkpoint(
+        "04.measurement",
+        "measurement",
+        _measurement_cases,
+        matches(),
+        points=1,
+        hint="h = [R_bn·(0, 0, −g); R_bn·m_n] with R_bn = R_nbᵀ and R_nb = Rz(ψ) Ry(θ) Rx(φ) "
+        "(frames.euler_to_dcm); level and facing north it is [0, 0, −g, m_N, m_E, m_D].",
+    ),
+    Checkpoint(
+        "04.jacobian",
+        "jacobian",
+        _jacobian_cases,
+        _judge_jacobian,
+        points=2,
+        what="random states",
+        hint="column j is ∂h/∂xⱼ; the accelerometer rows do not depend on ψ (gravity is vertical), and "
+        "∂R_bn/∂ψ = (∂R_nb/∂ψ)ᵀ — compare your columns one by one with numerical_jacobian.",
+    ),
+    Checkpoint(
+        "04.numerical_jacobian",
+        "numerical_jacobian",
+        _numerical_jacobian_cases,
+        _judge_numerical_jacobian,
+        points=1,
+        hint="column j is (h(x + ε eⱼ) − h(x − ε eⱼ)) / 2ε, the central difference the lab asks for (a "
+        "one-sided difference fails the quadratic cases); with ε around 1e-6 both rounding and "
+        "truncation errors stay below 1e-8.",
+    ),
+    Checkpoint(
+        "04.update",
+        "ekf_update",
+        _update_cases,
+        _judge_update,
+        points=2,
+        hint="y = z − h(x), S = H P Hᵀ + R, K = P Hᵀ S⁻¹, x + K y (ψ wrapped), P = (I − K H) P; "
+        "with NaN in z[3:] keep only the first three rows of z, h, H and R. Return (x, P, y, S).",
+    ),
+    Checkpoint(
+        "04.ekf_rmse",
+        "run_ekf",
+        _rmse_cases,
+        _judge_rmse,
+        points=2,
+        what="runs on the bundled recording",
+        hint="initialise from the first accelerometer and magnetometer samples, then predict with every gyro "
+        "sample (the step from t_{k−1} to t_k with ½(ω_{k−1} + ω_k)) and update with every accelerometer sample, "
+        "adding "
+        "the magnetometer rows whenever a new magnetometer sample arrived; if 04.predict and 04.update pass, "
+        "look at dt, Q and R.",
+    ),
+    Checkpoint(
+        "04.nis_per_row",
+        "nis_per_row",
+        _nis_cases,
+        _judge_nis,
+        points=1,
+        what="runs' innovations",
+        hint="keep the samples in `samples` whose rows are not NaN; for each, yᵣᵀ (S_rr)⁻¹ yᵣ with yᵣ the chosen rows "
+        "of y and S_rr the block of S on those rows and columns; average, then divide by the number of rows.",
+    ),
+    Checkpoint(
+        "04.coast_seconds",
+        "coast_seconds",
+        _coast_cases,
+        _judge_coast,
+        points=1,
+        hint="each step adds (σ_ω Δt)² to a level board's yaw variance; count the steps from σ0² to σ², then "
+        "turn steps into seconds.",
+    ),
+    Checkpoint(
+        "04.real_ekf",
+        "run_ekf",
+        _real_cases,
+        _judge_real,
+        points=1,
+        what="runs on a bundled real recording",
+        hint="if 04.ekf_rmse passes, the real recording differs: every row has a magnetometer sample, the "
+        "truth has gaps (NaN), the rotations are fast; run_ekf must take them as they come.",
+    ),
 )

@@ -15,7 +15,8 @@ The contract (x-io Fusion's and VQF's shape: settings with units and defaults, t
     linear    KalmanFilter (Joseph form: predict, update, step, run)
     roll      lab 01: RollKF + RollKFSettings; the textbook forms roll_kf_predict, roll_kf_update, roll_kf
     tilt      lab 05: TiltBiasKF + TiltBiasKFSettings ([angle, gyro bias] per axis, accelerometer gating) → TiltRun;
-              TiltAttitude, roll and pitch from raw counts as the mpu6050_tilt_kf sketch computes them
+              the textbook forms tilt_kf_predict, tilt_kf_update, tilt_kf (any 2×2 Q); TiltAttitude, roll and
+              pitch from raw counts as the mpu6050_tilt_kf sketch computes them
     sideslip  lab 06: SideslipKF + SideslipKFSettings (bicycle-model KF, D-term, low-speed guard) → SideslipRun;
               the lesson's other estimators (kinematic integration, the copied kinematic KF)
     sideslip_ekf       SideslipEKF + SideslipEKFSettings: the same model with saturating tyres (the race-track fix)
@@ -27,21 +28,93 @@ The contract (x-io Fusion's and VQF's shape: settings with units and defaults, t
     mekf            MultiplicativeEKF + MultiplicativeEKFSettings, its MultiplicativeEKFState and named steps
     mag_gate        MagGate, the MEKF's magnetic-disturbance gate
 
-The names imported below are importable from ``kfkit.filters``; the helpers (``tilt_heading``,
+The names in ``__all__`` below are importable from ``kfkit.filters``; the helpers (``tilt_heading``,
 ``learn_field``, ``jacobian_rows``, ``MagGate``, …) from their own modules.
 """
-from .contract import Filter, FilterRun, State, Step, TunedFilter
-from .linear import KalmanFilter
-from .roll import RollKF, RollKFSettings, integrate_rate, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
-from .tilt import TiltAttitude, TiltBiasKF, TiltBiasKFSettings, TiltRun, accel_static_ok, protocol_angles
-from .attitude_run import AttitudeRun
-from .euler_ekf import (EulerAttitudeEKF, EulerAttitudeEKFSettings, attitude_jacobian, attitude_measurement,
-                        euler_ekf_predict, euler_ekf_update, euler_process_noise)
-from .euler_ekf_fast import FastEulerAttitudeEKF
-from .mekf import MultiplicativeEKF, MultiplicativeEKFSettings
-from .sideslip import (SideslipKF, SideslipKFSettings, SideslipRun, copied_kinematic_kf, kinematic_sideslip,
-                       sideslip_step)
-from .sideslip_ekf import SideslipEKF, SideslipEKFSettings
-from .registry import FILTERS
+
 from .attitude import estimate_attitude
+from .attitude_run import AttitudeRun
+from .contract import Filter, FilterRun, State, Step, TunedFilter
+from .euler_ekf import (
+    EulerAttitudeEKF,
+    EulerAttitudeEKFSettings,
+    attitude_jacobian,
+    attitude_measurement,
+    euler_ekf_predict,
+    euler_ekf_update,
+    euler_process_noise,
+)
+from .euler_ekf_fast import FastEulerAttitudeEKF
+from .linear import KalmanFilter
+from .mekf import MultiplicativeEKF, MultiplicativeEKFSettings
+from .registry import FILTERS
+from .roll import RollKF, RollKFSettings, integrate_rate, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
+from .sideslip import (
+    SideslipKF,
+    SideslipKFSettings,
+    SideslipRun,
+    copied_kinematic_kf,
+    kinematic_sideslip,
+    sideslip_step,
+)
+from .sideslip_ekf import SideslipEKF, SideslipEKFSettings
 from .sideslip_estimate import compare_estimators, estimate_sideslip
+from .tilt import (
+    TiltAttitude,
+    TiltBiasKF,
+    TiltBiasKFSettings,
+    TiltRun,
+    accel_static_ok,
+    protocol_angles,
+    tilt_kf,
+    tilt_kf_predict,
+    tilt_kf_update,
+)
+
+__all__ = [
+    "estimate_attitude",
+    "AttitudeRun",
+    "Filter",
+    "FilterRun",
+    "State",
+    "Step",
+    "TunedFilter",
+    "EulerAttitudeEKF",
+    "EulerAttitudeEKFSettings",
+    "attitude_jacobian",
+    "attitude_measurement",
+    "euler_ekf_predict",
+    "euler_ekf_update",
+    "euler_process_noise",
+    "FastEulerAttitudeEKF",
+    "KalmanFilter",
+    "MultiplicativeEKFSettings",
+    "MultiplicativeEKF",
+    "FILTERS",
+    "RollKF",
+    "RollKFSettings",
+    "integrate_rate",
+    "roll_kf",
+    "roll_kf_predict",
+    "roll_kf_steady_state",
+    "roll_kf_update",
+    "SideslipKF",
+    "SideslipKFSettings",
+    "SideslipRun",
+    "copied_kinematic_kf",
+    "kinematic_sideslip",
+    "sideslip_step",
+    "SideslipEKF",
+    "SideslipEKFSettings",
+    "compare_estimators",
+    "estimate_sideslip",
+    "TiltAttitude",
+    "TiltBiasKF",
+    "TiltBiasKFSettings",
+    "TiltRun",
+    "accel_static_ok",
+    "protocol_angles",
+    "tilt_kf",
+    "tilt_kf_predict",
+    "tilt_kf_update",
+]

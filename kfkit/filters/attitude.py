@@ -9,6 +9,7 @@ magnetometer) with either filter, each in its own module:
 
 Its methods are the registry's "attitude" filters (:mod:`kfkit.filters.registry`).
 """
+
 from __future__ import annotations
 
 import numpy as np

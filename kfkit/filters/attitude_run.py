@@ -1,11 +1,12 @@
 """What every lab 04 attitude filter takes, starts from and returns.
 
-    check_inputs   gyr (rad/s), acc (m/s²), mag (µT, NaN rows = no new sample), (N, 3) each, checked
-    first_mag_row  the first magnetometer row that is a sample
-    tilt_heading   the first attitude [φ, θ, ψ] from one accelerometer and magnetometer sample
-    learn_field    the reference field m_n from the first magnetometer samples
-    AttitudeRun    the :class:`FilterRun` of an attitude filter, with quat, euler, bias and the attitude covariance
+check_inputs   gyr (rad/s), acc (m/s²), mag (µT, NaN rows = no new sample), (N, 3) each, checked
+first_mag_row  the first magnetometer row that is a sample
+tilt_heading   the first attitude [φ, θ, ψ] from one accelerometer and magnetometer sample
+learn_field    the reference field m_n from the first magnetometer samples
+AttitudeRun    the :class:`FilterRun` of an attitude filter, with quat, euler, bias and the attitude covariance
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -13,8 +14,16 @@ from functools import cached_property
 
 import numpy as np
 
-from ..frames import (G, MAG_FIELD_LONDON, accel_tilt, declination, euler_to_dcm, euler_to_quat,
-                      quat_to_euler, tilt_compensated_heading)
+from ..frames import (
+    MAG_FIELD_LONDON,
+    G,
+    accel_tilt,
+    declination,
+    euler_to_dcm,
+    euler_to_quat,
+    quat_to_euler,
+    tilt_compensated_heading,
+)
 from .contract import FilterRun
 
 
@@ -100,27 +109,43 @@ def check_inputs(gyr, acc, mag):
     for name, a in (("gyr", gyr), ("acc", acc)):
         bad = np.flatnonzero(~np.isfinite(a).all(axis=1))
         if bad.size:
-            raise ValueError(f"{name} row {bad[0]} is not finite ({a[bad[0]].tolist()}); only mag may have NaN rows "
-                             f"(no new sample) — interpolate or drop gaps in {name}")
+            raise ValueError(
+                f"{name} row {bad[0]} is not finite ({a[bad[0]].tolist()}); only mag may have NaN rows "
+                f"(no new sample) — interpolate or drop gaps in {name}"
+            )
     acc_norm = float(np.median(np.linalg.norm(acc, axis=1)))
     if acc_norm < 3.0:
-        raise ValueError(f"acc looks like it is in g, not m/s²: median ‖f‖ = {acc_norm:.3g} (expected ≈ {G}); multiply by {G}")
+        raise ValueError(
+            f"acc looks like it is in g, not m/s²: median ‖f‖ = {acc_norm:.3g} (expected ≈ {G}); multiply by {G}"
+        )
     if acc_norm > 50.0:
-        raise ValueError(f"acc median ‖f‖ = {acc_norm:.3g} m/s² is far from g = {G}: are the units m/s² (not counts or mg)?")
+        raise ValueError(
+            f"acc median ‖f‖ = {acc_norm:.3g} m/s² is far from g = {G}: are the units m/s² (not counts or mg)?"
+        )
     if np.abs(gyr).max() > 40.0:
-        raise ValueError(f"gyr reaches {np.abs(gyr).max():.3g}: that is more than 2000 °/s in rad/s — is it in °/s? "
-                         f"multiply by π/180")
+        raise ValueError(
+            f"gyr reaches {np.abs(gyr).max():.3g}: that is more than 2000 °/s in rad/s — is it in °/s? "
+            f"multiply by π/180"
+        )
     if mag is not None:
         if np.isnan(mag).all():
             mag = None
         else:
             partial = np.flatnonzero(np.isnan(mag).any(axis=1) & ~np.isnan(mag).all(axis=1))
             if partial.size:
-                raise ValueError(f"mag row {partial[0]} is partly NaN ({mag[partial[0]].tolist()}): a row is either a whole "
-                                 f"sample or all NaN (no new sample)")
+                raise ValueError(
+                    f"mag row {partial[0]} is partly NaN ({mag[partial[0]].tolist()}): a row is either a whole "
+                    f"sample or all NaN (no new sample)"
+                )
             mag_norm = float(np.nanmedian(np.linalg.norm(mag, axis=1)))
             if not 5.0 < mag_norm < 200.0:
-                hint = " (gauss? multiply by 100)" if 0.05 < mag_norm < 2 else " (tesla? multiply by 1e6)" if mag_norm < 1e-3 else ""
+                hint = (
+                    " (gauss? multiply by 100)"
+                    if 0.05 < mag_norm < 2
+                    else " (tesla? multiply by 1e6)"
+                    if mag_norm < 1e-3
+                    else ""
+                )
                 raise ValueError(f"mag median ‖m‖ = {mag_norm:.3g} is not a geomagnetic field in µT (25–65 µT){hint}")
     return gyr, acc, mag
 

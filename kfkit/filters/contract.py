@@ -11,6 +11,7 @@ every filter to it).
     configure       a settings dataclass with keyword changes on top
     check_settings  the one validation of a settings dataclass (called by each one's ``__post_init__``)
 """
+
 from __future__ import annotations
 
 import math
@@ -105,7 +106,8 @@ class TunedFilter(Filter, Protocol):
 
     dt        sample period, s (or ``rate_hz``, Hz, where a recording gives a rate; not both)
     settings  a frozen ``<Filter>Settings`` dataclass, every field with meaning, unit and default in its docstring's
-              table; keyword ``changes`` apply on top (``RollKF(0.01, r=1e-4)`` = ``RollKF(0.01, RollKFSettings(r=1e-4))``)
+              table; keyword ``changes`` apply on top
+              (``RollKF(0.01, r=1e-4)`` = ``RollKF(0.01, RollKFSettings(r=1e-4))``)
     """
 
     dt: float
@@ -115,15 +117,18 @@ class TunedFilter(Filter, Protocol):
 def sample_period(owner, dt=None, rate_hz=None) -> float:
     """The sample period dt (s) from exactly one of ``dt`` (s) and ``rate_hz`` (Hz), both checked."""
     if (dt is None) == (rate_hz is None):
-        raise TypeError(f"{owner}: give the sample period dt (s) or the sample rate rate_hz (Hz), "
-                        f"{'not both' if dt is not None else 'got neither'}")
+        raise TypeError(
+            f"{owner}: give the sample period dt (s) or the sample rate rate_hz (Hz), "
+            f"{'not both' if dt is not None else 'got neither'}"
+        )
     name, value = ("dt", dt) if rate_hz is None else ("rate_hz", rate_hz)
     if not _is_number(value) or not value > 0:
         raise ValueError(f"{owner}: {name} must be a positive number, got {value!r}")
     dt = float(dt) if rate_hz is None else 1.0 / float(rate_hz)
     if dt > MAX_DT:
-        raise ValueError(f"{owner}: dt = {dt:g} s is longer than {MAX_DT:g} s; if {dt:g} is a sample rate, "
-                         f"pass rate_hz={dt:g}")
+        raise ValueError(
+            f"{owner}: dt = {dt:g} s is longer than {MAX_DT:g} s; if {dt:g} is a sample rate, pass rate_hz={dt:g}"
+        )
     return dt
 
 
@@ -147,12 +152,18 @@ def configure(settings_cls, settings, changes, owner):
     names = [f.name for f in fields(settings_cls)]
     unknown = sorted(set(changes) - set(names))
     if unknown:
-        raise TypeError(f"{owner}: unknown setting {', '.join(unknown)}; {settings_cls.__name__} has {', '.join(names)}")
+        raise TypeError(
+            f"{owner}: unknown setting {', '.join(unknown)}; {settings_cls.__name__} has {', '.join(names)}"
+        )
     return replace(base, **changes) if changes else base
 
 
 def _is_number(value) -> bool:
-    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool) and math.isfinite(value)
+    return (
+        isinstance(value, (int, float, np.integer, np.floating))
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+    )
 
 
 def check_settings(settings, positive=(), non_negative=(), optional=(), flags=(), choices=None):

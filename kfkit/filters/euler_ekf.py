@@ -15,6 +15,7 @@ divides by cos θ); the MEKF (:mod:`kfkit.filters.mekf`) does not have that prob
 The same filter unrolled on floats, ≈ 10× faster, is :class:`kfkit.filters.euler_ekf_fast.FastEulerAttitudeEKF`
 (what :func:`kfkit.filters.estimate_attitude` runs), held equal to this one by a test.
 """
+
 from __future__ import annotations
 
 import math
@@ -22,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..frames import G, MAG_FIELD_LONDON, body_rates_to_euler_rates, euler_to_dcm, wrap_angle
+from ..frames import MAG_FIELD_LONDON, G, body_rates_to_euler_rates, euler_to_dcm, wrap_angle
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, tilt_heading
 from .contract import State, Step, check_settings, configure, sample_period, shaped
 
@@ -50,14 +51,18 @@ class EulerAttitudeEKFSettings:
     accel_inflation: float = 100.0
 
     def __post_init__(self):
-        check_settings(self, positive=("accel_noise", "mag_noise", "accel_gate", "accel_inflation"),
-                       non_negative=("gyro_noise",), optional=("accel_gate",))
+        check_settings(
+            self,
+            positive=("accel_noise", "mag_noise", "accel_gate", "accel_inflation"),
+            non_negative=("gyro_noise",),
+            optional=("accel_gate",),
+        )
 
 
 def euler_rate_matrix(euler):
     """G(x) = ∂f/∂ω (3×3), the matrix with [φ̇, θ̇, ψ̇] = G·ω_b:
 
-        G = [[1, sφ tθ, cφ tθ], [0, cφ, −sφ], [0, sφ/cθ, cφ/cθ]]
+    G = [[1, sφ tθ, cφ tθ], [0, cφ, −sφ], [0, sφ/cθ, cφ/cθ]]
     """
     phi, theta = float(euler[0]), float(euler[1])
     sf, cf, tt, ct = math.sin(phi), math.cos(phi), math.tan(theta), math.cos(theta)
@@ -75,7 +80,7 @@ def euler_process_noise(euler, gyro_noise, dt):
 def euler_kinematics_jacobian(euler, omega_b):
     """A = ∂f/∂x (3×3, 1/s) of the 3-2-1 kinematics; with u = q sφ + r cφ, v = q cφ − r sφ:
 
-        A = [[v tθ, u/cθ², 0], [−u, 0, 0], [v/cθ, u sθ/cθ², 0]]
+    A = [[v tθ, u/cθ², 0], [−u, 0, 0], [v/cθ, u sθ/cθ², 0]]
     """
     phi, theta = float(euler[0]), float(euler[1])
     p, q, r = (float(v) for v in omega_b)
@@ -114,8 +119,9 @@ def attitude_jacobian(x, field_n=MAG_FIELD_LONDON):
     """
     x = np.asarray(x, dtype=float)
     phi, theta, psi = x[..., 0], x[..., 1], x[..., 2]
-    rows = jacobian_rows(np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta), np.sin(psi), np.cos(psi),
-                         *(float(v) for v in field_n))
+    rows = jacobian_rows(
+        np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta), np.sin(psi), np.cos(psi), *(float(v) for v in field_n)
+    )
     return np.stack([np.stack(np.broadcast_arrays(*row), axis=-1) for row in rows], axis=-2)
 
 
@@ -125,12 +131,14 @@ def jacobian_rows(sf, cf, st, ct, sp, cp, mN, mE, mD):
     a, b = cp * mN + sp * mE, -sp * mN + cp * mE
     m1 = sf * st * a + cf * b + sf * ct * mD
     m2 = cf * st * a - sf * b + cf * ct * mD
-    return ((0.0, G * ct, 0.0),
-            (-G * cf * ct, G * sf * st, 0.0),
-            (G * sf * ct, G * cf * st, 0.0),
-            (0.0, -st * a - ct * mD, ct * b),
-            (m2, sf * ct * a - sf * st * mD, sf * st * b - cf * a),
-            (-m1, cf * ct * a - cf * st * mD, cf * st * b + sf * a))
+    return (
+        (0.0, G * ct, 0.0),
+        (-G * cf * ct, G * sf * st, 0.0),
+        (G * sf * ct, G * cf * st, 0.0),
+        (0.0, -st * a - ct * mD, ct * b),
+        (m2, sf * ct * a - sf * st * mD, sf * st * b - cf * a),
+        (-m1, cf * ct * a - cf * st * mD, cf * st * b + sf * a),
+    )
 
 
 def euler_ekf_update(x, P, z, R, field_n=MAG_FIELD_LONDON):
@@ -181,8 +189,17 @@ class EulerAttitudeEKF:
 
     method = "euler-ekf"
 
-    def __init__(self, dt=None, settings: EulerAttitudeEKFSettings | None = None, *, rate_hz=None, field_n=MAG_FIELD_LONDON,
-                 x0=None, P0=None, **changes):
+    def __init__(
+        self,
+        dt=None,
+        settings: EulerAttitudeEKFSettings | None = None,
+        *,
+        rate_hz=None,
+        field_n=MAG_FIELD_LONDON,
+        x0=None,
+        P0=None,
+        **changes,
+    ):
         owner = type(self).__name__
         self.dt = sample_period(owner, dt, rate_hz)
         self.settings = configure(EulerAttitudeEKFSettings, settings, changes, owner)
@@ -206,8 +223,8 @@ class EulerAttitudeEKF:
         for this specific force ``acc`` (m/s²), with σ_a² × accel_inflation where gated = |‖f‖ − g| > accel_gate."""
         st = self.settings
         gated = st.accel_gate is not None and abs(float(np.linalg.norm(acc)) - G) > st.accel_gate
-        ra = st.accel_noise ** 2 * (st.accel_inflation if gated else 1.0)
-        return np.array([ra, ra, ra] + [st.mag_noise ** 2] * 3), gated
+        ra = st.accel_noise**2 * (st.accel_inflation if gated else 1.0)
+        return np.array([ra, ra, ra] + [st.mag_noise**2] * 3), gated
 
     def step(self, gyr, acc, mag=None) -> Step:
         """One predict (gyro, rad/s) + update (accel, m/s², and mag, µT, unless None/NaN) with the NumPy
@@ -242,8 +259,19 @@ class EulerAttitudeEKF:
             gated[k] = self.measurement_noise(acc[k])[1]
         used = ~np.isnan(y)
         nis = np.array([y[k, u] @ np.linalg.solve(S[k][np.ix_(u, u)], y[k, u]) for k, u in enumerate(used)])
-        return AttitudeRun(x, P, y, S, x_prior, P_prior, nis=nis, accel_gated=gated, mag_used=used[:, 3],
-                           mag_gated=np.zeros(N, dtype=bool), method=self.method)
+        return AttitudeRun(
+            x,
+            P,
+            y,
+            S,
+            x_prior,
+            P_prior,
+            nis=nis,
+            accel_gated=gated,
+            mag_used=used[:, 3],
+            mag_gated=np.zeros(N, dtype=bool),
+            method=self.method,
+        )
 
     def _start(self, gyr, acc, mag, resume):
         """Checked inputs of a run; the state at the start unless ``resume``, and from the first samples (the first

@@ -2,6 +2,7 @@
 reference :class:`~kfkit.filters.euler_ekf.EulerAttitudeEKF` (a loop over NumPy steps) and equal to it
 to rounding (tests/test_attitude.py). :func:`kfkit.filters.estimate_attitude` runs this one.
 """
+
 from __future__ import annotations
 
 import math
@@ -35,9 +36,9 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
     dt = ekf.dt
     N = len(gyr)
     st_ = ekf.settings
-    gq = st_.gyro_noise ** 2 * dt * dt
-    ra0 = st_.accel_noise ** 2
-    rm = st_.mag_noise ** 2
+    gq = st_.gyro_noise**2 * dt * dt
+    ra0 = st_.accel_noise**2
+    rm = st_.mag_noise**2
     gate = st_.accel_gate if st_.accel_gate is not None else math.inf
     ra_gated = ra0 * st_.accel_inflation
     mN, mE, mD = (float(v) for v in ekf.field_n)
@@ -47,7 +48,14 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
     M = mag.tolist() if mag is not None else None
     phi, theta, psi = (float(v) for v in ekf.state.x)
     P = ekf.state.P
-    p00, p01, p02, p11, p12, p22 = (float(P[0, 0]), float(P[0, 1]), float(P[0, 2]), float(P[1, 1]), float(P[1, 2]), float(P[2, 2]))
+    p00, p01, p02, p11, p12, p22 = (
+        float(P[0, 0]),
+        float(P[0, 1]),
+        float(P[0, 2]),
+        float(P[1, 1]),
+        float(P[1, 2]),
+        float(P[2, 2]),
+    )
 
     xs = [None] * N
     Ps = [None] * N
@@ -143,13 +151,24 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
     gated = np.array(gated_out, dtype=bool)
     y = np.full((N, 6), np.nan)
     for k in range(N):
-        y[k, :len(ys[k])] = ys[k]
+        y[k, : len(ys[k])] = ys[k]
     prior = np.array(priors, dtype=float).reshape(N, 9)
     x_prior, P_prior = prior[:, :3], _sym3(prior[:, 3:])
     r_acc = np.where(gated, ra_gated, ra0)
     S = _euler_innovation_cov(x_prior, P_prior, r_acc, rm, ekf.field_n, mag_used)
-    return AttitudeRun(euler, _sym3(np.array(Ps, dtype=float).reshape(N, 6)), y, S, x_prior, P_prior, nis=np.array(nis),
-                       accel_gated=gated, mag_used=mag_used, mag_gated=np.zeros(N, dtype=bool), method=ekf.method)
+    return AttitudeRun(
+        euler,
+        _sym3(np.array(Ps, dtype=float).reshape(N, 6)),
+        y,
+        S,
+        x_prior,
+        P_prior,
+        nis=np.array(nis),
+        accel_gated=gated,
+        mag_used=mag_used,
+        mag_gated=np.zeros(N, dtype=bool),
+        method=ekf.method,
+    )
 
 
 def _sym3(p):

@@ -7,9 +7,10 @@ Textbook names throughout (x, P, F, B, H, Q, R; y innovation, S its covariance, 
               x = x⁻ + K y   P = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ     (Joseph form)
 
 ``step(z_k, u_k)`` does ``predict(u_k)`` then ``update(z_k)`` and ``run`` does a step for every
-sample k, so x0, P0 describe the state one step before the first sample. A measurement that is NaN is skipped (no update:
-the filter coasts on its prediction), which is how gating and missing samples are handled.
+sample k, so x0, P0 describe the state one step before the first sample. A measurement that is NaN is skipped
+(no update: the filter coasts on its prediction), which is how gating and missing samples are handled.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -33,12 +34,23 @@ class KalmanFilter:
         self.R = np.atleast_2d(np.asarray(R, dtype=float))
         self.B = None if B is None else np.asarray(B, dtype=float).reshape(self.F.shape[0], -1)
         n, m = self.F.shape[0], self.H.shape[0]
-        self._x0, self._P0 = np.asarray(x0, dtype=float).reshape(-1).copy(), np.atleast_2d(np.asarray(P0, dtype=float)).copy()
-        shapes = {"F": (self.F, (n, n)), "H": (self.H, (m, n)), "Q": (self.Q, (n, n)), "R": (self.R, (m, m)),
-                  "P0": (self._P0, (n, n)), "x0": (self._x0, (n,))}
+        self._x0, self._P0 = (
+            np.asarray(x0, dtype=float).reshape(-1).copy(),
+            np.atleast_2d(np.asarray(P0, dtype=float)).copy(),
+        )
+        shapes = {
+            "F": (self.F, (n, n)),
+            "H": (self.H, (m, n)),
+            "Q": (self.Q, (n, n)),
+            "R": (self.R, (m, m)),
+            "P0": (self._P0, (n, n)),
+            "x0": (self._x0, (n,)),
+        }
         for name, (arr, shape) in shapes.items():
             if arr.shape != shape:
-                raise ValueError(f"KalmanFilter: {name} has shape {arr.shape}, expected {shape} for {n} states and {m} measurements")
+                raise ValueError(
+                    f"KalmanFilter: {name} has shape {arr.shape}, expected {shape} for {n} states and {m} measurements"
+                )
         self._I = np.eye(n)
         self.reset()
 
@@ -107,10 +119,22 @@ class KalmanFilter:
             self.reset()
         zs = np.asarray(zs, dtype=float).reshape(len(zs), -1)
         n, m, N = self.F.shape[0], zs.shape[1], len(zs)
-        out = FilterRun(np.empty((N, n)), np.empty((N, n, n)), np.empty((N, m)), np.empty((N, m, m)),
-                        np.empty((N, n)), np.empty((N, n, n)))
+        out = FilterRun(
+            np.empty((N, n)),
+            np.empty((N, n, n)),
+            np.empty((N, m)),
+            np.empty((N, m, m)),
+            np.empty((N, n)),
+            np.empty((N, n, n)),
+        )
         for k in range(N):
             s = self.step(zs[k], None if us is None else us[k])
-            out.x[k], out.P[k], out.y[k], out.S[k], out.x_prior[k], out.P_prior[k] = s.x, s.P, s.y, s.S, s.x_prior, s.P_prior
+            out.x[k], out.P[k], out.y[k], out.S[k], out.x_prior[k], out.P_prior[k] = (
+                s.x,
+                s.P,
+                s.y,
+                s.S,
+                s.x_prior,
+                s.P_prior,
+            )
         return out
-

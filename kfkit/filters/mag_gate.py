@@ -1,5 +1,6 @@
 """The MEKF's magnetometer gate: is this magnetometer sample to be used (norm and dip gates,
 innovation gate, bounded rejection that adopts a field that changed for good)?"""
+
 from __future__ import annotations
 
 import math
@@ -27,8 +28,21 @@ class MagGate:
 
     CURRENT_TAU = 0.05
 
-    __slots__ = ("norm_ref", "dip_ref", "norm_gate", "dip_gate", "recovery", "nis_gate", "ref_rate",
-                 "good_since", "t_prev", "nis_since", "mean", "adopt_since", "current")
+    __slots__ = (
+        "norm_ref",
+        "dip_ref",
+        "norm_gate",
+        "dip_gate",
+        "recovery",
+        "nis_gate",
+        "ref_rate",
+        "good_since",
+        "t_prev",
+        "nis_since",
+        "mean",
+        "adopt_since",
+        "current",
+    )
 
     def __init__(self, field_n, settings):
         mN, mE, mD = (float(v) for v in field_n)

@@ -3,6 +3,7 @@
 (predict, rest detection, zero-rate update, stabilised accelerometer, accelerometer update, heading update, reset);
 the magnetometer gate is :class:`kfkit.filters.mag_gate.MagGate`.
 """
+
 from __future__ import annotations
 
 import math
@@ -11,8 +12,16 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..frames import (G, MAG_FIELD_LONDON, euler_to_quat, quat_multiply_f, quat_normalise_f, quat_to_dcm_f,
-                      rotvec_to_quat_f, wrap_angle_f)
+from ..frames import (
+    MAG_FIELD_LONDON,
+    G,
+    euler_to_quat,
+    quat_multiply_f,
+    quat_normalise_f,
+    quat_to_dcm_f,
+    rotvec_to_quat_f,
+    wrap_angle_f,
+)
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, learn_field, tilt_heading
 from .contract import Step, check_settings, configure, sample_period, shaped
 from .mag_gate import MagGate
@@ -90,12 +99,39 @@ class MultiplicativeEKFSettings:
     mag_ref_tau: float | None = None
 
     def __post_init__(self):
-        check_settings(self, positive=("gyro_density", "accel_noise", "accel_density", "accel_tau", "accel_dynamic",
-                                       "mag_noise", "mag_density", "rest_gyro", "rest_accel", "rest_tau",
-                                       "mag_norm_gate", "mag_dip_gate", "mag_recovery", "mag_nis_gate", "mag_ref_tau"),
-                       non_negative=("gyro_noise", "gyro_bias_rw", "rest_time"),
-                       optional=("gyro_noise", "accel_noise", "accel_tau", "accel_dynamic", "mag_noise", "rest_gyro",
-                                 "mag_norm_gate", "mag_dip_gate", "mag_nis_gate", "mag_ref_tau"))
+        check_settings(
+            self,
+            positive=(
+                "gyro_density",
+                "accel_noise",
+                "accel_density",
+                "accel_tau",
+                "accel_dynamic",
+                "mag_noise",
+                "mag_density",
+                "rest_gyro",
+                "rest_accel",
+                "rest_tau",
+                "mag_norm_gate",
+                "mag_dip_gate",
+                "mag_recovery",
+                "mag_nis_gate",
+                "mag_ref_tau",
+            ),
+            non_negative=("gyro_noise", "gyro_bias_rw", "rest_time"),
+            optional=(
+                "gyro_noise",
+                "accel_noise",
+                "accel_tau",
+                "accel_dynamic",
+                "mag_noise",
+                "rest_gyro",
+                "mag_norm_gate",
+                "mag_dip_gate",
+                "mag_nis_gate",
+                "mag_ref_tau",
+            ),
+        )
 
 
 @dataclass
@@ -254,8 +290,17 @@ class MultiplicativeEKF:
     #: the magnetometer gate's class (a variant can swap it)
     mag_gate_class = MagGate
 
-    def __init__(self, dt=None, settings: MultiplicativeEKFSettings | None = None, *, rate_hz=None, field_n=None,
-                 x0=None, P0=None, **changes):
+    def __init__(
+        self,
+        dt=None,
+        settings: MultiplicativeEKFSettings | None = None,
+        *,
+        rate_hz=None,
+        field_n=None,
+        x0=None,
+        P0=None,
+        **changes,
+    ):
         owner = type(self).__name__
         self.dt = sample_period(owner, dt, rate_hz)
         self.rate_hz = 1.0 / self.dt
@@ -274,7 +319,11 @@ class MultiplicativeEKF:
             self._x0 = x0
         if P0 is not None:
             self._P0 = shaped(owner, "P0", P0, (6, 6))
-        q, b = (None, (0.0, 0.0, 0.0)) if self._x0 is None else (tuple(self._x0[:4].tolist()), tuple(self._x0[4:].tolist()))
+        q, b = (
+            (None, (0.0, 0.0, 0.0))
+            if self._x0 is None
+            else (tuple(self._x0[:4].tolist()), tuple(self._x0[4:].tolist()))
+        )
         self.state = MultiplicativeEKFState(q=q, bias=b, P=self._P0.copy())
         self.coefficients: MultiplicativeEKFCoefficients | None = None  # from the first samples
 
@@ -290,11 +339,17 @@ class MultiplicativeEKF:
         sg = st.gyro_density * math.sqrt(rate) if st.gyro_noise is None else st.gyro_noise
         sa = st.accel_density * math.sqrt(rate) if st.accel_noise is None else st.accel_noise
         self.coefficients = MultiplicativeEKFCoefficients(
-            field_n=field_n, Q=np.diag([sg * sg * dt * dt] * 3 + [st.gyro_bias_rw ** 2 * dt] * 3), r_gyro=sg * sg,
-            r_accel=sa * sa, inv_dyn2=1.0 / st.accel_dynamic ** 2 if st.accel_dynamic else 0.0,
-            psi_ref=math.atan2(mE, mN), r_psi=None if st.mag_noise is None else st.mag_noise ** 2 / b_h2,
-            r_psi_dt=st.mag_density ** 2 / b_h2 if st.mag_noise is None else None,
-            lpf=1.0 - math.exp(-dt / st.accel_tau) if st.accel_tau else 1.0, rest_lpf=1.0 - math.exp(-dt / st.rest_tau))
+            field_n=field_n,
+            Q=np.diag([sg * sg * dt * dt] * 3 + [st.gyro_bias_rw**2 * dt] * 3),
+            r_gyro=sg * sg,
+            r_accel=sa * sa,
+            inv_dyn2=1.0 / st.accel_dynamic**2 if st.accel_dynamic else 0.0,
+            psi_ref=math.atan2(mE, mN),
+            r_psi=None if st.mag_noise is None else st.mag_noise**2 / b_h2,
+            r_psi_dt=st.mag_density**2 / b_h2 if st.mag_noise is None else None,
+            lpf=1.0 - math.exp(-dt / st.accel_tau) if st.accel_tau else 1.0,
+            rest_lpf=1.0 - math.exp(-dt / st.rest_tau),
+        )
         if s.q is None:
             first = first_mag_row(mag)
             s.q = tuple(euler_to_quat(tilt_heading(acc[0], None if first is None else mag[first], field_n)).tolist())
@@ -317,8 +372,14 @@ class MultiplicativeEKF:
         y, s = [math.nan] * 6, [math.nan] * 6
         x_prior, P_prior, _ = self._sample(gyr.tolist(), acc.tolist(), None if mag is None else mag.tolist(), y, s)
         st = self.state
-        return Step(_positive(st.q + st.bias), st.P.copy(), np.array(y), _diagonal(np.array([s]))[0],
-                    _positive(x_prior), P_prior.copy())
+        return Step(
+            _positive(st.q + st.bias),
+            st.P.copy(),
+            np.array(y),
+            _diagonal(np.array([s]))[0],
+            _positive(x_prior),
+            P_prior.copy(),
+        )
 
     def _sample(self, w, f, m, y, s):
         """predict → rest detection (zero-rate update) → stabilised accelerometer → accelerometer update →
@@ -378,7 +439,7 @@ class MultiplicativeEKF:
         s.rest_lp = (wx, wy, wz, fx, fy, fz)
         gyro_dev = (w[0] - wx) ** 2 + (w[1] - wy) ** 2 + (w[2] - wz) ** 2
         accel_dev = (f[0] - fx) ** 2 + (f[1] - fy) ** 2 + (f[2] - fz) ** 2
-        if gyro_dev > th * th or accel_dev > self.settings.rest_accel ** 2 or max(abs(wx), abs(wy), abs(wz)) > th:
+        if gyro_dev > th * th or accel_dev > self.settings.rest_accel**2 or max(abs(wx), abs(wy), abs(wz)) > th:
             s.rest_t = 0.0
             return False
         s.rest_t += self.dt
@@ -408,7 +469,11 @@ class MultiplicativeEKF:
         iz += lpf * (fiz - iz)
         s.f_I = (ix, iy, iz)
         s.a_lin2 += lpf * ((fix - ix) ** 2 + (fiy - iy) ** 2 + (fiz - iz) ** 2 - s.a_lin2)
-        return (c00 * ix + c10 * iy + c20 * iz, c01 * ix + c11 * iy + c21 * iz, c02 * ix + c12 * iy + c22 * iz), s.a_lin2
+        return (
+            c00 * ix + c10 * iy + c20 * iz,
+            c01 * ix + c11 * iy + c21 * iz,
+            c02 * ix + c12 * iy + c22 * iz,
+        ), s.a_lin2
 
     def _accel_update(self, f_lin, dx, frozen, y, s_out):
         """f_n = g·R f̄ / ‖f̄‖; y = [f_n,N, f_n,E] (zero for a level estimate), H rows g·e_E and −g·e_N of the
@@ -511,9 +576,20 @@ class MultiplicativeEKF:
             flags.append(flag)
         x, x_prior = _positive(np.array(xs).reshape(N, 7)), _positive(np.array(priors).reshape(N, 7))
         y, S, flags = np.array(ys).reshape(N, 6), np.array(Ss).reshape(N, 6), np.array(flags, dtype=bool).reshape(N, 4)
-        return AttitudeRun(x, np.array(Ps).reshape(N, 6, 6), y, _diagonal(S), x_prior, np.array(P_priors).reshape(N, 6, 6),
-                           nis=np.nansum(y * y / S, axis=1), accel_gated=flags[:, 1], mag_used=flags[:, 2],
-                           mag_gated=flags[:, 3], at_rest=flags[:, 0], method=self.method)
+        return AttitudeRun(
+            x,
+            np.array(Ps).reshape(N, 6, 6),
+            y,
+            _diagonal(S),
+            x_prior,
+            np.array(P_priors).reshape(N, 6, 6),
+            nis=np.nansum(y * y / S, axis=1),
+            accel_gated=flags[:, 1],
+            mag_used=flags[:, 2],
+            mag_gated=flags[:, 3],
+            at_rest=flags[:, 0],
+            method=self.method,
+        )
 
 
 def _positive(x):

@@ -4,6 +4,7 @@ The contract test (tests/test_filter_contract.py) holds each to :class:`~kfkit.f
 :func:`~kfkit.filters.estimate_attitude`, :class:`~kfkit.widgets.attitude_view.LiveAttitude` and the benchmarks
 take their methods from :func:`methods`. A new filter is one line here.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -25,13 +26,13 @@ class Registered(NamedTuple):
 
 
 FILTERS = {
-    "roll-kf": Registered(RollKF),                         # lab 01
+    "roll-kf": Registered(RollKF),  # lab 01
     "euler-ekf": Registered(FastEulerAttitudeEKF, "attitude"),  # lab 04, what estimate_attitude runs by default
-    "euler-ekf-steps": Registered(EulerAttitudeEKF),      # lab 04, the same filter as a loop over the lab's steps
-    "mekf": Registered(MultiplicativeEKF, "attitude"),      # lab 04, quaternion error-state EKF with gyro bias
-    "tilt-bias-kf": Registered(TiltBiasKF),                # lab 05
-    "sideslip-kf": Registered(SideslipKF),                 # lab 06, linear bicycle model
-    "sideslip-ekf": Registered(SideslipEKF),               # lab 06, saturating tyres (estimate_sideslip's default)
+    "euler-ekf-steps": Registered(EulerAttitudeEKF),  # lab 04, the same filter as a loop over the lab's steps
+    "mekf": Registered(MultiplicativeEKF, "attitude"),  # lab 04, quaternion error-state EKF with gyro bias
+    "tilt-bias-kf": Registered(TiltBiasKF),  # lab 05
+    "sideslip-kf": Registered(SideslipKF),  # lab 06, linear bicycle model
+    "sideslip-ekf": Registered(SideslipEKF),  # lab 06, saturating tyres (estimate_sideslip's default)
 }
 
 

@@ -3,6 +3,7 @@
 The textbook function forms the lab teaches (``roll_kf_predict``, ``roll_kf_update``, ``roll_kf``)
 and the same filter as a :class:`RollKF` with :class:`RollKFSettings`, after the kit's filter contract.
 """
+
 from __future__ import annotations
 
 import math
@@ -78,7 +79,9 @@ class RollKF:
         update) → Step as floats, y and S NaN where skipped."""
         s = self.state
         x = (z if z == z else 0.0) if s.x is None else s.x
-        x_prior, P_prior, s.x, s.P, y, S = _roll_sample(x, s.P, omega, z, self.dt, self.settings.q_angle, self.settings.r)
+        x_prior, P_prior, s.x, s.P, y, S = _roll_sample(
+            x, s.P, omega, z, self.dt, self.settings.q_angle, self.settings.r
+        )
         return Step(s.x, s.P, y, S, x_prior, P_prior)
 
     def run(self, gyro_rate, roll_acc, *, resume=False) -> FilterRun:

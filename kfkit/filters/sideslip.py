@@ -9,7 +9,7 @@ feed-through D: a_y responds to δ at once, through the front tyre force::
     predict   x⁻ = Ad x + Bd δ_{k−1}          P⁻ = Ad P Adᵀ + Qd
     update    y = z − (C x⁻ + D δ_k)          S = C P⁻ Cᵀ + R,  K = P⁻ Cᵀ S⁻¹
               x = x⁻ + K y                    P = (I − K C) P⁻ (I − K C)ᵀ + K R Kᵀ   (Joseph form; the
-              2-state loop is written out on floats with the equal P⁻ − K S Kᵀ, 4× faster)
+              2-state loop is written out on floats with the equal P⁻ − K S Kᵀ)
 
 Process noise (continuous white noise, tuning knobs): ``q_beta`` on β̇ (rad²/s) for lateral
 force model errors (cornering stiffness, bank, tyre nonlinearity), ``q_r`` on ṙ (rad²/s³) for
@@ -33,6 +33,7 @@ vx_step/2 and the 1/V_x² coefficient by at most vx_step/V_x: 2.5 % at v_min = 2
 moves to another 0.1 % bin around the median interval (logger timestamps jitter; without bins that
 would be two matrix exponentials per sample). Each bin is computed once per run.
 """
+
 from __future__ import annotations
 
 import math
@@ -76,11 +77,26 @@ class SideslipKFSettings:
     vx_step: float = 0.05
 
     def __post_init__(self):
-        check_settings(self, positive=("q_beta", "q_r", "gyro_noise", "accel_noise", "v_min", "beta_low_std", "q_bias_ay",
-                                       "bias_ay_std", "vx_step"), flags=("bias_ay",))
+        check_settings(
+            self,
+            positive=(
+                "q_beta",
+                "q_r",
+                "gyro_noise",
+                "accel_noise",
+                "v_min",
+                "beta_low_std",
+                "q_bias_ay",
+                "bias_ay_std",
+                "vx_step",
+            ),
+            flags=("bias_ay",),
+        )
         if self.vx_step > self.v_min:
-            raise ValueError(f"SideslipKFSettings: vx_step = {self.vx_step} m/s is coarser than v_min = {self.v_min} m/s: "
-                             "the slowest speed bin the model is used at would be 0 m/s")
+            raise ValueError(
+                f"SideslipKFSettings: vx_step = {self.vx_step} m/s is coarser than v_min = {self.v_min} m/s: "
+                "the slowest speed bin the model is used at would be 0 m/s"
+            )
 
     @property
     def n(self) -> int:
@@ -173,24 +189,31 @@ def _as_inputs(t, delta, yaw_rate, ay, vx):
         out[name] = a
     lengths = {name: len(a) for name, a in out.items()}
     if len(set(lengths.values())) != 1:
-        raise ValueError("sideslip filter: inputs have mismatched lengths: " +
-                         ", ".join(f"{k} {n}" for k, n in lengths.items()))
+        raise ValueError(
+            "sideslip filter: inputs have mismatched lengths: " + ", ".join(f"{k} {n}" for k, n in lengths.items())
+        )
     if lengths["t"] < 2:
         raise ValueError(f"sideslip filter: need at least 2 samples, got {lengths['t']}")
     for name, a in out.items():
         bad = ~np.isfinite(a)
         if bad.any():
             k = int(np.argmax(bad))
-            raise ValueError(f"sideslip filter: {name}[{k}] is {a[k]} (at t = {out['t'][k] if name != 't' else '?'} s); "
-                             f"{int(bad.sum())} non-finite value(s) in {name}: drop or interpolate those samples first")
+            raise ValueError(
+                f"sideslip filter: {name}[{k}] is {a[k]} (at t = {out['t'][k] if name != 't' else '?'} s); "
+                f"{int(bad.sum())} non-finite value(s) in {name}: drop or interpolate those samples first"
+            )
     steps = np.diff(out["t"])
     if np.any(steps <= 0):
         k = int(np.argmax(steps <= 0)) + 1
-        raise ValueError(f"sideslip filter: t must increase; t[{k}] = {out['t'][k]} s after t[{k - 1}] = {out['t'][k - 1]} s")
+        raise ValueError(
+            f"sideslip filter: t must increase; t[{k}] = {out['t'][k]} s after t[{k - 1}] = {out['t'][k - 1]} s"
+        )
     if np.any(out["vx"] < 0):
         k = int(np.argmax(out["vx"] < 0))
-        raise ValueError(f"sideslip filter: vx[{k}] = {out['vx'][k]} m/s is negative (reversing): the bicycle model here "
-                         "is for forward driving; cut the recording or pass speeds ≥ 0")
+        raise ValueError(
+            f"sideslip filter: vx[{k}] = {out['vx'][k]} m/s is negative (reversing): the bicycle model here "
+            "is for forward driving; cut the recording or pass speeds ≥ 0"
+        )
     return out
 
 
@@ -236,16 +259,30 @@ class SideslipKF:
               one step before the first sample
     """
 
-    def __init__(self, dt=None, params: BicycleParams = BicycleParams(), settings: SideslipKFSettings | None = None, *,
-                 rate_hz=None, model=linear_model, x0=None, P0=None, **changes):
+    def __init__(
+        self,
+        dt=None,
+        params: BicycleParams = BicycleParams(),
+        settings: SideslipKFSettings | None = None,
+        *,
+        rate_hz=None,
+        model=linear_model,
+        x0=None,
+        P0=None,
+        **changes,
+    ):
         self.dt, self.params, self.model = sample_period("SideslipKF", dt, rate_hz), params, model
         self.settings = st = configure(SideslipKFSettings, settings, changes, "SideslipKF")
         n = st.n
-        self.R = np.diag([st.gyro_noise ** 2, st.accel_noise ** 2])
-        self._models = _ModelCache(model, params, np.diag([st.q_beta, st.q_r, st.q_bias_ay][:n]), st.bias_ay, st.vx_step,
-                                   self.dt)
+        self.R = np.diag([st.gyro_noise**2, st.accel_noise**2])
+        self._models = _ModelCache(
+            model, params, np.diag([st.q_beta, st.q_r, st.q_bias_ay][:n]), st.bias_ay, st.vx_step, self.dt
+        )
         self._kinematic_gain = params.b / params.wheelbase
-        self._x0, self._P0 = np.zeros(n), np.diag([math.radians(2.0) ** 2, math.radians(2.0) ** 2, st.bias_ay_std ** 2][:n])
+        self._x0, self._P0 = (
+            np.zeros(n),
+            np.diag([math.radians(2.0) ** 2, math.radians(2.0) ** 2, st.bias_ay_std**2][:n]),
+        )
         self.reset(x0, P0)
 
     def reset(self, x0=None, P0=None):
@@ -262,11 +299,13 @@ class SideslipKF:
         delta_prev = delta if s.delta_prev is None else s.delta_prev
         s.delta_prev, s.t_prev = delta, None
         if vx < st.v_min:
-            x_prior, P_prior, s.x, s.P, y, S = low_speed_step(s.x, s.P, yaw_rate, delta * self._kinematic_gain, st, dt,
-                                                              st.q_bias_ay * dt)
+            x_prior, P_prior, s.x, s.P, y, S = low_speed_step(
+                s.x, s.P, yaw_rate, delta * self._kinematic_gain, st, dt, st.q_bias_ay * dt
+            )
         elif st.n == 2:
-            x_prior, P_prior, s.x, s.P, y, S = _step2(s.x, s.P, delta_prev, (yaw_rate, ay), delta,
-                                                      self._models(vx, dt)[1], self.R)
+            x_prior, P_prior, s.x, s.P, y, S = _step2(
+                s.x, s.P, delta_prev, (yaw_rate, ay), delta, self._models(vx, dt)[1], self.R
+            )
         else:
             Ad, Bd, Qd, C, D = self._models(vx, dt)[0]
             x_prior, P_prior = sideslip_predict(s.x, s.P, delta_prev, Ad, Bd, Qd)
@@ -283,23 +322,33 @@ class SideslipKF:
 def _start(kf, x0, P0):
     """A sideslip filter's start (x0, P0) with a given x0 or P0 (checked against its state size) replacing ``kf``'s."""
     n, owner = len(kf._x0), type(kf).__name__
-    return (kf._x0 if x0 is None else shaped(owner, "x0", x0, (n,)),
-            kf._P0 if P0 is None else shaped(owner, "P0", P0, (n, n)))
+    return (
+        kf._x0 if x0 is None else shaped(owner, "x0", x0, (n,)),
+        kf._P0 if P0 is None else shaped(owner, "P0", P0, (n, n)),
+    )
 
 
 def _run_drive(kf, d, resume) -> SideslipRun:
-    """``kf.step`` (either sideslip filter) over the checked drive ``d``, with one BLAS thread → :class:`SideslipRun`."""
+    """``kf.step`` (either sideslip filter) over the checked drive ``d``, with one BLAS thread →
+    :class:`SideslipRun`."""
     if not resume:
         kf.reset()
     t_prev = kf.state.t_prev
     ts, N, n = d["t"].tolist(), len(d["t"]), len(kf.state.x)
     dts = [None if t_prev is None else ts[0] - t_prev] + [b - a for a, b in zip(ts[:-1], ts[1:])]
-    out = [np.empty((N, n)), np.empty((N, n, n)), np.empty((N, 2)), np.empty((N, 2, 2)), np.empty((N, n)),
-           np.empty((N, n, n))]
+    out = [
+        np.empty((N, n)),
+        np.empty((N, n, n)),
+        np.empty((N, 2)),
+        np.empty((N, 2, 2)),
+        np.empty((N, n)),
+        np.empty((N, n, n)),
+    ]
     step = kf.step
     with _blas_controller().limit(limits=1, user_api="blas"):
-        for k, args in enumerate(zip(d["delta"].tolist(), d["yaw_rate"].tolist(), d["ay"].tolist(), d["vx"].tolist(),
-                                     dts)):
+        for k, args in enumerate(
+            zip(d["delta"].tolist(), d["yaw_rate"].tolist(), d["ay"].tolist(), d["vx"].tolist(), dts)
+        ):
             s = step(*args)
             out[0][k], out[1][k], out[2][k], out[3][k], out[4][k], out[5][k] = s.x, s.P, s.y, s.S, s.x_prior, s.P_prior
     kf.state.t_prev = ts[-1]
@@ -309,14 +358,13 @@ def _run_drive(kf, d, resume) -> SideslipRun:
 @lru_cache(maxsize=1)
 def _blas_controller():
     """BLAS thread control: the filter loop runs with one BLAS thread. scipy's expm on these 2×2–6×6
-    matrices wakes OpenBLAS's thread pool, which on a busy 2-core machine costs more than the work
-    itself: measured 140–330 µs per expm with the default 2 threads vs 16–40 µs with 1 (a 5–15× slowdown),
-    and 3–8× on a whole run with the bias state (the benchmark's "BLAS threads" table repeats this)."""
+    matrices wakes OpenBLAS's thread pool, which on a busy machine costs more than the work itself
+    (``benchmarks/bench_sideslip.py``'s "BLAS threads" table measures both ways)."""
     return ThreadpoolController()
 
 
 def _step2(x, P, delta_prev, z, delta, m, R):
-    """:func:`sideslip_step` for x = [β, r] written out on floats (4× faster than 2×2 NumPy calls) →
+    """:func:`sideslip_step` for x = [β, r] written out on floats (no 2×2 NumPy calls: the benchmark's speed table) →
     (x⁻, P⁻, x, P, y, S).
 
     C = [[0, 1], [c21, c22]], D = [0, d2] as the bicycle model has them; P⁺ = P⁻ − K S Kᵀ, which equals
@@ -342,8 +390,14 @@ def _step2(x, P, delta_prev, z, delta, m, R):
     x0, x1 = x0 + k11 * y1 + k12 * y2, x1 + k21 * y1 + k22 * y2
     # P − K S Kᵀ = P − K (PCᵀ)ᵀ
     p11, p12, p22 = p11 - (k11 * p12 + k12 * u0), p12 - (k11 * p22 + k12 * u1), p22 - (k21 * p22 + k22 * u1)
-    return (x_prior, P_prior, np.array([x0, x1]), np.array([[p11, p12], [p12, p22]]), np.array([y1, y2]),
-            np.array([[s11, s12], [s12, s22]]))
+    return (
+        x_prior,
+        P_prior,
+        np.array([x0, x1]),
+        np.array([[p11, p12], [p12, p22]]),
+        np.array([y1, y2]),
+        np.array([[s11, s12], [s12, s22]]),
+    )
 
 
 def low_speed_step(x, P, yaw_rate, beta_kin, settings, dt, q_bias_dt=0.0):
@@ -353,13 +407,13 @@ def low_speed_step(x, P, yaw_rate, beta_kin, settings, dt, q_bias_dt=0.0):
     x_prior, P_prior = x.copy(), P.copy()
     x_prior[0] = beta_kin
     P_prior[0, :] = P_prior[:, 0] = 0.0
-    P_prior[0, 0] = settings.beta_low_std ** 2
+    P_prior[0, 0] = settings.beta_low_std**2
     P_prior[1, 1] += settings.q_r * dt
     if len(x) > 2:
         P_prior[2, 2] += q_bias_dt
     y, S = np.full(2, np.nan), np.full((2, 2), np.nan)
     y[0] = yaw_rate - x_prior[1]
-    S[0, 0] = P_prior[1, 1] + settings.gyro_noise ** 2
+    S[0, 0] = P_prior[1, 1] + settings.gyro_noise**2
     K = P_prior[:, 1] / S[0, 0]
     P = P_prior - np.outer(K, P_prior[1, :])  # (I − K e_rᵀ) P⁻: the scalar update, exact for a scalar measurement
     return x_prior, P_prior, x_prior + K * y[0], 0.5 * (P + P.T), y, S
@@ -389,8 +443,14 @@ def copied_kinematic_kf(t, yaw_rate, ay, vx, q=1e-4, gyro_noise=0.003, accel_noi
     """
     t, r, ay, vx = (np.asarray(v, dtype=float) for v in (t, yaw_rate, ay, vx))
     dt = float(np.median(np.diff(t)))
-    kf = KalmanFilter(F=[[1.0, dt], [0.0, 1.0]], H=np.eye(2), Q=q * np.eye(2),
-                      R=np.diag([(accel_noise * dt) ** 2, gyro_noise ** 2]), x0=np.zeros(2), P0=np.eye(2))
+    kf = KalmanFilter(
+        F=[[1.0, dt], [0.0, 1.0]],
+        H=np.eye(2),
+        Q=q * np.eye(2),
+        R=np.diag([(accel_noise * dt) ** 2, gyro_noise**2]),
+        x0=np.zeros(2),
+        P0=np.eye(2),
+    )
     run = kf.run(np.column_stack([ay * dt, r]))
     vy = run.x[:, 0]
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -1,10 +1,10 @@
 """Sideslip β with saturating tyres: an EKF on the single-track model whose axle forces follow the tyre curve.
 
 The linear bicycle model (lab 06's :class:`~kfkit.filters.SideslipKF`) gives each axle the force C·α. Real
-tyres give less as α grows and level off at µ·F_z: on a race track at 1 g the linear model wants 30–50 %
-more lateral force than the tyres make, so the KF, told a_y, answers with too small a |β| (the a_y update
-then makes it worse than the model run open loop). Here each axle's force is F(α) on a saturating curve,
-by default the kit's magic formula (:func:`kfkit.vehicle.axle_tyres`: initial slope Cf or Cr, peak µ·F_z)::
+tyres give less as α grows and level off at µ·F_z: in a hard corner the linear model wants more lateral force
+than the tyres make, so the KF, told a_y, answers with too small a |β|. Here each axle's force is F(α) on a
+saturating curve, by default the kit's magic formula (:func:`kfkit.vehicle.axle_tyres`: initial slope Cf or Cr,
+peak µ·F_z with the static axle loads)::
 
     α_f = δ − β − a r/V_x,   α_r = −β + b r/V_x                      (the linear model's small-angle slips)
     β̇ = (F_f + F_r)/(m V_x) − r,   ṙ = (a F_f − b F_r)/I_z,   a_y = (F_f + F_r)/m
@@ -20,25 +20,30 @@ by the local slopes k = dF/dα (:meth:`kfkit.vehicle.MagicFormula.slope`), and �
 
 e^{J dt}, e^{J dt/2} and φ₁(J dt) of the 2×2 matrix come in closed form from its eigenvalues (Cayley–Hamilton;
 held equal to scipy's expm by a test): the Jacobian changes every sample, so there is no speed-bin cache as in
-the KF, and scipy's expm per sample would cost more than the rest of the step. The race-track half (27,500
-samples) filters in about 2.5 s of CPU, a 60 s drive in about 0.5 s.
+the KF, and scipy's expm per sample would cost more than the rest of the step (``benchmarks/bench_sideslip.py``
+times it).
 
-Settings derived from physics and the sensors, none fitted to a drive's β (lab 06, part 9, shows how):
+Where each setting comes from (physics, the sensors and the log without its β; lab 06, sections 11–12, derives
+them on the race-track log, and the benchmark prints what the log shows):
 
+* ``params.mu``: the tyres' peak µ·F_z. The kit's car is simulated with µ = 1 (dry asphalt). A log that does not
+  state it shows a lower bound, :func:`kfkit.vehicle.peak_friction` (its largest lateral acceleration averaged
+  over half a second, in g), which is µ itself on a drive at the limit. Too small a µ is the costly side: the
+  model cannot make the force the car measured.
 * ``accel_noise`` 0.5 m/s²: a car body's accelerometer sees engine, road and wheel vibration that an ESC
-  cluster's sensor datasheet does not list. On the race-track log's straights (|a_y| < 1 m/s²,
-  |r| < 0.02 rad/s, 14 % of the log, no β needed) a_y has σ = 0.55 m/s². A filter that
-  believes 0.05 m/s² trusts each vibrating sample as a β measurement; a too-large σ only costs a
-  little on a quiet sensor (the bundled slaloms keep ≤ 0.03°).
+  cluster's sensor datasheet does not list; the straights of a log (|a_y| < 1 m/s², |r| < 0.02 rad/s, where the
+  car neither turns nor slides) show it without β. A filter that believes 0.05 m/s² trusts each vibrating
+  sample as a β measurement; a too-large σ costs little on a quiet sensor.
 * ``stiffness_std`` 0.2: each axle's force from its curve is known to ±20 % (cornering stiffness and
   friction vary with load, temperature, pressure and wear; published values are chosen, not measured).
-  The a_y update's variance grows accordingly: R_ay = σ_a² + ε²(F_f² + F_r²)/m², so at 1 g the
+  The a_y update's variance grows accordingly: R_ay = σ_a² + ε²(F_f² + F_r²)/m², so in a hard corner the
   measurement says less about β than in a gentle bend, and the filter leans on its model where the tyres
   are least certain.
 * ``gyro_noise``, ``q_beta``, ``q_r``, ``v_min``, ``beta_low_std`` as lab 06's KF (:class:`SideslipKFSettings`).
 
 Below ``v_min`` the filter hands over to the same kinematic guard as the KF (β = b·δ/L, yaw-rate update).
 """
+
 from __future__ import annotations
 
 import cmath
@@ -74,8 +79,11 @@ class SideslipEKFSettings:
     beta_low_std: float = math.radians(1.0)
 
     def __post_init__(self):
-        check_settings(self, positive=("q_beta", "q_r", "gyro_noise", "accel_noise", "v_min", "beta_low_std"),
-                       non_negative=("stiffness_std",))
+        check_settings(
+            self,
+            positive=("q_beta", "q_r", "gyro_noise", "accel_noise", "v_min", "beta_low_std"),
+            non_negative=("stiffness_std",),
+        )
 
 
 def matrix_functions_2x2(M, *functions):
@@ -142,8 +150,18 @@ class SideslipEKF:
     x0, P0    initial state (default 0) and covariance (default diag((2°)², (2°/s)²))
     """
 
-    def __init__(self, dt=None, params: BicycleParams = BicycleParams(), settings: SideslipEKFSettings | None = None, *,
-                 rate_hz=None, tyres=None, x0=None, P0=None, **changes):
+    def __init__(
+        self,
+        dt=None,
+        params: BicycleParams = BicycleParams(),
+        settings: SideslipEKFSettings | None = None,
+        *,
+        rate_hz=None,
+        tyres=None,
+        x0=None,
+        P0=None,
+        **changes,
+    ):
         self.dt, self.params = sample_period("SideslipEKF", dt, rate_hz), params
         self.settings = configure(SideslipEKFSettings, settings, changes, "SideslipEKF")
         self.front, self.rear = axle_tyres(params) if tyres is None else tyres
@@ -161,15 +179,23 @@ class SideslipEKF:
         """(F_f, F_r, k_f, k_r): axle forces (N) and their slopes dF/dα (N/rad) at the state, steering and speed."""
         p = self.params
         alpha_f, alpha_r = delta - beta - p.a * r / vx, -beta + p.b * r / vx
-        return (float(self.front.force(alpha_f)), float(self.rear.force(alpha_r)),
-                float(self.front.slope(alpha_f)), float(self.rear.slope(alpha_r)))
+        return (
+            float(self.front.force(alpha_f)),
+            float(self.rear.force(alpha_r)),
+            float(self.front.slope(alpha_f)),
+            float(self.rear.slope(alpha_r)),
+        )
 
     def jacobian(self, kf, kr, vx):
         """J = ∂[β̇, ṙ]/∂[β, r] (the linear model's A with the local slopes) and ∂a_y/∂[β, r] (its C row)."""
         p = self.params
-        lat = (p.b * kr - p.a * kf)
-        J = np.array([[-(kf + kr) / (p.m * vx), lat / (p.m * vx * vx) - 1.0],
-                      [lat / p.Iz, -(p.a * p.a * kf + p.b * p.b * kr) / (p.Iz * vx)]])
+        lat = p.b * kr - p.a * kf
+        J = np.array(
+            [
+                [-(kf + kr) / (p.m * vx), lat / (p.m * vx * vx) - 1.0],
+                [lat / p.Iz, -(p.a * p.a * kf + p.b * p.b * kr) / (p.Iz * vx)],
+            ]
+        )
         return J, (-(kf + kr) / p.m, lat / (p.m * vx))
 
     def step(self, delta, yaw_rate, ay, vx, dt=None) -> Step:
@@ -193,7 +219,9 @@ class SideslipEKF:
         _, (c21, c22) = self.jacobian(kf, kr, vx)
         offset = x_prior - Ad @ s.x  # the predict's x⁻ = Ad x + offset, in _step2's Ad x + Bd·1 form
         d2 = (ff + fr) / p.m - c21 * x_prior[0] - c22 * x_prior[1]  # a_y(x⁻) = C x⁻ + d2·1
-        R = np.array(((st.gyro_noise ** 2, 0.0), (0.0, st.accel_noise ** 2 + (st.stiffness_std / p.m) ** 2 * (ff * ff + fr * fr))))
+        R = np.array(
+            ((st.gyro_noise**2, 0.0), (0.0, st.accel_noise**2 + (st.stiffness_std / p.m) ** 2 * (ff * ff + fr * fr)))
+        )
         m = (*Ad.ravel().tolist(), *offset.tolist(), Qd[0, 0], Qd[0, 1], Qd[1, 1], c21, c22, d2)
         x_prior, P_prior, s.x, s.P, y, S = _step2(s.x, s.P, 1.0, (yaw_rate, ay), 1.0, m, R)
         return Step(s.x, s.P, y, S, x_prior, P_prior)

@@ -12,6 +12,7 @@ anything the kernel sends.
 :class:`TimedOutEarlier` at once (``names``, or when None the function the last interrupt stopped), so a
 loop is paid for once, not once per cell that calls it; ``restore(user_ns)`` puts back all but those kept.
 """
+
 import base64
 import dataclasses
 import io
@@ -54,8 +55,10 @@ def encode(value, budget):
     if isinstance(value, dict):
         return {"__dict__": [[encode(k, budget), encode(v, budget)] for k, v in value.items()]}
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {"__object__": type(value).__qualname__,
-                "fields": {f.name: encode(getattr(value, f.name), budget) for f in dataclasses.fields(value)}}
+        return {
+            "__object__": type(value).__qualname__,
+            "fields": {f.name: encode(getattr(value, f.name), budget) for f in dataclasses.fields(value)},
+        }
     return {"__unsupported__": type_name}
 
 
@@ -141,8 +144,11 @@ def _stub(name, func, text, keep):
 def _stubs(user_ns):
     """(name, stub) of every stub in the notebook's namespace (only functions are looked at: getting an
     attribute of any other object could run the notebook's code)."""
-    return [(k, v) for k, v in list(user_ns.items())
-            if isinstance(v, types.FunctionType) and hasattr(v, "__kfkit_original__")]
+    return [
+        (k, v)
+        for k, v in list(user_ns.items())
+        if isinstance(v, types.FunctionType) and hasattr(v, "__kfkit_original__")
+    ]
 
 
 def stop(user_ns, nonce, names, message, keep):
@@ -150,7 +156,7 @@ def stop(user_ns, nonce, names, message, keep):
     it, by a stub raising TimedOutEarlier(``message`` with its name), kept by :func:`restore` when ``keep``;
     print the names stopped (JSON)."""
     stopped = []
-    for name in ([_interrupted(user_ns)] if names is None else names):
+    for name in [_interrupted(user_ns)] if names is None else names:
         func = user_ns.get(name) if name else None
         if not _notebook_function(func):
             continue

@@ -25,6 +25,7 @@ builds the kernel's whole file system as a **whitelist** and moves into it:
 Any failure exits with status 70 and a one-line reason on stderr: the grader never runs a
 kernel half-isolated in a mode it did not announce.
 """
+
 import ctypes
 import fcntl
 import json
@@ -41,8 +42,14 @@ MS_REMOUNT, MS_BIND, MS_REC, MS_PRIVATE = 32, 4096, 16384, 1 << 18
 MS_NOATIME, MS_NODIRATIME, MS_RELATIME = 1024, 2048, 1 << 21
 MNT_DETACH = 2
 # statvfs f_flag bit → mount flag that a remount must keep (locked in a user namespace)
-KEEP = {os.ST_NOSUID: MS_NOSUID, os.ST_NODEV: MS_NODEV, os.ST_NOEXEC: MS_NOEXEC,
-        os.ST_NOATIME: MS_NOATIME, os.ST_NODIRATIME: MS_NODIRATIME, os.ST_RELATIME: MS_RELATIME}
+KEEP = {
+    os.ST_NOSUID: MS_NOSUID,
+    os.ST_NODEV: MS_NODEV,
+    os.ST_NOEXEC: MS_NOEXEC,
+    os.ST_NOATIME: MS_NOATIME,
+    os.ST_NODIRATIME: MS_NODIRATIME,
+    os.ST_RELATIME: MS_RELATIME,
+}
 PR_SET_PDEATHSIG, PR_CAPBSET_DROP, PR_SET_SECUREBITS, PR_SET_NO_NEW_PRIVS, PR_CAP_AMBIENT = 1, 24, 28, 38, 47
 SECBITS_LOCKED_NOROOT = 0x2F  # NOROOT, NO_SETUID_FIXUP and KEEP_CAPS_LOCKED, each with its lock
 SYS_PIVOT_ROOT = {"x86_64": 155, "aarch64": 41, "riscv64": 41, "ppc64le": 203, "s390x": 217}  # glibc has no wrapper
@@ -65,9 +72,10 @@ def _check(result, what):
 
 
 def mount(src, target, fstype, flags, data=None):
-    enc = lambda s: None if s is None else os.fsencode(s)  # noqa: E731
-    _check(libc.mount(enc(src), enc(target), enc(fstype), ctypes.c_ulong(flags), enc(data)),
-           f"mount {src} on {target}")
+    def enc(s):
+        return None if s is None else os.fsencode(s)
+
+    _check(libc.mount(enc(src), enc(target), enc(fstype), ctypes.c_ulong(flags), enc(data)), f"mount {src} on {target}")
 
 
 def prctl(option, arg):
@@ -104,8 +112,7 @@ def build_root(spec, root):
     box, cwd = spec["box"], spec["cwd"]
     box_handle = os.open(box, os.O_PATH | os.O_DIRECTORY)  # box lies under the folder the new root covers
     mount("tmpfs", root, "tmpfs", MS_NOSUID | MS_NODEV, "mode=755,size=16m")
-    for path, options in (("/tmp", "mode=1777,size=256m"), ("/run", "mode=755,size=1m"),
-                          ("/dev", "mode=755,size=1m")):
+    for path, options in (("/tmp", "mode=1777,size=256m"), ("/run", "mode=755,size=1m"), ("/dev", "mode=755,size=1m")):
         os.makedirs(root + path, mode=0o755, exist_ok=True)
         mount("tmpfs", root + path, "tmpfs", MS_NOSUID | (0 if path == "/dev" else MS_NODEV), options)
     for path in SYSTEM:
@@ -126,8 +133,12 @@ def build_root(spec, root):
     os.symlink("pts/ptmx", root + "/dev/ptmx")
     os.mkdir(root + "/dev/shm")
     mount("tmpfs", root + "/dev/shm", "tmpfs", MS_NOSUID | MS_NODEV, "mode=1777,size=256m")
-    for name, target in (("fd", "/proc/self/fd"), ("stdin", "/proc/self/fd/0"), ("stdout", "/proc/self/fd/1"),
-                         ("stderr", "/proc/self/fd/2")):
+    for name, target in (
+        ("fd", "/proc/self/fd"),
+        ("stdin", "/proc/self/fd/0"),
+        ("stdout", "/proc/self/fd/1"),
+        ("stderr", "/proc/self/fd/2"),
+    ):
         os.symlink(target, f"{root}/dev/{name}")
     _bind("/proc", "/proc", root)  # unshare --mount-proc made it: this PID namespace's only
     _bind(f"/proc/self/fd/{box_handle}", box, root)
@@ -181,8 +192,7 @@ def loopback_up():
 
 
 def drop_privileges(spec):
-    limits = {resource.RLIMIT_AS: spec["memory"], resource.RLIMIT_FSIZE: spec["file_size"],
-              resource.RLIMIT_CORE: 0}
+    limits = {resource.RLIMIT_AS: spec["memory"], resource.RLIMIT_FSIZE: spec["file_size"], resource.RLIMIT_CORE: 0}
     if spec.get("uid") is not None:
         limits[resource.RLIMIT_NPROC] = spec["processes"]  # counted per uid: this kernel's own
     for what, value in limits.items():
@@ -197,7 +207,8 @@ def drop_privileges(spec):
             fail("could not change uid")
     else:  # root of a user namespace: keep uid 0 there, but without any capability
         prctl(PR_SET_SECUREBITS, SECBITS_LOCKED_NOROOT)
-        last = int(open("/proc/sys/kernel/cap_last_cap").read())
+        with open("/proc/sys/kernel/cap_last_cap") as f:
+            last = int(f.read())
         for cap in range(last + 1):
             prctl(PR_CAPBSET_DROP, cap)
         libc.prctl(PR_CAP_AMBIENT, 4, 0, 0, 0)  # PR_CAP_AMBIENT_CLEAR_ALL

@@ -1,4 +1,5 @@
 """The grading pipeline behind ``kfkit grade`` (see the package docstring)."""
+
 from __future__ import annotations
 
 import concurrent.futures as cf
@@ -19,10 +20,18 @@ from .. import checkpoints as cps
 from ..checkpoints import Status
 from . import sandbox as sb
 from . import wire
-from .gradebook import (COLUMNS, Row, SubmissionGrade, default_feedback_dir, feedback_names,  # noqa: F401 (public)
-                        merge_grades, read_gradebook, write_gradebook)
+from .gradebook import (  # noqa: F401 (public)
+    COLUMNS,
+    Row,
+    SubmissionGrade,
+    default_feedback_dir,
+    feedback_names,
+    merge_grades,
+    read_gradebook,
+    write_gradebook,
+)
 from .quoting import clip, md_code, visible_controls
-from .runner import KernelLost, KernelRun, Limits, OutOfTime, StoppedByLimit  # noqa: F401 (Limits is public)
+from .runner import KernelLost, KernelRun, Limits, OutOfTime, StoppedByLimit
 from .submissions import Refused, Submission, TooLarge, find_submissions, read_submission
 
 MAX_NOTEBOOK_BYTES = 50 << 20
@@ -130,6 +139,10 @@ def _short(message: str, name: str) -> str:
 def _student_exception(type_name: str, message: str) -> Exception:
     if type_name == "NotImplementedError":
         return NotImplementedError(message)
+    if type_name == "StaleDefinition":  # the exercise guard set the function aside: its new cell was skipped
+        stale = NotImplementedError(message)
+        stale.stale_definition = True
+        return stale
     name = type_name if type_name.isidentifier() else "Exception"
     return type(name, (Exception,), {})(message)
 
@@ -142,15 +155,30 @@ def judge(cp: cps.Checkpoint, cases: list, report: dict, defining_note: str | No
     """Grade one checkpoint from the kernel's report, entirely in this process."""
     where = f" ({defining_note})" if defining_note else ""
     if report.get("missing"):
-        return Row(cp.name, 0, cp.points, Status.MISSING,
-                   f"no function named {cp.function} after running the notebook{where}: keep the exercise's "
-                   f"function name and signature, the grader calls {cp.function}(…) itself")
+        return Row(
+            cp.name,
+            0,
+            cp.points,
+            Status.MISSING,
+            f"no function named {cp.function} after running the notebook{where}: keep the exercise's "
+            f"function name and signature, the grader calls {cp.function}(…) itself",
+        )
     if "not_callable" in report:
-        return Row(cp.name, 0, cp.points, Status.MISSING,
-                   f"{cp.function} is a {report['not_callable']} at the end of the notebook, not a function")
+        return Row(
+            cp.name,
+            0,
+            cp.points,
+            Status.MISSING,
+            f"{cp.function} is a {report['not_callable']} at the end of the notebook, not a function",
+        )
     if "kfkit_function" in report:
-        return Row(cp.name, 0, cp.points, Status.FAILED,
-                   f"{cp.function} is kfkit's own {report['kfkit_function']}, not a function written in the notebook")
+        return Row(
+            cp.name,
+            0,
+            cp.points,
+            Status.FAILED,
+            f"{cp.function} is kfkit's own {report['kfkit_function']}, not a function written in the notebook",
+        )
     results = report.get("results")
     if not isinstance(results, list) or not all(isinstance(r, dict) for r in results):
         return Row(cp.name, 0, cp.points, Status.ERROR, "the kernel's result was malformed")
@@ -171,11 +199,24 @@ def judge(cp: cps.Checkpoint, cases: list, report: dict, defining_note: str | No
     except wire.WireError as exc:
         return Row(cp.name, 0, cp.points, Status.ERROR, f"the output could not be read: {exc}")
     except Exception as exc:  # a judge tripping over a strange output: zero, with the reason
-        return Row(cp.name, 0, cp.points, Status.ERROR,
-                   f"the grader could not judge the output ({type(exc).__name__}: {str(exc)[:200]})")
+        return Row(
+            cp.name,
+            0,
+            cp.points,
+            Status.ERROR,
+            f"the grader could not judge the output ({type(exc).__name__}: {str(exc)[:200]})",
+        )
     if result.status == Status.NOT_ATTEMPTED:
-        return Row(cp.name, 0, cp.points, Status.NOT_ATTEMPTED,
-                   f"not attempted ({cp.function} still raises NotImplementedError)")
+        stale = " — ".join(result.message.split(": stale: ", 1)[1:])
+        return Row(
+            cp.name,
+            0,
+            cp.points,
+            Status.NOT_ATTEMPTED,
+            f"not attempted (stale: {clip(stale, MAX_MESSAGE)})"
+            if stale
+            else f"not attempted ({cp.function} still raises NotImplementedError)",
+        )
     return Row(cp.name, result.points, cp.points, result.status, _short(result.message, cp.name))
 
 
@@ -201,26 +242,42 @@ def grade_checkpoints(run: KernelRun, sources: list[str], checkpoints: list, see
     for i, cp in enumerate(checkpoints):
         earlier = run.stopped.get(cp.function)
         if earlier is not None and earlier.checkpoint:  # a loop is paid for once (see runner.py)
-            yield Row(cp.name, 0, cp.points, Status.TIMED_OUT, f"not called again: {cp.function} timed out after "
-                      f"{earlier.seconds:g} s on the grader's cases for {earlier.checkpoint}")
+            yield Row(
+                cp.name,
+                0,
+                cp.points,
+                Status.TIMED_OUT,
+                f"not called again: {cp.function} {earlier.why} on the grader's cases for {earlier.checkpoint}",
+            )
             continue
         try:
             cases = cp.cases(np.random.default_rng([i, seed]))
             report = run.call(cp.function, [c.args for c in cases], cp.name)
-            row = _timed_out_inside(cp, report, run.stopped) or judge(cp, cases, report,
-                                                                      _defining_note(run, sources, cp.function))
+            row = _timed_out_inside(cp, report, run.stopped) or judge(
+                cp, cases, report, _defining_note(run, sources, cp.function)
+            )
         except TimeoutError as exc:
             row = Row(cp.name, 0, cp.points, Status.TIMED_OUT, f"{cp.function} {exc} on the grader's cases")
         except KernelLost as exc:
-            row = Row(cp.name, 0, cp.points, Status.TIMED_OUT if exc.timed_out else Status.ERROR,
-                      f"calling {cp.function} on the grader's cases: {exc.why}")
+            row = Row(
+                cp.name,
+                0,
+                cp.points,
+                Status.TIMED_OUT if exc.timed_out else Status.ERROR,
+                f"calling {cp.function} on the grader's cases: {exc.why}",
+            )
         except wire.WireError as exc:
             row = Row(cp.name, 0, cp.points, Status.ERROR, f"calling {cp.function}: {exc}")
         except OutOfTime:
             raise
         except Exception as exc:  # the checkpoint's own code failed here: not the student's fault
-            row = Row(cp.name, 0, cp.points, Status.NOT_GRADED,
-                      f"GRADER ERROR, regrade this submission: {type(exc).__name__}: {str(exc)[:200]}")
+            row = Row(
+                cp.name,
+                0,
+                cp.points,
+                Status.NOT_GRADED,
+                f"GRADER ERROR, regrade this submission: {type(exc).__name__}: {str(exc)[:200]}",
+            )
         yield row
 
 
@@ -228,20 +285,27 @@ def _timed_out_inside(cp: cps.Checkpoint, report: dict, stopped: dict) -> Row | 
     """The row of a call that failed because the function called one the grader's calls stopped (it raised
     TimedOutEarlier naming a function the grader stopped: the kernel's word alone is not taken)."""
     results = report.get("results")
-    raised = next((r for r in results if isinstance(r, dict) and "raised" in r), None) if isinstance(results, list) else None
+    raised = (
+        next((r for r in results if isinstance(r, dict) and "raised" in r), None) if isinstance(results, list) else None
+    )
     if raised is None or raised.get("raised") != wire.TIMED_OUT_EARLIER:
         return None
     inner = stopped.get(str(raised.get("message", "")).split(" ", 1)[0])
     if inner is None or not inner.checkpoint:
         return None
-    return Row(cp.name, 0, cp.points, Status.TIMED_OUT,
-               f"{cp.function} calls {inner.name}, which timed out after {inner.seconds:g} s on the grader's cases for "
-               f"{inner.checkpoint}: not run again")
+    return Row(
+        cp.name,
+        0,
+        cp.points,
+        Status.TIMED_OUT,
+        f"{cp.function} calls {inner.name}, which {inner.why} on the grader's cases for {inner.checkpoint}: "
+        "not run again",
+    )
 
 
 def _fill(grade: SubmissionGrade, checkpoints: list, status: Status, message: str):
     """Rows for the checkpoints ``grade`` has none for yet: 0 points, ``status``, ``message``."""
-    for cp in checkpoints[len(grade.rows):]:
+    for cp in checkpoints[len(grade.rows) :]:
         grade.rows.append(Row(cp.name, 0, cp.points, status, message))
 
 
@@ -253,8 +317,14 @@ def refused_grade(sub: Submission, checkpoints: list) -> SubmissionGrade:
     return grade
 
 
-def grade_submission(path: Path | Submission, checkpoints: list, sandbox: sb.Sandbox, limits: Limits,
-                     seed: int | None = None, name: str | None = None) -> SubmissionGrade:
+def grade_submission(
+    path: Path | Submission,
+    checkpoints: list,
+    sandbox: sb.Sandbox,
+    limits: Limits,
+    seed: int | None = None,
+    name: str | None = None,
+) -> SubmissionGrade:
     """Run and grade one notebook file in a fresh kernel; never raises for anything the file contains.
 
     Over its memory or CPU-time limit the submission is stopped: the checkpoints not graded yet
@@ -279,8 +349,11 @@ def grade_submission(path: Path | Submission, checkpoints: list, sandbox: sb.San
                 run.run_notebook()
                 grade.rows.extend(grade_checkpoints(run, sources, checkpoints, seed))
             except StoppedByLimit as exc:
-                where = (labels[run.current] if run.current < len(sources) else
-                         f"the grader's call of {checkpoints[len(grade.rows)].function}")
+                where = (
+                    labels[run.current]
+                    if run.current < len(sources)
+                    else f"the grader's call of {checkpoints[len(grade.rows)].function}"
+                )
                 text = f"stopped: the submission {exc} while running {where} ({run.meter_kind})"
                 fill(Status.OVER_LIMIT, f"not graded, {text}")
                 grade.notes.append(text)
@@ -302,8 +375,10 @@ def _cell_notes(run: KernelRun, labels: list[str]) -> list[str]:
     affected: dict[str, list[str]] = {}
     for i, (function, error) in sorted(run.affected.items()):
         affected.setdefault(function, []).append(f"{labels[i]} ({clip(error, 120)})")
-    return notes + [f"affected by {function} timing out, not faults of their own: {'; '.join(cells)}"
-                    for function, cells in affected.items()]
+    return notes + [
+        f"affected by {function} timing out, not faults of their own: {'; '.join(cells)}"
+        for function, cells in affected.items()
+    ]
 
 
 # ---------------------------------------------------------------------------- outputs
@@ -312,21 +387,35 @@ def feedback_markdown(g: SubmissionGrade, lab: str, sandbox: sb.Sandbox) -> str:
     messages, the notes on cells) is quoted with :func:`.quoting.md_code`: any Markdown or HTML renderer
     shows it as text, so the only score line is the grader's."""
     icon = {Status.PASSED: "✅", Status.NOT_ATTEMPTED: "⏳"}
-    lines = [f"# Lab {lab} feedback: {md_code(g.submission)}", "",
-             f"**Score: {g.points:g} / {g.max_points:g}**", "",
-             f"Graded {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} with kfkit {__version__}; "
-             f"random cases drawn with seed {g.seed} (regrade the same cases with `--seed {g.seed}`); "
-             f"{g.seconds:.1f} s.", "", "## Checkpoints", ""]
-    lines += [f"- {icon.get(r.status, '❌')} {r.checkpoint}, {r.points:g} / {r.max_points:g} points: {md_code(r.message)}"
-              for r in g.rows]
+    lines = [
+        f"# Lab {lab} feedback: {md_code(g.submission)}",
+        "",
+        f"**Score: {g.points:g} / {g.max_points:g}**",
+        "",
+        f"Graded {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} with kfkit {__version__}; "
+        f"random cases drawn with seed {g.seed} (regrade the same cases with `--seed {g.seed}`); "
+        f"{g.seconds:.1f} s.",
+        "",
+        "## Checkpoints",
+        "",
+    ]
+    lines += [
+        f"- {icon.get(r.status, '❌')} {r.checkpoint}, {r.points:g} / {r.max_points:g} points: {md_code(r.message)}"
+        for r in g.rows
+    ]
     if g.notes:
         lines += ["", "## While running your notebook", ""] + [f"- {md_code(n)}" for n in g.notes]
     lines += ["", f"_Isolation: {sandbox.describe(full=False)}_", ""]
     return "\n".join(lines)
 
 
-def summary(grades: list[SubmissionGrade], checkpoints: list, sandbox: sb.Sandbox, warnings=(),
-            whole_class: list[SubmissionGrade] | None = None) -> str:
+def summary(
+    grades: list[SubmissionGrade],
+    checkpoints: list,
+    sandbox: sb.Sandbox,
+    warnings=(),
+    whole_class: list[SubmissionGrade] | None = None,
+) -> str:
     """What the instructor reads at the end: isolation, pass rates per checkpoint and totals over
     ``whole_class`` (the whole gradebook after ``--update``; default: ``grades``, this run's)."""
     lines = []
@@ -338,8 +427,10 @@ def summary(grades: list[SubmissionGrade], checkpoints: list, sandbox: sb.Sandbo
     seconds = np.mean([g.seconds for g in graded]) if graded else 0.0
     lines.append(f"{len(graded)} submission(s) graded, {seconds:.1f} s per submission; isolation: {sandbox.describe()}")
     if refused:
-        lines.append(f"REFUSED {len(refused)} (links or not regular files: not opened, each a gradebook row with "
-                     f"status refused): {', '.join(map(visible_controls, refused))}")
+        lines.append(
+            f"REFUSED {len(refused)} (links or not regular files: not opened, each a gradebook row with "
+            f"status refused): {', '.join(map(visible_controls, refused))}"
+        )
     grades = grades if whole_class is None else whole_class
     n = len(grades)
     if whole_class is not None:
@@ -351,8 +442,10 @@ def summary(grades: list[SubmissionGrade], checkpoints: list, sandbox: sb.Sandbo
             rows = [r for g in grades for r in g.rows if r.checkpoint == cp.name]
             passed = sum(r.status == Status.PASSED for r in rows)
             mean = sum(r.points for r in rows) / max(len(rows), 1)
-            lines.append(f"{cp.name:{width}s}  {passed:3d}/{len(rows):<3d} {100 * passed / max(len(rows), 1):4.0f} %"
-                         f"  {mean:.2f} / {cp.points}")
+            lines.append(
+                f"{cp.name:{width}s}  {passed:3d}/{len(rows):<3d} {100 * passed / max(len(rows), 1):4.0f} %"
+                f"  {mean:.2f} / {cp.points}"
+            )
         totals = [g.points for g in grades]
         lines.append(f"total: mean {np.mean(totals):.2f} / {grades[0].max_points:g}, median {np.median(totals):g}")
         errors = [visible_controls(g.submission) for g in grades if any("GRADER ERROR" in r.message for r in g.rows)]
@@ -369,8 +462,10 @@ class _Progress:
         self.done += 1
         width = 30
         fill = int(width * self.done / max(self.total, 1))
-        line = (f"[{'#' * fill}{'.' * (width - fill)}] {self.done}/{self.total} "
-                f"{time.monotonic() - self.start:5.0f} s  {visible_controls(label[-40:])}")
+        line = (
+            f"[{'#' * fill}{'.' * (width - fill)}] {self.done}/{self.total} "
+            f"{time.monotonic() - self.start:5.0f} s  {visible_controls(label[-40:])}"
+        )
         if self.stream.isatty():
             self.stream.write("\r" + line.ljust(100) + ("\n" if self.done == self.total else ""))
         else:
@@ -383,9 +478,19 @@ def _grade_one(args):
     return grade_submission(path, lab_checkpoints(lab), sandbox, limits, seed, name)
 
 
-def grade(paths, lab, out: Path, jobs: int = 1, limits: Limits | None = None, feedback_dir: Path | None = None,
-          seed: int | None = None, update: bool = False, progress: bool = True, sandbox: sb.Sandbox | None = None,
-          unsandboxed: bool = False):
+def grade(
+    paths,
+    lab,
+    out: Path,
+    jobs: int = 1,
+    limits: Limits | None = None,
+    feedback_dir: Path | None = None,
+    seed: int | None = None,
+    update: bool = False,
+    progress: bool = True,
+    sandbox: sb.Sandbox | None = None,
+    unsandboxed: bool = False,
+):
     """Grade notebooks (files or folders) for lab ``lab``; → (grades, summary text).
 
     Writes the gradebook ``out`` and ``feedback_dir/<submission>.md`` (default: next to the
@@ -421,9 +526,16 @@ def grade(paths, lab, out: Path, jobs: int = 1, limits: Limits | None = None, fe
                     grades[k] = fut.result()
                 except Exception as exc:  # a worker crashed: say so in the gradebook, keep going
                     g = SubmissionGrade(found[k].name, seed or 0)
-                    g.rows = [Row(cp.name, 0, cp.points, Status.NOT_GRADED,
-                                  f"GRADER ERROR, regrade this submission: {type(exc).__name__}: {exc}")
-                              for cp in checkpoints]
+                    g.rows = [
+                        Row(
+                            cp.name,
+                            0,
+                            cp.points,
+                            Status.NOT_GRADED,
+                            f"GRADER ERROR, regrade this submission: {type(exc).__name__}: {exc}",
+                        )
+                        for cp in checkpoints
+                    ]
                     grades[k] = g
                 bar and bar.step(found[k].name)
     whole_class = merge_grades(earlier, grades) if earlier is not None else None
@@ -449,16 +561,32 @@ def cli(args) -> int:
             print(f"kfkit grade: {w}", file=sys.stderr)
         print("kfkit grade: no notebooks to grade", file=sys.stderr)
         return 1
-    limits = Limits(cell_timeout=args.timeout, total_timeout=args.total_timeout, memory=int(args.max_memory * (1 << 30)),
-                    cpu_time=args.max_cpu if args.max_cpu is not None else args.total_timeout)
+    limits = Limits(
+        cell_timeout=args.timeout,
+        total_timeout=args.total_timeout,
+        wall_factor=args.wall_factor,
+        memory=int(args.max_memory * (1 << 30)),
+        cpu_time=args.max_cpu if args.max_cpu is not None else args.total_timeout,
+    )
     try:
-        grades, text = grade(args.submissions, args.lab, args.out, jobs=args.jobs, limits=limits,
-                             feedback_dir=args.feedback, seed=args.seed, update=args.update,
-                             unsandboxed=args.no_sandbox)
+        grades, text = grade(
+            args.submissions,
+            args.lab,
+            args.out,
+            jobs=args.jobs,
+            limits=limits,
+            feedback_dir=args.feedback,
+            seed=args.seed,
+            update=args.update,
+            unsandboxed=args.no_sandbox,
+        )
     except NoSandbox as exc:
-        print(f"kfkit grade: cannot isolate the students' code on this machine, so nothing was graded: {exc}.\n"
-              "Grade on Linux with util-linux's 'unshare' (as root, or with user namespaces enabled), e.g. in a "
-              "Linux VM or container, or accept the risk with --no-sandbox.", file=sys.stderr)
+        print(
+            f"kfkit grade: cannot isolate the students' code on this machine, so nothing was graded: {exc}.\n"
+            "Grade on Linux with util-linux's 'unshare' (as root, or with user namespaces enabled), e.g. in a "
+            "Linux VM or container, or accept the risk with --no-sandbox.",
+            file=sys.stderr,
+        )
         return 2
     except ValueError as exc:  # the gradebook to --update is not one
         print(f"kfkit grade: {exc}", file=sys.stderr)

@@ -9,6 +9,7 @@ reading one checks every row (ValueError naming the file and line): points finit
 Gradebooks written before the ``status`` column (``submission,checkpoint,points,max_points,message``) still
 load: :func:`legacy_status` gives each row its status, the one place where that is guessed.
 """
+
 from __future__ import annotations
 
 import csv
@@ -84,13 +85,15 @@ def read_gradebook(path: Path) -> list[SubmissionGrade]:
                     try:
                         status = Status(r["status"])
                     except ValueError:
-                        raise ValueError(f"{where}: status {r['status']!r} is not one of "
-                                         f"{', '.join(s.value for s in Status)}") from None
+                        raise ValueError(
+                            f"{where}: status {r['status']!r} is not one of {', '.join(s.value for s in Status)}"
+                        ) from None
                 else:
                     status = legacy_status(points, max_points)
                 name = _csv_unsafe(r["submission"] or "")
                 grades.setdefault(name, SubmissionGrade(name, 0)).rows.append(
-                    Row(r["checkpoint"] or "", points, max_points, status, _csv_unsafe(r["message"] or "")))
+                    Row(r["checkpoint"] or "", points, max_points, status, _csv_unsafe(r["message"] or ""))
+                )
         except (UnicodeDecodeError, csv.Error) as exc:
             raise ValueError(f"{path}, line {reader.line_num + 1}: not a CSV gradebook ({exc})") from None
     return list(grades.values())
@@ -101,13 +104,18 @@ def _points(r: dict, where: str) -> tuple[float, float]:
     try:
         points, max_points = float(r["points"]), float(r["max_points"])
     except (TypeError, ValueError):
-        raise ValueError(f"{where}: points and max_points should be numbers, "
-                         f"not {r['points']!r} and {r['max_points']!r}") from None
+        raise ValueError(
+            f"{where}: points and max_points should be numbers, not {r['points']!r} and {r['max_points']!r}"
+        ) from None
     if not (math.isfinite(points) and math.isfinite(max_points)):
-        raise ValueError(f"{where}: points and max_points should be finite, not {r['points']!r} and {r['max_points']!r}")
+        raise ValueError(
+            f"{where}: points and max_points should be finite, not {r['points']!r} and {r['max_points']!r}"
+        )
     if not 0 <= max_points <= MAX_POINTS:
-        raise ValueError(f"{where}: max_points {max_points:g} is outside 0 … {MAX_POINTS} (a checkpoint of kfkit is "
-                         "worth a few points)")
+        raise ValueError(
+            f"{where}: max_points {max_points:g} is outside 0 … {MAX_POINTS} (a checkpoint of kfkit is "
+            "worth a few points)"
+        )
     if not 0 <= points <= max_points:
         raise ValueError(f"{where}: points {points:g} is outside 0 … max_points ({max_points:g})")
     return points, max_points
@@ -123,9 +131,17 @@ def merge_grades(old: list[SubmissionGrade], new: list[SubmissionGrade]) -> list
 def write_gradebook(path: Path, grades: list[SubmissionGrade]):
     rows = []
     for g in grades:
-        rows += [{"submission": _csv_safe(g.submission), "checkpoint": r.checkpoint, "points": f"{r.points:g}",
-                  "max_points": f"{r.max_points:g}", "status": Status(r.status).value,
-                  "message": _csv_safe(r.message)} for r in g.rows]
+        rows += [
+            {
+                "submission": _csv_safe(g.submission),
+                "checkpoint": r.checkpoint,
+                "points": f"{r.points:g}",
+                "max_points": f"{r.max_points:g}",
+                "status": Status(r.status).value,
+                "message": _csv_safe(r.message),
+            }
+            for r in g.rows
+        ]
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="", encoding="utf-8") as f:
         writer = csv.DictWriter(f, COLUMNS)

@@ -14,13 +14,14 @@ must read as what it is, never act:
 
 The HTML report escapes with :func:`html.escape` after :func:`visible_controls`.
 """
+
 from __future__ import annotations
 
 import re
 
 #: bidirectional controls (embeddings, overrides, isolates, marks) and the line and paragraph separators
 BIDI = "\u202a\u202b\u202c\u202d\u202e\u2066\u2067\u2068\u2069\u200e\u200f\u061c\u2028\u2029"
-_CONTROLS = [chr(c) for c in [*range(0x20), *range(0x7f, 0xa0)]] + list(BIDI)  # Unicode's Cc, and BIDI
+_CONTROLS = [chr(c) for c in [*range(0x20), *range(0x7F, 0xA0)]] + list(BIDI)  # Unicode's Cc, and BIDI
 _SHOWN = str.maketrans({c: f"[U+{ord(c):04X}]" for c in _CONTROLS})
 _ONE_LINE = str.maketrans({**{c: f"[U+{ord(c):04X}]" for c in _CONTROLS}, "\t": " ", "\n": " ", "\r": " "})
 _LINES = str.maketrans({**{c: f"[U+{ord(c):04X}]" for c in _CONTROLS}, "\t": "\t", "\n": "\n"})
@@ -35,7 +36,7 @@ def visible_controls(text: str, lines: bool = False) -> str:
 
 def clip(text: str, limit: int) -> str:
     """At most ``limit`` characters of ``text``, the last one ``…`` when it was cut."""
-    return text if len(text) <= limit else text[:limit - 1] + "…"
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 def md_code(text: str) -> str:

@@ -14,10 +14,13 @@ Two ways to measure, one :class:`Watchdog` that stops the submission when over:
   children's: every process of the PID namespace is reaped inside the tree, so nothing is lost).
   Between two samples a process can still grow, up to the kernel's per-process ``RLIMIT_AS``.
 
-CPU time is seconds of CPU, not wall time, so a busy machine does not make anyone fail.
+CPU time is seconds of CPU, not wall time, so a busy machine does not make anyone fail; the runner times each
+cell and each grader's call by the same count (:attr:`Watchdog.cpu_used`, see :mod:`kfkit.grading.runner`).
 """
+
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import threading
@@ -39,6 +42,7 @@ class Usage:
 @dataclass(frozen=True)
 class OverLimit:
     """Which limit stopped a submission, with the measured value."""
+
     what: str  # "memory" or "CPU time"
     used: float
     limit: float
@@ -80,10 +84,8 @@ class ProcessTree:
 
     def kill(self):
         for p in self.processes():
-            try:
+            with contextlib.suppress(psutil.Error):
                 p.send_signal(signal.SIGKILL)
-            except psutil.Error:
-                pass
 
     def close(self):
         pass
@@ -107,8 +109,10 @@ def cgroup_v2_parent() -> tuple[Path | None, str]:
     except OSError as exc:
         return None, f"cannot read {folder} ({exc.strerror})"
     if not {"memory", "cpu"} <= delegated or not os.access(folder, os.W_OK):
-        return None, (f"cgroup v2 at {folder} does not delegate the memory and cpu controllers (available: "
-                      f"{' '.join(available) or 'none'}; delegated: {' '.join(sorted(delegated)) or 'none'})")
+        return None, (
+            f"cgroup v2 at {folder} does not delegate the memory and cpu controllers (available: "
+            f"{' '.join(available) or 'none'}; delegated: {' '.join(sorted(delegated)) or 'none'})"
+        )
     return folder, ""
 
 
@@ -127,8 +131,11 @@ class Cgroup:
         self.limit = memory
 
     def usage(self) -> Usage:
-        cpu = next(int(ln.split()[1]) for ln in (self.path / "cpu.stat").read_text().splitlines()
-                   if ln.startswith("usage_usec"))
+        cpu = next(
+            int(ln.split()[1])
+            for ln in (self.path / "cpu.stat").read_text().splitlines()
+            if ln.startswith("usage_usec")
+        )
         events = dict(ln.split() for ln in (self.path / "memory.events").read_text().splitlines())
         peak_file = self.path / "memory.peak"  # Linux 5.19+
         peak = int(peak_file.read_text()) if peak_file.exists() else int((self.path / "memory.current").read_text())

@@ -21,6 +21,7 @@ host's socket files are not hidden, they are simply not there. The network is an
 ``probe`` runs a tiny program through exactly the launch path the kernels use and checks those
 guarantees from inside (see :data:`PROBE`); a mode is used only if that check passes.
 """
+
 from __future__ import annotations
 
 import functools
@@ -56,14 +57,18 @@ class Sandbox:
         """How kernels are isolated; ``full`` adds the folders (for the instructor, not the students)."""
         if self.mode == "none":
             return f"NOT ISOLATED: {self.warning}"
-        how = {"root": "namespaces + whitelisted read-only file system + unprivileged uid",
-               "userns": "user namespace + whitelisted read-only file system + no capabilities"}[self.mode]
+        how = {
+            "root": "namespaces + whitelisted read-only file system + unprivileged uid",
+            "userns": "user namespace + whitelisted read-only file system + no capabilities",
+        }[self.mode]
         net = "network blocked" if self.network_blocked else "network NOT blocked"
         if not full:
             return f"{how}; {net}"
         system = [p for p in SYSTEM if os.path.isdir(p) and not os.path.islink(p)]
-        return (f"{how}; {net}; the only folders visible, read-only: {', '.join(system + self.visible)}; "
-                f"private: /tmp, /run, /dev/shm, its home")
+        return (
+            f"{how}; {net}; the only folders visible, read-only: {', '.join(system + self.visible)}; "
+            f"private: /tmp, /run, /dev/shm, its home"
+        )
 
     def uid(self) -> tuple[int, int] | None:
         """The unprivileged uid/gid this grading process gives its kernels (mode 'root')."""
@@ -74,8 +79,9 @@ class Sandbox:
             uid += 1 << 22
         return uid, uid
 
-    def command(self, box: Path, scratch: Path, cwd: Path, connection_file: str, argv: list[str],
-                cgroup: Path | None = None) -> list[str]:
+    def command(
+        self, box: Path, scratch: Path, cwd: Path, connection_file: str, argv: list[str], cgroup: Path | None = None
+    ) -> list[str]:
         """The argv that runs ``argv`` in this sandbox (``argv`` unchanged in mode 'none').
 
         ``scratch`` (the box's parent, private to this kernel) becomes the new root's mount point;
@@ -84,10 +90,19 @@ class Sandbox:
         if self.mode == "none":
             return argv
         ids = self.uid()
-        spec = {"box": str(box), "scratch": str(scratch), "cwd": str(cwd), "connection_file": connection_file,
-                "uid": ids and ids[0], "gid": ids and ids[1], "visible": self.visible or visible_paths(),
-                "cgroup": str(cgroup) if cgroup else None,
-                "memory": MEMORY_LIMIT, "file_size": FILE_SIZE_LIMIT, "processes": PROCESS_LIMIT}
+        spec = {
+            "box": str(box),
+            "scratch": str(scratch),
+            "cwd": str(cwd),
+            "connection_file": connection_file,
+            "uid": ids and ids[0],
+            "gid": ids and ids[1],
+            "visible": self.visible or visible_paths(),
+            "cgroup": str(cgroup) if cgroup else None,
+            "memory": MEMORY_LIMIT,
+            "file_size": FILE_SIZE_LIMIT,
+            "processes": PROCESS_LIMIT,
+        }
         unshare = ["unshare"] + (["--user", "--map-root-user"] if self.mode == "userns" else [])
         unshare += ["--mount", "--net", "--pid", "--ipc", "--uts", "--fork", "--kill-child", "--mount-proc", "--"]
         return unshare + [sys.executable, "-I", str(LAUNCHER), json.dumps(spec), "--"] + argv
@@ -116,10 +131,18 @@ def visible_paths() -> list[str]:
     The import paths are those of a fresh ``python -I`` (what the kernel gets: no PYTHONPATH, no
     current folder), not this process's ``sys.path``, which may hold the instructor's folders.
     """
-    code = ("import importlib.util, json, sys; spec = importlib.util.find_spec('kfkit'); "
-            "print(json.dumps([sys.path, list(spec.submodule_search_locations or []) if spec else []]))")
-    fresh = subprocess.run([sys.executable, "-I", "-c", code], capture_output=True, text=True, check=True,
-                           env={"PATH": os.defpath}, cwd="/")
+    code = (
+        "import importlib.util, json, sys; spec = importlib.util.find_spec('kfkit'); "
+        "print(json.dumps([sys.path, list(spec.submodule_search_locations or []) if spec else []]))"
+    )
+    fresh = subprocess.run(
+        [sys.executable, "-I", "-c", code],
+        capture_output=True,
+        text=True,
+        check=True,
+        env={"PATH": os.defpath},
+        cwd="/",
+    )
     path, kfkit_dirs = json.loads(fresh.stdout)
     kit = os.path.realpath(KIT_ROOT)
     paths = {os.path.realpath(p) for p in (sys.base_prefix, sys.prefix, *path, *kfkit_dirs) if p}
@@ -161,12 +184,23 @@ def make_box(scratch: Path, sandbox: Sandbox) -> Path:
 def kernel_env(box: Path) -> dict:
     """A clean environment: none of the grader's variables (tokens, paths) reach student code."""
     home = box / "home"
-    return {"PATH": f"{Path(sys.executable).parent}:/usr/local/bin:/usr/bin:/bin", "HOME": str(home),
-            "TMPDIR": "/tmp", "LANG": "C.UTF-8", "MPLCONFIGDIR": str(home / ".matplotlib"),
-            "IPYTHONDIR": str(home / ".ipython"), "JUPYTER_CONFIG_DIR": str(home / ".jupyter"),
-            "JUPYTER_DATA_DIR": str(home / ".jupyter-data"), "JUPYTER_RUNTIME_DIR": str(box),
-            "PYTHONNOUSERSITE": "1", "PYTHONDONTWRITEBYTECODE": "1", "PYDEVD_DISABLE_FILE_VALIDATION": "1",
-            "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    return {
+        "PATH": f"{Path(sys.executable).parent}:/usr/local/bin:/usr/bin:/bin",
+        "HOME": str(home),
+        "TMPDIR": "/tmp",
+        "LANG": "C.UTF-8",
+        "MPLCONFIGDIR": str(home / ".matplotlib"),
+        "IPYTHONDIR": str(home / ".ipython"),
+        "JUPYTER_CONFIG_DIR": str(home / ".jupyter"),
+        "JUPYTER_DATA_DIR": str(home / ".jupyter-data"),
+        "JUPYTER_RUNTIME_DIR": str(box),
+        "PYTHONNOUSERSITE": "1",
+        "PYTHONDONTWRITEBYTECODE": "1",
+        "PYDEVD_DISABLE_FILE_VALIDATION": "1",
+        "OMP_NUM_THREADS": "1",
+        "OPENBLAS_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+    }
 
 
 PROBE = r"""
@@ -245,8 +279,9 @@ def check_report(report: dict, visible: list[str], box: str) -> list[str]:
     return broken
 
 
-def run_in_sandbox(sandbox: Sandbox, argv: list[str], timeout=60.0, args: dict | None = None,
-                   box_files: dict | None = None) -> subprocess.CompletedProcess:
+def run_in_sandbox(
+    sandbox: Sandbox, argv: list[str], timeout=60.0, args: dict | None = None, box_files: dict | None = None
+) -> subprocess.CompletedProcess:
     """Run ``argv`` (a short program, not a kernel) the way kernels run; used by the probe and tests.
 
     ``args``: a dict passed as one more JSON argument, with ``"box"`` (the box's path) added to it;
@@ -264,8 +299,14 @@ def run_in_sandbox(sandbox: Sandbox, argv: list[str], timeout=60.0, args: dict |
             args["box"] = str(box)
             argv = [*argv, json.dumps(args)]
         cmd = sandbox.command(box, scratch, box / "home", str(conn), argv)
-        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=kernel_env(box),
-                              cwd=box / "home" if sandbox.mode == "none" else "/")
+        return subprocess.run(
+            cmd,
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+            env=kernel_env(box),
+            cwd=box / "home" if sandbox.mode == "none" else "/",
+        )
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
 
@@ -301,12 +342,16 @@ def probe(extra=(), modes=None) -> Sandbox:
             reasons.append(f"{mode}: {last}")
             continue
         report = json.loads(done.stdout.strip().splitlines()[-1])
-        broken = check_report(report, visible, args["box"]) + ([f"written outside: {', '.join(leaked)}"] if leaked else [])
+        broken = check_report(report, visible, args["box"]) + (
+            [f"written outside: {', '.join(leaked)}"] if leaked else []
+        )
         if broken:
             reasons.append(f"{mode}: {'; '.join(broken)}")
             continue
         sb.network_blocked = not report["network"] and not report["ifaces"]
         return sb
-    return Sandbox("none", warning="student code would run with the grader's own permissions and could read and "
-                                   "change the kit and your files (" +
-                                   ("; ".join(reasons) or "no isolation mode was tried") + ")")
+    return Sandbox(
+        "none",
+        warning="student code would run with the grader's own permissions and could read and "
+        "change the kit and your files (" + ("; ".join(reasons) or "no isolation mode was tried") + ")",
+    )

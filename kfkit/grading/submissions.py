@@ -16,6 +16,7 @@ would pass a size check (its size is 0) and block the grader forever. So:
   a regular file, and the opened descriptor is checked again with ``fstat`` (a file swapped for a link or a
   pipe in between is refused, not followed; a pipe is never read).
 """
+
 from __future__ import annotations
 
 import errno
@@ -27,7 +28,9 @@ from pathlib import Path
 from .quoting import clip
 
 NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)  # 0 on Windows: there the lstat/fstat comparison below stands alone
-SAFE_OPEN = os.O_RDONLY | NOFOLLOW | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_BINARY", 0)
+SAFE_OPEN = (
+    os.O_RDONLY | NOFOLLOW | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_BINARY", 0)
+)
 DIR_OPEN = os.O_RDONLY | NOFOLLOW | getattr(os, "O_DIRECTORY", 0)
 SKIPPED_FOLDERS = (".ipynb_checkpoints",)  # Jupyter's autosaves beside each notebook, never a submission
 
@@ -66,8 +69,13 @@ def kind(mode: int, target: str | None = None) -> str:
     """What a non-regular file is, for a reason a person reads (``target``: a link's text)."""
     if stat.S_ISLNK(mode):
         return f"a symbolic link (to {clip(target, 200)})" if target is not None else "a symbolic link"
-    for test, what in ((stat.S_ISFIFO, "a named pipe (FIFO)"), (stat.S_ISSOCK, "a socket"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISDIR, "a folder")):
+    for test, what in (
+        (stat.S_ISFIFO, "a named pipe (FIFO)"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISDIR, "a folder"),
+    ):
         if test(mode):
             return what
     return "not a regular file"
@@ -115,6 +123,7 @@ def _walk(root: Path, warnings: list):
     """Every ``.ipynb`` below ``root`` and every link to a folder there, as submissions (links and non-files
     refused); a folder that cannot be read is named in ``warnings``. ``os.walk`` lists a link to a folder among
     the folders and, told so, does not enter it."""
+
     def unreadable(exc: OSError):
         warnings.append(f"{exc.filename}: folder cannot be read ({exc.strerror}): what it holds is not graded")
 

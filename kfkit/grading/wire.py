@@ -10,6 +10,7 @@ dataclasses and :class:`Unsupported` for any other type (sent as its name only);
 unpickled or evaluated, and sizes are capped: numbers in the kernel (:data:`MAX_NUMBERS`), characters
 here before parsing (:data:`MAX_PAYLOAD`).
 """
+
 from __future__ import annotations
 
 import base64
@@ -71,9 +72,11 @@ def restore_code() -> str:
 
 def _kernel_code(entry: str, *args) -> str:
     """A cell calling ``_kernel_side.<entry>(the notebook's namespace, *args)`` in a namespace of its own."""
-    return ("(lambda g: (exec(compile(g['__src__'], '<kfkit-grader>', 'exec'), g), "
-            f"g[{entry!r}](globals(){''.join(f', {a!r}' for a in args)})))"
-            f"({{'__name__': '__kfkit_grader__', '__src__': {KERNEL_SIDE!r}}});")
+    return (
+        "(lambda g: (exec(compile(g['__src__'], '<kfkit-grader>', 'exec'), g), "
+        f"g[{entry!r}](globals(){''.join(f', {a!r}' for a in args)})))"
+        f"({{'__name__': '__kfkit_grader__', '__src__': {KERNEL_SIDE!r}}});"
+    )
 
 
 def new_nonce() -> str:
@@ -86,7 +89,7 @@ def extract(stdout: str, nonce: str) -> dict:
     start = stdout.rfind(nonce, 0, end) if end > 0 else -1
     if start < 0:
         raise WireError("the kernel sent no result")
-    text = stdout[start + len(nonce):end]
+    text = stdout[start + len(nonce) : end]
     if len(text) > MAX_PAYLOAD:
         raise WireError(f"the result is larger than {MAX_PAYLOAD >> 20} MB")
     try:
@@ -126,8 +129,9 @@ def decode(obj, depth=0):
         return _array(obj, depth)
     if "__object__" in obj:
         fields = obj.get("fields")
-        if not isinstance(fields, dict) or not all(isinstance(k, str) and k.isidentifier() and not k.startswith("__")
-                                                   for k in fields):
+        if not isinstance(fields, dict) or not all(
+            isinstance(k, str) and k.isidentifier() and not k.startswith("__") for k in fields
+        ):
             raise WireError("malformed object")
         return Returned(**{k: decode(v, depth + 1) for k, v in fields.items()})
     if "__unsupported__" in obj:

@@ -7,6 +7,7 @@
 :func:`load_any` opens a recording of your own whatever made it. The kit's own formats are
 :mod:`kfkit.io` (IMU recordings) and :mod:`kfkit.vehicle` (vehicle recordings).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -27,7 +28,11 @@ def load_any(path, mount="flat", require=("acc", "gyr")) -> Recording:
     path = Path(path)
     if path.is_file():
         with open(path, "rb") as f:
-            if f.read(len(BOM.encode()) + len(VERSION_PREFIX)).removeprefix(BOM.encode()).startswith(VERSION_PREFIX.encode()):
+            if (
+                f.read(len(BOM.encode()) + len(VERSION_PREFIX))
+                .removeprefix(BOM.encode())
+                .startswith(VERSION_PREFIX.encode())
+            ):
                 return load_recording(path)
     elif not path.exists():
         raise FileNotFoundError(f"no recording or phyphox export at {path}")

@@ -4,6 +4,7 @@ Laidig et al., "BROAD — a benchmark for robust inertial orientation estimation
 (CC BY 4.0): 39 trials of a Myon aktos-t IMU with optical motion capture as the truth. Lab 04 and
 ``benchmarks/bench_attitude.py`` compare the kit's filters on it.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -38,21 +39,29 @@ def load_broad(path) -> Recording:
     try:
         raw = scipy.io.loadmat(path)
     except NotImplementedError:  # scipy's answer to a v7.3 file, which is HDF5 inside
-        raise RecordingError(path, None, "a MATLAB v7.3 (HDF5) .mat file: BROAD trials are v5 .mat files; "
-                             "re-save it in MATLAB with save(name, '-v7') or use the trial from the dataset") from None
+        raise RecordingError(
+            path,
+            None,
+            "a MATLAB v7.3 (HDF5) .mat file: BROAD trials are v5 .mat files; "
+            "re-save it in MATLAB with save(name, '-v7') or use the trial from the dataset",
+        ) from None
     except Exception as e:  # noqa: BLE001 — a damaged file makes scipy's reader raise anything (IndexError, zlib.error, …)
-        raise RecordingError(path, None, f"not a readable MATLAB .mat file, or a damaged one ({type(e).__name__}: {e})") from None
+        raise RecordingError(
+            path, None, f"not a readable MATLAB .mat file, or a damaged one ({type(e).__name__}: {e})"
+        ) from None
     missing = [f for f in BROAD_FIELDS if f not in raw]
     if missing:
-        raise RecordingError(path, None, f"not a BROAD trial: missing field(s) {', '.join(missing)}; "
-                             f"expected {', '.join(BROAD_FIELDS)}")
+        raise RecordingError(
+            path, None, f"not a BROAD trial: missing field(s) {', '.join(missing)}; expected {', '.join(BROAD_FIELDS)}"
+        )
 
     def numeric(name):
         try:
             return np.asarray(raw[name], dtype=float)
         except (ValueError, TypeError):
-            raise RecordingError(path, None, f"field {name!r} must be numeric, got MATLAB class "
-                                 f"{np.asarray(raw[name]).dtype}") from None
+            raise RecordingError(
+                path, None, f"field {name!r} must be numeric, got MATLAB class {np.asarray(raw[name]).dtype}"
+            ) from None
 
     arrays = {}
     for name, width in (("imu_gyr", 3), ("imu_acc", 3), ("imu_mag", 3), ("opt_quat", 4)):
@@ -70,23 +79,33 @@ def load_broad(path) -> Recording:
     if movement.size != n:
         raise RecordingError(path, None, f"field 'movement' has {movement.size} entries but imu_gyr has {n} rows")
     if not np.isin(movement, (0.0, 1.0)).all():
-        raise RecordingError(path, None, f"field 'movement' must hold 0 or 1, got {movement[~np.isin(movement, (0.0, 1.0))][0]}")
+        raise RecordingError(
+            path, None, f"field 'movement' must hold 0 or 1, got {movement[~np.isin(movement, (0.0, 1.0))][0]}"
+        )
     rates = numeric("sampling_rate").reshape(-1)
     if rates.size != 1 or not positive_number(float(rates[0])):
-        raise RecordingError(path, None, f"field 'sampling_rate' must be one positive finite number (Hz), got {rates.tolist()}")
+        raise RecordingError(
+            path, None, f"field 'sampling_rate' must be one positive finite number (Hz), got {rates.tolist()}"
+        )
     rate = float(rates[0])
     for name in ("imu_gyr", "imu_acc", "imu_mag", "opt_quat"):  # NaN rows are gaps (no mag sample, markers unseen)
         a = arrays[name]
         finite = np.isfinite(a).all(axis=1)
         bad = ~finite if name in ("imu_gyr", "imu_acc") else ~finite & ~np.isnan(a).all(axis=1)
         if bad.any():
-            raise RecordingError(path, None, f"field {name!r} row {np.argmax(bad)} is not finite: {a[np.argmax(bad)].tolist()}")
+            raise RecordingError(
+                path, None, f"field {name!r} row {np.argmax(bad)} is not finite: {a[np.argmax(bad)].tolist()}"
+            )
         if name == "opt_quat":
             with np.errstate(over="ignore"):  # a garbled 1e300 overflows to inf: still "not a unit quaternion"
                 off = finite & (np.abs(np.linalg.norm(np.where(finite[:, None], a, 0.0), axis=1) - 1.0) > 0.01)
             if off.any():
-                raise RecordingError(path, None, f"field 'opt_quat' row {np.argmax(off)} is not a unit quaternion "
-                                     f"(norm {np.linalg.norm(a[np.argmax(off)]):.4g})")
+                raise RecordingError(
+                    path,
+                    None,
+                    f"field 'opt_quat' row {np.argmax(off)} is not a unit quaternion "
+                    f"(norm {np.linalg.norm(a[np.argmax(off)]):.4g})",
+                )
 
     q_ned = enu_to_ned_quat(arrays["opt_quat"])
     q_ned /= np.linalg.norm(q_ned, axis=1, keepdims=True)
@@ -111,8 +130,11 @@ def load_broad(path) -> Recording:
         "trial": path.stem,
         "description": description,
         "units": {"t": "s", "gyr": "rad/s", "acc": "m/s^2", "mag": "uT", "true_*": "rad; true_q*: w-x-y-z IMU → NED"},
-        "sensors": {"acc": {"sensitivity": 1.0, "unit": "m/s^2"}, "gyr": {"sensitivity": 1.0, "unit": "rad/s"},
-                    "mag": {"sensitivity": 1.0, "unit": "uT"}},
+        "sensors": {
+            "acc": {"sensitivity": 1.0, "unit": "m/s^2"},
+            "gyr": {"sensitivity": 1.0, "unit": "rad/s"},
+            "mag": {"sensitivity": 1.0, "unit": "uT"},
+        },
         "mount": {"acc": identity, "gyr": identity, "mag": identity},
         "license": "CC BY 4.0, Laidig et al., Data 6(7), 2021, doi:10.3390/data6070072",
     }

@@ -40,8 +40,10 @@ not a gap), stores fixed-point counts (:data:`kfkit.sensors.PHONE_LSB`) and the 
 keeps the phone's experiment time (seconds since its start button) as ``t``.
 Simulated exports made by the kit add ``kfkit_truth.csv`` (the true attitude at each gyro row).
 """
+
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import warnings
@@ -56,26 +58,60 @@ from ..clocks import OneClock, SampleCounter
 from ..frames import dcm_to_euler, quat_to_dcm
 from ..io import BOM, Recording, RecordingError, parse_count, parse_header, parse_number, shown
 from ..phone_sim import TRUTH_FILE, TRUTH_KIND
-from ..sensors import (DEFAULT_PHONE_MOUNT, PHONE_BOARD, PHONE_LSB, PHONE_MAX_COUNTS, SI_UNITS, phone_counts, phone_mount, phone_sensor_metadata)
+from ..sensors import (
+    DEFAULT_PHONE_MOUNT,
+    PHONE_BOARD,
+    PHONE_LSB,
+    PHONE_MAX_COUNTS,
+    SI_UNITS,
+    phone_counts,
+    phone_mount,
+    phone_sensor_metadata,
+)
 
 SEPARATORS = (",", "\t", ";")
 #: sensor kinds phyphox exports, as named in its file format (``<sensor type="…">``)
-KINDS = {"acc": "accelerometer", "gyr": "gyroscope", "mag": "magnetometer", "lin": "linear acceleration",
-         "gra": "gravity"}
+KINDS = {
+    "acc": "accelerometer",
+    "gyr": "gyroscope",
+    "mag": "magnetometer",
+    "lin": "linear acceleration",
+    "gra": "gravity",
+}
 #: export set (file) names → kind; iOS names its linear set "Linear Accelerometer"
-SET_NAMES = {"accelerometer": "acc", "gyroscope": "gyr", "magnetometer": "mag", "linear acceleration": "lin",
-             "linear accelerometer": "lin", "gravity": "gra"}
+SET_NAMES = {
+    "accelerometer": "acc",
+    "gyroscope": "gyr",
+    "magnetometer": "mag",
+    "linear acceleration": "lin",
+    "linear accelerometer": "lin",
+    "gravity": "gra",
+}
 #: the remote interface's input sources (``/config`` ``inputs[].source``) → kind
-SOURCES = {"accelerometer": "acc", "gyroscope": "gyr", "magnetic_field": "mag", "linear_acceleration": "lin",
-           "gravity": "gra"}
+SOURCES = {
+    "accelerometer": "acc",
+    "gyroscope": "gyr",
+    "magnetic_field": "mag",
+    "linear_acceleration": "lin",
+    "gravity": "gra",
+}
 UNIT_OF = {**SI_UNITS, "lin": "m/s^2", "gra": "m/s^2"}
-_UNIT_ALIASES = {"m/s^2": "m/s^2", "m/s²": "m/s^2", "m s^-2": "m/s^2", "rad/s": "rad/s", "µt": "uT", "μt": "uT",
-                 "ut": "uT"}
+_UNIT_ALIASES = {
+    "m/s^2": "m/s^2",
+    "m/s²": "m/s^2",
+    "m s^-2": "m/s^2",
+    "rad/s": "rad/s",
+    "µt": "uT",
+    "μt": "uT",
+    "ut": "uT",
+}
 _AXIS = re.compile(r"^(?P<name>.*?)\s*\b(?P<axis>[xyz])\s*\((?P<unit>[^)]*)\)$", re.IGNORECASE)
 _TIME = re.compile(r"^time\s*\(s\)$", re.IGNORECASE)
 MAX_TIME_S = 2**53 * 1e-6  # the latest time a recording holds exactly to the µs (285 years), s
-SIMPLE_EXPERIMENT_HINT = ("in phyphox tap '+' → 'New simple experiment', tick Accelerometer, Gyroscope and "
-                          "Magnetometer, record, then export 'CSV (Comma, decimal point)'")
+SIMPLE_EXPERIMENT_HINT = (
+    "in phyphox tap '+' → 'New simple experiment', tick Accelerometer, Gyroscope and "
+    "Magnetometer, record, then export 'CSV (Comma, decimal point)'"
+)
 EXPERIMENT_FOR = {"acc": "'Acceleration with g'", "gyr": "'Gyroscope'", "mag": "'Magnetometer'"}
 
 
@@ -94,6 +130,7 @@ class SensorTable:
 
 # --- reading one CSV --------------------------------------------------------------------------------
 
+
 def _cells(line: str, sep: str) -> list[str]:
     return [c.strip().strip('"').strip() for c in line.rstrip("\r\n").split(sep)]
 
@@ -110,11 +147,19 @@ def _classify_columns(where, labels, set_kind):
     """{"t": column, "x"/"y"/"z": column} and the kind ('acc', 'gyr', 'mag', 'lin', 'gra')."""
     time = [i for i, label in enumerate(labels) if _TIME.match(label)]
     if len(time) > 1:
-        raise RecordingError(where, 1, f"{len(time)} time columns ({', '.join(labels[i] for i in time)}): "
-                             f"one sensor per file, as phyphox exports it")
+        raise RecordingError(
+            where,
+            1,
+            f"{len(time)} time columns ({', '.join(labels[i] for i in time)}): "
+            f"one sensor per file, as phyphox exports it",
+        )
     if not time:
-        raise RecordingError(where, 1, f"no time column: the columns are {labels}. phyphox writes 'Time (s)' as the "
-                             f"first column of every sensor (was the file edited, or exported from one graph?)")
+        raise RecordingError(
+            where,
+            1,
+            f"no time column: the columns are {labels}. phyphox writes 'Time (s)' as the "
+            f"first column of every sensor (was the file edited, or exported from one graph?)",
+        )
     axes, names, units = {}, set(), set()
     for i, label in enumerate(labels):
         m = _AXIS.match(label)
@@ -122,26 +167,40 @@ def _classify_columns(where, labels, set_kind):
             continue
         unit = _UNIT_ALIASES.get(m["unit"].strip().lower())
         if unit is None:
-            raise RecordingError(where, 1, f"column {label!r}: unit {m['unit']!r} is not one phyphox exports "
-                                 f"(m/s^2, rad/s, µT)")
+            raise RecordingError(
+                where, 1, f"column {label!r}: unit {m['unit']!r} is not one phyphox exports (m/s^2, rad/s, µT)"
+            )
         if m["axis"].lower() in axes:
-            raise RecordingError(where, 1, f"two {m['axis'].lower()} columns ({labels[axes[m['axis'].lower()]]!r} and "
-                                 f"{label!r}): one sensor per file, as phyphox exports it")
+            raise RecordingError(
+                where,
+                1,
+                f"two {m['axis'].lower()} columns ({labels[axes[m['axis'].lower()]]!r} and "
+                f"{label!r}): one sensor per file, as phyphox exports it",
+            )
         axes[m["axis"].lower()] = i
         names.add(m["name"].strip().lower())
         units.add(unit)
     missing = [a for a in "xyz" if a not in axes]
     if missing:
-        raise RecordingError(where, 1, f"no {', '.join(missing)} column: the columns are {labels}; a 3-axis sensor "
-                             f"exports '… x (unit)', '… y (unit)', '… z (unit)'")
+        raise RecordingError(
+            where,
+            1,
+            f"no {', '.join(missing)} column: the columns are {labels}; a 3-axis sensor "
+            f"exports '… x (unit)', '… y (unit)', '… z (unit)'",
+        )
     if len(units) != 1:
         raise RecordingError(where, 1, f"the x, y, z columns have different units ({', '.join(sorted(units))})")
     unit = units.pop()
     kind = set_kind
     if kind is None:  # Raw Data.csv or a renamed file: the labels tell
         text = " ".join(names)
-        kind = ("lin" if "linear" in text else "gra" if "gravity" in text else
-                {"m/s^2": "acc", "rad/s": "gyr", "uT": "mag"}[unit])
+        kind = (
+            "lin"
+            if "linear" in text
+            else "gra"
+            if "gravity" in text
+            else {"m/s^2": "acc", "rad/s": "gyr", "uT": "mag"}[unit]
+        )
     if UNIT_OF[kind] != unit:
         raise RecordingError(where, 1, f"a {KINDS[kind]} file with columns in {unit}: {labels}")
     return {"t": time[0], **axes}, kind
@@ -189,8 +248,10 @@ def _check_range(where, table, linenos, lines, sep, labels, wanted, kind):
         why = f"{text} s is beyond the time a recording holds (|t| ≤ 2^53 µs = {MAX_TIME_S:.4g} s, exact to the µs)"
     else:
         unit = UNIT_OF[kind]
-        why = (f"{text} {unit} is beyond what a phone recording holds (|value| ≤ {limits[col]:,.4f} {unit}: "
-               f"2^31 − 1 counts of {lsb:g} {unit}, the serial protocol's int32)")
+        why = (
+            f"{text} {unit} is beyond what a phone recording holds (|value| ≤ {limits[col]:,.4f} {unit}: "
+            f"2^31 − 1 counts of {lsb:g} {unit}, the serial protocol's int32)"
+        )
     raise RecordingError(where, lineno, f"column {label!r}: {why}: a corrupted value?")
 
 
@@ -202,7 +263,7 @@ def read_sensor_csv(text: str, where, set_kind=None) -> SensorTable:
     text = text.removeprefix(BOM)
     lines = text.splitlines()
     if not lines or not lines[0].strip():
-        raise RecordingError(where, 1, "the file is empty: expected phyphox's column labels, e.g. \"Time (s)\"")
+        raise RecordingError(where, 1, 'the file is empty: expected phyphox\'s column labels, e.g. "Time (s)"')
     sep = _separator(lines[0])
     labels = _cells(lines[0], sep)
     columns, kind = _classify_columns(where, labels, set_kind)
@@ -213,8 +274,10 @@ def read_sensor_csv(text: str, where, set_kind=None) -> SensorTable:
     notes = ()
     if cut:
         lineno, _ = body.pop()
-        notes = (f"{where}, line {lineno}: the last line has no newline and is cut short (a field missing, or a "
-                 f"number not in phyphox's full format): dropped",)
+        notes = (
+            f"{where}, line {lineno}: the last line has no newline and is cut short (a field missing, or a "
+            f"number not in phyphox's full format): dropped",
+        )
     wanted = [columns[c] for c in ("t", "x", "y", "z")]
     table = np.empty((len(body), 4))
     for row, (lineno, line) in enumerate(body):
@@ -235,16 +298,26 @@ def read_sensor_csv(text: str, where, set_kind=None) -> SensorTable:
     back = np.flatnonzero(dt < 0)
     if back.size:
         k = back[0] + 1
-        raise RecordingError(where, int(linenos[k]), f"time goes back from {table[k - 1, 0]:.6f} s to {table[k, 0]:.6f} s "
-                             f"(two recordings in one file?)")
-    same = np.concatenate([[False], dt == 0])  # a repeated timestamp (to the µs) cannot be placed in time: keep the first
+        raise RecordingError(
+            where,
+            int(linenos[k]),
+            f"time goes back from {table[k - 1, 0]:.6f} s to {table[k, 0]:.6f} s (two recordings in one file?)",
+        )
+    same = np.concatenate(
+        [[False], dt == 0]
+    )  # a repeated timestamp (to the µs) cannot be placed in time: keep the first
     table = table[~same]
-    skipped = {"empty_rows": int(padded.sum()), "incomplete_rows": int(bad.sum()), "repeated_times": int(same.sum()),
-               "cut_last_row": int(cut)}
+    skipped = {
+        "empty_rows": int(padded.sum()),
+        "incomplete_rows": int(bad.sum()),
+        "repeated_times": int(same.sum()),
+        "cut_last_row": int(cut),
+    }
     return SensorTable(kind, table[:, 0].copy(), table[:, 1:].copy(), str(where), skipped, warnings=notes)
 
 
 # --- the export: folder, zip or single file ------------------------------------------------------------
+
 
 def _export_files(path: Path) -> tuple[dict[str, tuple[str, str]], str]:
     """{file name: (text, where)} of the top-level CSVs and meta/device.csv, and how to name the export."""
@@ -259,8 +332,12 @@ def _export_files(path: Path) -> tuple[dict[str, tuple[str, str]], str]:
     with open(path, "rb") as f:
         looks_zip = f.read(2) == b"PK"
     if looks_zip or path.suffix.lower() == ".zip":
-        raise RecordingError(path, None, "a damaged .zip file (cut short or corrupted: its table of contents is "
-                             "missing): copy or download the export from the phone again")
+        raise RecordingError(
+            path,
+            None,
+            "a damaged .zip file (cut short or corrupted: its table of contents is "
+            "missing): copy or download the export from the phone again",
+        )
     return {path.name: (_decode(path.read_bytes()), str(path))}, str(path)
 
 
@@ -273,22 +350,41 @@ def _zip_files(path: Path) -> dict[str, tuple[str, str]]:
             for info in z.infolist():
                 name = info.filename
                 parts = name.split("/")
-                if info.is_dir() or not name.lower().endswith(".csv") or "__MACOSX" in parts or parts[-1].startswith("._"):
+                if (
+                    info.is_dir()
+                    or not name.lower().endswith(".csv")
+                    or "__MACOSX" in parts
+                    or parts[-1].startswith("._")
+                ):
                     continue
                 folder = "/".join(parts[:-2] if len(parts) > 1 and parts[-2] == "meta" else parts[:-1])
                 roots.setdefault(folder, name)
                 if len(roots) > 1:
                     first, second = roots.values()
-                    raise RecordingError(path, None, f"two exports in one zip ({first} and {second}): load each "
-                                         f"phyphox export on its own (unzip it and pass the folder of one)")
+                    raise RecordingError(
+                        path,
+                        None,
+                        f"two exports in one zip ({first} and {second}): load each "
+                        f"phyphox export on its own (unzip it and pass the folder of one)",
+                    )
                 key = "meta/device.csv" if name.endswith("meta/device.csv") else parts[-1]
                 if len(parts) > 1 and parts[-2] == "meta" and key != "meta/device.csv":
                     continue
                 out[key] = (_decode(z.read(info)), f"{name} in {path}")
     except RecordingError:
         raise
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, NotImplementedError, ValueError, zlib.error) as e:
-        raise RecordingError(path, None, f"a damaged .zip file ({e}): copy or download the export from the phone again") from None
+    except (
+        zipfile.BadZipFile,
+        zipfile.LargeZipFile,
+        EOFError,
+        OSError,
+        NotImplementedError,
+        ValueError,
+        zlib.error,
+    ) as e:
+        raise RecordingError(
+            path, None, f"a damaged .zip file ({e}): copy or download the export from the phone again"
+        ) from None
     return out
 
 
@@ -334,18 +430,25 @@ def read_export(path) -> tuple[dict[str, SensorTable], dict, tuple | None, str]:
         table = read_sensor_csv(text, where, set_kind)
         table.file = file_name
         if table.kind in tables:
-            raise RecordingError(where, None, f"a second {KINDS[table.kind]} file besides {tables[table.kind].where}: "
-                                 f"keep one export per folder")
+            raise RecordingError(
+                where,
+                None,
+                f"a second {KINDS[table.kind]} file besides {tables[table.kind].where}: keep one export per folder",
+            )
         tables[table.kind] = table
     if not tables:
-        raise RecordingError(name, None, f"no sensor CSV found (files: {', '.join(files) or 'none'}); {SIMPLE_EXPERIMENT_HINT}")
+        raise RecordingError(
+            name, None, f"no sensor CSV found (files: {', '.join(files) or 'none'}); {SIMPLE_EXPERIMENT_HINT}"
+        )
     return tables, device, truth, name
 
 
 def _is_sensor_header(text: str) -> bool:
     header = text.lstrip("\ufeff").split("\n", 1)[0]
     labels = _cells(header, _separator(header))
-    return any(_TIME.match(label) for label in labels) and {m["axis"].lower() for m in map(_AXIS.match, labels) if m} == set("xyz")
+    return any(_TIME.match(label) for label in labels) and {
+        m["axis"].lower() for m in map(_AXIS.match, labels) if m
+    } == set("xyz")
 
 
 def _missing_message(tables, needed):
@@ -353,24 +456,28 @@ def _missing_message(tables, needed):
     msg = f"no {KINDS[needed]} in this phyphox export (found: {found})."
     if needed == "acc" and ("lin" in tables or "gra" in tables):
         other = "linear acceleration (gravity removed)" if "lin" in tables else "gravity alone"
-        msg += (f" It holds the {other}, but the filters need the accelerometer's specific force including gravity: "
-                f"record with phyphox's 'Acceleration with g' experiment, or tick 'Accelerometer' (not 'Linear "
-                f"Acceleration') in a simple experiment.")
+        msg += (
+            f" It holds the {other}, but the filters need the accelerometer's specific force including gravity: "
+            f"record with phyphox's 'Acceleration with g' experiment, or tick 'Accelerometer' (not 'Linear "
+            f"Acceleration') in a simple experiment."
+        )
     else:
-        msg += f" phyphox's single-sensor experiments ({EXPERIMENT_FOR[needed]}, …) export one sensor each; {SIMPLE_EXPERIMENT_HINT}."
+        msg += (
+            f" phyphox's single-sensor experiments ({EXPERIMENT_FOR[needed]}, …) export one sensor each; "
+            f"{SIMPLE_EXPERIMENT_HINT}."
+        )
     return msg
 
 
 # --- the Recording ----------------------------------------------------------------------------------------
 
+
 def _sensor_meta(kind, device):
     android = {"acc": "accelerometer", "gyr": "gyroscope", "mag": "magnetic_field"}[kind]
     chip = device.get(f"{android} Name") or None
     full_scale = None
-    try:
+    with contextlib.suppress(KeyError, ValueError):
         full_scale = float(device[f"{android} Range"])
-    except (KeyError, ValueError):
-        pass
     return phone_sensor_metadata(kind, chip, full_scale)
 
 
@@ -381,12 +488,16 @@ def _truth_euler(where, text, index, M):
     lines = text.removeprefix(BOM).splitlines()
     meta = parse_header(where, lines[0] if lines else "", TRUTH_KIND, needs_rate=False)
     if len(lines) > 2 and not text.endswith(("\n", "\r")):
-        raise RecordingError(where, len(lines), "the last line is cut short (no newline at the end): regenerate the export")
+        raise RecordingError(
+            where, len(lines), "the last line is cut short (no newline at the end): regenerate the export"
+        )
     table = np.empty((len(lines) - 2, 5)) if len(lines) > 2 else np.empty((0, 5))
     for row, line in enumerate(lines[2:]):
         cells = [c.strip() for c in line.split(",")]
         if len(cells) != 5:
-            raise RecordingError(where, row + 3, f"expected 5 fields (row,true_qw,true_qx,true_qy,true_qz), got {len(cells)}")
+            raise RecordingError(
+                where, row + 3, f"expected 5 fields (row,true_qw,true_qx,true_qy,true_qz), got {len(cells)}"
+            )
         try:
             table[row] = [parse_count(cells[0])] + [parse_number(c) for c in cells[1:]]
         except ValueError as e:
@@ -394,8 +505,12 @@ def _truth_euler(where, text, index, M):
         if abs(np.linalg.norm(table[row, 1:]) - 1.0) > 1e-6:
             raise RecordingError(where, row + 3, f"not a unit quaternion (norm {np.linalg.norm(table[row, 1:]):.9g})")
     if not np.array_equal(table[:, 0], np.arange(len(table))) or (len(index) and index[-1] >= len(table)):
-        raise RecordingError(where, None, f"its rows must number the gyro rows 0, 1, 2, … ({len(table)} rows; "
-                             f"the export's last used gyro row is {index[-1] if len(index) else None})")
+        raise RecordingError(
+            where,
+            None,
+            f"its rows must number the gyro rows 0, 1, 2, … ({len(table)} rows; "
+            f"the export's last used gyro row is {index[-1] if len(index) else None})",
+        )
     q = table[index, 1:]
     R_nb = quat_to_dcm(q) @ M.T
     return dcm_to_euler(R_nb), meta
@@ -425,14 +540,21 @@ def load_phyphox(path, mount=DEFAULT_PHONE_MOUNT, require=("acc", "gyr")) -> Rec
     if not present or ("gyr" not in present and "acc" not in present):
         raise RecordingError(name, None, _missing_message(tables, "acc"))
     base = "gyr" if "gyr" in present else "acc"
-    clock = OneClock(base=base, interpolated=tuple(k for k in ("acc",) if k in present and k != base),
-                           held=tuple(k for k in ("mag",) if k in present))
+    clock = OneClock(
+        base=base,
+        interpolated=tuple(k for k in ("acc",) if k in present and k != base),
+        held=tuple(k for k in ("mag",) if k in present),
+    )
     for k in present:
         clock.push(k, tables[k].t, tables[k].values)
     t, values, index = clock.pop(final=True)
     if len(t) < 2:
-        raise RecordingError(name, None, f"the {KINDS[base]} and the accelerometer do not overlap in time "
-                             f"({KINDS[base]} {tables[base].t[0]:.3f}–{tables[base].t[-1]:.3f} s)")
+        raise RecordingError(
+            name,
+            None,
+            f"the {KINDS[base]} and the accelerometer do not overlap in time "
+            f"({KINDS[base]} {tables[base].t[0]:.3f}–{tables[base].t[-1]:.3f} s)",
+        )
     mount_name, M = phone_mount(mount)
     data = {"t": t, "seq": SampleCounter(float(np.median(np.diff(t)))).count(t) % 65536}
     for k, prefix in (("acc", "a"), ("gyr", "g"), ("mag", "m")):
@@ -440,18 +562,29 @@ def load_phyphox(path, mount=DEFAULT_PHONE_MOUNT, require=("acc", "gyr")) -> Rec
             counts = phone_counts(k, values[k])
             for i, axis in enumerate("xyz"):
                 data[prefix + axis] = counts[:, i]
-    meta = {"board": PHONE_BOARD, "rate_hz": float((len(t) - 1) / (t[-1] - t[0])),
-            "source": "phone (phyphox export)",
-            "units": {"t": "s (the phone's experiment time)", "sensors": "counts (see sensors.*.sensitivity)"},
-            "sensors": {k: _sensor_meta(k, device) for k in present},
-            "mount": {k: M.tolist() for k in present}, "mount_name": mount_name,
-            "phone": {"export": Path(name).name, "time_base": KINDS[base],
-                      "files": {k: tables[k].file for k in present},
-                      "rates_hz": {k: float((len(tables[k].t) - 1) / np.ptp(tables[k].t)) if len(tables[k].t) > 1 else None
-                                   for k in present},
-                      "dt_jitter_s": float(np.std(np.diff(t))), "skipped": {k: tables[k].skipped for k in present},
-                      "merge": clock.stats, "device": device,
-                      "warnings": [w for k in present for w in tables[k].warnings]}}
+    meta = {
+        "board": PHONE_BOARD,
+        "rate_hz": float((len(t) - 1) / (t[-1] - t[0])),
+        "source": "phone (phyphox export)",
+        "units": {"t": "s (the phone's experiment time)", "sensors": "counts (see sensors.*.sensitivity)"},
+        "sensors": {k: _sensor_meta(k, device) for k in present},
+        "mount": {k: M.tolist() for k in present},
+        "mount_name": mount_name,
+        "phone": {
+            "export": Path(name).name,
+            "time_base": KINDS[base],
+            "files": {k: tables[k].file for k in present},
+            "rates_hz": {
+                k: float((len(tables[k].t) - 1) / np.ptp(tables[k].t)) if len(tables[k].t) > 1 else None
+                for k in present
+            },
+            "dt_jitter_s": float(np.std(np.diff(t))),
+            "skipped": {k: tables[k].skipped for k in present},
+            "merge": clock.stats,
+            "device": device,
+            "warnings": [w for k in present for w in tables[k].warnings],
+        },
+    }
     if truth_text is not None:
         text, where = truth_text
         euler, truth_meta = _truth_euler(where, text, index, M)

@@ -5,6 +5,7 @@
 :func:`kfkit.io.load_vehicle`), and :func:`sign_check` warns when the signs of δ, r and a_y
 disagree with ISO 8855 in the turns.
 """
+
 from __future__ import annotations
 
 import math
@@ -14,8 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..frames import G
-from ..io import Recording, RecordingError
-from ..io import VEHICLE_COLUMNS, VEHICLE_TRUTH, csv_rows, read_csv_rows, read_lines
+from ..io import VEHICLE_COLUMNS, VEHICLE_TRUTH, Recording, RecordingError, csv_rows, read_csv_rows, read_lines
 from ..vehicle import KMH
 
 #: unit name → factor to SI, per kind of quantity (the options of :func:`load_vehicle_csv`)
@@ -31,9 +31,15 @@ CSV_UNITS = {
 }
 
 
-
-def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter=",", comment="#",
-                     steer_ratio: float | None = None, negate=()) -> Recording:
+def load_vehicle_csv(
+    path,
+    columns: dict,
+    units: dict | None = None,
+    delimiter=",",
+    comment="#",
+    steer_ratio: float | None = None,
+    negate=(),
+) -> Recording:
     """Load your own drive from a CSV (a logger or spreadsheet export) by naming its columns.
 
     ``columns`` maps the kit's names to the file's header names: required ``t``, ``delta``
@@ -61,24 +67,33 @@ def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter="
     missing = [c for c in VEHICLE_COLUMNS if c not in columns]
     unknown = [c for c in dict.fromkeys([*columns, *units, *negate]) if c not in CSV_UNITS]
     if missing or unknown:
-        raise ValueError(f"load_vehicle_csv({path}): columns must name {', '.join(VEHICLE_COLUMNS)} "
-                         f"(optional {', '.join(VEHICLE_TRUTH)})" + (f"; missing {', '.join(missing)}" if missing else "") +
-                         (f"; unknown {', '.join(unknown)}" if unknown else ""))
+        raise ValueError(
+            f"load_vehicle_csv({path}): columns must name {', '.join(VEHICLE_COLUMNS)} "
+            f"(optional {', '.join(VEHICLE_TRUTH)})"
+            + (f"; missing {', '.join(missing)}" if missing else "")
+            + (f"; unknown {', '.join(unknown)}" if unknown else "")
+        )
     if steer_ratio is not None and not (math.isfinite(steer_ratio) and steer_ratio > 0):
-        raise ValueError(f"load_vehicle_csv({path}): steer_ratio must be a positive number (steering wheel ÷ road wheel), "
-                         f"got {steer_ratio!r}")
+        raise ValueError(
+            f"load_vehicle_csv({path}): steer_ratio must be a positive number (steering wheel ÷ road wheel), "
+            f"got {steer_ratio!r}"
+        )
     scale = {}
     for name in columns:
         unit = units.get(name, next(iter(CSV_UNITS[name])))
         if unit not in CSV_UNITS[name]:
-            raise ValueError(f"load_vehicle_csv({path}): unit {unit!r} for {name}; choose one of {', '.join(CSV_UNITS[name])}")
+            raise ValueError(
+                f"load_vehicle_csv({path}): unit {unit!r} for {name}; choose one of {', '.join(CSV_UNITS[name])}"
+            )
         scale[name] = CSV_UNITS[name][unit] * (-1.0 if name in negate else 1.0)
     if steer_ratio is not None:
         scale["delta"] /= steer_ratio
     lines, terminated = read_lines(path)
     notes = []
     if not terminated and lines and lines[-1].strip():
-        notes.append(f"{path}, line {len(lines)}: the last line has no newline, so a number in it may be cut short: dropped")
+        notes.append(
+            f"{path}, line {len(lines)}: the last line has no newline, so a number in it may be cut short: dropped"
+        )
         lines = lines[:-1]
     skip = 0
     while skip < len(lines) and (not lines[skip].strip() or lines[skip].lstrip().startswith(comment)):
@@ -88,23 +103,38 @@ def load_vehicle_csv(path, columns: dict, units: dict | None = None, delimiter="
     header = [c.strip() for c in next(csv_rows(path, [lines[skip]], skip + 1, delimiter))]
     while header and not header[-1]:  # "a;b;c;" from a spreadsheet: the rows may or may not end in ';' too
         header.pop()
-    raw, linenos = read_csv_rows(path, lines[skip + 1:], skip + 2, header, dict(columns), delimiter)
+    raw, linenos = read_csv_rows(path, lines[skip + 1 :], skip + 2, header, dict(columns), delimiter)
     if np.any(raw["vx"] * scale["vx"] < 0):
         k = int(np.argmax(raw["vx"] * scale["vx"] < 0))
-        raise RecordingError(path, int(linenos[k]), f"column {columns['vx']!r} (vx): {raw['vx'][k]:g} "
-                             f"{units.get('vx', 'm/s')} is negative (reversing): the bicycle model is for forward driving; "
-                             "cut the reversing part or check the column's sign")
+        raise RecordingError(
+            path,
+            int(linenos[k]),
+            f"column {columns['vx']!r} (vx): {raw['vx'][k]:g} "
+            f"{units.get('vx', 'm/s')} is negative (reversing): the bicycle model is for forward driving; "
+            "cut the reversing part or check the column's sign",
+        )
     t0 = float(raw["t"][0])
     raw["t"] = raw["t"] - t0  # before scaling: epoch timestamps in ms keep their resolution
     data = {k: raw[k] * scale[k] for k in VEHICLE_COLUMNS + VEHICLE_TRUTH if k in raw}
     t0 *= scale["t"]
     if len(data["t"]) < 2:
-        raise RecordingError(path, int(linenos[0]), "only one data row: a drive needs at least two (its rate is the rows' spacing)")
+        raise RecordingError(
+            path, int(linenos[0]), "only one data row: a drive needs at least two (its rate is the rows' spacing)"
+        )
     dt = np.diff(data["t"])
-    meta = {"rate_hz": float(1.0 / np.median(dt)), "source": str(path), "t0": t0,
-            "columns": dict(columns), "units": {k: units.get(k, next(iter(CSV_UNITS[k]))) for k in columns},
-            "negated": list(negate), "steer_ratio": steer_ratio, "warnings": notes}
-    for problem in notes + [f"{path}: {p}" for p in sign_check(data["delta"], data["yaw_rate"], data["ay"], data["vx"])]:
+    meta = {
+        "rate_hz": float(1.0 / np.median(dt)),
+        "source": str(path),
+        "t0": t0,
+        "columns": dict(columns),
+        "units": {k: units.get(k, next(iter(CSV_UNITS[k]))) for k in columns},
+        "negated": list(negate),
+        "steer_ratio": steer_ratio,
+        "warnings": notes,
+    }
+    for problem in notes + [
+        f"{path}: {p}" for p in sign_check(data["delta"], data["yaw_rate"], data["ay"], data["vx"])
+    ]:
         warnings.warn(problem, stacklevel=2)
     return Recording(meta, data, path)
 
@@ -129,7 +159,11 @@ def sign_check(delta, yaw_rate, ay, vx, min_ay=1.0, min_samples=20) -> list[str]
     elif not ay_vs_r:
         fix = "the yaw rate has the wrong sign: pass negate=('yaw_rate',)"
     else:
-        fix = ("steering disagrees with both: negate=('delta',) if your steering is positive to the right, or "
-               "negate=('yaw_rate', 'ay') if the logger's axes are y right, z down")
-    return [f"in the turns ({int(turning.sum())} samples) the signs of δ, r and a_y disagree with ISO 8855 "
-            f"(all three > 0 in a left turn; a_y ≈ V_x·r): {fix}"]
+        fix = (
+            "steering disagrees with both: negate=('delta',) if your steering is positive to the right, or "
+            "negate=('yaw_rate', 'ay') if the logger's axes are y right, z down"
+        )
+    return [
+        f"in the turns ({int(turning.sum())} samples) the signs of δ, r and a_y disagree with ISO 8855 "
+        f"(all three > 0 in a left turn; a_y ≈ V_x·r): {fix}"
+    ]

@@ -8,10 +8,20 @@
 
 ``from kfkit import widgets; widgets.tune(...)`` reaches all of them.
 """
+
 from .attitude_view import AttitudeView, LiveAttitude, attitude_view
 from .canvas import interactive_canvas
 from .capture_panel import CapturePanel, LiveSignals, capture_panel
 from .tuning import TuningPanel, tune
 
-__all__ = ["AttitudeView", "CapturePanel", "LiveAttitude", "LiveSignals", "TuningPanel", "attitude_view",
-           "capture_panel", "interactive_canvas", "tune"]
+__all__ = [
+    "AttitudeView",
+    "CapturePanel",
+    "LiveAttitude",
+    "LiveSignals",
+    "TuningPanel",
+    "attitude_view",
+    "capture_panel",
+    "interactive_canvas",
+    "tune",
+]

@@ -1,5 +1,6 @@
 """The 3-D attitude view (lab 04): a board drawn as a box in NED, replayed (``attitude_view``) or live
 from a capture (``AttitudeView.live`` + ``LiveAttitude``, a filter kept running over a growing recording)."""
+
 from __future__ import annotations
 
 import ipywidgets as W
@@ -46,11 +47,15 @@ class LiveAttitude:
             return None
         if isinstance(self.calibration, str):
             if self.calibration != "auto":
-                raise ValueError(f"LiveAttitude: calibration must be a Calibration, 'auto' or None, got {self.calibration!r}")
+                raise ValueError(
+                    f"LiveAttitude: calibration must be a Calibration, 'auto' or None, got {self.calibration!r}"
+                )
             return load_calibration(board=board) if board else None
         if board is not None and self.calibration.board != board:
-            raise ValueError(f"LiveAttitude: the calibration is for board {self.calibration.board!r} but the samples come "
-                             f"from {board!r}: use calibration='auto' or load_calibration(board={board!r})")
+            raise ValueError(
+                f"LiveAttitude: the calibration is for board {self.calibration.board!r} but the samples come "
+                f"from {board!r}: use calibration='auto' or load_calibration(board={board!r})"
+            )
         return self.calibration
 
     def update(self, rec):
@@ -102,13 +107,19 @@ class AttitudeView:
         self._faces = [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]]
         colours = ["#dddddd"] * 6
         colours[0] = "#999999"  # the top face (−z, "up" on the board) darker
-        self.box = Poly3DCollection(self._polys(np.eye(3)), facecolors=colours, edgecolors="#444444",
-                                    linewidths=0.6, alpha=0.55)
+        self.box = Poly3DCollection(
+            self._polys(np.eye(3)), facecolors=colours, edgecolors="#444444", linewidths=0.6, alpha=0.55
+        )
         ax.add_collection3d(self.box)
         self.ghost = None
         if self.truth is not None:
-            self.ghost = Poly3DCollection(self._polys(np.eye(3)), facecolors=(0, 0, 0, 0), edgecolors=COLORS["truth"],
-                                          linewidths=0.8, linestyles="--")
+            self.ghost = Poly3DCollection(
+                self._polys(np.eye(3)),
+                facecolors=(0, 0, 0, 0),
+                edgecolors=COLORS["truth"],
+                linewidths=0.8,
+                linestyles="--",
+            )
             ax.add_collection3d(self.ghost)
         self.axis_lines, self.axis_labels = [], []
         for name, kind in self.AXES:
@@ -132,14 +143,25 @@ class AttitudeView:
         if self.quat is not None:
             n = len(self.quat)
             if self.t is None or len(self.t) != n:
-                raise ValueError(f"AttitudeView: t must have one time per quaternion ({n}), got "
-                                 f"{None if self.t is None else len(self.t)}")
+                raise ValueError(
+                    f"AttitudeView: t must have one time per quaternion ({n}), got "
+                    f"{None if self.t is None else len(self.t)}"
+                )
             if self.truth is not None and self.truth.shape != self.quat.shape:
-                raise ValueError(f"AttitudeView: truth must have the shape of quat {self.quat.shape}, got {self.truth.shape}")
+                raise ValueError(
+                    f"AttitudeView: truth must have the shape of quat {self.quat.shape}, got {self.truth.shape}"
+                )
             rate = 1.0 / float(np.median(np.diff(self.t))) if n > 1 else 1.0
             stride = stride or max(1, int(round(rate / 20)))  # 20 frames per second of recording
-            self.slider = W.IntSlider(0, min=0, max=n - 1, step=stride, description="sample",
-                                      continuous_update=True, layout=W.Layout(width="420px"))
+            self.slider = W.IntSlider(
+                0,
+                min=0,
+                max=n - 1,
+                step=stride,
+                description="sample",
+                continuous_update=True,
+                layout=W.Layout(width="420px"),
+            )
             self.play = W.Play(value=0, min=0, max=n - 1, step=stride, interval=50, description="play")
             W.jslink((self.play, "value"), (self.slider, "value"))
             self.slider.observe(lambda change: self.show(change["new"]), names="value")
@@ -258,8 +280,10 @@ class _LiveSource:
         elif callable(source):
             self.function = source
         else:
-            raise TypeError(f"AttitudeView.live: source must be a capture panel, a Recorder or a callable returning a "
-                            f"Recording, got {type(source).__name__}")
+            raise TypeError(
+                f"AttitudeView.live: source must be a capture panel, a Recorder or a callable returning a "
+                f"Recording, got {type(source).__name__}"
+            )
         self.seconds, self._callback = seconds, None
 
     def snapshot(self):

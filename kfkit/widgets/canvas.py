@@ -3,6 +3,7 @@
 Each panel gets a canvas of its own, so the rest of a notebook keeps the inline backend (static
 PNGs that survive in saved outputs) while the panel's figure redraws in place without flicker.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -23,8 +24,9 @@ def interactive_canvas(fig):
         # ipympl's own bug (matplotlib/ipympl#611, #488): Toolbar.__init__ calls DOMWidget.__init__, whose
         # cooperative super() reaches NavigationToolbar2WebAgg.__init__ without its canvas; traitlets catches
         # the TypeError and warns. The toolbar is then built by its explicit second __init__ call and works.
-        warnings.filterwarnings("ignore", r"Passing unrecognized arguments to super\(Toolbar\)\.__init__\(\)",
-                                DeprecationWarning)
+        warnings.filterwarnings(
+            "ignore", r"Passing unrecognized arguments to super\(Toolbar\)\.__init__\(\)", DeprecationWarning
+        )
         FigureManager(canvas, 0)
     canvas.header_visible = False
     canvas.footer_visible = False

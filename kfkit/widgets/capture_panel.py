@@ -1,5 +1,6 @@
 """The capture panel (lab 00): record from a board, a phone or the virtual board, with a guided protocol,
 live signals, progress and statistics."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,15 +9,26 @@ import ipywidgets as W
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..capture import (PROTOCOLS, CaptureError, Recorder, dataset_name, find_boards, protocol_motion, protocol_steps,
-                       sphere_coverage)
-from ..capture.guided import protocol_capture_options, step_at
 from .. import sensors
+from ..capture import (
+    PROTOCOLS,
+    CaptureError,
+    Recorder,
+    dataset_name,
+    find_boards,
+    protocol_motion,
+    protocol_steps,
+    sphere_coverage,
+)
+from ..capture.guided import protocol_capture_options, step_at
 from ..plots import COLORS
 from .canvas import interactive_canvas
 
-
-_LIVE_SENSORS = (("acc", "accelerometer (m/s²)", 1.0), ("gyr", "gyro (°/s)", 180.0 / np.pi), ("mag", "magnetometer (µT)", 1.0))
+_LIVE_SENSORS = (
+    ("acc", "accelerometer (m/s²)", 1.0),
+    ("gyr", "gyro (°/s)", 180.0 / np.pi),
+    ("mag", "magnetometer (µT)", 1.0),
+)
 _AXIS_COLORS = (COLORS["accel"], COLORS["band"], COLORS["kf"])  # x, y, z (Okabe–Ito)
 _AXIS_STYLES = ("-", "--", "-.")
 
@@ -30,8 +42,10 @@ class LiveSignals:
         self.axes = fig.subplots(3, 1, sharex=True)
         self.lines = {}
         for ax, (sensor, label, _) in zip(self.axes, _LIVE_SENSORS):
-            self.lines[sensor] = [ax.plot([], [], color=c, ls=ls, lw=1.0, label=f"{axis}")[0]
-                                  for c, ls, axis in zip(_AXIS_COLORS, _AXIS_STYLES, "xyz")]
+            self.lines[sensor] = [
+                ax.plot([], [], color=c, ls=ls, lw=1.0, label=f"{axis}")[0]
+                for c, ls, axis in zip(_AXIS_COLORS, _AXIS_STYLES, "xyz")
+            ]
             ax.set_ylabel(label, fontsize=8)
             ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)  # beside the live data
         self.axes[-1].set_xlabel("time (s)")
@@ -72,25 +86,53 @@ class CapturePanel:
         self.recorder, self.recording, self.steps = None, None, None
         self.on_record = []  # callables run when a capture starts (AttitudeView.live follows the panel with one)
         self.boards = {b.port: b for b in find_boards()}
-        options = [(str(b), b.port) for b in self.boards.values()] + [("phone (phyphox remote access)", "phone"),
-                                                                       ("virtual board (simulated)", "virtual")]
+        options = [(str(b), b.port) for b in self.boards.values()] + [
+            ("phone (phyphox remote access)", "phone"),
+            ("virtual board (simulated)", "virtual"),
+        ]
         style, wide = {"description_width": "initial"}, W.Layout(width="330px")
-        self.port = W.Dropdown(options=options, value=next((b.port for b in self.boards.values() if b.known), "virtual"),
-                               description="port", style=style, layout=W.Layout(width="460px"))
+        self.port = W.Dropdown(
+            options=options,
+            value=next((b.port for b in self.boards.values() if b.known), "virtual"),
+            description="port",
+            style=style,
+            layout=W.Layout(width="460px"),
+        )
         self.board = W.Dropdown(options=["nucleo-iks02a1", "mpu6050"], description="board", style=style)
-        self.phone = W.Text(placeholder="192.168.0.42:8080", description="phone address", style=style)  # as phyphox shows it
-        self.baud = W.Dropdown(options=[115200, 230400, 460800, 921600, 9600], value=115200, description="baud", style=style)
-        self.protocol = W.Dropdown(options=[("free recording", None)] + [(p.title, name) for name, p in PROTOCOLS.items()],
-                                   description="protocol", style=style, layout=W.Layout(width="460px"))
-        self.seconds = W.BoundedFloatText(value=30.0, min=0.5, max=7200.0, step=1.0, description="duration (s)",
-                                          style=style, layout=W.Layout(width="200px"))
+        self.phone = W.Text(
+            placeholder="192.168.0.42:8080", description="phone address", style=style
+        )  # as phyphox shows it
+        self.baud = W.Dropdown(
+            options=[115200, 230400, 460800, 921600, 9600], value=115200, description="baud", style=style
+        )
+        self.protocol = W.Dropdown(
+            options=[("free recording", None)] + [(p.title, name) for name, p in PROTOCOLS.items()],
+            description="protocol",
+            style=style,
+            layout=W.Layout(width="460px"),
+        )
+        self.seconds = W.BoundedFloatText(
+            value=30.0,
+            min=0.5,
+            max=7200.0,
+            step=1.0,
+            description="duration (s)",
+            style=style,
+            layout=W.Layout(width="200px"),
+        )
         self.out = W.Text(value=str(self.out_dir / "capture.csv"), description="save as", style=style, layout=wide)
         self._auto_out = self.out.value  # the name the panel chose; one typed by the user is kept
         self.record_button = W.Button(description="record", icon="circle", button_style="danger")
         self.stop_button = W.Button(description="stop", icon="stop", disabled=True)
         self.progress = W.FloatProgress(value=0.0, min=0.0, max=1.0, description="0 %", style=style)
-        self.coverage = W.FloatProgress(value=0.0, min=0.0, max=1.0, description="sphere coverage 0 %",
-                                        style=style, layout=W.Layout(visibility="hidden"))
+        self.coverage = W.FloatProgress(
+            value=0.0,
+            min=0.0,
+            max=1.0,
+            description="sphere coverage 0 %",
+            style=style,
+            layout=W.Layout(visibility="hidden"),
+        )
         self.prompt, self.status = W.HTML(), W.HTML()
         self.record_button.on_click(lambda _: self.record())
         self.stop_button.on_click(lambda _: self.stop())
@@ -104,10 +146,17 @@ class CapturePanel:
         self.timer = self.canvas.new_timer(interval=interval_ms)
         self.timer.add_callback(self.refresh)
         self._port_changed()
-        self.widget = W.VBox([
-            W.HBox([self.port, self.board, self.phone]), W.HBox([self.protocol, self.baud]),
-            W.HBox([self.seconds, self.out, self.record_button, self.stop_button]),
-            W.HBox([self.progress, self.coverage]), self.prompt, self.canvas, self.status])
+        self.widget = W.VBox(
+            [
+                W.HBox([self.port, self.board, self.phone]),
+                W.HBox([self.protocol, self.baud]),
+                W.HBox([self.seconds, self.out, self.record_button, self.stop_button]),
+                W.HBox([self.progress, self.coverage]),
+                self.prompt,
+                self.canvas,
+                self.status,
+            ]
+        )
 
     # -- settings ---------------------------------------------------------------------------------
     def _port_changed(self):
@@ -148,8 +197,11 @@ class CapturePanel:
         motion = protocol_motion(name, self._rate(), quick=self.quick)
         self.seconds.value = round(len(motion.t) / motion.rate_hz, 2)
         first = protocol_steps(name, motion)[0][3]
-        self.prompt.value = ("the virtual board follows the prompts by itself" if self.port.value == "virtual"
-                             else f"before you press record: <b>{first}</b>")
+        self.prompt.value = (
+            "the virtual board follows the prompts by itself"
+            if self.port.value == "virtual"
+            else f"before you press record: <b>{first}</b>"
+        )
 
     def _name_file(self, stem):
         """Save as ``out_dir/stem.csv`` unless the user typed a name of their own."""
@@ -166,15 +218,21 @@ class CapturePanel:
             return
         options, name = {}, self.protocol.value
         self.steps = None
-        port = self.port.value if self.port.value != "phone" else f"phyphox://{self.phone.value.strip().removeprefix('http://')}"
+        port = (
+            self.port.value
+            if self.port.value != "phone"
+            else f"phyphox://{self.phone.value.strip().removeprefix('http://')}"
+        )
         try:
             if name is not None:
-                _, self.steps, options = protocol_capture_options(name, port, self.board.value,
-                                                                  quick=self.quick, fast=self.fast)
+                _, self.steps, options = protocol_capture_options(
+                    name, port, self.board.value, quick=self.quick, fast=self.fast
+                )
             elif self.port.value == "virtual":
                 options["virtual"] = {"board": self.board.value, "realtime": not self.fast}
-            self.recorder = Recorder(port, self.baud.value, self.out.value, seconds=self.seconds.value,
-                                     **options).start()
+            self.recorder = Recorder(
+                port, self.baud.value, self.out.value, seconds=self.seconds.value, **options
+            ).start()
         except (CaptureError, ValueError) as e:
             self.recorder = None
             self._show_error(e)
@@ -243,7 +301,9 @@ class CapturePanel:
                 if self.recorder is not None:  # (the error may have come from _finish itself)
                     self._finish(draw=False)  # (drawing may be what failed)
             finally:
-                self._show_error(f"the panel stopped on an unexpected error ({e!r}); what arrived is saved in {rec.out}")
+                self._show_error(
+                    f"the panel stopped on an unexpected error ({e!r}); what arrived is saved in {rec.out}"
+                )
         return None
 
     def _tick(self, rec):
@@ -253,8 +313,9 @@ class CapturePanel:
             start, end, _, prompt = step_at(self.steps, rec.elapsed)
             self.prompt.value = f"<b>{prompt}</b> &nbsp; ({max(end - rec.elapsed, 0.0):.0f} s)"
         s = rec.stats
-        self.status.value = (f"{rec.description}: {s.samples} samples, {s.bad_lines} bad lines, "
-                             f"{s.dropped} dropped, {s.resets} resets")
+        self.status.value = (
+            f"{rec.description}: {s.samples} samples, {s.bad_lines} bad lines, {s.dropped} dropped, {s.resets} resets"
+        )
         self._draw(rec)
         if self.protocol.value == "mag-rotations" and rec.columns and "mx" in rec.columns:
             snapshot = rec.recording()

@@ -7,6 +7,7 @@ panel's slider changes the figure's pixels and the printed RMSE. (A hand-out wit
 nothing a kernel does not: ``tests/test_notebooks.py`` runs every hand-out to its end with the same checks, and
 nbval runs every solution.)
 """
+
 from __future__ import annotations
 
 import io
@@ -47,12 +48,14 @@ def fresh_kernels(jupyter_lab):
 def open_notebook(page, lab, name: str):
     page.goto(lab.url(name))
     page.wait_for_selector(".jp-Notebook .jp-Cell", timeout=HANG_GUARD_MS)
-    page.wait_for_function("() => window.jupyterapp && window.jupyterapp.shell.currentWidget"
-                           " && window.jupyterapp.shell.currentWidget.sessionContext"
-                           " && window.jupyterapp.shell.currentWidget.sessionContext.session"
-                           " && window.jupyterapp.shell.currentWidget.sessionContext.session.kernel"
-                           " && window.jupyterapp.shell.currentWidget.sessionContext.session.kernel.status === 'idle'",
-                           timeout=HANG_GUARD_MS)
+    page.wait_for_function(
+        "() => window.jupyterapp && window.jupyterapp.shell.currentWidget"
+        " && window.jupyterapp.shell.currentWidget.sessionContext"
+        " && window.jupyterapp.shell.currentWidget.sessionContext.session"
+        " && window.jupyterapp.shell.currentWidget.sessionContext.session.kernel"
+        " && window.jupyterapp.shell.currentWidget.sessionContext.session.kernel.status === 'idle'",
+        timeout=HANG_GUARD_MS,
+    )
 
 
 def run_all(page):
@@ -89,7 +92,9 @@ def unexecuted_cells(page) -> int:
 
 def error_outputs(page) -> list[str]:
     return page.eval_on_selector_all(
-        ".jp-OutputArea-output[data-mime-type='application/vnd.jupyter.stderr']", "els => els.map(e => e.innerText.slice(0, 400))")
+        ".jp-OutputArea-output[data-mime-type='application/vnd.jupyter.stderr']",
+        "els => els.map(e => e.innerText.slice(0, 400))",
+    )
 
 
 def canvas_png(element) -> np.ndarray:
@@ -116,8 +121,12 @@ def run_and_check_rendering(page, jupyter_lab, name):
         canvas = figures.nth(i).locator("canvas").first
         canvas.scroll_into_view_if_needed()
         # a busy machine draws late, not never: wait for the drawing (a blank canvas forever is the failure)
-        wait_until(lambda: canvas_png(canvas).std() > 5, f"{name}: ipympl figure {i} to be drawn (it stays blank)",
-                   poll_s=500, sleep=page.wait_for_timeout)
+        wait_until(
+            lambda canvas=canvas: canvas_png(canvas).std() > 5,
+            f"{name}: ipympl figure {i} to be drawn (it stays blank)",
+            poll_s=500,
+            sleep=page.wait_for_timeout,
+        )
 
 
 @pytest.mark.parametrize("name", HANDOUTS)
@@ -153,18 +162,27 @@ def _check_slider_moves_figure(page, name):
         if value.inner_text() != before_value:
             break
     assert value.inner_text() != before_value, f"{name}: the slider's handle did not move under the arrow keys"
-    page.wait_for_function("([el, old]) => el.innerText !== old", arg=[readout.element_handle(), before_text],
-                           timeout=HANG_GUARD_MS)
+    page.wait_for_function(
+        "([el, old]) => el.innerText !== old", arg=[readout.element_handle(), before_text], timeout=HANG_GUARD_MS
+    )
     _wait_for_new_pixels(page, canvas, before_png, f"{name}: moving the slider did not change the figure")
     screenshot(page, name, "-panel-moved")
     assert readout.inner_text() != before_text
 
 
 BROKEN_NOTEBOOK = {
-    "cells": [{"cell_type": "code", "metadata": {}, "execution_count": None, "outputs": [],
-               "source": ["def kf_predict(x):\n", "    raise NotImplementedError()\n", "kf_predict(1.0)"]}],
+    "cells": [
+        {
+            "cell_type": "code",
+            "metadata": {},
+            "execution_count": None,
+            "outputs": [],
+            "source": ["def kf_predict(x):\n", "    raise NotImplementedError()\n", "kf_predict(1.0)"],
+        }
+    ],
     "metadata": {"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}},
-    "nbformat": 4, "nbformat_minor": 5,
+    "nbformat": 4,
+    "nbformat_minor": 5,
 }
 
 
@@ -178,14 +196,24 @@ def test_the_checks_see_errors_a_student_would_see(page, jupyter_lab):
 
 CAPTURE_SECONDS = 120.0  # long enough that a slow redraw never reaches the end
 CAPTURE_NOTEBOOK = {
-    "cells": [{"cell_type": "code", "metadata": {}, "execution_count": None, "outputs": [], "source": [
-        "from kfkit import widgets\n",
-        "panel = widgets.capture_panel(out_dir='browser_capture')\n",
-        "panel.port.value = 'virtual'\n",
-        f"panel.seconds.value = {CAPTURE_SECONDS}\n",
-        "panel"]}],
+    "cells": [
+        {
+            "cell_type": "code",
+            "metadata": {},
+            "execution_count": None,
+            "outputs": [],
+            "source": [
+                "from kfkit import widgets\n",
+                "panel = widgets.capture_panel(out_dir='browser_capture')\n",
+                "panel.port.value = 'virtual'\n",
+                f"panel.seconds.value = {CAPTURE_SECONDS}\n",
+                "panel",
+            ],
+        }
+    ],
     "metadata": {"kernelspec": {"name": "python3", "display_name": "Python 3", "language": "python"}},
-    "nbformat": 4, "nbformat_minor": 5,
+    "nbformat": 4,
+    "nbformat_minor": 5,
 }
 
 
@@ -198,6 +226,7 @@ def _progress_and_samples(panel) -> tuple[int, int]:
 
 def _wait_for_new_pixels(page, canvas, before, message):
     """The canvas once it differs from ``before`` (> 0.1 % of its pixels): a busy machine redraws late, not never."""
+
     def new_pixels():
         now = canvas_png(canvas)
         return now if now.shape == before.shape and np.mean(np.abs(now - before) > 10) > 0.001 else None
@@ -219,15 +248,22 @@ def test_capture_panel_records_from_the_virtual_board(page, jupyter_lab):
     idle = canvas_png(canvas)
 
     panel.locator("button", has_text="record").click()
-    page.wait_for_function("el => /recording from|samples/.test(el.innerText)", arg=panel.element_handle(),
-                           timeout=HANG_GUARD_MS)
+    page.wait_for_function(
+        "el => /recording from|samples/.test(el.innerText)", arg=panel.element_handle(), timeout=HANG_GUARD_MS
+    )
     first = _wait_for_new_pixels(page, canvas, idle, "the live plot to draw the incoming samples")
     _wait_for_new_pixels(page, canvas, first, "the live plot to move on while recording (it froze)")
     # progress is judged by the board's samples, not by a clock: each reading's percentage must be what its own
     # sample count implies (checked below against the saved file's rate), and both must advance
     readings = [_progress_and_samples(panel)]
-    readings.append(wait_until(lambda: now if (now := _progress_and_samples(panel))[0] > readings[0][0] else None,
-                               "the progress bar to advance", poll_s=500, sleep=page.wait_for_timeout))
+    readings.append(
+        wait_until(
+            lambda: now if (now := _progress_and_samples(panel))[0] > readings[0][0] else None,
+            "the progress bar to advance",
+            poll_s=500,
+            sleep=page.wait_for_timeout,
+        )
+    )
     screenshot(page, "capture_panel", "-recording")
     panel.locator("button", has_text="stop").click()
     page.wait_for_function("el => el.innerText.includes('saved')", arg=panel.element_handle(), timeout=HANG_GUARD_MS)
@@ -251,10 +287,14 @@ def test_a_folded_explanation_opens_on_a_click(page, jupyter_lab):
 
     md = nbformat.v4.new_markdown_cell
     solution = nbformat.v4.new_notebook(metadata=BROKEN_NOTEBOOK["metadata"])
-    solution.cells = [md("**Predict before you run.** Does the error fall?", metadata={"tags": ["predict"]}),
-                      nbformat.v4.new_code_cell("print(0.33)"),
-                      md("It falls: see <!-- run: the RMSE printed above -->0.33°<!-- /run -->. EXPLAINED-HERE",
-                         metadata={"tags": ["reveal"]})]
+    solution.cells = [
+        md("**Predict before you run.** Does the error fall?", metadata={"tags": ["predict"]}),
+        nbformat.v4.new_code_cell("print(0.33)"),
+        md(
+            "It falls: see <!-- run: the RMSE printed above -->0.33°<!-- /run -->. EXPLAINED-HERE",
+            metadata={"tags": ["reveal"]},
+        ),
+    ]
     nbformat.write(strip_solutions(solution), str(jupyter_lab.root / "folded.ipynb"))
     open_notebook(page, jupyter_lab, "folded.ipynb")
     assert page.locator(".jp-RenderedMarkdown", has_text="My prediction:").count() == 1
