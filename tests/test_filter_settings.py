@@ -149,6 +149,7 @@ GLOSSARY = {  # field name: (the unit its docstring row names, what it means) �
     "rest_accel": ("m/s²", "rest detection's threshold on the accelerometer"),
     "rest_time": ("s", "time within the thresholds before the IMU counts as at rest"),
     "rest_tau": ("s", "time constant of the rest detector's low-passes"),
+    "rest_margin": ("s", "age of the gyro sample a zero-rate update uses"),
     "accel_gate": ("m/s²", "threshold on |‖f‖ − g| above which the accelerometer is gated"),
     "accel_gating": (None, "what a gated accelerometer sample does: skip, inflate, none"),
     "accel_inflation": (None, "variance multiplier of a gated accelerometer sample"),

@@ -7,7 +7,8 @@ the magnetometer gate is :class:`kfkit.filters.mag_gate.MagGate`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -59,6 +60,9 @@ class MultiplicativeEKFSettings:
                      then the gyro reads its bias (zero-rate update); once measured at rest, the bias
                      is frozen in motion                                                                 1.5
     rest_tau         time constant of the rest detector's low-passes, s                                  0.5
+    rest_margin      age of the gyro sample a zero-rate update uses, s: a motion that starts slowly
+                     passes the rest tests for its first few tenths of a second, so only a sample
+                     followed by rest_margin s more of rest is taken to read the bias alone               0.5
     mag_norm_gate    threshold on the field norm, a fraction of the reference's: a sample is disturbed
                      when |‖m‖ − ‖m_ref‖| > mag_norm_gate·‖m_ref‖; None: no norm gate                   0.1
     mag_dip_gate     threshold on the dip angle (seen with the current attitude), rad; None: no dip gate  10°
@@ -92,6 +96,7 @@ class MultiplicativeEKFSettings:
     rest_accel: float = 0.5
     rest_time: float = 1.5
     rest_tau: float = 0.5
+    rest_margin: float = 0.5
     mag_norm_gate: float | None = 0.1
     mag_dip_gate: float | None = math.radians(10.0)
     mag_recovery: float = 1.0
@@ -118,7 +123,7 @@ class MultiplicativeEKFSettings:
                 "mag_nis_gate",
                 "mag_ref_tau",
             ),
-            non_negative=("gyro_noise", "gyro_bias_rw", "rest_time"),
+            non_negative=("gyro_noise", "gyro_bias_rw", "rest_time", "rest_margin"),
             optional=(
                 "gyro_noise",
                 "accel_noise",
@@ -148,6 +153,7 @@ class MultiplicativeEKFCoefficients:
                since the previous one
     lpf        one-pole low-pass step 1 − exp(−dt/accel_tau) of the accelerometer (1: raw)
     rest_lpf   the same for the rest detector's low-passes
+    rest_delay the zero-rate update's samples in hand, rest_margin / dt + 1 (the oldest is the one it uses)
     """
 
     field_n: np.ndarray
@@ -160,6 +166,7 @@ class MultiplicativeEKFCoefficients:
     r_psi_dt: float | None
     lpf: float
     rest_lpf: float
+    rest_delay: int
 
 
 @dataclass
@@ -175,6 +182,7 @@ class MultiplicativeEKFState:
     a_lin2     low-passed ‖f_I − f̄_I‖², the linear acceleration the low-pass removes, m²/s⁴
     rest_lp    the rest detector's low-passed gyro (rad/s) and specific force (m/s²), 6 values
     rest_t     how long the rest detector's tests have passed, s
+    rest_samples the gyro samples of the last rest_margin s, oldest first (the zero-rate update's)
     rested     whether the IMU has been at rest (its bias measured) since the start
     t_mag      time of the previous magnetometer sample, s (None before the first)
     mag_gate   the magnetometer gate and its clocks (None before the first sample)
@@ -189,6 +197,7 @@ class MultiplicativeEKFState:
     a_lin2: float = 0.0
     rest_lp: tuple | None = None
     rest_t: float = 0.0
+    rest_samples: deque = field(default_factory=deque)
     rested: bool = False
     t_mag: float | None = None
     mag_gate: MagGate | None = None
@@ -233,7 +242,8 @@ class MultiplicativeEKF:
               exponential of the rotation vector), F = [[I, −R dt], [0, I]] (R = R_nb(q): a bias
               error turns the body, so the NED error, by −R δb dt), Q = diag(σ_g² dt² I, σ_bw² dt I)
     rest      the gyro and the accelerometer steady for rest_time s: the IMU is still and the gyro
-              reads its bias, y = ω − b, H = [0 I], R = σ_g² I (a zero-rate update)
+              reads its bias, y = ω(t − rest_margin) − b, H = [0 I], R = σ_g² I (a zero-rate update on a
+              sample known to be followed by rest)
     accel     f_n = g·R f̄ / ‖f̄‖, the low-passed specific force turned into NED, is [0, 0, −g] for the
               true attitude, and a tilt error δθ moves it to g·[δθ_E, −δθ_N, ·]:
               y = [f_n,N, f_n,E],  rows of H  g·e_E and −g·e_N (blocks: δθ_N, δθ_E, δθ_D, δb);
@@ -349,6 +359,7 @@ class MultiplicativeEKF:
             r_psi_dt=st.mag_density**2 / b_h2 if st.mag_noise is None else None,
             lpf=1.0 - math.exp(-dt / st.accel_tau) if st.accel_tau else 1.0,
             rest_lpf=1.0 - math.exp(-dt / st.rest_tau),
+            rest_delay=round(st.rest_margin / dt) + 1,
         )
         if s.q is None:
             first = first_mag_row(mag)
@@ -393,7 +404,7 @@ class MultiplicativeEKF:
         rest = self._at_rest(w, f)
         if rest:
             self.state.rested = True
-            self._zero_rate_update(w, dx, y, s)
+            self._zero_rate_update(self.state.rest_samples[0], dx, y, s)
         frozen = BIAS if self.freeze_bias_in_motion and self.state.rested and not rest else None
         pushed = self._accel_update(self._stabilised_accel(f), dx, frozen, y, s)
         used = rejected = False
@@ -424,7 +435,8 @@ class MultiplicativeEKF:
     def _at_rest(self, w, f):
         """VQF's rest detector: gyro and accelerometer low-passed (time constant rest_tau); at rest once, for
         rest_time s, each sample has stayed within rest_gyro / rest_accel of its low-pass and the gyro's
-        low-pass within rest_gyro of zero on every axis."""
+        low-pass within rest_gyro of zero on every axis. Keeps the samples of the last rest_margin s (since the
+        tests last failed) in ``state.rest_samples``; the oldest is the zero-rate update's."""
         th = self.settings.rest_gyro
         if th is None:
             return False
@@ -441,12 +453,17 @@ class MultiplicativeEKF:
         accel_dev = (f[0] - fx) ** 2 + (f[1] - fy) ** 2 + (f[2] - fz) ** 2
         if gyro_dev > th * th or accel_dev > self.settings.rest_accel**2 or max(abs(wx), abs(wy), abs(wz)) > th:
             s.rest_t = 0.0
+            s.rest_samples.clear()  # none of them is followed by rest
             return False
         s.rest_t += self.dt
+        s.rest_samples.append(w)
+        if len(s.rest_samples) > self.coefficients.rest_delay:
+            s.rest_samples.popleft()
         return s.rest_t >= self.settings.rest_time
 
     def _zero_rate_update(self, w, dx, y, s_out):
-        """At rest the gyro reads its bias: y_i = ω_i − b_i, H = e_(3+i), R = σ_g²; three scalar updates."""
+        """At rest the gyro reads its bias: y_i = ω_i − b_i, H = e_(3+i), R = σ_g²; three scalar updates. ω is the
+        sample of rest_margin s ago (the bias barely changes in that time)."""
         s, r = self.state, self.coefficients.r_gyro
         for i in range(3):
             y[3 + i] = w[i] - s.bias[i]
