@@ -162,16 +162,26 @@ UNDISTURBED_TRIALS = [p for p in REAL_TRIALS if "_undisturbed_" in Path(p).name]
 @pytest.mark.skipif(not UNDISTURBED_TRIALS, reason=f"no undisturbed BROAD trials in {BROAD_DIR}")
 @pytest.mark.parametrize("path", UNDISTURBED_TRIALS, ids=[Path(p).stem for p in UNDISTURBED_TRIALS])
 def test_mekf_on_a_whole_real_trial(path):
-    # The benchmark's figure, kept from regressing: the MEKF with its defaults over the whole trial,
-    # BROAD's total error over the movement phases against the optical truth (ahrs's EKF: 1.6–16.8°,
-    # VQF: 1.4–4.0° on the four development trials; benchmarks/bench_attitude.py). Undisturbed trials
-    # only: with a magnet near or on the IMU (trials 28, 34) the field itself is wrong for part of the
-    # trial, and what a filter should achieve there has its own bar (the magnetic-disturbance work).
+    # Issue 29's goal, kept from regressing: the MEKF with its defaults over the whole trial at the trial's own
+    # rate, BROAD's total error over the movement phases against the optical truth, at most VQF's (Laidig & Seel
+    # 2023, the best published filter on BROAD; causal, its defaults) on the same data. Undisturbed trials only:
+    # with a magnet near or on the IMU (trials 28, 34) the bench (benchmarks/bench_attitude.py) holds the figure.
+    # On trial 06 both follow a field that in motion is 4° off the rest's north and 7 % stronger (the bench's
+    # "field in the truth's frame" table): 3.8° and 4.0°.
+    vqf = pytest.importorskip("vqf")
     rec = load_broad(path)
     q = np.column_stack([rec[c] for c in ("true_qw", "true_qx", "true_qy", "true_qz")])
-    res = estimate_attitude(rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz, method="mekf")
-    total, _, _ = attitude_errors(res.quat, q)
-    assert np.degrees(np.sqrt(np.nanmean(total[rec["movement"]] ** 2))) < 2.0
+    gyr, acc, mag = rec.body("gyr"), rec.body("acc"), rec.body("mag")
+    res = estimate_attitude(gyr, acc, mag, rec.rate_hz, method="mekf")
+    held = mag.copy()  # VQF wants a magnetometer value every sample: the last one held (kfkit: NaN = none)
+    for k in range(1, len(held)):
+        if np.isnan(held[k, 0]):
+            held[k] = held[k - 1]
+    c = np.ascontiguousarray
+    peer = enu_to_ned_quat(vqf.VQF(1.0 / rec.rate_hz).updateBatch(c(gyr), c(acc), c(held))["quat9D"])
+    moving = rec["movement"]
+    ours, theirs = (np.degrees(np.sqrt(np.nanmean(attitude_errors(e, q)[0][moving] ** 2))) for e in (res.quat, peer))
+    assert ours < 4.5 and ours <= theirs, (ours, theirs)
 
 
 def minimal_trial(**changes):

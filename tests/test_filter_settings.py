@@ -13,11 +13,9 @@ from test_filter_contract import CASES
 
 from kfkit.filters.contract import check_settings
 from kfkit.filters.mag_gate import MagGate
-from kfkit.filters.mekf import MekfSettings
+from kfkit.filters.mekf import MultiplicativeEKFSettings
 from kfkit.filters.registry import FILTERS
 from kfkit.frames import MAG_FIELD_LONDON
-
-MEKF_PENDING = pytest.mark.xfail(strict=True, reason="MEKF conforms on merge of branch mekf")
 
 
 def settings_classes():
@@ -28,11 +26,8 @@ def settings_classes():
 SETTINGS = settings_classes()
 
 
-def classes(mekf_pending=False):
-    return [
-        pytest.param(c, id=c.__name__, marks=MEKF_PENDING if c is MekfSettings and mekf_pending else ())
-        for c in SETTINGS
-    ]
+def classes():
+    return [pytest.param(c, id=c.__name__) for c in SETTINGS]
 
 
 # --- the docstring's defaults table ----------------------------------------------------------------------------
@@ -128,9 +123,8 @@ def mismatches(cls):
     return problems
 
 
-@pytest.mark.parametrize("cls", classes(mekf_pending=True))
+@pytest.mark.parametrize("cls", classes())
 def test_each_docstring_table_states_the_dataclass_defaults(cls):
-    """(MekfSettings: its mag_dip_gate row has one space before its default, "None = off 10°".)"""
     assert mismatches(cls) == []
 
 
@@ -148,6 +142,14 @@ GLOSSARY = {  # field name: (the unit its docstring row names, what it means) �
     "gyro_bias_rw": ("rad/s/√s", "gyro-bias random-walk density (σ)"),
     "accel_noise": ("m/s²", "σ of an accelerometer sample"),
     "mag_noise": ("µT", "σ of a magnetometer sample"),
+    "accel_density": ("m/s²/√Hz", "accelerometer white-noise density"),
+    "mag_density": ("µT/√Hz", "magnetometer white-noise density"),
+    "accel_dynamic": ("m/s²", "linear acceleration at which the accelerometer's variance doubles"),
+    "rest_gyro": ("rad/s", "rest detection's threshold on the gyro"),
+    "rest_accel": ("m/s²", "rest detection's threshold on the accelerometer"),
+    "rest_time": ("s", "time within the thresholds before the IMU counts as at rest"),
+    "rest_tau": ("s", "time constant of the rest detector's low-passes"),
+    "rest_margin": ("s", "age of the gyro sample a zero-rate update uses"),
     "accel_gate": ("m/s²", "threshold on |‖f‖ − g| above which the accelerometer is gated"),
     "accel_gating": (None, "what a gated accelerometer sample does: skip, inflate, none"),
     "accel_inflation": (None, "variance multiplier of a gated accelerometer sample"),
@@ -166,7 +168,7 @@ GLOSSARY = {  # field name: (the unit its docstring row names, what it means) �
 }
 
 
-@pytest.mark.parametrize("cls", classes(mekf_pending=True))
+@pytest.mark.parametrize("cls", classes())
 def test_each_field_name_has_one_meaning_across_the_filters(cls):
     """Every field is in the glossary and its docstring row names the glossary's unit, so one word cannot carry two
     units (the tilt filter's q_bias in (rad/s)², the sideslip filter's in (m/s²)²/s); a *_gate is a threshold
@@ -236,9 +238,8 @@ def test_check_settings_wants_every_field_in_one_group():
         Forgotten()
 
 
-@MEKF_PENDING
 def test_mag_gate_takes_the_mekf_settings():
-    """MagGate(field_n, settings) reads its gates and times from MekfSettings (not seven positional copies)."""
-    settings = MekfSettings(mag_norm_gate=0.2, mag_recovery=2.0)
+    """MagGate(field_n, settings) reads its gates and times from MultiplicativeEKFSettings (not positional copies)."""
+    settings = MultiplicativeEKFSettings(mag_norm_gate=0.2, mag_recovery=2.0)
     gate = MagGate(np.array(MAG_FIELD_LONDON), settings)
     assert (gate.norm_gate, gate.recovery) == (0.2, 2.0)

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import sensors
-from ..filters.linear import require_positive
+from ..filters.contract import require_positive
 from ..io import INT_COLUMNS, Recording, format_header, format_row, save_recording
 from .errors import BoardDisconnectedError, CaptureError, NoDataError, ProtocolVersionError, WrongBaudError
 from .ports import NAMED_PORTS, SKETCHES, open_port, resolve_auto

@@ -25,7 +25,7 @@ The contract (x-io Fusion's and VQF's shape: settings with units and defaults, t
     attitude_run    AttitudeRun (quat, euler, bias from x; P_attitude), check_inputs, tilt_heading, learn_field
     euler_ekf       EulerAttitudeEKF + EulerAttitudeEKFSettings and the textbook step functions (run = a loop over step)
     euler_ekf_fast  FastEulerAttitudeEKF: the same filter unrolled on floats, held equal by a test
-    mekf            MultiplicativeEKF + MekfSettings, its MekfState and named steps
+    mekf            MultiplicativeEKF + MultiplicativeEKFSettings, its MultiplicativeEKFState and named steps
     mag_gate        MagGate, the MEKF's magnetic-disturbance gate
 
 The names in ``__all__`` below are importable from ``kfkit.filters``; the helpers (``tilt_heading``,
@@ -46,7 +46,7 @@ from .euler_ekf import (
 )
 from .euler_ekf_fast import FastEulerAttitudeEKF
 from .linear import KalmanFilter
-from .mekf import MekfSettings, MultiplicativeEKF
+from .mekf import MultiplicativeEKF, MultiplicativeEKFSettings
 from .registry import FILTERS
 from .roll import RollKF, RollKFSettings, integrate_rate, roll_kf, roll_kf_predict, roll_kf_steady_state, roll_kf_update
 from .sideslip import (
@@ -88,7 +88,7 @@ __all__ = [
     "euler_process_noise",
     "FastEulerAttitudeEKF",
     "KalmanFilter",
-    "MekfSettings",
+    "MultiplicativeEKFSettings",
     "MultiplicativeEKF",
     "FILTERS",
     "RollKF",

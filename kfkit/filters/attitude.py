@@ -3,7 +3,7 @@ magnetometer) with either filter, each in its own module:
 
     euler_ekf       the lab's Euler-angle EKF: textbook step functions, EulerAttitudeEKF (run = a loop over step)
     euler_ekf_fast  FastEulerAttitudeEKF, the same filter unrolled on floats (what this front door runs)
-    mekf            MultiplicativeEKF + MekfSettings: quaternion error-state EKF with gyro bias
+    mekf            MultiplicativeEKF + MultiplicativeEKFSettings: quaternion error-state EKF with gyro bias
     mag_gate        MagGate, the MEKF's magnetic-disturbance gate
     attitude_run    AttitudeRun (the FilterRun both return), check_inputs, tilt_heading, learn_field
 
@@ -31,7 +31,7 @@ def estimate_attitude(gyr, acc, mag, rate_hz, method="euler-ekf", **tuning) -> A
     so north is magnetic north. Without a magnetometer, yaw starts at 0 and follows the gyro.
 
     method "euler-ekf"  :class:`FastEulerAttitudeEKF` (tuning: an EulerAttitudeEKFSettings field, field_n, x0, P0)
-           "mekf"       :class:`MultiplicativeEKF` (tuning: a MekfSettings field, field_n, q0, bias0, P0)
+           "mekf"       :class:`MultiplicativeEKF` (tuning: a MultiplicativeEKFSettings field, field_n, x0, P0)
     """
     gyr, acc, mag = check_inputs(gyr, acc, mag)
     if not (isinstance(rate_hz, (int, float, np.floating, np.integer)) and rate_hz > 0):

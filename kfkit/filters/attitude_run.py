@@ -21,7 +21,6 @@ from ..frames import (
     declination,
     euler_to_dcm,
     euler_to_quat,
-    quat_to_dcm,
     quat_to_euler,
     tilt_compensated_heading,
 )
@@ -35,17 +34,19 @@ class AttitudeRun(FilterRun):
     x, x_prior  (N, 3) [φ, θ, ψ] (rad) for ``euler-ekf``; (N, 7) [q (w-x-y-z, body → NED, w ≥ 0), gyro
                 bias (rad/s)] for ``mekf``
     P, P_prior  the filter's error covariance, as its ``step`` gives it: (N, 3, 3) of [φ, θ, ψ], rad², for
-                ``euler-ekf``; (N, 6, 6) of the error state [δθ (body frame, rad), δb (rad/s)] for ``mekf``
-                (the MEKF still returns the NED attitude block of it, (N, 3, 3), until branch mekf merges).
-                :attr:`P_attitude` is the 3×3 attitude covariance of both, for NEES and σ plots
-    y         (N, 6) innovations z − h(x⁻): accel (m/s²) in 0–2; for euler-ekf mag (µT) in 3–5,
-              for mekf the heading innovation (rad) in 3 and NaN in 4–5; NaN where not used
+                ``euler-ekf``; (N, 6, 6) of the error state [δθ (small rotation in NED, rad), δb (rad/s)] for
+                ``mekf``. :attr:`P_attitude` is the 3×3 attitude block of both, for NEES and σ plots
+    y         (N, 6) innovations z − h(x⁻), NaN where not used: for euler-ekf accel (m/s²) in 0–2 and mag
+              (µT) in 3–5; for mekf the accelerometer's north and east (m/s²) in 0–1, the heading (rad) in 2
+              and the zero-rate update's gyro x, y, z (rad/s) in 3–5
     S         (N, 6, 6) their covariances (NaN where not used)
     nis       (N,) normalised innovation squared yᵀ S⁻¹ y over the rows used
-    accel_gated (N,) True where the accelerometer rows were inflated (|‖f‖ − g| > accel_gate)
+    accel_gated (N,) True where the accelerometer rows were inflated: |‖f‖ − g| > accel_gate (euler-ekf), or
+              linear acceleration that at least doubled the accelerometer's variance (mekf)
     mag_used  (N,) True where a magnetometer update was made
     mag_gated (N,) True where a magnetometer sample was not used: a disturbed field or a heading
               outlier (mekf; all False for euler-ekf)
+    at_rest   (N,) True where the rest detector found the IMU still (mekf: zero-rate updates); None for euler-ekf
     method    "euler-ekf" or "mekf"
     """
 
@@ -53,6 +54,7 @@ class AttitudeRun(FilterRun):
     accel_gated: np.ndarray = None
     mag_used: np.ndarray = None
     mag_gated: np.ndarray = None
+    at_rest: np.ndarray = None
     method: str = "euler-ekf"
 
     @cached_property
@@ -73,16 +75,14 @@ class AttitudeRun(FilterRun):
     @cached_property
     def P_attitude(self) -> np.ndarray:
         """(N, 3, 3) covariance of the attitude error, rad²: of [φ, θ, ψ] for ``euler-ekf``; of the small rotation
-        error in the NED frame for ``mekf``, R(q) P_δθ R(q)ᵀ from the body-frame block of its 6×6 P."""
-        if self.P.shape[-1] == 3:
-            return self.P
-        R = quat_to_dcm(self.quat)
-        return R @ self.P[:, :3, :3] @ np.swapaxes(R, 1, 2)
+        error δθ in the NED frame (R_true = Exp(δθ) R_est; δθ_D is the heading error) for ``mekf``, the attitude
+        block of its 6×6 P."""
+        return self.P[:, :3, :3]
 
     @property
     def dof(self) -> np.ndarray:
         """Innovation entries used per sample (the χ² degrees of freedom of ``nis``):
-        3 or 6 for euler-ekf, 3 or 4 for mekf (its magnetometer gives one heading innovation)."""
+        3 or 6 for euler-ekf; for mekf 2 (accelerometer), + 1 (heading), + 3 (zero-rate update at rest)."""
         return np.sum(~np.isnan(self.y), axis=1)
 
 

@@ -39,7 +39,7 @@ class Step:
     P: Any
     y: Any
     S: Any
-    x_prior: Any = None  # None only from a filter that does not keep the contract yet (the MEKF before branch mekf)
+    x_prior: Any = None
     P_prior: Any = None
 
     def __iter__(self):
@@ -59,9 +59,7 @@ class FilterRun:
     P: np.ndarray
     y: np.ndarray
     S: np.ndarray
-    x_prior: np.ndarray = (
-        None  # None only from a filter that does not keep the contract yet (the MEKF before branch mekf)
-    )
+    x_prior: np.ndarray = None
     P_prior: np.ndarray = None
 
 
@@ -203,8 +201,8 @@ def check_settings(settings, positive=(), non_negative=(), optional=(), flags=()
 
 def require_positive(owner, zero_ok=(), none_ok=(), **values):
     """Raise ValueError naming the first value that is not a finite number > 0 (≥ 0 for names in ``zero_ok``;
-    None allowed for names in ``none_ok``). Kept only for mekf.py, which moves to :func:`check_settings` and
-    :func:`sample_period` on merge of branch mekf; remove it then."""
+    None allowed for names in ``none_ok``): the check of a constructor's plain numbers (the capture
+    :class:`~kfkit.capture.recorder.Recorder`'s); a settings dataclass has :func:`check_settings`."""
     for name, value in values.items():
         if value is None and name in none_ok:
             continue

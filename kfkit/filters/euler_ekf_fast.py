@@ -80,8 +80,7 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
         f21 = dt * u * st * ic * ic
         phi += (p + u * tt) * dt
         theta += v * dt
-        psi += u * ic * dt
-        psi = wrap_angle_f(psi)
+        psi = wrap_angle_f(psi + u * ic * dt)
         # M = F P (rows), then P⁻ = M Fᵀ (symmetric, upper triangle)
         a0, a1, a2 = f00 * p00 + f01 * p01, f00 * p01 + f01 * p11, f00 * p02 + f01 * p12
         b0, b1, b2 = f10 * p00 + p01, f10 * p01 + p11, f10 * p02 + p12
@@ -139,8 +138,7 @@ def _unrolled_loop(ekf: FastEulerAttitudeEKF, gyr, acc, mag) -> AttitudeRun:
             s_nis += e * e / s
         phi += d0
         theta += d1
-        psi += d2
-        psi = wrap_angle_f(psi)
+        psi = wrap_angle_f(psi + d2)
         ys[k] = [r_[0] for r_ in rows]
         nis[k] = s_nis
         xs[k] = (phi, theta, psi)

@@ -15,8 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-# configure and require_positive: what mekf.py imports from here until branch mekf moves it to .contract
-from .contract import FilterRun, State, Step, configure, require_positive, shaped  # noqa: F401
+from .contract import FilterRun, State, Step, shaped
 
 
 class KalmanFilter:

@@ -14,15 +14,19 @@ class MagGate:
     clocks carry from one sample (and one run) to the next.
 
     field_n     reference field, NED (µT): the starting reference norm ‖m‖ and dip atan2(m_D, ‖m_h‖)
-    r_psi       heading variance of one sample, rad²
-    norm_gate   relative norm gate (fraction of the reference norm); None = off
-    dip_gate    dip-angle gate, rad; None = off
-    recovery    s the field must pass the gates after a rejection before it is used again; also the
-                averaging time and the duration of the innovation tests
-    nis_gate    χ² gate (1 dof) of the innovation tests; None = none (a disturbed field is rejected for
-                as long as it fails the gates)
-    ref_tau     time constant (s) with which the reference follows a trusted field; None = fixed
+    settings    the MEKF's settings (:class:`~kfkit.filters.mekf.MultiplicativeEKFSettings`): its gates
+                ``mag_norm_gate`` (a fraction of the reference norm) and ``mag_dip_gate`` (rad), None = off;
+                ``mag_recovery`` (s the field must pass the gates after a rejection before it is used again;
+                also the averaging time and the duration of the innovation tests); ``mag_nis_gate`` (χ², 1 dof,
+                of the innovation tests; None = none: a disturbed field is rejected for as long as it fails the
+                gates); ``mag_ref_tau`` (s with which the reference follows a trusted field; None = fixed)
+
+    The gates test the field's norm and dip low-passed with a time constant of CURRENT_TAU = 0.05 s (VQF's
+    magCurrentTau), so that their verdict on a steady field does not depend on the sample rate (the noise of
+    one sample does).
     """
+
+    CURRENT_TAU = 0.05
 
     __slots__ = (
         "norm_ref",
@@ -32,34 +36,43 @@ class MagGate:
         "recovery",
         "nis_gate",
         "ref_rate",
-        "r_psi",
         "good_since",
         "t_prev",
         "nis_since",
         "mean",
         "adopt_since",
+        "current",
     )
 
-    def __init__(self, field_n, r_psi, norm_gate, dip_gate, recovery, nis_gate, ref_tau):
+    def __init__(self, field_n, settings):
         mN, mE, mD = (float(v) for v in field_n)
         self.norm_ref, self.dip_ref = math.sqrt(mN * mN + mE * mE + mD * mD), math.atan2(mD, math.hypot(mN, mE))
-        self.norm_gate = norm_gate if norm_gate is not None else math.inf  # fraction of norm_ref
-        self.dip_gate = dip_gate if dip_gate is not None else math.inf
-        self.recovery = recovery
-        self.nis_gate = nis_gate if nis_gate is not None else math.inf
-        self.ref_rate = 1.0 / ref_tau if ref_tau else 0.0
-        self.r_psi = r_psi  # heading variance of one sample, rad²
+        st = settings
+        self.norm_gate = st.mag_norm_gate if st.mag_norm_gate is not None else math.inf  # fraction of norm_ref
+        self.dip_gate = st.mag_dip_gate if st.mag_dip_gate is not None else math.inf
+        self.recovery = st.mag_recovery
+        self.nis_gate = st.mag_nis_gate if st.mag_nis_gate is not None else math.inf
+        self.ref_rate = 1.0 / st.mag_ref_tau if st.mag_ref_tau else 0.0
         self.good_since = -math.inf  # time since which the field has passed the gates (trusted from the start)
         self.t_prev = None  # time of the previous magnetometer sample
         self.nis_since = None  # first of the trusted samples in a row that failed the innovation gate
         self.mean = None  # while disturbed: averaged [heading innovation, its noise variance, norm, dip]
         self.adopt_since = None  # since when the disturbed field's averaged heading agrees with the filter's
+        self.current = None  # [norm, dip] low-passed with CURRENT_TAU
 
-    def use(self, t, norm, dip, y, var_h):
+    def use(self, t, norm, dip, y, var_h, r_psi):
         """True if the sample at time t (s) is to be used: field norm (µT) and dip (rad) seen with the
-        current attitude, heading innovation y (rad) and the filter's heading variance var_h = H P Hᵀ (rad²)."""
+        current attitude, heading innovation y (rad), the filter's heading variance var_h = H P Hᵀ (rad²) and
+        the sample's own heading variance r_psi (rad²)."""
         dt_m = t - self.t_prev if self.t_prev is not None else 0.0
         self.t_prev = t
+        if self.current is None:
+            self.current = [norm, dip]
+        else:
+            a = 1.0 - math.exp(-dt_m / self.CURRENT_TAU)
+            self.current[0] += a * (norm - self.current[0])
+            self.current[1] += a * (dip - self.current[1])
+        norm, dip = self.current
         if abs(norm - self.norm_ref) > self.norm_gate * self.norm_ref or abs(dip - self.dip_ref) > self.dip_gate:
             self.good_since = math.inf
         elif self.good_since > t:
@@ -70,7 +83,7 @@ class MagGate:
                 a = min(1.0, dt_m * self.ref_rate)
                 self.norm_ref += a * (norm - self.norm_ref)
                 self.dip_ref += a * (dip - self.dip_ref)
-            if y * y <= self.nis_gate * (var_h + self.r_psi):
+            if y * y <= self.nis_gate * (var_h + r_psi):
                 self.nis_since = None
                 return True
             if self.nis_since is None:
@@ -81,13 +94,12 @@ class MagGate:
             return False
         # disturbed: average its heading innovation, norm and dip; v = variance of the averaged noise
         if self.mean is None:
-            self.mean, self.adopt_since = [y, self.r_psi, norm, dip], None
+            self.mean, self.adopt_since = [y, r_psi, norm, dip], None
         else:
             a = 1.0 - math.exp(-dt_m / self.recovery)
             m = self.mean
-            d = y - m[0]
-            m[0] += a * wrap_angle_f(d)
-            m[1] = (1.0 - a) ** 2 * m[1] + a * a * self.r_psi
+            m[0] += a * wrap_angle_f(y - m[0])
+            m[1] = (1.0 - a) ** 2 * m[1] + a * a * r_psi
             m[2] += a * (norm - m[2])
             m[3] += a * (dip - m[3])
         y_mean, v_mean, norm_mean, dip_mean = self.mean

@@ -1,13 +1,15 @@
-"""Lab 04's multiplicative (error-state) quaternion EKF with gyro bias: :class:`MultiplicativeEKF`,
-tuned by :class:`MekfSettings`, carrying a :class:`MekfState`, its update written as named steps
-(predict, stabilised accelerometer, accelerometer update, heading update, reset); the magnetometer
-gate is :class:`kfkit.filters.mag_gate.MagGate`.
+"""Lab 04's multiplicative (error-state) quaternion EKF with gyro bias: :class:`MultiplicativeEKF`, tuned by
+:class:`MultiplicativeEKFSettings`, carrying a :class:`MultiplicativeEKFState`, its update written as named steps
+(predict, rest detection, zero-rate update, stabilised accelerometer, accelerometer update, heading update, reset);
+the magnetometer gate is :class:`kfkit.filters.mag_gate.MagGate`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -17,155 +19,256 @@ from ..frames import (
     euler_to_quat,
     quat_multiply_f,
     quat_normalise_f,
-    quat_to_dcm,
     quat_to_dcm_f,
     rotvec_to_quat_f,
     wrap_angle_f,
 )
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, learn_field, tilt_heading
-from .linear import Step, configure, require_positive
+from .contract import Step, check_settings, configure, sample_period, shaped
 from .mag_gate import MagGate
 
 
 @dataclass(frozen=True)
-class MekfSettings:
+class MultiplicativeEKFSettings:
     """Tuning of the MEKF: every field with its meaning, unit and default.
 
-    gyro_noise         per-sample gyro σ_g, rad/s; None: gyro_density·√rate_hz                          None
-    gyro_density       gyro white-noise density, rad/s/√Hz: the ISM330DHCX's 5 mdps/√Hz (DS13012) ×4,
-                       because under rotation the scale-factor and axis-misalignment errors (≈ 0.1–0.5 %
-                       of the rate), which a bias-only model cannot represent, act as extra noise
-                       (0.2 °/s per sample at 104 Hz)                                                 0.02 °/s/√Hz
-    gyro_bias_rw       gyro bias random-walk density σ_bw, rad/s/√s                                      1e-5
-    accel_noise        σ_a, m/s², effective: sensor noise plus unmodelled linear acceleration             0.5
-    mag_noise          σ_m per axis and sample, µT: the IIS2MDC's 0.3 µT RMS noise plus the residual of a
-                       hard/soft-iron calibration (≈ 0.5–1 µT); heading σ = mag_noise / ‖m_h‖
-                       (3° at London's 19.5 µT)                                                           1.0
-    accel_gate         |‖f‖ − g| (m/s²) above which the accelerometer σ² is multiplied by
-                       ``accel_gate_factor``; None: no gating                                             1.0
-    accel_gate_factor  that multiplier                                                                    100
-    mag_norm_gate      a sample is disturbed when |‖m‖ − ‖m_ref‖| > mag_norm_gate·‖m_ref‖; None = off    0.1
-    mag_dip_gate       … or when its dip angle (with the current attitude) is off by more, rad; None = off 10°
-    mag_recovery       s the field must pass the gates after a rejection before it is used again (a
-                       disturbance fades in and out; its edges pass the gates); also the averaging time
-                       and duration of the innovation tests                                               1.0
-    mag_nis_gate       χ² gate (1 dof; 9 ≈ 3σ) on the heading innovation against S = H P Hᵀ + R: a trusted
-                       sample above it is skipped (for at most mag_recovery s in a row); a rejected field
-                       whose averaged heading agrees within it for mag_recovery s is adopted as the new
-                       reference. None: no innovation test                                                9.0
-    mag_ref_tau        time constant (s) with which the reference norm and dip follow a trusted field;
-                       None = fixed                                                                      20.0
-    accel_tau          time constant (s) of the gyro-stabilised accelerometer low-pass; None = raw       1.0
+    gyro_noise       σ of a gyro sample, rad/s; None: gyro_density·√rate                               None
+    gyro_density     gyro white-noise density, rad/s/√Hz: the ISM330DHCX's 5 mdps/√Hz (DS13012) ×4,
+                     because under rotation the scale-factor and axis-misalignment errors (0.1–0.5 % of
+                     the rate), which a bias-only model cannot represent, act as extra noise       0.02 °/s/√Hz
+    gyro_bias_rw     gyro-bias random-walk density (σ), rad/s/√s                                         1e-5
+    accel_noise      σ of an accelerometer sample, m/s²; None: accel_density·√rate                     None
+    accel_density    accelerometer noise density, m/s²/√Hz, effective: what is left of the linear
+                     acceleration after the low-pass, and the sensor's own 0.07 mg/√Hz. As a density
+                     the tilt correction's time constant, accel_density / (g·gyro_density), is the
+                     same at every sample rate                                                         0.002
+    accel_tau        time constant of the accelerometer low-pass (in a gyro-stabilised frame), s;
+                     None: the raw samples                                                               1.0
+    accel_dynamic    linear acceleration (RMS of what the low-pass removes) at which the
+                     accelerometer's variance doubles, m/s²: σ_a² (1 + a_lin²/accel_dynamic²);
+                     None: a fixed variance                                                              1.0
+    mag_noise        σ of a magnetometer sample per axis, µT; None: mag_density / √Δt_m, Δt_m the
+                     time since the previous magnetometer sample                                        None
+    mag_density      magnetometer noise density, µT/√Hz, effective: the IIS2MDC's 0.03 µT/√Hz plus what
+                     a hard/soft-iron calibration and the room leave; the heading's σ is σ_m / ‖m_h‖       0.1
+    rest_gyro        rest detection's threshold on the gyro, rad/s: the largest deviation of a sample
+                     from its low-pass, and of the low-pass from zero on each axis; None: no rest
+                     detection (the bias is learned from the accelerometer and magnetometer always)    2 °/s
+    rest_accel       rest detection's threshold on the accelerometer, m/s²: the largest deviation of a
+                     sample from its low-pass                                                            0.5
+    rest_time        time both must stay within their thresholds before the IMU counts as at rest, s:
+                     then the gyro reads its bias (zero-rate update); once measured at rest, the bias
+                     is frozen in motion                                                                 1.5
+    rest_tau         time constant of the rest detector's low-passes, s                                  0.5
+    rest_margin      age of the gyro sample a zero-rate update uses, s: a motion that starts slowly
+                     passes the rest tests for its first few tenths of a second, so only a sample
+                     followed by rest_margin s more of rest is taken to read the bias alone               0.5
+    mag_norm_gate    threshold on the field norm, a fraction of the reference's: a sample is disturbed
+                     when |‖m‖ − ‖m_ref‖| > mag_norm_gate·‖m_ref‖; None: no norm gate                   0.1
+    mag_dip_gate     threshold on the dip angle (seen with the current attitude), rad; None: no dip gate  10°
+    mag_recovery     time a field must pass the gates after a rejection before it is used again, s (a
+                     disturbance fades in and out; its edges pass the gates); also the averaging time
+                     and duration of the innovation tests                                                1.0
+    mag_nis_gate     threshold on the heading innovation's NIS, χ² (1 dof; 9 = 3σ) against S = H P Hᵀ + R:
+                     a trusted sample above it is skipped (for at most mag_recovery s in a row); a
+                     rejected field whose averaged heading agrees within it for mag_recovery s is
+                     adopted as the new reference. None: no innovation test                              9.0
+    mag_ref_tau      time constant of the gates' reference field, s, with which its norm and dip follow a
+                     trusted field; None: fixed, those of the field at the start (a field that changes
+                     for good is adopted by the innovation test; one the reference followed would not be
+                     rejected: on BROAD's A session the field a few decimetres above the rest spot is 7 %
+                     stronger)                                                                          None
 
-    The gates and times are VQF's defaults (Laidig & Seel 2023).
+    The rest detector's thresholds and times, the accelerometer's stabilised low-pass and the magnetometer
+    gates are VQF's (Laidig & Seel 2023), whose defaults they keep.
     """
 
     gyro_noise: float | None = None
     gyro_density: float = math.radians(0.02)
     gyro_bias_rw: float = 1e-5
-    accel_noise: float = 0.5
-    mag_noise: float = 1.0
-    accel_gate: float | None = 1.0
-    accel_gate_factor: float = 100.0
+    accel_noise: float | None = None
+    accel_density: float = 0.002
+    accel_tau: float | None = 1.0
+    accel_dynamic: float | None = 1.0
+    mag_noise: float | None = None
+    mag_density: float = 0.1
+    rest_gyro: float | None = math.radians(2.0)
+    rest_accel: float = 0.5
+    rest_time: float = 1.5
+    rest_tau: float = 0.5
+    rest_margin: float = 0.5
     mag_norm_gate: float | None = 0.1
     mag_dip_gate: float | None = math.radians(10.0)
     mag_recovery: float = 1.0
     mag_nis_gate: float | None = 9.0
-    mag_ref_tau: float | None = 20.0
-    accel_tau: float | None = 1.0
+    mag_ref_tau: float | None = None
 
     def __post_init__(self):
-        require_positive(
-            "MekfSettings",
-            zero_ok=("gyro_noise", "gyro_bias_rw", "mag_ref_tau", "accel_tau"),
-            none_ok=(
+        check_settings(
+            self,
+            positive=(
+                "gyro_density",
+                "accel_noise",
+                "accel_density",
+                "accel_tau",
+                "accel_dynamic",
+                "mag_noise",
+                "mag_density",
+                "rest_gyro",
+                "rest_accel",
+                "rest_tau",
+                "mag_norm_gate",
+                "mag_dip_gate",
+                "mag_recovery",
+                "mag_nis_gate",
+                "mag_ref_tau",
+            ),
+            non_negative=("gyro_noise", "gyro_bias_rw", "rest_time", "rest_margin"),
+            optional=(
                 "gyro_noise",
-                "accel_gate",
+                "accel_noise",
+                "accel_tau",
+                "accel_dynamic",
+                "mag_noise",
+                "rest_gyro",
                 "mag_norm_gate",
                 "mag_dip_gate",
                 "mag_nis_gate",
                 "mag_ref_tau",
-                "accel_tau",
             ),
-            gyro_noise=self.gyro_noise,
-            gyro_density=self.gyro_density,
-            gyro_bias_rw=self.gyro_bias_rw,
-            accel_noise=self.accel_noise,
-            mag_noise=self.mag_noise,
-            accel_gate=self.accel_gate,
-            accel_gate_factor=self.accel_gate_factor,
-            mag_norm_gate=self.mag_norm_gate,
-            mag_dip_gate=self.mag_dip_gate,
-            mag_recovery=self.mag_recovery,
-            mag_nis_gate=self.mag_nis_gate,
-            mag_ref_tau=self.mag_ref_tau,
-            accel_tau=self.accel_tau,
         )
 
 
 @dataclass
-class MekfCoefficients:
-    """What the settings, the rate and the reference field give once (VQF's "coefficients").
+class MultiplicativeEKFCoefficients:
+    """What the settings, the rate and the reference field give once, at the start (VQF's "coefficients").
 
-    Qd        6×6 discrete process noise diag(σ_g² dt² I, σ_bw² dt I)
-    ra, ra_gated  accelerometer variance (m²/s⁴), ungated and gated;  gate  |‖f‖ − g| threshold (m/s²)
-    psi_ref   heading of the reference field, rad;  r_psi  heading variance of one sample, rad²
-    lpf       low-pass step 1 − exp(−dt/accel_tau) (1: raw accelerometer)
+    field_n    the reference field in NED, µT (the constructor's, or learned from the first samples)
+    Q          6×6 process noise per step, diag(σ_g² dt² I, σ_bw² dt I)
+    r_gyro     variance of one gyro sample, (rad/s)²: the zero-rate update's R
+    r_accel    variance of one accelerometer sample at rest, m²/s⁴
+    inv_dyn2   1 / accel_dynamic², s⁴/m² (0: a fixed variance)
+    psi_ref    heading of the reference field, rad
+    r_psi      heading variance of one magnetometer sample, rad², or None: r_psi_dt (rad²·s) divided by the time
+               since the previous one
+    lpf        one-pole low-pass step 1 − exp(−dt/accel_tau) of the accelerometer (1: raw)
+    rest_lpf   the same for the rest detector's low-passes
+    rest_delay the zero-rate update's samples in hand, rest_margin / dt + 1 (the oldest is the one it uses)
     """
 
-    Qd: np.ndarray
-    ra: float
-    ra_gated: float
-    gate: float
+    field_n: np.ndarray
+    Q: np.ndarray
+    r_gyro: float
+    r_accel: float
+    inv_dyn2: float
     psi_ref: float
-    r_psi: float
+    r_psi: float | None
+    r_psi_dt: float | None
     lpf: float
+    rest_lpf: float
+    rest_delay: int
 
 
 @dataclass
-class MekfState:
-    """What the MEKF carries from one sample to the next, so that a recording fed in pieces gives the
-    same result as one run.
+class MultiplicativeEKFState:
+    """What the MEKF carries from one sample to the next, so that a recording fed in pieces gives one run's result.
 
-    q          nominal quaternion (w, x, y, z), body → NED
+    q          nominal quaternion (w, x, y, z), body → NED (None: from the first samples)
     bias       gyro bias (x, y, z), rad/s
-    P          6×6 covariance of the error state [δθ (body, rad), δb (rad/s)]
+    P          6×6 covariance of the error state [δθ (NED, rad), δb (body, rad/s)]
     k          samples filtered since the start
     strapdown  gyro-only attitude (w, x, y, z), body → I, of the accelerometer low-pass
     f_I        low-passed specific force in I, m/s²
-    mag_gate   the magnetometer gate and its clocks
+    a_lin2     low-passed ‖f_I − f̄_I‖², the linear acceleration the low-pass removes, m²/s⁴
+    rest_lp    the rest detector's low-passed gyro (rad/s) and specific force (m/s²), 6 values
+    rest_t     how long the rest detector's tests have passed, s
+    rest_samples the gyro samples of the last rest_margin s, oldest first (the zero-rate update's)
+    rested     whether the IMU has been at rest (its bias measured) since the start
+    t_mag      time of the previous magnetometer sample, s (None before the first)
+    mag_gate   the magnetometer gate and its clocks (None before the first sample)
     """
 
-    q: tuple
+    q: tuple | None
     bias: tuple
     P: np.ndarray
-    k: int
-    strapdown: tuple
-    f_I: tuple
-    mag_gate: MagGate
+    k: int = 0
+    strapdown: tuple = (1.0, 0.0, 0.0, 0.0)
+    f_I: tuple | None = None
+    a_lin2: float = 0.0
+    rest_lp: tuple | None = None
+    rest_t: float = 0.0
+    rest_samples: deque = field(default_factory=deque)
+    rested: bool = False
+    t_mag: float | None = None
+    mag_gate: MagGate | None = None
+
+
+def _diagonal(variances):
+    """(N, 6) innovation variances (NaN: no update) → (N, 6, 6) diagonal S, NaN in the rows and columns of the
+    updates not made."""
+    S = variances[:, :, None] * np.eye(6)
+    unused = np.isnan(variances)
+    S[unused[:, :, None] | unused[:, None, :]] = np.nan
+    return S
+
+
+class Consider(NamedTuple):
+    """Which error-state components a "consider" (Schmidt) update leaves alone: keep_x (6,) is 0 on them and 1
+    elsewhere (the gain's mask), keep_P (6×6) is 0 where both the row and the column are left alone (the
+    covariance update's mask: their covariance stays, their correlations with the rest are updated)."""
+
+    keep_x: np.ndarray
+    keep_P: np.ndarray
+
+
+def consider(*components):
+    """The :class:`Consider` masks that leave ``components`` (indices of the error state) alone."""
+    left = np.zeros(6)
+    left[list(components)] = 1.0
+    return Consider(1.0 - left, 1.0 - np.outer(left, left))
+
+
+#: in motion the bias; in the heading update the tilt, or the tilt and the bias
+BIAS, TILT, TILT_AND_BIAS = consider(3, 4, 5), consider(0, 1), consider(0, 1, 3, 4, 5)
 
 
 class MultiplicativeEKF:
     """Multiplicative (error-state) EKF: nominal quaternion q (body → NED) and gyro bias b, with a
-    6-element error state δx = [δθ, δb] (rad, rad/s); δθ is a small rotation in the body frame,
-    q_true = q ⊗ exp(δθ/2).
+    6-element error state δx = [δθ, δb] (rad, rad/s); δθ is a small rotation in the NED frame,
+    q_true = exp(δθ) ⊗ q, so that δθ_N, δθ_E are the tilt error and δθ_D the heading error (BROAD's
+    inclination and heading). A :class:`~kfkit.filters.contract.TunedFilter`: x = [q, b] (7,), P 6×6.
 
-    predict   ω̂ = ω − b,  q ← q ⊗ exp(ω̂ dt / 2),
-              F = [[exp(−[ω̂ dt]×), −I dt], [0, I]],  Q = diag(σ_g² dt² I, σ_bw² dt I)
-    accel     y = f̄_b − Rᵀ(−g_n),  H = [[Rᵀ(−g_n)]×, 0]     (R = R_nb(q)); gated like the Euler EKF
-    heading   ψ_m = atan2 of the horizontal part of R·m_b (the tilt-compensated field),
-              y = wrap(ψ_ref − ψ_m),  H = [e_zᵀ R, 0],  σ_ψ = mag_noise / ‖m_h,ref‖
-    reset     q ← q ⊗ exp(δθ/2) (normalised), b ← b + δb, δx ← 0
+    predict   ω̂ = ω − b held over the step the sample ends, q ← q ⊗ exp(ω̂ dt) (the exact
+              exponential of the rotation vector), F = [[I, −R dt], [0, I]] (R = R_nb(q): a bias
+              error turns the body, so the NED error, by −R δb dt), Q = diag(σ_g² dt² I, σ_bw² dt I)
+    rest      the gyro and the accelerometer steady for rest_time s: the IMU is still and the gyro
+              reads its bias, y = ω(t − rest_margin) − b, H = [0 I], R = σ_g² I (a zero-rate update on a
+              sample known to be followed by rest)
+    accel     f_n = g·R f̄ / ‖f̄‖, the low-passed specific force turned into NED, is [0, 0, −g] for the
+              true attitude, and a tilt error δθ moves it to g·[δθ_E, −δθ_N, ·]:
+              y = [f_n,N, f_n,E],  rows of H  g·e_E and −g·e_N (blocks: δθ_N, δθ_E, δθ_D, δb);
+              R = σ_a² (1 + a_lin²/accel_dynamic²)
+    heading   ψ_m = atan2(m_E, m_N) of the tilt-compensated field m = R m_b, y = wrap(ψ_ref − ψ_m),
+              H = [−tan I cos D_m, −tan I sin D_m, 1, 0, 0, 0] (I the dip, D_m the heading of m): besides
+              the heading, a tilt error about the field's horizontal direction turns the tilt-compensated
+              field, and tan I of it shows as heading. The gain is kept off the tilt (a Schmidt "consider"
+              update), so that a disturbed field never tilts the estimate; S = H P Hᵀ + R counts the tilt's
+              uncertainty, which H = [0, 0, 1, 0, 0, 0] (the heading alone) would leave out
+    reset     q ← exp(δθ) ⊗ q (normalised), b ← b + δb, δx ← 0
 
-    f̄_b is the accelerometer low-passed in a gyro-stabilised frame (the idea of VQF, Laidig & Seel
-    2023): a strapdown quaternion q_I integrates the bias-corrected gyro alone, f_I = R(q_I) f_b is
-    low-passed with time constant ``accel_tau`` (rotation does not move gravity there, so only the
-    linear acceleration — zero-mean over seconds for a board that stays in place — is averaged
-    out), and f̄_b = R(q_I)ᵀ f̄_I. ``accel_tau=None`` uses the raw accelerometer.
+    Once the IMU has been at rest, its bias is learned at rest only (zero-rate updates and the
+    accelerometer) and frozen in motion: the updates there are "consider" updates for it (K has no bias
+    rows, P stays right), because a moving gyro's scale-factor and misalignment errors would be taken
+    for bias. Before the first rest (or with ``rest_gyro=None``) every update corrects the bias.
 
-    The magnetometer corrects heading only (a heading measurement whose H has no tilt part), so a
-    disturbed field never tilts the estimate directly. Magnetic disturbances, in three layers
-    (:class:`MagGate`):
+    f̄ is the accelerometer low-passed in a gyro-stabilised frame (VQF, Laidig & Seel 2023): a strapdown
+    quaternion q_I integrates the bias-corrected gyro alone, f_I = R(q_I) f_b is low-passed with time
+    constant ``accel_tau`` (rotation does not move gravity there, so only the linear acceleration —
+    zero-mean over seconds for a board that stays in place — is averaged out), and f̄ = R(q_I)ᵀ f̄_I.
+    What the low-pass removes, a_lin² = low-passed ‖f_I − f̄_I‖², measures how hard the board is being
+    pushed; the accelerometer's variance grows with it.
+
+    Magnetic disturbances, in three layers (:class:`MagGate`):
 
     1. gates: a sample whose norm or dip angle (with the current attitude) differs from the
        reference by more than ``mag_norm_gate`` / ``mag_dip_gate`` marks the field as disturbed; it is
@@ -178,228 +281,337 @@ class MultiplicativeEKF:
        variance σ_h² = H P Hᵀ. When v̄ ≤ σ_h² and ȳ² ≤ ``mag_nis_gate``·(σ_h² + v̄) for ``mag_recovery``
        s, the field's heading agrees with the gyro's to within what the filter knows: it becomes the
        new reference (its averaged norm and dip) and is used again. σ_h² grows without a magnetometer
-       (gyro noise, bias random walk), so any steady field is adopted in the end: at 100 Hz with the
-       defaults, one whose heading agrees within seconds, one 10° off after about 3.5 minutes — about
-       when the gyro alone is no better. (VQF instead uses a field again after 60 s of rejection; on
-       BROAD's trial 06 that follows a field 3–4° off for the second half of the motion.)
+       (gyro noise, bias random walk), so any steady field is adopted in the end. (VQF instead uses a
+       field again after 60 s of rejection.)
 
-    rate_hz    sample rate, Hz
-    settings   :class:`MekfSettings`; keyword changes apply on top: ``MultiplicativeEKF(104, accel_tau=None)``
+    dt         sample period, s (or ``rate_hz``, Hz)
+    settings   :class:`MultiplicativeEKFSettings`; keyword changes apply on top:
+               ``MultiplicativeEKF(rate_hz=104, accel_tau=None)``
     field_n    reference field (NED, µT); sets north (its declination), its norm and dip.
-               None: learned from the first magnetometer samples of the first run (:func:`learn_field`)
-    q0, bias0  initial quaternion (w-x-y-z) and gyro bias (rad/s); default from the first
-               samples (:func:`tilt_heading`) and zero
-    P0         initial 6×6 error covariance; default diag((5°)², (5°)², (10°)², (0.5 °/s)²·3)
+               None: learned from the first magnetometer samples of each run from the start (:func:`learn_field`)
+    x0         the start [q (w-x-y-z, body → NED), b (rad/s)] (7,); None: q from the first samples
+               (:func:`tilt_heading`), b = 0
+    P0         the start's 6×6 error covariance; default diag((5°)², (5°)², (10°)², (0.5 °/s)²·3)
     """
 
     method = "mekf"
+    #: the bias is a "consider" state in motion once measured at rest; False: every update corrects it
+    freeze_bias_in_motion = True
+    #: the magnetometer gate's class (a variant can swap it)
+    mag_gate_class = MagGate
 
     def __init__(
-        self, rate_hz, settings: MekfSettings | None = None, *, field_n=None, q0=None, bias0=None, P0=None, **changes
+        self,
+        dt=None,
+        settings: MultiplicativeEKFSettings | None = None,
+        *,
+        rate_hz=None,
+        field_n=None,
+        x0=None,
+        P0=None,
+        **changes,
     ):
-        require_positive("MultiplicativeEKF", rate_hz=rate_hz)
-        self.rate_hz = float(rate_hz)
-        self.dt = 1.0 / self.rate_hz
-        self.settings = configure(MekfSettings, settings, changes, "MultiplicativeEKF")
-        self.field_n = None if field_n is None else np.asarray(field_n, dtype=float)
-        self._q0 = None if q0 is None else tuple(float(v) for v in np.asarray(q0, dtype=float) / np.linalg.norm(q0))
-        self._bias0 = (0.0, 0.0, 0.0) if bias0 is None else tuple(float(v) for v in bias0)
-        if P0 is None:
-            P0 = np.diag(np.r_[np.radians([5.0, 5.0, 10.0]) ** 2, [math.radians(0.5) ** 2] * 3])
-        self._P0 = np.asarray(P0, dtype=float).copy()
-        self.state: MekfState | None = None  # set by the first step or run
-        self.coefficients: MekfCoefficients | None = None
+        owner = type(self).__name__
+        self.dt = sample_period(owner, dt, rate_hz)
+        self.rate_hz = 1.0 / self.dt
+        self.settings = configure(MultiplicativeEKFSettings, settings, changes, owner)
+        self.field_n = None if field_n is None else shaped(owner, "field_n", field_n, (3,))
+        self._x0 = None
+        self._P0 = np.diag(np.r_[np.radians([5.0, 5.0, 10.0]) ** 2, [math.radians(0.5) ** 2] * 3])
+        self.reset(x0, P0)
+
+    def reset(self, x0=None, P0=None):
+        """State ← the start; a given x0 [q, b] (7,) or P0 (6×6) replaces the start's (q is normalised)."""
+        owner = type(self).__name__
+        if x0 is not None:
+            x0 = shaped(owner, "x0", x0, (7,))
+            x0[:4] /= np.linalg.norm(x0[:4])
+            self._x0 = x0
+        if P0 is not None:
+            self._P0 = shaped(owner, "P0", P0, (6, 6))
+        q, b = (
+            (None, (0.0, 0.0, 0.0))
+            if self._x0 is None
+            else (tuple(self._x0[:4].tolist()), tuple(self._x0[4:].tolist()))
+        )
+        self.state = MultiplicativeEKFState(q=q, bias=b, P=self._P0.copy())
+        self.coefficients: MultiplicativeEKFCoefficients | None = None  # from the first samples
 
     # ---- the start ---------------------------------------------------------------------------
-    def _start(self, acc, mag):
-        """State and coefficients from the first samples acc (N, 3), mag (N, 3) or None."""
-        st, dt = self.settings, self.dt
-        if self.field_n is None:
-            self.field_n = learn_field(acc, mag) if mag is not None else np.array(MAG_FIELD_LONDON)
-        mN, mE, mD = (float(v) for v in self.field_n)
-        r_psi = (st.mag_noise / math.hypot(mN, mE)) ** 2
-        gyro_noise = st.gyro_density * math.sqrt(self.rate_hz) if st.gyro_noise is None else st.gyro_noise
-        ra = st.accel_noise**2
-        self.coefficients = MekfCoefficients(
-            Qd=np.diag([gyro_noise**2 * dt * dt] * 3 + [st.gyro_bias_rw**2 * dt] * 3),
-            ra=ra,
-            ra_gated=ra * st.accel_gate_factor,
-            gate=st.accel_gate if st.accel_gate is not None else math.inf,
+    def _begin(self, gyr, acc, mag):
+        """Coefficients and the rest of the state from the first samples gyr, acc (N, 3), mag (N, 3) or None."""
+        st, dt, rate, s = self.settings, self.dt, self.rate_hz, self.state
+        field_n = self.field_n
+        if field_n is None:
+            field_n = learn_field(acc, mag) if mag is not None else np.array(MAG_FIELD_LONDON)
+        mN, mE, _ = (float(v) for v in field_n)
+        b_h2 = mN * mN + mE * mE
+        sg = st.gyro_density * math.sqrt(rate) if st.gyro_noise is None else st.gyro_noise
+        sa = st.accel_density * math.sqrt(rate) if st.accel_noise is None else st.accel_noise
+        self.coefficients = MultiplicativeEKFCoefficients(
+            field_n=field_n,
+            Q=np.diag([sg * sg * dt * dt] * 3 + [st.gyro_bias_rw**2 * dt] * 3),
+            r_gyro=sg * sg,
+            r_accel=sa * sa,
+            inv_dyn2=1.0 / st.accel_dynamic**2 if st.accel_dynamic else 0.0,
             psi_ref=math.atan2(mE, mN),
-            r_psi=r_psi,
+            r_psi=None if st.mag_noise is None else st.mag_noise**2 / b_h2,
+            r_psi_dt=st.mag_density**2 / b_h2 if st.mag_noise is None else None,
             lpf=1.0 - math.exp(-dt / st.accel_tau) if st.accel_tau else 1.0,
+            rest_lpf=1.0 - math.exp(-dt / st.rest_tau),
+            rest_delay=round(st.rest_margin / dt) + 1,
         )
-        q = self._q0
-        if q is None:
+        if s.q is None:
             first = first_mag_row(mag)
-            q = tuple(
-                float(v)
-                for v in euler_to_quat(tilt_heading(acc[0], None if first is None else mag[first], self.field_n))
-            )
-        gate = MagGate(
-            self.field_n, r_psi, st.mag_norm_gate, st.mag_dip_gate, st.mag_recovery, st.mag_nis_gate, st.mag_ref_tau
-        )
-        self.state = MekfState(
-            q=q,
-            bias=self._bias0,
-            P=self._P0.copy(),
-            k=0,
-            strapdown=(1.0, 0.0, 0.0, 0.0),
-            f_I=tuple(float(v) for v in acc[0]),
-            mag_gate=gate,
-        )
-        self._F = np.eye(6)  # work arrays of the steps, filled in place
-        self._F[0:3, 3:6] = -dt * np.eye(3)
-        self._Ha, self._Hm, self._I6 = np.zeros((3, 6)), np.zeros(6), np.eye(6)
+            s.q = tuple(euler_to_quat(tilt_heading(acc[0], None if first is None else mag[first], field_n)).tolist())
+        s.f_I = tuple(acc[0].tolist())
+        s.rest_lp = tuple(gyr[0].tolist()) + tuple(acc[0].tolist())
+        s.mag_gate = self.mag_gate_class(field_n, st)
+        self._F = np.eye(6)  # the prediction's F, its block −R dt filled in place
+        self._F_bias = self._F[:3, 3:]
 
     # ---- one sample, as named steps ------------------------------------------------------------
     def step(self, gyr, acc, mag=None) -> Step:
         """One sample: gyr (3,) rad/s, acc (3,) m/s², mag (3,) µT or None/NaN (no new sample) →
-        Step(x = [q (w ≥ 0), b] (7,), P (6×6, body-frame error), y (6,), S (6×6)); y[3] is the heading
-        innovation (rad), y[4:6] NaN; NaN where no update was made."""
-        acc = np.asarray(acc, dtype=float)
-        mag = None if mag is None else np.asarray(mag, dtype=float)
-        if self.state is None:
-            self._start(acc[None], None if mag is None or np.isnan(mag).any() else mag[None])
-        y, S = np.full(6, np.nan), np.full((6, 6), np.nan)
-        self._sample(*(float(v) for v in gyr), *acc.tolist(), None if mag is None else mag.tolist(), y, S)
-        q = np.array(self.state.q)
-        return Step(np.r_[q if q[0] >= 0 else -q, self.state.bias], self.state.P, y, S)
+        Step(x = [q (w ≥ 0), b] (7,), P (6×6: δθ in NED, δb), y (6,), S (6×6, diagonal), x⁻, P⁻) with
+        y = [accelerometer north, east (m/s²), heading (rad), zero rate x, y, z (rad/s)], NaN where no
+        update was made (the updates are scalar, one after another)."""
+        gyr, acc = np.asarray(gyr, dtype=float), np.asarray(acc, dtype=float)
+        mag = None if mag is None or np.isnan(mag).any() else np.asarray(mag, dtype=float)
+        if self.coefficients is None:
+            self._begin(gyr[None], acc[None], None if mag is None else mag[None])
+        y, s = [math.nan] * 6, [math.nan] * 6
+        x_prior, P_prior, _ = self._sample(gyr.tolist(), acc.tolist(), None if mag is None else mag.tolist(), y, s)
+        st = self.state
+        return Step(
+            _positive(st.q + st.bias),
+            st.P.copy(),
+            np.array(y),
+            _diagonal(np.array([s]))[0],
+            _positive(x_prior),
+            P_prior.copy(),
+        )
 
-    def _sample(self, wx, wy, wz, fx, fy, fz, m, y, S):
-        """predict → stabilised accelerometer → accelerometer update → heading update; writes the
-        innovations and their covariances into y (6,) and S (6×6) and returns (nis, gated, used, rejected)."""
-        self._predict(wx, wy, wz)
-        y_a, S_a, gated = self._accel_update(*self._stabilised_accel(fx, fy, fz))
-        y[:3], S[:3, :3] = y_a, S_a
-        nis = y_a @ np.linalg.solve(S_a, y_a)
+    def _sample(self, w, f, m, y, s):
+        """predict → rest detection (zero-rate update) → stabilised accelerometer → accelerometer update →
+        heading update → reset. The updates are scalar, one after another, each adding to the error estimate δx
+        (its innovation corrected for the δx before it); the reset folds δx into q and b once. Writes the
+        innovations and their variances into y and s (lists of 6); returns the prior (x⁻ = q⁻ + b, a 7-tuple; P⁻)
+        and the flags (at rest, accelerometer variance raised, magnetometer used, magnetometer rejected)."""
+        self._predict(w)
+        x_prior, P_prior = self.state.q + self.state.bias, self.state.P  # the prediction leaves b as it is
+        dx = np.zeros(6)
+        rest = self._at_rest(w, f)
+        if rest:
+            self.state.rested = True
+            self._zero_rate_update(self.state.rest_samples[0], dx, y, s)
+        frozen = BIAS if self.freeze_bias_in_motion and self.state.rested and not rest else None
+        pushed = self._accel_update(self._stabilised_accel(f), dx, frozen, y, s)
         used = rejected = False
         if m is not None and m[0] == m[0]:  # a new magnetometer sample
-            heading = self._heading_update(*m)
-            if heading is None:
-                rejected = True
-            else:
-                y[3], S[3, 3] = heading
-                S[:3, 3] = S[3, :3] = 0.0
-                nis += y[3] * y[3] / S[3, 3]
-                used = True
+            used = self._heading_update(m, dx, frozen, y, s)
+            rejected = not used
+        self._reset(dx)
         self.state.k += 1
-        return nis, gated, used, rejected
+        return x_prior, P_prior, (rest, pushed, used, rejected)
 
-    def _predict(self, wx, wy, wz):
-        """ω̂ = ω − b;  q ← q ⊗ exp(ω̂ dt/2) (and the strapdown q_I with it);  P ← F P Fᵀ + Q, F's attitude
-        block Φ = exp(−[ω̂ dt]×) = Rᵀ of the increment."""
+    def _predict(self, w):
+        """ω̂ = ω − b;  q ← q ⊗ exp(ω̂ dt) (and the strapdown q_I with it);  P ← F P Fᵀ + Q with
+        F = [[I, −R dt], [0, I]]."""
         s, dt = self.state, self.dt
-        bx, by, bz = s.bias
-        wx -= bx
-        wy -= by
-        wz -= bz
-        dq = rotvec_to_quat_f(wx * dt, wy * dt, wz * dt)
-        s.q = quat_multiply_f(s.q, dq)
-        s.strapdown = quat_multiply_f(s.strapdown, dq)
-        F = self._F  # the rotation matrix of dq's conjugate: R(dq)ᵀ
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_dcm_f(dq)
-        F[0, 0], F[0, 1], F[0, 2] = r00, r10, r20
-        F[1, 0], F[1, 1], F[1, 2] = r01, r11, r21
-        F[2, 0], F[2, 1], F[2, 2] = r02, r12, r22
-        s.P = F @ s.P @ F.T + self.coefficients.Qd
+        turn = self._turn(w)
+        s.q = quat_multiply_f(s.q, turn)
+        s.strapdown = quat_multiply_f(s.strapdown, turn)
+        self._R = R = quat_to_dcm_f(s.q)  # the accelerometer and heading updates' too
+        self._F_bias.flat = [-dt * r for r in R]
+        F = self._F
+        s.P = F.dot(s.P).dot(F.T) + self.coefficients.Q  # F P Fᵀ + Q (ndarray.dot: @ costs twice as much on 6×6)
 
-    def _stabilised_accel(self, fx, fy, fz):
+    def _turn(self, w):
+        """The body's turn over the step: exp(ω̂ dt), ω̂ = ω − b, the sample held over the step it ends."""
+        bx, by, bz = self.state.bias
+        return rotvec_to_quat_f((w[0] - bx) * self.dt, (w[1] - by) * self.dt, (w[2] - bz) * self.dt)
+
+    def _at_rest(self, w, f):
+        """VQF's rest detector: gyro and accelerometer low-passed (time constant rest_tau); at rest once, for
+        rest_time s, each sample has stayed within rest_gyro / rest_accel of its low-pass and the gyro's
+        low-pass within rest_gyro of zero on every axis. Keeps the samples of the last rest_margin s (since the
+        tests last failed) in ``state.rest_samples``; the oldest is the zero-rate update's."""
+        th = self.settings.rest_gyro
+        if th is None:
+            return False
+        s, a = self.state, self.coefficients.rest_lpf
+        wx, wy, wz, fx, fy, fz = s.rest_lp
+        wx += a * (w[0] - wx)
+        wy += a * (w[1] - wy)
+        wz += a * (w[2] - wz)
+        fx += a * (f[0] - fx)
+        fy += a * (f[1] - fy)
+        fz += a * (f[2] - fz)
+        s.rest_lp = (wx, wy, wz, fx, fy, fz)
+        gyro_dev = (w[0] - wx) ** 2 + (w[1] - wy) ** 2 + (w[2] - wz) ** 2
+        accel_dev = (f[0] - fx) ** 2 + (f[1] - fy) ** 2 + (f[2] - fz) ** 2
+        if gyro_dev > th * th or accel_dev > self.settings.rest_accel**2 or max(abs(wx), abs(wy), abs(wz)) > th:
+            s.rest_t = 0.0
+            s.rest_samples.clear()  # none of them is followed by rest
+            return False
+        s.rest_t += self.dt
+        s.rest_samples.append(w)
+        if len(s.rest_samples) > self.coefficients.rest_delay:
+            s.rest_samples.popleft()
+        return s.rest_t >= self.settings.rest_time
+
+    def _zero_rate_update(self, w, dx, y, s_out):
+        """At rest the gyro reads its bias: y_i = ω_i − b_i, H = e_(3+i), R = σ_g²; three scalar updates. ω is the
+        sample of rest_margin s ago (the bias barely changes in that time)."""
+        s, r = self.state, self.coefficients.r_gyro
+        for i in range(3):
+            y[3 + i] = w[i] - s.bias[i]
+            a = s.P[:, 3 + i]
+            s_out[3 + i] = self._update(a, a[3 + i], y[3 + i] - dx[3 + i], r, dx, None)
+
+    def _stabilised_accel(self, f):
         """f̄_b: f_I = R(q_I) f_b low-passed in I (where rotation does not move gravity), back to the body
-        frame; the raw f_b when accel_tau is None."""
+        frame; a_lin² follows ‖f_I − f̄_I‖². The raw f_b when accel_tau is None. Returns (f̄_b, a_lin²)."""
         lpf, s = self.coefficients.lpf, self.state
         if lpf >= 1.0:
-            return fx, fy, fz
+            return f, 0.0
+        fx, fy, fz = f
         s.strapdown = quat_normalise_f(s.strapdown)
         c00, c01, c02, c10, c11, c12, c20, c21, c22 = quat_to_dcm_f(s.strapdown)
-        fbx, fby, fbz = s.f_I
-        fbx += lpf * (c00 * fx + c01 * fy + c02 * fz - fbx)
-        fby += lpf * (c10 * fx + c11 * fy + c12 * fz - fby)
-        fbz += lpf * (c20 * fx + c21 * fy + c22 * fz - fbz)
-        s.f_I = (fbx, fby, fbz)
-        return (c00 * fbx + c10 * fby + c20 * fbz, c01 * fbx + c11 * fby + c21 * fbz, c02 * fbx + c12 * fby + c22 * fbz)
+        fix, fiy, fiz = c00 * fx + c01 * fy + c02 * fz, c10 * fx + c11 * fy + c12 * fz, c20 * fx + c21 * fy + c22 * fz
+        ix, iy, iz = s.f_I
+        ix += lpf * (fix - ix)
+        iy += lpf * (fiy - iy)
+        iz += lpf * (fiz - iz)
+        s.f_I = (ix, iy, iz)
+        s.a_lin2 += lpf * ((fix - ix) ** 2 + (fiy - iy) ** 2 + (fiz - iz) ** 2 - s.a_lin2)
+        return (
+            c00 * ix + c10 * iy + c20 * iz,
+            c01 * ix + c11 * iy + c21 * iz,
+            c02 * ix + c12 * iy + c22 * iz,
+        ), s.a_lin2
 
-    def _accel_update(self, fx, fy, fz):
-        """y = f̄_b − v_b with v_b = Rᵀ(−g_n) = −g·(third row of R), H = [[v_b]×, 0], R = σ_a² I (gated:
-        × accel_gate_factor); Joseph-form update, then the reset. Returns (y, S, gated)."""
+    def _accel_update(self, f_lin, dx, frozen, y, s_out):
+        """f_n = g·R f̄ / ‖f̄‖; y = [f_n,N, f_n,E] (zero for a level estimate), H rows g·e_E and −g·e_N of the
+        attitude error, R = σ_a² (1 + a_lin²/accel_dynamic²); two scalar updates. Returns whether linear
+        acceleration at least doubled R."""
         s, c = self.state, self.coefficients
-        r20, r21, r22 = quat_to_dcm_f(s.q)[6:]
-        vx, vy, vz = -G * r20, -G * r21, -G * r22
-        gated = abs(math.sqrt(fx * fx + fy * fy + fz * fz) - G) > c.gate
-        ra = c.ra_gated if gated else c.ra
-        Ha = self._Ha
-        Ha[0, 1], Ha[0, 2], Ha[1, 0], Ha[1, 2], Ha[2, 0], Ha[2, 1] = -vz, vy, vz, -vx, -vy, vx
-        y = np.array([fx - vx, fy - vy, fz - vz])
-        P = s.P
-        PHt = P @ Ha.T
-        S = Ha @ PHt
-        S[0, 0] += ra
-        S[1, 1] += ra
-        S[2, 2] += ra
-        K = np.linalg.solve(S, PHt.T).T
-        IKH = self._I6 - K @ Ha
-        s.P = IKH @ P @ IKH.T + ra * (K @ K.T)
-        self._reset(K @ y)
-        return y, S, gated
+        (fx, fy, fz), a_lin2 = f_lin
+        scale = G / math.sqrt(fx * fx + fy * fy + fz * fz)
+        r00, r01, r02, r10, r11, r12, _, _, _ = self._R  # of the predicted q
+        y[0] = scale * (r00 * fx + r01 * fy + r02 * fz)
+        y[1] = scale * (r10 * fx + r11 * fy + r12 * fz)
+        pushed = a_lin2 * c.inv_dyn2
+        r = c.r_accel * (1.0 + pushed)
+        a = G * s.P[:, 1]  # north row: H = g·e_E
+        s_out[0] = self._update(a, G * a[1], y[0] - G * dx[1], r, dx, frozen)
+        a = -G * s.P[:, 0]  # east row: H = −g·e_N
+        s_out[1] = self._update(a, -G * a[0], y[1] + G * dx[0], r, dx, frozen)
+        return pushed > 1.0
 
-    def _heading_update(self, mx, my, mz):
-        """ψ_m of the tilt-compensated field R·m_b, y = wrap(ψ_ref − ψ_m), H = [third row of R, 0]; if the
-        gate passes the sample, the scalar update and the reset. Returns (y, S), or None if gated out."""
+    def _heading_update(self, m, dx, frozen, y, s_out):
+        """ψ_m of the tilt-compensated field m = R·m_b, y = wrap(ψ_ref − ψ_m) − H δx, H = [−tan I cos D_m,
+        −tan I sin D_m, 1, 0, 0, 0]; if the gate passes the sample, the update with the gain kept off the tilt.
+        Returns whether the sample was used."""
         s, c = self.state, self.coefficients
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = quat_to_dcm_f(s.q)
-        n_n = r00 * mx + r01 * my + r02 * mz
-        n_e = r10 * mx + r11 * my + r12 * mz
-        n_d = r20 * mx + r21 * my + r22 * mz
-        hm = math.hypot(n_n, n_e)
-        y = wrap_angle_f(c.psi_ref - math.atan2(n_e, n_n))
-        Hm = self._Hm
-        Hm[0], Hm[1], Hm[2] = r20, r21, r22
-        PH = s.P @ Hm
-        var_h = float(Hm @ PH)
-        if not s.mag_gate.use(s.k * self.dt, math.sqrt(hm * hm + n_d * n_d), math.atan2(n_d, hm), y, var_h):
-            return None
-        S = var_h + c.r_psi
-        K = PH / S
-        P = s.P - np.outer(K, PH)
-        s.P = 0.5 * (P + P.T)
-        self._reset(K * y)
-        return y, S
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = self._R
+        mx, my, mz = m
+        m_n, m_e, m_d = r00 * mx + r01 * my + r02 * mz, r10 * mx + r11 * my + r12 * mz, r20 * mx + r21 * my + r22 * mz
+        m_h = math.hypot(m_n, m_e)  # horizontal part, µT
+        t = s.k * self.dt
+        r = c.r_psi if c.r_psi is not None else c.r_psi_dt / (t - s.t_mag if s.t_mag is not None else self.dt)
+        s.t_mag = t
+        (h0, h1, h2), kept_off = self._heading_row(m_n, m_e, m_d, frozen)
+        innov = wrap_angle_f(c.psi_ref - math.atan2(m_e, m_n)) - (h0 * dx[0] + h1 * dx[1] + h2 * dx[2])
+        a = s.P.dot((h0, h1, h2, 0.0, 0.0, 0.0))  # P Hᵀ
+        a0, a1, a2 = a[:3].tolist()
+        var_h = h0 * a0 + h1 * a1 + h2 * a2  # H P Hᵀ
+        if not s.mag_gate.use(t, math.hypot(m_h, m_d), math.atan2(m_d, m_h), innov, var_h, r):
+            return False
+        y[2] = innov
+        s_out[2] = self._update(a, var_h, innov, r, dx, kept_off)
+        return True
+
+    def _heading_row(self, m_n, m_e, m_d, frozen):
+        """The heading's H (its attitude part, 3 values) for the tilt-compensated field m = [m_n, m_e, m_d] (µT),
+        and what the update leaves alone: the tilt, and the bias when ``frozen``."""
+        h2 = m_n * m_n + m_e * m_e
+        return (-m_d * m_n / h2, -m_d * m_e / h2, 1.0), TILT if frozen is None else TILT_AND_BIAS
+
+    def _update(self, a, hph, innov, r, dx, kept_off):
+        """One scalar measurement, given a = P Hᵀ (6,) and H P Hᵀ: S = H P Hᵀ + r, δx += K·innov with K = a/S,
+        P ← P − a aᵀ/S. The components marked in ``kept_off`` (a :class:`Consider`) are left alone: K is zero
+        there and P ← P − (a aᵀ − a_c a_cᵀ)/S with a_c = a on those components (a Schmidt update: their
+        covariance stays, their correlations with the rest are kept right). ``innov`` is already corrected for
+        the δx of the updates before it in the same sample. Returns S."""
+        s = self.state
+        S = float(hph) + r
+        k = a * (1.0 / S)
+        k_aT = k[:, None] * a  # K aᵀ = a aᵀ / S
+        if kept_off is None:
+            s.P = s.P - k_aT
+            dx += k * innov
+        else:
+            s.P = s.P - k_aT * kept_off.keep_P
+            dx += k * (kept_off.keep_x * innov)
+        return S
 
     def _reset(self, dx):
-        """Fold the error estimate δx = [δθ, δb] into the nominal state: q ← q ⊗ exp(δθ/2) (normalised),
+        """Fold the error estimate δx = [δθ, δb] into the nominal state: q ← exp(δθ) ⊗ q (normalised),
         b ← b + δb."""
         s = self.state
         ex, ey, ez, dbx, dby, dbz = dx.tolist()
-        ex, ey, ez = 0.5 * ex, 0.5 * ey, 0.5 * ez
+        s.q = quat_normalise_f(quat_multiply_f((1.0, 0.5 * ex, 0.5 * ey, 0.5 * ez), s.q))
         bx, by, bz = s.bias
-        s.q, s.bias = quat_normalise_f(quat_multiply_f(s.q, (1.0, ex, ey, ez))), (bx + dbx, by + dby, bz + dbz)
+        s.bias = (bx + dbx, by + dby, bz + dbz)
 
     # ---- a recording ---------------------------------------------------------------------------
-    def run(self, gyr, acc, mag=None) -> AttitudeRun:
+    def run(self, gyr, acc, mag=None, *, resume=False) -> AttitudeRun:
         """The named steps over a recording: gyr (N, 3) rad/s, acc (N, 3) m/s², mag (N, 3) µT or None
-        (NaN rows = no new sample), one sensor frame. Continues from the current state: a recording fed
-        in pieces gives the same result as one run."""
+        (NaN rows = no new sample), one sensor frame. From the start (x0 None: from the first samples), or from
+        the current state with ``resume=True`` (a recording fed in pieces gives what one run gives)."""
         gyr, acc, mag = check_inputs(gyr, acc, mag)
-        if self.state is None:
-            self._start(acc, mag)
+        if not resume:
+            self.reset()
+        if self.coefficients is None:
+            self._begin(gyr, acc, mag)
         N = len(gyr)
-        y, S = np.full((N, 6), np.nan), np.full((N, 6, 6), np.nan)
-        x, Ps = np.empty((N, 7)), np.empty((N, 6, 6))
-        nis, gated, used, rejected = (
-            np.zeros(N),
-            np.zeros(N, dtype=bool),
-            np.zeros(N, dtype=bool),
-            np.zeros(N, dtype=bool),
-        )
+        xs, Ps, priors, P_priors, ys, Ss, flags = [], [], [], [], [], [], []
         M = mag.tolist() if mag is not None else [None] * N
         sample, s = self._sample, self.state
-        for k, (w, f, m) in enumerate(zip(gyr.tolist(), acc.tolist(), M)):
-            nis[k], gated[k], used[k], rejected[k] = sample(*w, *f, m, y[k], S[k])
-            x[k, :4], x[k, 4:] = s.q, s.bias
-            Ps[k] = s.P
-        x[:, :4] *= np.where(x[:, :1] < 0, -1.0, 1.0)
-        R = quat_to_dcm(x[:, :4])
-        P_att_n = R @ Ps[:, :3, :3] @ np.swapaxes(R, 1, 2)  # attitude error covariance in NED
+        nan6 = [math.nan] * 6
+        for w, f, m in zip(gyr.tolist(), acc.tolist(), M):
+            yk, sk = nan6.copy(), nan6.copy()
+            x_prior, P_prior, flag = sample(w, f, m, yk, sk)
+            xs.append(s.q + s.bias)
+            priors.append(x_prior)
+            Ps.append(s.P)  # every step makes new arrays: no copies needed
+            P_priors.append(P_prior)
+            ys.append(yk)
+            Ss.append(sk)
+            flags.append(flag)
+        x, x_prior = _positive(np.array(xs).reshape(N, 7)), _positive(np.array(priors).reshape(N, 7))
+        y, S, flags = np.array(ys).reshape(N, 6), np.array(Ss).reshape(N, 6), np.array(flags, dtype=bool).reshape(N, 4)
         return AttitudeRun(
-            x, P_att_n, y, S, nis=nis, accel_gated=gated, mag_used=used, mag_gated=rejected, method=self.method
+            x,
+            np.array(Ps).reshape(N, 6, 6),
+            y,
+            _diagonal(S),
+            x_prior,
+            np.array(P_priors).reshape(N, 6, 6),
+            nis=np.nansum(y * y / S, axis=1),
+            accel_gated=flags[:, 1],
+            mag_used=flags[:, 2],
+            mag_gated=flags[:, 3],
+            at_rest=flags[:, 0],
+            method=self.method,
         )
+
+
+def _positive(x):
+    """[q, b] with the quaternion's w ≥ 0 (q and −q are the same rotation), (7,) or (N, 7), as a new array."""
+    x = np.array(x, dtype=float)
+    q = x[..., :4]
+    q *= np.where(q[..., :1] < 0, -1.0, 1.0)
+    return x

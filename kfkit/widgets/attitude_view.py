@@ -73,8 +73,7 @@ class LiveAttitude:
         gyr, acc = rec.body("gyr")[new], rec.body("acc")[new]
         if self._cal is not None:
             gyr, acc, mag = self._cal.apply((gyr, acc) if mag is None else (gyr, acc, mag))
-        # MultiplicativeEKF.run always resumes (and takes no resume) until branch mekf: drop this branch then
-        result = self.filter.run(gyr, acc, mag, **({} if self.method == "mekf" else {"resume": True}))
+        result = self.filter.run(gyr, acc, mag, resume=True)
         self.t_last, self.quat = float(t[new][-1]), result.quat[-1]
         return self.quat
 
