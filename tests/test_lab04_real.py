@@ -122,7 +122,7 @@ def test_mekf_with_a_magnet_beats_switching_its_magnetometer_off(name):
 @pytest.mark.skipif(not MAGNET_TRIALS, reason=f"no BROAD magnet trials (28, 34) in {BROAD_DIR}")
 @pytest.mark.parametrize("path", MAGNET_TRIALS, ids=[p.stem for p in MAGNET_TRIALS])
 def test_mekf_on_a_whole_magnet_trial_beats_switching_its_magnetometer_off(path):
-    # The same bar on the whole trial at its native 285.7 Hz (tests/test_broad.py holds the undisturbed ones to 2°).
+    # The same bar on the whole trial at its native 285.7 Hz (tests/test_broad.py holds the undisturbed ones to VQF).
     from kfkit.readers import load_broad
 
     rec = load_broad(path)
@@ -135,10 +135,11 @@ def test_mekf_on_a_whole_magnet_trial_beats_switching_its_magnetometer_off(path)
     assert gated < blind, (path.name, gated, blind)
 
 
-def test_the_magnet_bar_fails_an_mekf_without_its_magnetometer_gates():
-    # The bar can fail: on trial 28 (the magnet beside the path) the MEKF with its norm, dip and χ² gates off
-    # follows the magnet (9.1° total against 6.5° with the magnetometer off). On 34 (the magnet attached to the IMU
-    # through the movement) the ungated MEKF stays under this bar (4.2° against 6.3°): there it tests less.
+def test_the_magnet_bar_fails_a_filter_that_follows_the_magnet_and_the_gates_earn_their_place():
+    # The bar can fail: on trial 28 (the magnet beside the path) the lab's Euler EKF, which has no magnetometer
+    # gate, follows the magnet (about 24° total against 6.8° with the magnetometer off). The MEKF without its
+    # norm, dip and χ² gates passes the bar (5.3°: its heading update cannot tilt it and its bias is the rest's),
+    # so the gates are held to more than the bar: they take at least 40 % off the ungated MEKF's error (2.5°).
     from kfkit import datasets
     from kfkit.filters import estimate_attitude
     from kfkit.frames import euler_to_quat
@@ -148,6 +149,10 @@ def test_the_magnet_bar_fails_an_mekf_without_its_magnetometer_gates():
     args = (rec.body("gyr"), rec.body("acc"), rec.body("mag"), rec.rate_hz)
     q, moving = euler_to_quat(rec.truth()), rec.phase("movement")
     first_rest = rec.phase("rest") & (rec.t < rec.phases[0]["end"])
-    _, blind = gate_against_no_magnetometer(*args, q, moving, first_rest)
-    ungated = estimate_attitude(*args, method="mekf", mag_norm_gate=None, mag_dip_gate=None, mag_nis_gate=None)
-    assert np.degrees(attitude_rmse(ungated.quat, q, moving)["total"]) > blind
+    gated, blind = gate_against_no_magnetometer(*args, q, moving, first_rest)
+
+    def total(**how):
+        return np.degrees(attitude_rmse(estimate_attitude(*args, **how).quat, q, moving)["total"])
+
+    assert total(method="euler-ekf") > blind
+    assert gated < 0.6 * total(method="mekf", mag_norm_gate=None, mag_dip_gate=None, mag_nis_gate=None)
