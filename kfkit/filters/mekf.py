@@ -9,7 +9,6 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import numpy as np
 
@@ -26,6 +25,7 @@ from ..frames import (
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, learn_field, tilt_heading
 from .contract import Step, check_settings, configure, sample_period, shaped
 from .mag_gate import MagGate
+from .scalar_update import consider, diagonal_S, scalar_update
 
 
 @dataclass(frozen=True)
@@ -203,31 +203,6 @@ class MultiplicativeEKFState:
     mag_gate: MagGate | None = None
 
 
-def _diagonal(variances):
-    """(N, 6) innovation variances (NaN: no update) → (N, 6, 6) diagonal S, NaN in the rows and columns of the
-    updates not made."""
-    S = variances[:, :, None] * np.eye(6)
-    unused = np.isnan(variances)
-    S[unused[:, :, None] | unused[:, None, :]] = np.nan
-    return S
-
-
-class Consider(NamedTuple):
-    """Which error-state components a "consider" (Schmidt) update leaves alone: keep_x (6,) is 0 on them and 1
-    elsewhere (the gain's mask), keep_P (6×6) is 0 where both the row and the column are left alone (the
-    covariance update's mask: their covariance stays, their correlations with the rest are updated)."""
-
-    keep_x: np.ndarray
-    keep_P: np.ndarray
-
-
-def consider(*components):
-    """The :class:`Consider` masks that leave ``components`` (indices of the error state) alone."""
-    left = np.zeros(6)
-    left[list(components)] = 1.0
-    return Consider(1.0 - left, 1.0 - np.outer(left, left))
-
-
 #: in motion the bias; in the heading update the tilt, or the tilt and the bias
 BIAS, TILT, TILT_AND_BIAS = consider(3, 4, 5), consider(0, 1), consider(0, 1, 3, 4, 5)
 
@@ -387,7 +362,7 @@ class MultiplicativeEKF:
             _positive(st.q + st.bias),
             st.P.copy(),
             np.array(y),
-            _diagonal(np.array([s]))[0],
+            diagonal_S(np.array([s]))[0],
             _positive(x_prior),
             P_prior.copy(),
         )
@@ -540,21 +515,10 @@ class MultiplicativeEKF:
         return (-m_d * m_n / h2, -m_d * m_e / h2, 1.0), TILT if frozen is None else TILT_AND_BIAS
 
     def _update(self, a, hph, innov, r, dx, kept_off):
-        """One scalar measurement, given a = P Hᵀ (6,) and H P Hᵀ: S = H P Hᵀ + r, δx += K·innov with K = a/S,
-        P ← P − a aᵀ/S. The components marked in ``kept_off`` (a :class:`Consider`) are left alone: K is zero
-        there and P ← P − (a aᵀ − a_c a_cᵀ)/S with a_c = a on those components (a Schmidt update: their
-        covariance stays, their correlations with the rest are kept right). ``innov`` is already corrected for
-        the δx of the updates before it in the same sample. Returns S."""
-        s = self.state
-        S = float(hph) + r
-        k = a * (1.0 / S)
-        k_aT = k[:, None] * a  # K aᵀ = a aᵀ / S
-        if kept_off is None:
-            s.P = s.P - k_aT
-            dx += k * innov
-        else:
-            s.P = s.P - k_aT * kept_off.keep_P
-            dx += k * (kept_off.keep_x * innov)
+        """One scalar measurement (:func:`~kfkit.filters.scalar_update.scalar_update`): a = P Hᵀ, H P Hᵀ, the
+        innovation already corrected for the δx before it, its variance r; ``kept_off`` a
+        :class:`~kfkit.filters.scalar_update.Consider` or None. Adds to δx, updates P; returns S."""
+        self.state.P, S = scalar_update(self.state.P, dx, a, hph, innov, r, kept_off)
         return S
 
     def _reset(self, dx):
@@ -597,7 +561,7 @@ class MultiplicativeEKF:
             x,
             np.array(Ps).reshape(N, 6, 6),
             y,
-            _diagonal(S),
+            diagonal_S(S),
             x_prior,
             np.array(P_priors).reshape(N, 6, 6),
             nis=np.nansum(y * y / S, axis=1),
