@@ -10,7 +10,7 @@ from functools import partial
 import numpy as np
 from timing import best_of
 
-from kfkit import calibration, datasets, sim
+from kfkit import calibration, calibration_motions, datasets, sim
 from kfkit.capture import sphere_coverage
 from kfkit.checkpoints.lab03 import heading_errors, random_ellipsoid
 from kfkit.frames import G, mount_matrix
@@ -127,7 +127,9 @@ def rotation_length_table():
     print("| --- | --- | --- | --- | --- |")
     unit = {k: np.asarray(v) for k, v in NUCLEO_UNIT.items()}
     for seconds in (8.0, 15.0, 30.0, 60.0):
-        rec = sim.simulate_imu(sim.mag_rotations(duration=seconds, rate_hz=104.0, seed=302), seed=303, **unit)
+        rec = sim.simulate_imu(
+            calibration_motions.mag_rotations(duration=seconds, rate_hz=104.0, seed=302), seed=303, **unit
+        )
         mag = rec.body("mag")
         h_true = mount_matrix(rec.meta["mount"]["mag"]) @ unit["mag_hard_iron"]
         coverage = sphere_coverage(mag)

@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from kfkit import calibration as C
-from kfkit import datasets, sim
+from kfkit import calibration_motions, datasets, motions, sim
 from kfkit.checkpoints.lab03 import random_ellipsoid
 from kfkit.frames import MAG_FIELD_LONDON, G, mount_matrix
 from kfkit.io import load_recording, save_recording
@@ -23,7 +23,7 @@ B_LONDON = np.linalg.norm(MAG_FIELD_LONDON)
 
 def test_gyro_bias_and_noise_match_simulated_truth():
     bias_s = np.radians([0.5, -0.3, 0.8])
-    rec = sim.simulate_imu(sim.stationary(60.0, 104.0), seed=3, gyro_bias=bias_s, gyro_bias_rw=0.0)
+    rec = sim.simulate_imu(motions.stationary(60.0, 104.0), seed=3, gyro_bias=bias_s, gyro_bias_rw=0.0)
     gyr = rec.body("gyr")
     sigma = rec_sigma = 5e-3 * np.pi / 180 * np.sqrt(104.0)  # datasheet density · √rate
     truth = mount_matrix(rec.meta["mount"]["gyr"]) @ bias_s
@@ -42,7 +42,7 @@ def test_noise_std_windows_leave_out_a_slow_drift():
 
 
 def test_accel_bias_keeps_gravity_out():
-    rec = sim.simulate_imu(sim.stationary(30.0, 104.0), seed=4, accel_bias=[0.05, -0.02, 0.03], accel_bias_rw=0.0)
+    rec = sim.simulate_imu(motions.stationary(30.0, 104.0), seed=4, accel_bias=[0.05, -0.02, 0.03], accel_bias_rw=0.0)
     acc = rec.body("acc")
     b = C.accel_bias(acc, [0.0, 0.0, -G])
     truth = mount_matrix(rec.meta["mount"]["acc"]) @ [0.05, -0.02, 0.03]
@@ -65,7 +65,7 @@ def test_six_face_signs_and_values_on_exact_poses():
     faces = {}
     for k, (face, (roll, pitch)) in enumerate(FACE_POSES.items()):
         rec = sim.simulate_imu(
-            sim.stationary(5.0, 104.0, roll=roll, pitch=pitch),
+            motions.stationary(5.0, 104.0, roll=roll, pitch=pitch),
             seed=30 + k,
             accel_bias=bias_s,
             accel_scale=scale,
@@ -86,7 +86,9 @@ def test_six_face_signs_and_values_on_exact_poses():
 
 def test_six_face_recovers_simulated_bias_and_scale():
     bias_s, scale = np.array([0.06, -0.04, 0.09]), np.array([1.01, 0.994, 1.003])
-    rec = sim.simulate_imu(sim.six_faces(seed=5), seed=6, accel_bias=bias_s, accel_scale=scale, accel_bias_rw=0.0)
+    rec = sim.simulate_imu(
+        calibration_motions.six_faces(seed=5), seed=6, accel_bias=bias_s, accel_scale=scale, accel_bias_rw=0.0
+    )
     faces = {f: rec.body("acc")[rec.phase(f)] for f in C.FACES}
     b, s = C.accel_six_face(faces)
     np.testing.assert_allclose(b, mount_matrix(rec.meta["mount"]["acc"]) @ bias_s, atol=2e-3)
@@ -319,7 +321,7 @@ def test_fit_on_simulated_board_recovers_body_frame_iron():
 
 
 def test_fit_rejects_poor_coverage_and_says_what_to_do():
-    rec = sim.simulate_imu(sim.heading_steps(tilt=(0.0, 0.0)), seed=1, mag_hard_iron=[10.0, 0.0, 0.0])
+    rec = sim.simulate_imu(calibration_motions.heading_steps(tilt=(0.0, 0.0)), seed=1, mag_hard_iron=[10.0, 0.0, 0.0])
     with pytest.raises(C.CalibrationError, match="cover too little of the sphere.*every orientation"):
         C.fit_mag_calibration(rec.body("mag"))
 
@@ -645,7 +647,7 @@ def test_a_saved_phone_calibration_round_trips_and_belongs_to_the_students_phone
     assert mine.save() == tmp_path / "home" / f"calibration_{PHONE}.json"
     assert json.loads((tmp_path / "home" / f"calibration_{PHONE}.json").read_text())["board"] == PHONE
     assert C.load_calibration(PHONE) == mine  # what lab 04 loads for a phone
-    export = load_any(phone_export(tmp_path / "export", sim.stationary(5.0, 100.0), seed=1))
+    export = load_any(phone_export(tmp_path / "export", motions.stationary(5.0, 100.0), seed=1))
     capture = load_any(save_recording(export, tmp_path / "phone_capture.csv"))  # a live capture is in the kit's format
     for own in (export, capture):
         assert own.meta["board"] == PHONE and C.calibration_for(own) == mine
@@ -662,7 +664,7 @@ def strip_phases(rec):
 
 @pytest.mark.parametrize("source", ["board", "phone export"])
 def test_label_rests_finds_and_names_the_six_faces(tmp_path, source):
-    motion = sim.six_faces(rate_hz=400.0 if source == "phone export" else 104.0, seed=5)
+    motion = calibration_motions.six_faces(rate_hz=400.0 if source == "phone export" else 104.0, seed=5)
     bias_s, scale = np.array([0.06, -0.04, 0.09]), np.array([1.01, 0.994, 1.003])
     if source == "board":
         rec = strip_phases(sim.simulate_imu(motion, seed=6, accel_bias=bias_s, accel_scale=scale, accel_bias_rw=0.0))
@@ -695,9 +697,11 @@ def load_recording_or_export(path):
 
 def test_label_rests_names_only_rests_near_a_face_and_refuses_a_recording_without_rest():
     for roll_deg, expected in ((5.0, {"z_down", "stationary"}), (15.0, {"rest"})):
-        rec = sim.simulate_imu(sim.stationary(6.0, 104.0, roll=np.radians(roll_deg)), seed=7)
+        rec = sim.simulate_imu(motions.stationary(6.0, 104.0, roll=np.radians(roll_deg)), seed=7)
         assert {p["label"] for p in C.label_rests(rec).phases} == expected, roll_deg
-    held = sim.simulate_imu(sim.sine_roll(duration=20.0, rate_hz=104.0, still=0.0, vibration_rms=0.3, seed=8), seed=9)
+    held = sim.simulate_imu(
+        motions.sine_roll(duration=20.0, rate_hz=104.0, still=0.0, vibration_rms=0.3, seed=8), seed=9
+    )
     with pytest.raises(C.CalibrationError, match="no rest of at least 2 s.*keep it still"):
         C.label_rests(held)
 

@@ -11,7 +11,7 @@ from test_calibration import PHONE, phone_export
 from waiting import HANG_GUARD_S
 
 from kfkit import calibration as C
-from kfkit import datasets, sim
+from kfkit import calibration_motions, datasets, motions
 from kfkit.frames import (
     MAG_FIELD_LONDON,
     G,
@@ -247,9 +247,11 @@ def test_labs_02_and_03_run_top_to_bottom_on_phone_exports(tmp_path, monkeypatch
 
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
     exports = {
-        "rest": phone_export(tmp_path / "rest", sim.stationary(120.0, 100.0), seed=11),
-        "faces": phone_export(tmp_path / "faces", sim.six_faces(rate_hz=200.0, seed=12), seed=13),
-        "tumbling": phone_export(tmp_path / "tumbling", sim.mag_rotations(rate_hz=200.0, seed=14), seed=15),
+        "rest": phone_export(tmp_path / "rest", motions.stationary(120.0, 100.0), seed=11),
+        "faces": phone_export(tmp_path / "faces", calibration_motions.six_faces(rate_hz=200.0, seed=12), seed=13),
+        "tumbling": phone_export(
+            tmp_path / "tumbling", calibration_motions.mag_rotations(rate_hz=200.0, seed=14), seed=15
+        ),
     }
     mine = {k: str(v) for k, v in exports.items()}
     errors, text = run_solution_on("02_bias_and_noise.ipynb", {"STATIONARY": mine["rest"], "SIX_FACES": mine["faces"]})

@@ -8,7 +8,7 @@ from scipy import constants
 from test_checkpoints_every import solution_namespace
 
 from kfkit import calibration as C
-from kfkit import datasets, discrete, sim
+from kfkit import datasets, discrete, motions, sim
 from kfkit.io import save_recording
 from kfkit.labs import lab02
 from kfkit.unit_errors import NUCLEO_UNIT
@@ -106,7 +106,7 @@ def test_the_calibration_lab_02_saves_from_your_own_rest_carries_n_and_k(tmp_pat
 
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
     unit = {k: (np.asarray(v) if k == "mag_soft_iron" else v) for k, v in NUCLEO_UNIT.items()}
-    motion = sim.stationary(1200.0, datasets.STATIONARY_RATE_HZ)
+    motion = motions.stationary(1200.0, datasets.STATIONARY_RATE_HZ)
     motion.phases = [(0.0, 1200.0, "stationary")]
     rec = sim.simulate_imu(motion, board="nucleo-iks02a1", seed=77, **unit)
     rec.meta.pop("sim")  # a recording of one's own knows no truth
