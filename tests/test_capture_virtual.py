@@ -459,7 +459,7 @@ def test_angle_random_walk_of_a_two_minute_rest_is_the_datasheets():
     """Lab 00's full stationary protocol (2 min, 104 Hz): the ARW read at τ = 1 s (kfkit.calibration) within the
     99 % chi-square interval (allantools' edf for white noise) of N, quantisation and walk included."""
     allantools = pytest.importorskip("allantools")
-    from kfkit.calibration import allan_deviation, angle_random_walk
+    from kfkit.allan import allan_deviation, angle_random_walk
     from kfkit.sensors import board as get_board
 
     rec = C.record_protocol("stationary", "virtual", fast=True, seed=7, prompt=None)

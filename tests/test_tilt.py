@@ -417,10 +417,10 @@ def test_stationary_record_is_ten_seconds_at_rest_and_still_by_the_loggers_flag(
 
 
 def test_six_face_set_has_every_face():
-    from kfkit import calibration
+    from kfkit import rest_calibration
 
     rec = datasets.load("05_six_faces")
-    for face in calibration.FACES:
+    for face in rest_calibration.FACES:
         up = rec.body("acc")[rec.phase(face)].mean(axis=0)
         axis = "xyz".index(face[0])
         assert np.sign(up[axis]) == (1 if face.endswith("_up") else -1) and abs(up[axis]) > 0.9 * g

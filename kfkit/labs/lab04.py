@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import datasets, filters, metrics, motions
-from ..calibration import Calibration, calibration_for, gyro_bias
+from ..calibration import Calibration, calibration_for
 from ..filters.attitude_run import learn_field, tilt_heading
 from ..filters.euler_ekf import (
     EulerAttitudeEKFSettings,
@@ -35,6 +35,7 @@ from ..frames import (
     quat_to_dcm,
     wrap_angle,
 )
+from ..rest_calibration import gyro_bias
 
 # --- the gyro sample and the step ------------------------------------------------------------------------------
 
