@@ -406,7 +406,7 @@ def ablation(trials=REAL_TRIALS, variants=ABLATION, settings=EulerAttitudeEKFSet
     return table
 
 
-# --- the graded runs' inputs (kfkit.checkpoints.lab04 judges run_ekf on them) -----------------------------------
+# --- the graded runs' inputs (lab 04's checkpoints judge run_ekf on them) ----------------------------------------
 
 #: noise_free_turns' number of one-second turns
 TURNS = 5
