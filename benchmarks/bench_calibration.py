@@ -10,7 +10,7 @@ from functools import partial
 import numpy as np
 from timing import best_of
 
-from kfkit import calibration, datasets, sim
+from kfkit import allan, calibration_motions, datasets, mag_calibration, rest_calibration, sim
 from kfkit.capture import sphere_coverage
 from kfkit.checkpoints.lab03 import heading_errors, random_ellipsoid
 from kfkit.frames import G, mount_matrix
@@ -33,9 +33,9 @@ def allan_table():
     rng = np.random.default_rng(0)
     for n, rate, label in ((30000, 12.5, "40 min at 12.5 Hz (lab 02)"), (1_000_000, 100.0, "2.8 h at 100 Hz")):
         x = rng.normal(0, 1e-3, n) + np.cumsum(rng.normal(0, 1e-6, n))
-        taus, _ = calibration.allan_deviation(x, rate)
-        _, ours = calibration.allan_deviation(x, rate, taus)
-        t_k = best_of(partial(calibration.allan_deviation, x, rate, taus), repeats=3)
+        taus, _ = allan.allan_deviation(x, rate)
+        _, ours = allan.allan_deviation(x, rate, taus)
+        t_k = best_of(partial(allan.allan_deviation, x, rate, taus), repeats=3)
         if allantools is None:
             print(f"| {label} | {len(taus)} | {t_k * 1e3:.1f} ms | not installed | | |")
             continue
@@ -57,7 +57,7 @@ def ellipsoid_table():
         for _ in range(20):
             mag, h, W = random_ellipsoid(rng, n=n, noise=noise)
             t0 = time.perf_counter()
-            h_fit, S = calibration.fit_mag_calibration(mag)
+            h_fit, S = mag_calibration.fit_mag_calibration(mag)
             t = time.perf_counter() - t0
             times.append(t)
             errs_h.append(np.linalg.norm(h_fit - h) / np.sqrt(3))
@@ -84,31 +84,33 @@ def bundled_table():
     print("| --- | --- | --- |")
     gyr = still.body("gyr")
     truth, u = gyro_bias_truth(still)
-    err = calibration.gyro_bias(gyr) - truth
+    err = rest_calibration.gyro_bias(gyr) - truth
     print(f"| gyro bias (02_stationary, 40 min) | {worst(err) / DEG:.4f} °/s | {worst(err / u):.1f} |")
     for sensor, unit, k in (("gyr", "°/s", 1 / DEG), ("acc", "mm/s²", 1e3)):
         sigma, u, n = noise_truth(still, sensor)
-        err = calibration.noise_std(still.body(sensor)[:n]) - sigma
+        err = rest_calibration.noise_std(still.body(sensor)[:n]) - sigma
         print(
             f"| {sensor} noise σ per sample at 12.5 Hz (first 2 min) | {worst(err) * k:.4f} {unit} "
             f"({worst(err / sigma) * 100:.1f} %) | {worst(err / u):.1f} |"
         )
     K = still.meta["sim"]["gyro_bias_rw"]
-    k_fit = calibration.allan_noise_fit(*calibration.allan_deviation(gyr, still.rate_hz))[2]
+    k_fit = allan.allan_noise_fit(*allan.allan_deviation(gyr, still.rate_hz))[2]
     print(
         f"| gyro rate random walk K (Allan fit, 40 min; true {K * 1e6:.1f} µrad/s/√s) "
         f"| {worst(k_fit - K) * 1e6:.2f} µrad/s/√s "
         f"({worst(k_fit / K - 1) * 100:.0f} %) | {worst(k_fit / K - 1) / K_FIT_SPREAD:.1f} |"
     )
     b, s_, u_b, u_s = six_face_truth(faces_rec)
-    b_hat, s_hat = calibration.accel_six_face({f: faces_rec.body("acc")[faces_rec.phase(f)] for f in calibration.FACES})
+    b_hat, s_hat = rest_calibration.accel_six_face(
+        {f: faces_rec.body("acc")[faces_rec.phase(f)] for f in rest_calibration.FACES}
+    )
     print(f"| accel bias, six faces | {worst(b_hat - b) / G * 1e3:.3f} mg | {worst((b_hat - b) / u_b):.1f} |")
     print(f"| accel scale, six faces | {worst(s_hat - s_) * 100:.4f} % | {worst((s_hat - s_) / u_s):.1f} |")
-    level = calibration.accel_bias(still.body("acc"), [0.0, 0.0, -G])
+    level = rest_calibration.accel_bias(still.body("acc"), [0.0, 0.0, -G])
     true_b = mount_matrix(still.meta["mount"]["acc"]) @ still.meta["sim"]["accel_bias"]
     print(f"| accel z bias, level rest only (scale error not separable) | {(level - true_b)[2] / G * 1e3:.2f} mg | — |")
     mag = rot.body("mag")
-    h, S = calibration.fit_mag_calibration(mag)
+    h, S = mag_calibration.fit_mag_calibration(mag)
     M = mount_matrix(rot.meta["mount"]["mag"])
     h_true = M @ rot.meta["sim"]["mag_hard_iron"]
     S_true = np.linalg.inv(M @ np.asarray(rot.meta["sim"]["mag_soft_iron"]) @ M.T)
@@ -127,13 +129,15 @@ def rotation_length_table():
     print("| --- | --- | --- | --- | --- |")
     unit = {k: np.asarray(v) for k, v in NUCLEO_UNIT.items()}
     for seconds in (8.0, 15.0, 30.0, 60.0):
-        rec = sim.simulate_imu(sim.mag_rotations(duration=seconds, rate_hz=104.0, seed=302), seed=303, **unit)
+        rec = sim.simulate_imu(
+            calibration_motions.mag_rotations(duration=seconds, rate_hz=104.0, seed=302), seed=303, **unit
+        )
         mag = rec.body("mag")
         h_true = mount_matrix(rec.meta["mount"]["mag"]) @ unit["mag_hard_iron"]
         coverage = sphere_coverage(mag)
         try:
-            h, S = calibration.fit_mag_calibration(mag)
-        except calibration.CalibrationError:
+            h, S = mag_calibration.fit_mag_calibration(mag)
+        except rest_calibration.CalibrationError:
             print(f"| {seconds:g} | {coverage:.0%} | refused: too little of the sphere | — | — |")
             continue
         print(

@@ -5,7 +5,8 @@ Layers, bottom to top (a module imports only from its own layer or below; README
 0. ``paths`` (where data and calibrations live), ``frames`` (g, the reference field, every rotation)
 1. ``sensors`` (boards incl. the phone, the sensor vocabulary), ``metrics``
 2. ``unit_errors`` (each board's simulated unit), ``clocks`` (one time base, sample counters),
-   ``sim`` (motions, simulate_imu), ``phone_sim`` (a phone's sensors, simulated)
+   ``motions``, ``attitude_motions``, ``calibration_motions`` (truth motions), ``sim`` (simulate_imu),
+   ``phone_sim`` (a phone's sensors, simulated)
 3. ``io`` (the kit's recording format), ``vehicle`` (bicycle models, drives, the vehicle format)
 4. ``readers`` (foreign formats: phyphox export, BROAD, your vehicle CSV; ``load_any``)
 5. ``calibration``, ``filters``

@@ -1,4 +1,4 @@
-"""Sensor calibration: gyro bias, accelerometer six-face, magnetometer hard/soft iron, Allan deviation.
+"""A board's sensor calibration: the :class:`Calibration` labs 02 and 03 save and labs 04 and 05 load.
 
 Everything works in the body frame (FRD) and SI units (rad/s, m/s², µT). A :class:`Calibration`
 holds the results of labs 02 and 03 and corrects raw body-frame measurements:
@@ -27,8 +27,12 @@ identity, with the noise σ of the phone's sensor model (:func:`kfkit.sensors.ph
 - accelerometer bias 0, scale 1: an assumption. The CDD (§7.3.1) only recommends calibrating the accelerometer
   in use, and iOS gives phyphox the raw accelerometer; a phone's six faces (lab 02) measure its offsets.
 
-Student-saved phone calibrations (labs 02 and 03) replace it as for a board. :func:`label_rests` finds and
-names the rests of a recording without labelled windows (a phyphox export), so labs 02 and 03 run on it.
+Student-saved phone calibrations (labs 02 and 03) replace it as for a board.
+
+The measurements are made in :mod:`kfkit.rest_calibration` (gyro bias, noise σ, accelerometer bias and six faces,
+the rests of an unlabelled recording), :mod:`kfkit.allan` (the Allan deviation's N, B and K) and
+:mod:`kfkit.mag_calibration` (hard and soft iron); :func:`calibrate` runs them on a board's recordings. The lab
+notebooks call them as ``calibration.…``, so they are importable from here too.
 """
 
 from __future__ import annotations
@@ -38,348 +42,32 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import nnls
 
-from .frames import MAG_FIELD_LONDON, G
+from .allan import (  # noqa: F401 (lab 02's notebook calls calibration.allan_taus, bias_instability, …)
+    BIAS_INSTABILITY_FACTOR,
+    allan_deviation,
+    allan_noise_fit,
+    allan_taus,
+    angle_random_walk,
+    bias_instability,
+)
+from .frames import G
+from .mag_calibration import apply_mag_calibration, fit_mag_calibration
 from .paths import bundled_calibration_path, data_dir, user_calibration_path
+from .rest_calibration import (  # noqa: F401 (lab 02's notebook calls calibration.label_rests)
+    FACES,
+    CalibrationError,
+    accel_bias,
+    accel_six_face,
+    gyro_bias,
+    label_rests,
+    noise_std,
+)
 from .sensors import board as get_board
 
-FACES = ("x_up", "x_down", "y_up", "y_down", "z_up", "z_down")
-
-#: Allan deviation of flicker (1/f) noise at its flat minimum is √(2 ln 2 / π)·B ≈ 0.664·B
-#: (IEEE Std 952-1997, Annex C), so the bias instability B is read as σ_min / 0.664.
-BIAS_INSTABILITY_FACTOR = float(np.sqrt(2 * np.log(2) / np.pi))
-
 NOISE_WINDOW_S = 10.0  # s: noise σ over windows this short leaves the bias wander out
-MIN_MAG_SPREAD = 0.1  # smallest/largest principal variance of a usable magnetometer rotation
-#: smallest principal standard deviation of a usable rotation's readings, as a fraction of the field norm B:
-#: a tumble covering the sphere spreads B/√3 ≈ 0.58·B along every axis, a hemisphere 0.29·B along its axis, a
-#: board turned about one axis ~0 along it, a board left still only its noise (~0.01·B)
-MIN_MAG_COVERAGE = 0.1
 ACCEL_SCALE_RANGE = (0.5, 2.0)  # what six faces can give: each axis must read beyond ±g/2 (accel_six_face)
 MAX_SOFT_IRON_CONDITION = 1e3  # eigenvalue ratio of S beyond which the correction is (nearly) singular
-
-
-class CalibrationError(ValueError):
-    """Data that cannot give a calibration; the message says what is wrong and what to do."""
-
-
-def _samples(x, name, min_samples=2, width=3):
-    """``x`` as a float (N, width) array (N ≥ min_samples), all finite; clear errors otherwise."""
-    a = np.asarray(x, dtype=float)
-    if a.ndim == 1 and width == 3 and a.shape == (3,):
-        raise CalibrationError(f"{name}: expected N samples of 3 axes, shape (N, 3); got one vector of shape (3,)")
-    if a.ndim == 1 and width is None:
-        a = a[:, None]
-    if a.ndim != 2 or (width is not None and a.shape[1] != width):
-        want = f"(N, {width})" if width else "(N,) or (N, k)"
-        raise CalibrationError(f"{name}: expected shape {want}, got {a.shape}")
-    if len(a) < min_samples:
-        raise CalibrationError(f"{name}: {len(a)} samples, at least {min_samples} are needed")
-    bad = ~np.isfinite(a).all(axis=1)
-    if bad.any():
-        raise CalibrationError(
-            f"{name}: {bad.sum()} of {len(a)} samples hold NaN or inf (first at row {np.argmax(bad)}); "
-            f"drop them first, e.g. x[np.isfinite(x).all(axis=1)]"
-        )
-    return a
-
-
-def gyro_bias(gyr):
-    """Gyro bias b_g (3,), rad/s: the mean rate of a board at rest, (N, 3) body frame."""
-    return _samples(gyr, "gyr").mean(axis=0)
-
-
-def noise_std(x, window=None):
-    """Per-sample noise σ (3,) of a stationary window (N, 3): the standard deviation (ddof = 1).
-
-    Over a long rest the slow bias wander adds to it; with ``window`` (samples) σ is the RMS of the
-    standard deviations of consecutive windows of that length, which leaves the wander out.
-    """
-    a = _samples(x, "x")
-    if window is None:
-        return a.std(axis=0, ddof=1)
-    window = int(window)
-    if not 2 <= window <= len(a):
-        raise CalibrationError(f"window must be between 2 and the {len(a)} samples, got {window}")
-    chunks = a[: len(a) // window * window].reshape(-1, window, a.shape[1])
-    return np.sqrt(np.mean(chunks.var(axis=1, ddof=1), axis=0))
-
-
-def accel_bias(acc, expected):
-    """Accelerometer bias b_a = mean(f) − f_expected (3,), m/s².
-
-    ``expected`` is the specific force of the pose (3,), e.g. [0, 0, −g] level and at rest: gravity
-    is in the mean, and subtracting the whole mean would remove it too.
-    """
-    e = np.asarray(expected, dtype=float)
-    if e.shape != (3,):
-        raise CalibrationError(f"expected: the specific force of the pose must have shape (3,), got {e.shape}")
-    return _samples(acc, "acc").mean(axis=0) - e
-
-
-def accel_six_face(faces, g=G):
-    """Per-axis bias b and scale s (3,) from six rests, one per face.
-
-    ``faces`` maps "x_up", "x_down", … (which body axis points up, reading +g) to (N, 3) specific
-    force (m/s², body). With a⁺, a⁻ the means of an axis pointing up and down:
-
-        b = (a⁺ + a⁻) / 2,   s = (a⁺ − a⁻) / (2g);   corrected f = (f_raw − b) / s.
-    """
-    missing = [f for f in FACES if f not in faces]
-    if missing:
-        raise CalibrationError(f"faces: missing {', '.join(missing)}; need all six of {', '.join(FACES)}")
-    bias, scale = np.empty(3), np.empty(3)
-    for i, axis in enumerate("xyz"):
-        up = _samples(faces[f"{axis}_up"], f"faces['{axis}_up']").mean(axis=0)[i]
-        down = _samples(faces[f"{axis}_down"], f"faces['{axis}_down']").mean(axis=0)[i]
-        if not (up > 0.5 * g and down < -0.5 * g):
-            raise CalibrationError(
-                f"faces: axis {axis} reads {up:+.2f} m/s² on '{axis}_up' and {down:+.2f} on "
-                f"'{axis}_down'; expected about +{g:.2f} and −{g:.2f}: are the faces labelled "
-                f"by the axis pointing up, in the body frame?"
-            )
-        bias[i], scale[i] = (up + down) / 2, (up - down) / (2 * g)
-    return bias, scale
-
-
-# --- finding the rests of an unlabelled recording -------------------------------------------------
-
-REST_MIN_S = 2.0  # s: a shorter still spell is a pause, not a pose
-REST_TRIM_S = 0.5  # s cut from both ends of a rest: the hand letting go, reaching for the stop button
-REST_WINDOW_S = 0.5  # s: the moving window the spreads below are taken over
-REST_GYRO_STD = np.radians(0.5)  # rad/s: at rest the gyro scatters by its noise (≈ 0.05–0.1 °/s), held by hand by °/s
-REST_ACCEL_STD = 0.15  # m/s²: at rest the noise (≈ 0.01–0.02 m/s²); a hand or a slow turn moves it more
-REST_G_TOLERANCE = 0.5  # m/s²: at rest |f| is g, up to the accelerometer's bias and scale errors
-FACE_MAX_TILT = np.radians(10.0)  # an axis within this of vertical names the face; six faces err by g(1 − cos δ)
-
-
-def _moving_mean_std(x, window):
-    from scipy.ndimage import uniform_filter1d
-
-    mean = uniform_filter1d(x, window, axis=0, mode="nearest")
-    var = uniform_filter1d(x * x, window, axis=0, mode="nearest") - mean**2
-    return mean, np.sqrt(np.maximum(var, 0.0))
-
-
-def label_rests(rec, min_s=REST_MIN_S, trim_s=REST_TRIM_S, max_tilt=FACE_MAX_TILT):
-    """A copy of ``rec`` whose ``phases`` mark its rests, for recordings without labelled windows
-    (a phone's phyphox export); labs 02 and 03 then read them like a guided capture's.
-
-    A sample is still where, over a moving ``REST_WINDOW_S``, every gyro and accelerometer axis
-    (body frame) scatters less than ``REST_GYRO_STD`` and ``REST_ACCEL_STD`` and |f| is within
-    ``REST_G_TOLERANCE`` of g. A still spell of at least ``min_s`` after cutting ``trim_s`` from both
-    ends is a rest, named by the body axis pointing up (its mean specific force reads +g: ``"x_up"``;
-    −g: ``"x_down"``, …, :data:`FACES`) when that axis is within ``max_tilt`` of vertical, else
-    ``"rest"``; a level rest (``"z_down"``) is also ``"stationary"``. Raises :class:`CalibrationError`
-    when there is none.
-    """
-    gyr, acc = rec.body("gyr"), rec.body("acc")
-    t = rec.t
-    window = max(3, int(round(REST_WINDOW_S * rec.rate_hz)))
-    _, gyr_std = _moving_mean_std(gyr, window)
-    acc_mean, acc_std = _moving_mean_std(acc, window)
-    still = (
-        (gyr_std < REST_GYRO_STD).all(axis=1)
-        & (acc_std < REST_ACCEL_STD).all(axis=1)
-        & (np.abs(np.linalg.norm(acc_mean, axis=1) - G) < REST_G_TOLERANCE)
-    )
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], still.astype(np.int8), [0]])))
-    phases = []
-    for first, stop in zip(edges[::2], edges[1::2]):
-        start, end = t[first] + trim_s, t[stop - 1] - trim_s
-        if end - start < min_s:
-            continue
-        f = acc[(t >= start) & (t < end)].mean(axis=0)
-        i = int(np.argmax(np.abs(f)))
-        tilted = np.arccos(min(1.0, abs(f[i]) / np.linalg.norm(f))) > max_tilt
-        label = "rest" if tilted else f"{'xyz'[i]}_{'up' if f[i] > 0 else 'down'}"
-        phases.append({"label": label, "start": float(start), "end": float(end)})
-        if label == "z_down":
-            phases.append({"label": "stationary", "start": float(start), "end": float(end)})
-    if not phases:
-        raise CalibrationError(
-            f"{rec.path or 'recording'}: no rest of at least {min_s:g} s found (the gyro and the "
-            f"accelerometer never stay still together): lay the board or phone down, let go, and "
-            f"keep it still for a few seconds before moving it again"
-        )
-    meta = {**rec.meta, "phases": phases, "phases_from": "kfkit.calibration.label_rests"}
-    return type(rec)(meta, rec.data, rec.path)
-
-
-# --- Allan deviation ----------------------------------------------------------------------------
-
-
-def allan_deviation(x, rate_hz, taus=None):
-    """Overlapping Allan deviation of a rate signal (IEEE Std 952-1997, Annex C).
-
-    x (N,) or (N, k) samples at ``rate_hz``; taus cluster times (s), by default :func:`allan_taus` (~10 per decade
-    from one sample to a fifth of the record). With N samples,
-    the angle θ_j = Σ_{i<j} x_i / rate_hz for j = 0 … N (θ_0 = 0: N + 1 angles) and m samples per
-    cluster (τ = m / rate_hz), summing every one of the N − 2m + 1 overlapping clusters:
-
-        σ²(τ) = Σ_{k=0}^{N−2m} (θ_{k+2m} − 2θ_{k+m} + θ_k)² / (2 τ² (N − 2m + 1))
-
-    Returns (taus (M,), adev (M,) or (M, k)) in the unit of x; τ are rounded to whole samples.
-    """
-    a = _samples(x, "x", min_samples=9, width=None)
-    n = len(a)
-    if not rate_hz > 0:
-        raise CalibrationError(f"rate_hz must be positive, got {rate_hz}")
-    if taus is None:
-        m = np.round(allan_taus(n, rate_hz) * rate_hz).astype(int)
-    else:
-        m = np.unique(np.round(np.asarray(taus, dtype=float) * rate_hz).astype(int))
-        if m.min() < 1 or 2 * m.max() >= n:
-            raise CalibrationError(
-                f"taus must lie between one sample ({1 / rate_hz:g} s) and under half the record "
-                f"({n / 2 / rate_hz:g} s); got {np.min(taus):g} … {np.max(taus):g} s"
-            )
-    theta = np.vstack([np.zeros((1, a.shape[1])), np.cumsum(a, axis=0)]) / rate_hz
-    adev = np.empty((len(m), a.shape[1]))
-    for j, mj in enumerate(m):
-        d = theta[2 * mj :] - 2 * theta[mj:-mj] + theta[: -2 * mj]
-        tau = mj / rate_hz
-        adev[j] = np.sqrt(np.sum(d**2, axis=0) / (2 * tau**2 * (len(theta) - 2 * mj)))
-    taus_out = m / rate_hz
-    return taus_out, (adev[:, 0] if np.ndim(x) == 1 else adev)
-
-
-def allan_taus(n, rate_hz):
-    """The cluster times :func:`allan_deviation` uses by default (s): about 10 per decade, whole samples, from one
-    sample to a fifth of a record of ``n`` samples (longer τ have too few clusters to trust)."""
-    decades = np.log10(n / 5)
-    return np.unique(np.round(np.logspace(0, decades, int(10 * decades) + 1))) / rate_hz
-
-
-def angle_random_walk(taus, adev):
-    """White-noise density N read off the Allan curve at τ = 1 s (log-log interpolation).
-
-    White noise gives σ(τ) = N/√τ (slope −½), so σ(1 s) = N: in rad/s/√Hz = rad/√s for a gyro
-    (× 60·180/π for °/√h), m/s²/√Hz for an accelerometer. Check on the plot that the −½ slope
-    passes through 1 s. Works per column for (M, k) curves.
-    """
-    taus, adev = np.asarray(taus, float), np.asarray(adev, float)
-    if not taus.min() <= 1.0 <= taus.max():
-        raise CalibrationError(
-            f"the Allan curve must span τ = 1 s to read the angle random walk; it spans "
-            f"{taus.min():g} … {taus.max():g} s"
-        )
-    logs = np.log(adev).reshape(len(taus), -1)
-    out = np.array([np.exp(np.interp(0.0, np.log(taus), col)) for col in logs.T])
-    return out if adev.ndim > 1 else float(out[0])
-
-
-def bias_instability(taus, adev):
-    """Bias instability B and where it was read: (B, τ_min) from the flat minimum of the Allan curve.
-
-    B = σ_min / 0.664 (:data:`BIAS_INSTABILITY_FACTOR`, exact for flicker noise). Where the curve has
-    no flat floor (white noise meeting a rate random walk, as in kfkit's simulator) this is the
-    conventional read-out of the lowest point, not a flicker-noise level. The lowest of several noisy
-    points reads a little low (about 10 % on a long floor); if τ_min is the longest τ the curve has not
-    turned up yet and B is only an upper bound: record longer. Per column for (M, k).
-    """
-    taus, adev = np.asarray(taus, float), np.asarray(adev, float)
-    k = np.argmin(adev, axis=0)
-    return adev.min(axis=0) / BIAS_INSTABILITY_FACTOR, taus[k]
-
-
-def allan_noise_fit(taus, adev):
-    """(N, B, K): white-noise density, bias instability and rate random walk that best explain an Allan curve,
-
-        σ²(τ) = N²/τ + (2 ln 2/π)·B² + K²·τ/3        (IEEE Std 952-1997, Annex C)
-
-    fitted by non-negative least squares on σ², each point weighted by its precision: an Allan variance averages about
-    T/τ independent clusters of a record T long, so its relative error grows as √τ, and the weight is 1/(σ²(τ)·√τ).
-    Units for a gyro in rad/s: N rad/√s (= rad/s/√Hz), B rad/s, K rad/s/√s (the bias's random walk:
-    its σ grows as K·√t). A term the curve does not show comes out 0: K needs the curve to turn up (slope +½) before
-    its longest τ, so a short rest gives K = 0 (unmeasured, not zero). Per column for (M, k) curves.
-    """
-    taus, adev = np.asarray(taus, float), np.asarray(adev, float)
-    var = adev.reshape(len(taus), -1) ** 2
-    basis = np.column_stack([1.0 / taus, np.full(len(taus), BIAS_INSTABILITY_FACTOR**2), taus / 3.0])
-    weight = 1.0 / (var * np.sqrt(taus)[:, None])
-    out = np.array([np.sqrt(nnls(basis * w[:, None], v * w)[0]) for v, w in zip(var.T, weight.T)])  # (k, 3)
-    return tuple(out[:, i] if adev.ndim > 1 else float(out[0, i]) for i in range(3))
-
-
-# --- magnetometer ----------------------------------------------------------------------------------
-
-
-def fit_mag_calibration(mag, field_norm=None, min_samples=50, min_spread=MIN_MAG_SPREAD):
-    """Hard iron h (3,) µT and soft-iron correction S (3, 3) symmetric, with m_cal = S (m − h).
-
-    Raw readings of a rotated board lie on an ellipsoid (m − h)ᵀ A (m − h) = 1. A linear least-squares
-    fit of the general quadric  xᵀ Q x + pᵀ x + c = 0  (smallest right singular vector, on centred and
-    scaled data) gives h = −Q⁻¹p/2 and A; then S = B·A^½ (symmetric square root) so calibrated
-    norms equal the local field magnitude B (µT; default |MAG_FIELD_LONDON|). A rotation part of the
-    soft iron cannot be seen from norms alone and stays in the mounting.
-
-    Rows that are all NaN (no new magnetometer sample) are dropped. Raises :class:`CalibrationError`
-    for too few samples, partly non-finite rows, or when the rotations cover too little of the sphere,
-    judged against the field itself: the readings' standard deviation along each principal direction
-    must reach :data:`MIN_MAG_COVERAGE` · B (a still board's noise cloud, or a board turned about one
-    axis only, spreads ~0 along some direction however round the cloud is), and the smallest principal
-    variance must reach ``min_spread`` of the largest (a board only turned flat gives a thin ellipse).
-    """
-    raw = np.asarray(mag, dtype=float)
-    if raw.ndim == 2 and raw.shape[1] == 3:
-        raw = raw[np.isfinite(raw).all(axis=1) | ~np.isnan(raw).all(axis=1)]  # rows with no new sample go
-    m = _samples(raw, "mag", min_samples=min_samples)
-    B = float(np.linalg.norm(MAG_FIELD_LONDON)) if field_norm is None else float(field_norm)
-    centre, scale = m.mean(axis=0), m.std(axis=0).max()
-    if scale == 0:
-        raise CalibrationError("mag: all readings are equal: the board did not move")
-    if not (np.isfinite(B) and B > 0):
-        raise CalibrationError(f"field_norm must be the local field's magnitude in µT (positive), got {field_norm!r}")
-    spread = np.linalg.eigvalsh(np.cov(m.T))
-    sigma = np.sqrt(np.maximum(spread, 0.0))  # µT along the principal directions, smallest first
-    if sigma[0] < MIN_MAG_COVERAGE * B:
-        still = sigma[-1] < MIN_MAG_COVERAGE * B
-        raise CalibrationError(
-            f"mag: the rotations cover too little of the sphere: the readings spread only {sigma[0]:.2g} µT along "
-            f"their narrowest direction (and {sigma[-1]:.2g} µT along "
-            f"the widest), under {MIN_MAG_COVERAGE:.0%} of the {B:.3g} µT field: "
-            + (
-                "the board hardly turned (this is sensor noise around one reading). "
-                if still
-                else "the board turned about one axis only, so the field was never seen along that axis. "
-            )
-            + "Record again, turning the board slowly through every orientation — figure eights, on its side and "
-            "upside down — for about a minute (and pass field_norm= your local field if it is far from London's)"
-        )
-    if spread[0] < min_spread * spread[-1]:
-        raise CalibrationError(
-            f"mag: the rotations cover too little of the sphere (smallest/largest spread "
-            f"{spread[0] / spread[-1]:.3f} < {min_spread}): a hard/soft-iron fit needs the field seen from all "
-            f"directions. Record again, turning the board slowly through every orientation — figure eights, on its "
-            f"side and upside down — for about a minute"
-        )
-    u = (m - centre) / scale
-    x, y, z = u.T
-    design = np.column_stack([x * x, y * y, z * z, 2 * x * y, 2 * x * z, 2 * y * z, x, y, z, np.ones_like(x)])
-    coef = np.linalg.svd(design, full_matrices=False)[2][-1]
-    Q = np.array([[coef[0], coef[3], coef[4]], [coef[3], coef[1], coef[5]], [coef[4], coef[5], coef[2]]])
-    p, c = coef[6:9], coef[9]
-    h_u = -0.5 * np.linalg.solve(Q, p)
-    k = h_u @ Q @ h_u - c  # (u − h)ᵀ Q (u − h) = k
-    A_u = Q / k
-    w, V = np.linalg.eigh(A_u)
-    if w.min() <= 0:
-        raise CalibrationError(
-            "mag: the readings do not lie on an ellipsoid (the fit is not positive definite): "
-            "record again with slow rotations through all orientations, away from steel and magnets"
-        )
-    S = B / scale * (V * np.sqrt(w)) @ V.T
-    return centre + scale * h_u, S
-
-
-def apply_mag_calibration(mag, hard_iron, soft_iron):
-    """m_cal = S (m − h) row-wise, (N, 3) µT; NaN rows (no new sample) stay NaN."""
-    return (np.asarray(mag, dtype=float) - np.asarray(hard_iron, float)) @ np.asarray(soft_iron, float).T
-
-
-# --- the saved calibration ----------------------------------------------------------------------------
 
 
 def _zeros():

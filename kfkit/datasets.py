@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from . import real_data, sim, vehicle
+from . import attitude_motions, calibration_motions, motions, real_data, sim, vehicle
 from .calibration import Calibration, calibrate
 from .frames import G
 from .io import Recording, load_recording, load_vehicle, recording_text, vehicle_text
@@ -29,7 +29,7 @@ from .unit_errors import MPU6050_ACCEL_BIAS, MPU6050_ACCEL_SCALE, MPU6050_GYRO_B
 
 def _roll_sine() -> Recording:
     """Lab 01: a Nucleo + X-NUCLEO-IKS02A1 rolled by hand, ±30° at 0.1 Hz, 104 Hz, 60 s."""
-    motion = sim.sine_roll(
+    motion = motions.sine_roll(
         duration=60.0,
         rate_hz=104.0,
         amplitude=np.radians(30.0),
@@ -45,18 +45,20 @@ def _roll_sine() -> Recording:
 # Lab 04 uses the same Nucleo as labs 02 and 03 (kfkit.unit_errors.NUCLEO_UNIT), so their calibration applies.
 def _attitude_tour() -> Recording:
     """Lab 04: the Nucleo turned about all axes, slid on the table, 104 Hz, 60 s."""
-    return _nucleo(sim.attitude_tour(rate_hz=104.0, translate_accel=2.0, vibration_rms=0.1, seed=401), seed=402)
+    return _nucleo(
+        attitude_motions.attitude_tour(rate_hz=104.0, translate_accel=2.0, vibration_rms=0.1, seed=401), seed=402
+    )
 
 
 def _gimbal_lock() -> Recording:
     """Lab 04: the Nucleo's nose pitched up through vertical and back, then down through it, 104 Hz, 36 s."""
-    return _nucleo(sim.pitch_over(rate_hz=104.0), seed=403)
+    return _nucleo(attitude_motions.pitch_over(rate_hz=104.0), seed=403)
 
 
 def _mag_disturbance() -> Recording:
     """Lab 04: heading sweeps with a steel object near the Nucleo for 12–20 s, 104 Hz, 30 s."""
-    motion = sim.yaw_sweeps(rate_hz=104.0)
-    return _nucleo(motion, seed=404, mag_disturbance=sim.mag_disturbance(motion))
+    motion = attitude_motions.yaw_sweeps(rate_hz=104.0)
+    return _nucleo(motion, seed=404, mag_disturbance=attitude_motions.mag_disturbance(motion))
 
 
 MPU6050_BOOT_US = 1523456  # the logger's micros() at its first sample (its README's example line)
@@ -97,19 +99,19 @@ def _as_logged(rec) -> Recording:
 
 def _tilt_protocol() -> Recording:
     """Lab 05: the tilt protocol twice (pitch, roll, pitch, roll) on an MPU6050, 100 Hz, 36 s."""
-    return _mpu6050(sim.tilt_protocol(axes=("pitch", "roll", "pitch", "roll"), rate_hz=100.0, seed=501), seed=502)
+    return _mpu6050(motions.tilt_protocol(axes=("pitch", "roll", "pitch", "roll"), rate_hz=100.0, seed=501), seed=502)
 
 
 def _mpu6050_stationary() -> Recording:
     """Lab 05: the MPU6050 lying flat and still for 10 s (gyro bias), 100 Hz."""
-    motion = sim.stationary(10.0, 100.0)
+    motion = motions.stationary(10.0, 100.0)
     motion.phases = [(0.0, 10.0, "stationary")]
     return _mpu6050(motion, seed=503)
 
 
 def _mpu6050_six_faces() -> Recording:
     """Lab 05 (and the MPU6050's default calibration): the MPU6050 resting 5 s on each face, 100 Hz."""
-    return _mpu6050(sim.six_faces(rate_hz=100.0, seed=212), seed=213)
+    return _mpu6050(calibration_motions.six_faces(rate_hz=100.0, seed=212), seed=213)
 
 
 STATIONARY_RATE_HZ = 12.5  # lab 02's long rest: the ISM330DHCX's lowest ODR keeps 40 min small
@@ -124,29 +126,29 @@ def _nucleo(motion, seed, **options) -> Recording:
 
 def _stationary_long() -> Recording:
     """Lab 02: the Nucleo lying flat and still for 40 min at 12.5 Hz (bias, noise, Allan deviation)."""
-    motion = sim.stationary(2400.0, STATIONARY_RATE_HZ)
+    motion = motions.stationary(2400.0, STATIONARY_RATE_HZ)
     motion.phases = [(0.0, 2400.0, "stationary")]
     return _nucleo(motion, seed=201)
 
 
 def _six_faces() -> Recording:
     """Lab 02: the Nucleo resting 5 s on each of its six faces, 104 Hz."""
-    return _nucleo(sim.six_faces(rate_hz=104.0, seed=202), seed=203)
+    return _nucleo(calibration_motions.six_faces(rate_hz=104.0, seed=202), seed=203)
 
 
 def _axis_turns() -> Recording:
     """Lab 03: flat, turned 90° about body x, y, z and back, 104 Hz."""
-    return _nucleo(sim.axis_turns(rate_hz=104.0), seed=301)
+    return _nucleo(calibration_motions.axis_turns(rate_hz=104.0), seed=301)
 
 
 def _mag_rotations() -> Recording:
     """Lab 03: slow tumbling through all orientations for 60 s, 104 Hz (hard/soft-iron calibration)."""
-    return _nucleo(sim.mag_rotations(rate_hz=104.0, seed=302), seed=303)
+    return _nucleo(calibration_motions.mag_rotations(rate_hz=104.0, seed=302), seed=303)
 
 
 def _headings() -> Recording:
     """Lab 03: turned through six headings flat, then tilted, 104 Hz."""
-    return _nucleo(sim.heading_steps(rate_hz=104.0), seed=304)
+    return _nucleo(calibration_motions.heading_steps(rate_hz=104.0), seed=304)
 
 
 def _calibration_nucleo():
@@ -170,7 +172,7 @@ def _calibration_json(cal) -> str:
 def _calibration_mpu6050():
     """The MPU6050's default calibration: lab 02's analysis of a simulated 60 s rest and six faces
     of the lab 05 board (same biases as its bundled recordings)."""
-    still = _mpu6050(sim.stationary(60.0, 100.0), seed=211)
+    still = _mpu6050(motions.stationary(60.0, 100.0), seed=211)
     return calibrate(
         still,
         _mpu6050_six_faces(),
@@ -209,7 +211,7 @@ def _phone_attitude_tour() -> dict:
     """Lab 04 with a phone: the attitude tour with a phone lying flat, screen up, top edge forward, in a
     phyphox simple experiment (accelerometer, gyroscope, magnetometer at 100 Hz), exported as CSV (comma,
     decimal point): {file in the export folder: text}, plus the truth (``kfkit_truth.csv``)."""
-    motion = sim.attitude_tour(rate_hz=400.0, translate_accel=2.0, vibration_rms=0.1, seed=401)
+    motion = attitude_motions.attitude_tour(rate_hz=400.0, translate_accel=2.0, vibration_rms=0.1, seed=401)
     return simple_experiment_files(simulate_phone(motion, seed=405))
 
 

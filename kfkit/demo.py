@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from matplotlib.figure import Figure
 
-from . import sim
+from . import motions
 from .capture.protocol import BadLine, Header, Message, Sample, parse_line
 from .capture.virtual import VirtualBoard
 from .frames import euler_rates_to_body_rates
@@ -210,11 +210,11 @@ def advance(game, stream, until=None) -> int:
     return len(attitudes)
 
 
-def driving_motion(rate_hz=100.0, duration=62.5, still=2.5) -> sim.Motion:
+def driving_motion(rate_hz=100.0, duration=62.5, still=2.5) -> motions.Motion:
     """What the virtual board plays: 2.5 s still (the sketch's gyro bias), then a hand steering left and
     right (roll ±20°, 12 s period) while dipping the nose 0…10° (throttle, 10 s period); whole cycles,
     so it loops smoothly."""
-    t = sim.sample_times(duration, rate_hz)
+    t = motions.sample_times(duration, rate_hz)
     moving = t > still
     s = np.clip(t - still, 0.0, None)
     w1, w2 = 2 * np.pi / 12.0, 2 * np.pi / 10.0
@@ -222,7 +222,7 @@ def driving_motion(rate_hz=100.0, duration=62.5, still=2.5) -> sim.Motion:
     pitch, pitch_dot = -np.radians(5.0) * (1 - np.cos(w2 * s)), -np.radians(5.0) * w2 * np.sin(w2 * s) * moving
     euler = np.column_stack([roll, pitch, np.zeros_like(t)])
     euler_dot = np.column_stack([roll_dot, pitch_dot, np.zeros_like(t)])
-    return sim.Motion(
+    return motions.Motion(
         t,
         rate_hz,
         euler,

@@ -51,7 +51,7 @@ def angle_bias_process_noise(white_density, bias_walk, dt):
 
     N² dt is the angle's own random walk in one step (rad²); K² dt the bias's (rad²/s²); the off-diagonal says a
     bias that grew during the step has already turned the angle the other way. Both N and K come from lab 02's
-    Allan curve (:func:`kfkit.calibration.allan_noise_fit`).
+    Allan curve (:func:`kfkit.allan.allan_noise_fit`).
     """
     N2, K2 = float(white_density) ** 2, float(bias_walk) ** 2
     # Qd's two rows, as the docstring writes them

@@ -1,6 +1,6 @@
 """A phone's sensors, simulated: each on its own clock and rate, with timestamp jitter and lost samples.
 
-:func:`simulate_phone` plays a :class:`kfkit.sim.Motion` through a phone held in one of
+:func:`simulate_phone` plays a :class:`kfkit.motions.Motion` through a phone held in one of
 :data:`kfkit.sensors.PHONE_MOUNTS`: each sensor samples at its own rate (:data:`PHONE_RATES`) from a random
 phase, its values come from :func:`kfkit.sim.simulate_imu` with the phone's noise
 (:func:`kfkit.sensors.phone_board`) and the phone's unit (:data:`kfkit.unit_errors.PHONE_UNIT`), rounded to
@@ -19,8 +19,9 @@ import numpy as np
 
 from .frames import MAG_FIELD_LONDON, G, dcm_slerp, dcm_to_euler, dcm_to_quat, euler_to_dcm
 from .io import format_header
+from .motions import Motion
 from .sensors import DEFAULT_PHONE_MOUNT, PHONE_LSB, PHONE_MAG, phone_board, phone_mount
-from .sim import Motion, simulate_imu
+from .sim import simulate_imu
 from .unit_errors import PHONE_UNIT
 
 #: The simulated phone's sensor rates (Hz): what phyphox gives when a simple experiment asks for
@@ -68,7 +69,7 @@ def simulate_phone(
     mount=DEFAULT_PHONE_MOUNT,
     drop=0.0,
 ) -> PhoneSamples:
-    """A phone held in ``mount`` through ``motion`` (a :class:`kfkit.sim.Motion`, best sampled well
+    """A phone held in ``mount`` through ``motion`` (a :class:`kfkit.motions.Motion`, best sampled well
     above the sensors' rates, e.g. 400 Hz): each sensor samples at its own rate (:data:`PHONE_RATES`)
     from a random phase, its timestamps carry ``jitter_s`` RMS of jitter, each sample is lost with
     probability ``drop``, and the values come from :func:`kfkit.sim.simulate_imu` with the phone's

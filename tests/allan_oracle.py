@@ -11,9 +11,9 @@ import pytest
 
 
 def allan_curves(x, rate_hz):
-    """(taus, σ(τ) (M, 3)) of kfkit.calibration.allan_deviation, checked against allantools' overlapping ADEV."""
+    """(taus, σ(τ) (M, 3)) of kfkit.allan.allan_deviation, checked against allantools' overlapping ADEV."""
     allantools = pytest.importorskip("allantools")
-    from kfkit.calibration import allan_deviation
+    from kfkit.allan import allan_deviation
 
     taus, adev = allan_deviation(x, rate_hz)
     for axis in range(x.shape[1]):

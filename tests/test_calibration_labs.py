@@ -10,8 +10,8 @@ import unit_truth
 from test_calibration import PHONE, phone_export
 from waiting import HANG_GUARD_S
 
+from kfkit import allan, calibration_motions, datasets, mag_calibration, motions, rest_calibration
 from kfkit import calibration as C
-from kfkit import datasets, sim
 from kfkit.frames import (
     MAG_FIELD_LONDON,
     G,
@@ -69,19 +69,19 @@ def test_lab02_analysis_on_virtual_board_recordings(lab00_recordings):
     assert n >= 500
     # gyro bias: the mean of the rest, and the mean over the faces' rests of the same unit
     sd = unit_truth.mean_sd(still, rest, "gyr", truth["gyro_bias_rw"])
-    assert np.all(np.abs(C.gyro_bias(gyr) - truth["gyro_bias"]) < 4 * sd)
-    on_faces = np.any([faces_rec.phase(f) for f in C.FACES], axis=0)
+    assert np.all(np.abs(rest_calibration.gyro_bias(gyr) - truth["gyro_bias"]) < 4 * sd)
+    on_faces = np.any([faces_rec.phase(f) for f in rest_calibration.FACES], axis=0)
     sd = unit_truth.mean_sd(faces_rec, on_faces, "gyr", truth["gyro_bias_rw"])
-    assert np.all(np.abs(C.gyro_bias(faces_rec.body("gyr")[on_faces]) - truth["gyro_bias"]) < 4 * sd)
+    assert np.all(np.abs(rest_calibration.gyro_bias(faces_rec.body("gyr")[on_faces]) - truth["gyro_bias"]) < 4 * sd)
     # noise σ: the datasheet's with rounding, within 4 standard deviations of a sample σ, 1/√(2(n − 1)), plus the
     # walk's share over the record, K²T/6 of variance
     for x, sensor, walk in ((gyr, "gyr", truth["gyro_bias_rw"]), (acc, "acc", truth["accel_bias_rw"])):
         sigma = unit_truth.sample_sigma(still, sensor)
         drift = walk**2 * (n / still.rate_hz) / 6 / (2 * sigma**2)
-        assert np.all(np.abs(C.noise_std(x) / sigma - 1) < 4 / np.sqrt(2 * (n - 1)) + drift), sensor
+        assert np.all(np.abs(rest_calibration.noise_std(x) / sigma - 1) < 4 / np.sqrt(2 * (n - 1)) + drift), sensor
     # six faces: the unit's accelerometer bias and scale, as the slightly tilted faces show them
-    faces = {f: faces_rec.body("acc")[faces_rec.phase(f)] for f in C.FACES}
-    b, s = C.accel_six_face(faces)
+    faces = {f: faces_rec.body("acc")[faces_rec.phase(f)] for f in rest_calibration.FACES}
+    b, s = rest_calibration.accel_six_face(faces)
     bias, scale, sd_b, sd_s = unit_truth.six_face_target(
         faces_rec, capture.protocol_motion("six-faces", 104.0, quick=True, seed=4)
     )
@@ -93,11 +93,12 @@ def test_lab02_analysis_on_virtual_board_recordings(lab00_recordings):
     level = np.array([0.0, 0.0, -G])
     sd = unit_truth.mean_sd(still, rest, "acc", truth["accel_bias_rw"])
     assert np.all(
-        np.abs(C.accel_bias(acc, level) - (truth["accel_bias"] + (truth["accel_scale"] - 1) * level)) < 4 * sd
+        np.abs(rest_calibration.accel_bias(acc, level) - (truth["accel_bias"] + (truth["accel_scale"] - 1) * level))
+        < 4 * sd
     )
-    taus, adev = C.allan_deviation(gyr, still.rate_hz)
+    taus, adev = allan.allan_deviation(gyr, still.rate_hz)
     assert taus.max() >= 1.0  # a 5 s rest still reaches τ = 1 s, so the ARW read-out works
-    assert np.all(C.angle_random_walk(taus, adev) > 0)
+    assert np.all(allan.angle_random_walk(taus, adev) > 0)
 
 
 def test_lab03_calibration_and_heading_on_virtual_board_recordings(lab00_recordings, tmp_path, monkeypatch):
@@ -105,12 +106,14 @@ def test_lab03_calibration_and_heading_on_virtual_board_recordings(lab00_recordi
     (4σ); headings come out right with the board's own calibration and with the kit's default, not without."""
     recs, motion = lab00_recordings
     quick = recs["mag-rotations"]
-    with pytest.raises(C.CalibrationError, match="cover too little of the sphere.*every orientation"):
-        C.fit_mag_calibration(quick.body("mag"))  # lab 00's 8 s quick version: the fit says what to record
+    with pytest.raises(rest_calibration.CalibrationError, match="cover too little of the sphere.*every orientation"):
+        mag_calibration.fit_mag_calibration(
+            quick.body("mag")
+        )  # lab 00's 8 s quick version: the fit says what to record
     rec = recs["mag-rotations full"]
     np.testing.assert_allclose(rec.t, motion.t[: len(rec)], atol=1e-5)  # row k is sample k of the motion played
     mag = rec.body("mag")
-    unit_truth.assert_mag_fit_within(rec, mag, *C.fit_mag_calibration(mag))
+    unit_truth.assert_mag_fit_within(rec, mag, *mag_calibration.fit_mag_calibration(mag))
     # heading against the motion the board played: tilt from the six-face-corrected accelerometer
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))  # nothing saved: calibration_for gives the kit's default
     truth_euler = motion.euler[: len(rec)]
@@ -196,7 +199,7 @@ def test_labs_02_and_03_run_top_to_bottom_on_virtual_board_recordings(lab00_reco
     mag = rot.body("mag")[np.isfinite(rot["mx"])]
     sd_h, _ = unit_truth.mag_fit_sd(mag, truth["mag_hard_iron"], truth["mag_S"], unit_truth.sample_sigma(rot, "mag"))
     assert np.all(np.abs(np.array(saved.mag_hard_iron) - truth["mag_hard_iron"]) < 4 * sd_h)
-    np.testing.assert_allclose(saved.gyro_bias, C.gyro_bias(recs["stationary"].body("gyr")), rtol=1e-6)
+    np.testing.assert_allclose(saved.gyro_bias, rest_calibration.gyro_bias(recs["stationary"].body("gyr")), rtol=1e-6)
     # the headings: RMS over every sample against the prompted headings, within the issue's 2° once calibrated
     level = re.search(
         r"level, heading RMS error against the prompted headings: uncalibrated +([0-9.]+)°, "
@@ -247,9 +250,11 @@ def test_labs_02_and_03_run_top_to_bottom_on_phone_exports(tmp_path, monkeypatch
 
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
     exports = {
-        "rest": phone_export(tmp_path / "rest", sim.stationary(120.0, 100.0), seed=11),
-        "faces": phone_export(tmp_path / "faces", sim.six_faces(rate_hz=200.0, seed=12), seed=13),
-        "tumbling": phone_export(tmp_path / "tumbling", sim.mag_rotations(rate_hz=200.0, seed=14), seed=15),
+        "rest": phone_export(tmp_path / "rest", motions.stationary(120.0, 100.0), seed=11),
+        "faces": phone_export(tmp_path / "faces", calibration_motions.six_faces(rate_hz=200.0, seed=12), seed=13),
+        "tumbling": phone_export(
+            tmp_path / "tumbling", calibration_motions.mag_rotations(rate_hz=200.0, seed=14), seed=15
+        ),
     }
     mine = {k: str(v) for k, v in exports.items()}
     errors, text = run_solution_on("02_bias_and_noise.ipynb", {"STATIONARY": mine["rest"], "SIX_FACES": mine["faces"]})
@@ -262,8 +267,10 @@ def test_labs_02_and_03_run_top_to_bottom_on_phone_exports(tmp_path, monkeypatch
     saved = C.load_calibration(PHONE)
     assert saved.board == PHONE and mine["rest"] in saved.source and mine["tumbling"] in saved.source
     rest = load_any(exports["rest"])
-    still = C.label_rests(rest).phase("stationary")
-    np.testing.assert_allclose(saved.gyro_bias, C.gyro_bias(rest.body("gyr")[still]), rtol=1e-6)  # lab 02's, kept
+    still = rest_calibration.label_rests(rest).phase("stationary")
+    np.testing.assert_allclose(
+        saved.gyro_bias, rest_calibration.gyro_bias(rest.body("gyr")[still]), rtol=1e-6
+    )  # lab 02's, kept
     M = mount_matrix(rest.meta["mount"]["mag"])
     np.testing.assert_allclose(saved.mag_hard_iron, M @ PHONE_UNIT["mag_hard_iron"], atol=0.05)  # lab 03's fit
     np.testing.assert_allclose(saved.accel_bias, M @ PHONE_UNIT["accel_bias"], atol=3e-3)  # six faces

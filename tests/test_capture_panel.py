@@ -10,7 +10,7 @@ import pytest
 import serial.tools.list_ports
 import unit_truth
 
-from kfkit import calibration, capture, filters, frames, metrics
+from kfkit import calibration, capture, filters, frames, mag_calibration, metrics, rest_calibration
 from kfkit.frames import euler_to_quat
 from kfkit.io import load_recording
 from kfkit.labs import lab05
@@ -255,7 +255,7 @@ def test_lab02_bias_noise_and_six_faces_on_the_recordings(recorded):
             (cal.gyro_bias - truth["gyro_bias"]) / sd,
         )
         # the same unit in the faces recording: its gyro at rest on the faces reads the same bias
-        on_faces = np.any([faces.phase(f) for f in calibration.FACES], axis=0)
+        on_faces = np.any([faces.phase(f) for f in rest_calibration.FACES], axis=0)
         sd = unit_truth.mean_sd(faces, on_faces, "gyr", truth["gyro_bias_rw"])
         assert np.all(np.abs(faces.body("gyr")[on_faces].mean(axis=0) - truth["gyro_bias"]) < 4 * sd), board
         # six faces: the unit's accelerometer bias and scale (as the slightly tilted faces show them)
@@ -284,7 +284,7 @@ def test_lab03_and_lab04_magnetometer_and_attitude_on_the_recordings(recorded, t
     rot = recs["nucleo-iks02a1", "mag-rotations"]
     mag = rot.body("mag")
     assert capture.sphere_coverage(mag) >= 0.9  # what the panel's indicator asks for
-    unit_truth.assert_mag_fit_within(rot, mag, *calibration.fit_mag_calibration(mag))
+    unit_truth.assert_mag_fit_within(rot, mag, *mag_calibration.fit_mag_calibration(mag))
     # lab 04: the attitude MEKF on the same recording against the motion played
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))  # no calibration saved: the kit's default
     truth_q = euler_to_quat(capture.protocol_motion("mag-rotations", rot.rate_hz).euler)

@@ -81,11 +81,13 @@ def test_the_file_carries_the_whole_captures_clock_rate_and_a_90_degree_turn_int
     """A phone whose gyro runs at 401.9 Hz with 0.3 ms of timestamp jitter: the header's rate is a guess from the first
     rows (it was 0.7 % to 1.55 % off, and a 90° turn integrated to 1.4° wrong); the final file's rate_hz must be the
     phone clock's over the whole capture, within 4σ of the jitter's effect on it (√2·σ_t/T) plus its rounding, and the
-    turn about body x (sim.axis_turns) must integrate to 90° with it."""
-    from kfkit import sim
+    turn about body x (calibration_motions.axis_turns) must integrate to 90° with it."""
+    from kfkit import calibration_motions
 
     served, seconds = 401.9, 6.0
-    motion = sim.axis_turns(hold=2.0, move=1.5, rate_hz=1000.0)  # rest 2 s, roll 90° in 1.5 s, rest 2 s, …
+    motion = calibration_motions.axis_turns(
+        hold=2.0, move=1.5, rate_hz=1000.0
+    )  # rest 2 s, roll 90° in 1.5 s, rest 2 s, …
     with VirtualPhone(motion, seed=11, step_s=0.5, rates={"gyr": served, "acc": 400.7}) as vp:
         capture(vp.url + "?timeout=60", seconds=seconds, out=tmp_path / "turn.csv")
     rec = load_recording(tmp_path / "turn.csv")

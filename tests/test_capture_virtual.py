@@ -17,7 +17,7 @@ import unit_truth
 from allan_oracle import allan_curves, loglog_slope, model_adev, outside_chi2_interval
 
 import kfkit.capture as C
-from kfkit import sim
+from kfkit import motions
 from kfkit.capture import ports as ports_module
 from kfkit.cli import main
 from kfkit.frames import MAG_FIELD_LONDON, G
@@ -459,7 +459,7 @@ def test_angle_random_walk_of_a_two_minute_rest_is_the_datasheets():
     """Lab 00's full stationary protocol (2 min, 104 Hz): the ARW read at τ = 1 s (kfkit.calibration) within the
     99 % chi-square interval (allantools' edf for white noise) of N, quantisation and walk included."""
     allantools = pytest.importorskip("allantools")
-    from kfkit.calibration import allan_deviation, angle_random_walk
+    from kfkit.allan import allan_deviation, angle_random_walk
     from kfkit.sensors import board as get_board
 
     rec = C.record_protocol("stationary", "virtual", fast=True, seed=7, prompt=None)
@@ -561,7 +561,7 @@ def test_guided_motion_phases_reach_the_recording(tmp_path):
 
 
 def test_protocol_steps_cover_the_motion():
-    motion = sim.tilt_protocol(rate_hz=100.0, hold=1.0, move=0.5)
+    motion = motions.tilt_protocol(rate_hz=100.0, hold=1.0, move=0.5)
     steps = C.protocol_steps("tilt", motion)
     assert steps[0][:3] == (0.0, 1.0, "pitch_0") and steps[1][2] is None
     assert all(a[1] == pytest.approx(b[0]) for a, b in zip(steps, steps[1:]))

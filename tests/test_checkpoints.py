@@ -14,8 +14,8 @@ from scipy import constants
 from scipy.optimize import brentq, least_squares
 from scipy.spatial.transform import Rotation
 
+from kfkit import allan, datasets, discrete, filters, frames, mag_calibration, rest_calibration
 from kfkit import calibration as C
-from kfkit import datasets, discrete, filters, frames
 from kfkit import vehicle as V
 from kfkit.checkpoints import REGISTRY, check, compare, get, run_checkpoint
 from kfkit.filters import estimate_sideslip, sideslip_step
@@ -213,14 +213,14 @@ RIGHT = {
     "01.kf_beats_sensors": reference_run_kf,
     "01.fuse_gaussians": lambda mu_prior, var_prior, z, r: filters.roll_kf_update(mu_prior, var_prior, z, r)[:2],
     "01.q_for_time_constant": q_by_search,
-    "02.gyro_bias": C.gyro_bias,
-    "02.noise_std": C.noise_std,
-    "02.accel_bias": C.accel_bias,
-    "02.six_face": C.accel_six_face,
-    "02.six_face_recording": C.accel_six_face,
-    "02.gyro_bias_recording": C.gyro_bias,
-    "02.noise_recording": C.noise_std,
-    "02.allan_deviation": lambda x, rate_hz, taus: C.allan_deviation(x, rate_hz, taus)[1],
+    "02.gyro_bias": rest_calibration.gyro_bias,
+    "02.noise_std": rest_calibration.noise_std,
+    "02.accel_bias": rest_calibration.accel_bias,
+    "02.six_face": rest_calibration.accel_six_face,
+    "02.six_face_recording": rest_calibration.accel_six_face,
+    "02.gyro_bias_recording": rest_calibration.gyro_bias,
+    "02.noise_recording": rest_calibration.noise_std,
+    "02.allan_deviation": lambda x, rate_hz, taus: allan.allan_deviation(x, rate_hz, taus)[1],
     "02.sigma_at_rate": C.noise_at_rate,
     "02.q_from_noise_density": lambda N, K, dt: van_loan_angle_bias(N, K, dt),
     "02.q_from_datasheet": lambda arw, bias_instability, rrw, dt: van_loan_angle_bias(
@@ -230,9 +230,9 @@ RIGHT = {
     ),
     "03.counts_to_ut": lambda counts: counts * 0.15,
     "03.alignment": lambda turns: np.diag([np.sign(np.sum(g * m)) for g, m in (turns[a] for a in "xyz")]),
-    "03.mag_calibration": C.fit_mag_calibration,
-    "03.heading_error": C.fit_mag_calibration,
-    "03.real_magnet": C.fit_mag_calibration,
+    "03.mag_calibration": mag_calibration.fit_mag_calibration,
+    "03.heading_error": mag_calibration.fit_mag_calibration,
+    "03.real_magnet": mag_calibration.fit_mag_calibration,
     "03.flat_heading": frames.mag_heading,
     "03.tilt_heading": frames.tilt_compensated_heading,
     "03.hard_iron_budget": hard_iron_budget_by_search,
@@ -398,14 +398,14 @@ def test_uncalibrated_magnetometer_fails_the_heading_checkpoint():
 
 def test_allan_checkpoint_names_a_normalisation_factor():
     result = run_checkpoint(
-        get("02.allan_deviation"), lambda x, rate_hz, taus: 2 * C.allan_deviation(x, rate_hz, taus)[1]
+        get("02.allan_deviation"), lambda x, rate_hz, taus: 2 * allan.allan_deviation(x, rate_hz, taus)[1]
     )
     assert "constant factor 2" in result.message
 
 
 def _geometric_fit(mag):
     """A different, sound answer: the reference fit refined by minimising ‖S(m − h)‖ − B (scipy least squares)."""
-    h0, S0 = C.fit_mag_calibration(mag)
+    h0, S0 = mag_calibration.fit_mag_calibration(mag)
     iu = np.triu_indices(3)
 
     def unpack(p):
@@ -422,9 +422,9 @@ def _geometric_fit(mag):
 def test_mag_calibration_checkpoint_judges_against_the_true_ellipsoid():
     cp = get("03.mag_calibration")
     assert run_checkpoint(cp, _geometric_fit, seed=3).ok
-    cholesky = lambda mag: (lambda h, S: (h, np.linalg.cholesky(S.T @ S).T))(*C.fit_mag_calibration(mag))
+    cholesky = lambda mag: (lambda h, S: (h, np.linalg.cholesky(S.T @ S).T))(*mag_calibration.fit_mag_calibration(mag))
     assert "not symmetric" in run_checkpoint(cp, cholesky, seed=3).message
-    unscaled = lambda mag: (lambda h, S: (h, S / B_LONDON))(*C.fit_mag_calibration(mag))
+    unscaled = lambda mag: (lambda h, S: (h, S / B_LONDON))(*mag_calibration.fit_mag_calibration(mag))
     assert "scale S by B" in run_checkpoint(cp, unscaled, seed=3).message
     centre_only = lambda mag: (mag.mean(axis=0), np.eye(3))
     assert "off by" in run_checkpoint(cp, centre_only, seed=3).message
@@ -436,18 +436,18 @@ def test_bundled_recording_checks_reject_estimates_a_few_uncertainties_off():
 
     rec = datasets.load("02_six_faces")
     _, _, u_b, u_s = six_face_truth(rec)
-    assert run_checkpoint(get("02.six_face_recording"), C.accel_six_face).ok
-    off = lambda faces: (lambda b, s: (b + 6 * u_b, s))(*C.accel_six_face(faces))
+    assert run_checkpoint(get("02.six_face_recording"), rest_calibration.accel_six_face).ok
+    off = lambda faces: (lambda b, s: (b + 6 * u_b, s))(*rest_calibration.accel_six_face(faces))
     assert "standard uncertainties away" in run_checkpoint(get("02.six_face_recording"), off).message
-    off_scale = lambda faces: (lambda b, s: (b, s + 6 * u_s))(*C.accel_six_face(faces))
+    off_scale = lambda faces: (lambda b, s: (b, s + 6 * u_s))(*rest_calibration.accel_six_face(faces))
     assert not run_checkpoint(get("02.six_face_recording"), off_scale).ok
     still = datasets.load("02_stationary")
     _, u_g = gyro_bias_truth(still)
-    assert not run_checkpoint(get("02.gyro_bias_recording"), lambda gyr: C.gyro_bias(gyr) + 6 * u_g).ok
+    assert not run_checkpoint(get("02.gyro_bias_recording"), lambda gyr: rest_calibration.gyro_bias(gyr) + 6 * u_g).ok
     sigma, u, n = noise_truth(still, "gyr")
     assert np.all(u / sigma < 0.02) and n == 1500  # 2 min at 12.5 Hz: σ known to 2 %
-    assert not run_checkpoint(get("02.noise_recording"), lambda x: 1.1 * C.noise_std(x)).ok
-    assert not run_checkpoint(get("02.noise_recording"), lambda x: C.noise_std(x) ** 0.5).ok
+    assert not run_checkpoint(get("02.noise_recording"), lambda x: 1.1 * rest_calibration.noise_std(x)).ok
+    assert not run_checkpoint(get("02.noise_recording"), lambda x: rest_calibration.noise_std(x) ** 0.5).ok
 
 
 # --- lab 04 ------------------------------------------------------------------------------------------------------

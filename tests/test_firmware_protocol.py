@@ -269,10 +269,10 @@ def record_over_pty(stream: bytes, samples: int):
 
 def motion_counts(board, seconds, seed):
     """Raw counts of the board tilting by hand (kfkit's simulator), one frame per sample, mag on every row."""
-    from kfkit import sim
+    from kfkit import motions, sim
 
     b = get_board(board)
-    motion = sim.tilt_protocol(rate_hz=b.rate_hz, hold=seconds / 8, move=seconds / 8, seed=seed)
+    motion = motions.tilt_protocol(rate_hz=b.rate_hz, hold=seconds / 8, move=seconds / 8, seed=seed)
     rec = sim.simulate_imu(motion, board=b, seed=seed, mag_rate_hz=b.rate_hz)
     sensors = ("acc", "gyr", "mag") if b.mag is not None else ("acc", "gyr")
     return np.column_stack([rec.counts(s) for s in sensors]).astype(int)

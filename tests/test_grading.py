@@ -41,7 +41,7 @@ from lab01_notebooks import LAB, SOLUTION, add, append, edit, minimal, read
 
 from kfkit.checkpoints import LABS
 from kfkit.cli import main
-from kfkit.grading import _kernel_side, core, runner, sandbox, wire
+from kfkit.grading import _kernel_side, core, kernel_client, runner, sandbox, wire
 from kfkit.paths import KIT_ROOT
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
@@ -918,7 +918,7 @@ def test_a_pickle_from_the_kernel_is_never_unpickled(tmp_path):
 def test_grader_side_modules_never_load_pickles():
     """What the kernel sends is only ever parsed as JSON: no pickle/cloudpickle/marshal loads in the
     modules that run in the grader (the kernel side, which unpickles the grader's inputs, is apart)."""
-    for module in (core, wire, runner, sandbox):
+    for module in (core, wire, runner, kernel_client, sandbox):
         tree = ast.parse(Path(module.__file__).read_text())
         calls = {
             f"{n.func.value.id}.{n.func.attr}"
@@ -929,7 +929,7 @@ def test_grader_side_modules_never_load_pickles():
 
 
 def test_maxmsgsize_is_set_on_the_graders_sockets():
-    km = runner._SandboxKernelManager(kernel_name="python3")
+    km = kernel_client._SandboxKernelManager(kernel_name="python3")
     km.max_message = 1234
     kc = km.client()
     assert kc.context.getsockopt(zmq.MAXMSGSIZE) == 1234

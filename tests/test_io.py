@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from kfkit.io import Recording, RecordingError, load_recording, recording_text, save_recording
-from kfkit.sim import simulate_imu, sine_roll, stationary
+from kfkit.motions import sine_roll, stationary
+from kfkit.sim import simulate_imu
 
 IDENTITY = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
 #: what a recording with ax and mx columns must carry: each sensor's sensitivity and mounting

@@ -7,8 +7,8 @@ import pytest
 from scipy import constants
 from test_checkpoints_every import solution_namespace
 
+from kfkit import allan, datasets, discrete, motions, rest_calibration, sim
 from kfkit import calibration as C
-from kfkit import datasets, discrete, sim
 from kfkit.io import save_recording
 from kfkit.labs import lab02
 from kfkit.unit_errors import NUCLEO_UNIT
@@ -61,7 +61,7 @@ def simulated_rests(seconds, seeds, rate=datasets.STATIONARY_RATE_HZ):
     for seed in seeds:
         rng = np.random.default_rng(seed)
         x = N * np.sqrt(rate) * rng.normal(size=n) + np.cumsum(K / np.sqrt(rate) * rng.normal(size=n))
-        n_fit, _, k_fit = C.allan_noise_fit(*C.allan_deviation(x, rate))
+        n_fit, _, k_fit = allan.allan_noise_fit(*allan.allan_deviation(x, rate))
         fits.append((n_fit / N, k_fit / K))
     return np.array(fits)
 
@@ -73,7 +73,7 @@ def test_forty_minutes_read_k_to_about_twenty_percent_and_n_to_a_percent():
     ratios = simulated_rests(2400.0, range(200))
     assert 0.15 < ratios[:, 1].std() < 0.25 and ratios[:, 0].std() < 0.01
     N, K = lab02.noise_model_truth(rest := datasets.load("02_stationary"))
-    n_fit, _, k_fit = C.allan_noise_fit(*C.allan_deviation(rest.body("gyr"), rest.rate_hz))
+    n_fit, _, k_fit = allan.allan_noise_fit(*allan.allan_deviation(rest.body("gyr"), rest.rate_hz))
     assert np.all(np.abs(k_fit / K - 1) < 2 * ratios[:, 1].std())
     assert np.all(np.abs(n_fit / N - 1) < 0.02)
 
@@ -85,7 +85,7 @@ def test_two_minutes_give_no_k_more_often_than_not():
     assert np.mean(simulated_rests(120.0, range(200))[:, 1] == 0) > 0.5
     rest = datasets.load("02_stationary")
     gyr = rest.body("gyr")[: int(120 * rest.rate_hz)]
-    _, _, k_fit = C.allan_noise_fit(*C.allan_deviation(gyr, rest.rate_hz))
+    _, _, k_fit = allan.allan_noise_fit(*allan.allan_deviation(gyr, rest.rate_hz))
     assert k_fit[0] == pytest.approx(5.9e-6, abs=0.05e-6) and k_fit[1] == k_fit[2] == 0.0
 
 
@@ -106,7 +106,7 @@ def test_the_calibration_lab_02_saves_from_your_own_rest_carries_n_and_k(tmp_pat
 
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
     unit = {k: (np.asarray(v) if k == "mag_soft_iron" else v) for k, v in NUCLEO_UNIT.items()}
-    motion = sim.stationary(1200.0, datasets.STATIONARY_RATE_HZ)
+    motion = motions.stationary(1200.0, datasets.STATIONARY_RATE_HZ)
     motion.phases = [(0.0, 1200.0, "stationary")]
     rec = sim.simulate_imu(motion, board="nucleo-iks02a1", seed=77, **unit)
     rec.meta.pop("sim")  # a recording of one's own knows no truth
@@ -115,8 +115,10 @@ def test_the_calibration_lab_02_saves_from_your_own_rest_carries_n_and_k(tmp_pat
     assert errors == [] and "Warning" not in text and "saved to" in text
     saved = C.load_calibration("nucleo-iks02a1")
     gyr = rec.body("gyr")
-    _, _, k_fit = C.allan_noise_fit(*C.allan_deviation(gyr, rec.rate_hz))
+    _, _, k_fit = allan.allan_noise_fit(*allan.allan_deviation(gyr, rec.rate_hz))
     assert np.all(k_fit > 0)
     np.testing.assert_allclose(saved.gyro_bias_walk, k_fit, rtol=1e-6)
     window = int(C.NOISE_WINDOW_S * rec.rate_hz)
-    np.testing.assert_allclose(saved.gyro_density, C.noise_std(gyr, window) / np.sqrt(rec.rate_hz), rtol=1e-6)
+    np.testing.assert_allclose(
+        saved.gyro_density, rest_calibration.noise_std(gyr, window) / np.sqrt(rec.rate_hz), rtol=1e-6
+    )

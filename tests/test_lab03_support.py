@@ -7,7 +7,7 @@ heading and fit (not the notebook's), so the claim holds whatever the student wr
 import numpy as np
 import pytest
 
-from kfkit import calibration, datasets, frames
+from kfkit import datasets, frames, mag_calibration
 from kfkit.checkpoints import get, run_checkpoint
 from kfkit.checkpoints import lab03 as checkpoints_lab03
 from kfkit.labs import lab03
@@ -20,9 +20,9 @@ LEVEL_CALIBRATED = [5.6, 34.4, 67.1, -112.0, -54.4, -22.9]
 @pytest.fixture(scope="module")
 def tilted_rests():
     rec = datasets.load("03_headings")
-    h, S = calibration.fit_mag_calibration(datasets.load("03_mag_rotations").body("mag"))
+    h, S = mag_calibration.fit_mag_calibration(datasets.load("03_mag_rotations").body("mag"))
     tilted = rec.phase("heading_tilted") & np.isfinite(rec["mx"])
-    mags = {"raw": rec.body("mag"), "calibrated": calibration.apply_mag_calibration(rec.body("mag"), h, S)}
+    mags = {"raw": rec.body("mag"), "calibrated": mag_calibration.apply_mag_calibration(rec.body("mag"), h, S)}
     level = {name: frames.mag_heading(m[tilted]) + frames.declination() for name, m in mags.items()}
     return rec, tilted, mags, level
 

@@ -6,7 +6,7 @@ Oracles: χ² bounds of a 20-run average NEES (scipy, through metrics.chi2_bound
 import numpy as np
 import pytest
 
-from kfkit import calibration, datasets, filters, metrics, sim
+from kfkit import attitude_motions, calibration, datasets, filters, metrics
 from kfkit.labs import lab04
 
 DATASHEET = (np.radians(0.05), 0.006, 0.3)  # σ_ω rad/s, σ_a m/s², σ_m µT: the bundled board's noise at rest
@@ -16,7 +16,9 @@ RUNS = 20
 @pytest.fixture(scope="module")
 def tour():
     rec = datasets.load("04_attitude_tour")
-    return sim.attitude_tour(rate_hz=rec.rate_hz, translate_accel=0.0), np.array(rec.meta["sim"]["field_n"])
+    return attitude_motions.attitude_tour(rate_hz=rec.rate_hz, translate_accel=0.0), np.array(
+        rec.meta["sim"]["field_n"]
+    )
 
 
 def moving_median_and_inside(avg_nees, motion, label=None):

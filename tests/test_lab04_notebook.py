@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from test_calibration_labs import run_solution_on
 
-from kfkit import phone_sim, sim
+from kfkit import attitude_motions, phone_sim
 from kfkit.phone_sim import simulate_phone
 
 pytestmark = pytest.mark.slow  # the quick tier (-m 'not slow') leaves this module out: see pyproject.toml
@@ -26,7 +26,7 @@ def rmse_row(text, name):
 
 def test_lab04_runs_on_a_phone_export_without_truth(tmp_path):
     """A student's own phyphox export of the tour (accelerometer, gyroscope, magnetometer): no truth, no labels."""
-    motion = sim.attitude_tour(rate_hz=400.0, translate_accel=2.0, vibration_rms=0.1, seed=61)
+    motion = attitude_motions.attitude_tour(rate_hz=400.0, translate_accel=2.0, vibration_rms=0.1, seed=61)
     files = phone_sim.simple_experiment_files(simulate_phone(motion, seed=62))
     files.pop(phone_sim.TRUTH_FILE)
     export = phone_sim.write_export(files, tmp_path / "phyphox tour")

@@ -179,9 +179,9 @@ def test_other_mountings_follow_their_matrices(tmp_path):
 
 @pytest.fixture(scope="module")
 def tour_samples():
-    from kfkit import sim
+    from kfkit import attitude_motions
 
-    s = simulate_phone(sim.attitude_tour(rate_hz=400.0, seed=3), seed=9)
+    s = simulate_phone(attitude_motions.attitude_tour(rate_hz=400.0, seed=3), seed=9)
     return {k: (s.t[k][:1500], s.values[k][:1500]) for k in SENSORS}
 
 
@@ -388,9 +388,9 @@ def test_repeated_timestamps_and_gaps_are_counted_not_fatal(tmp_path, tour_sampl
 def test_a_400_hz_export_with_timestamp_jitter_shows_no_false_gaps_and_every_real_one(tmp_path):
     """At 400 Hz a phone's 0.3 ms jitter is 12 % of a period: rounding each interval to periods would call
     ~0.3 % of them gaps (checked on this very export), the smoothed grid none; five lost samples are five."""
-    from kfkit import sim
+    from kfkit import motions
 
-    s = simulate_phone(sim.stationary(20.0, 1000.0), seed=4, rates={"gyr": 400.0, "acc": 400.0, "mag": 100.0})
+    s = simulate_phone(motions.stationary(20.0, 1000.0), seed=4, rates={"gyr": 400.0, "acc": 400.0, "mag": 100.0})
     samples = {k: (s.t[k], s.values[k]) for k in SENSORS}
     rec = readers.load_phyphox(write_simple_experiment(tmp_path / "e", samples))
     assert len(rec) > 7500 and np.array_equal(np.diff(rec["seq"]), np.ones(len(rec) - 1))
@@ -607,9 +607,9 @@ def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
     """A student's own phyphox export of lab 01's experiment (rest, then rolls by hand): no truth, no labels."""
     from test_calibration_labs import run_solution_on
 
-    from kfkit import sim
+    from kfkit import motions
 
-    motion = sim.sine_roll(
+    motion = motions.sine_roll(
         duration=40.0, rate_hz=400.0, amplitude=np.radians(30.0), freq_hz=0.1, still=5.0, vibration_rms=0.3, seed=21
     )
     files = phone_sim.simple_experiment_files(simulate_phone(motion, seed=22))
@@ -627,9 +627,9 @@ def test_lab01_runs_top_to_bottom_on_a_phone_export_without_truth(tmp_path):
 @pytest.fixture(scope="module")
 def small_export(tmp_path_factory):
     """A short simulated simple-experiment export with its truth file, as a folder and as a zip."""
-    from kfkit import sim
+    from kfkit import motions
 
-    samples = simulate_phone(sim.stationary(duration=1.0, rate_hz=100.0), seed=5)
+    samples = simulate_phone(motions.stationary(duration=1.0, rate_hz=100.0), seed=5)
     folder = phone_sim.write_export(
         phone_sim.simple_experiment_files(samples), tmp_path_factory.mktemp("small") / "export"
     )

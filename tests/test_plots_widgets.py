@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 from waiting import HANG_GUARD_S
 
-from kfkit import filters, plots, sim, widgets
+from kfkit import filters, motions, plots, sim, widgets
 from kfkit.io import Recording
 from kfkit.metrics import rmse
 
@@ -104,7 +104,7 @@ def test_attitude_view_rejects_mismatched_inputs():
 
 def test_live_view_follows_a_growing_recording_and_a_reset():
     angles = np.radians([25.0, -15.0, 60.0])  # roll, pitch, yaw
-    rec = sim.simulate_imu(sim.stationary(6.0, 104.0, *angles), seed=3, gyro_bias=[0, 0, 0])
+    rec = sim.simulate_imu(motions.stationary(6.0, 104.0, *angles), seed=3, gyro_bias=[0, 0, 0])
     arrived = {"n": 0}
 
     def source():  # what recorder.recording(last_seconds=2) returns as samples arrive
@@ -149,7 +149,7 @@ def test_live_attitude_applies_a_calibration_and_names_a_bad_method():
 
     bias = np.array([0.01, -0.02, 0.015])  # rad/s, body frame
     rec = sim.simulate_imu(
-        sim.stationary(3.0, 104.0, 0.2, -0.1, 1.0), seed=4, gyro_bias=np.diag([1.0, -1.0, -1.0]) @ bias
+        motions.stationary(3.0, 104.0, 0.2, -0.1, 1.0), seed=4, gyro_bias=np.diag([1.0, -1.0, -1.0]) @ bias
     )
     cal = Calibration(gyro_bias=bias.tolist())
     q = widgets.LiveAttitude(calibration=cal).update(rec)
@@ -167,7 +167,7 @@ def test_live_view_follows_the_virtual_board(tmp_path, monkeypatch):
 
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
     angles = np.radians([17.0, -11.0, 57.0])
-    motion = sim.stationary(20.0, 104.0, *angles)
+    motion = motions.stationary(20.0, 104.0, *angles)
     with capture.Recorder(capture.VirtualBoard(motion=motion, realtime=False, seed=1), seconds=8) as recorder:
         view = widgets.AttitudeView.live(
             lambda: recorder.recording(last_seconds=2.0),
@@ -269,11 +269,11 @@ def test_live_view_timer_runs_clean_and_stops_when_the_capture_ends(tmp_path, mo
 
     from scipy.spatial.transform import Rotation
 
-    from kfkit import capture, sim
+    from kfkit import capture, motions
 
     monkeypatch.setenv("KFKIT_HOME", str(tmp_path / "home"))
     angles = np.radians([12.0, -8.0, 40.0])
-    board = capture.VirtualBoard(motion=sim.stationary(30.0, 104.0, *angles), seed=2)  # real time: many ticks
+    board = capture.VirtualBoard(motion=motions.stationary(30.0, 104.0, *angles), seed=2)  # real time: many ticks
     with caplog.at_level(logging.ERROR), capture.Recorder(board, seconds=1.5) as recorder:
         view = widgets.AttitudeView.live(
             recorder, estimator=widgets.LiveAttitude("mekf", calibration="auto"), interval_ms=50, start=False

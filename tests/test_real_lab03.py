@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from test_checkpoints_every import solution_namespace
 from waiting import HANG_GUARD_S
 
-from kfkit import calibration, datasets
+from kfkit import datasets, mag_calibration
 from kfkit.checkpoints import get, lab03, run_checkpoint
 from kfkit.io import Recording
 from kfkit.labs import lab03 as lab03_support
@@ -70,15 +70,15 @@ def test_trial_34s_magnet_goes_on_at_rest_and_off_before_the_motions_end():
 
 def test_the_real_checkpoints_bar_lies_between_a_right_fit_and_no_fit():
     """The bar (2 × the same IMU's heading error with the magnet off) passes the kit's reference fit (an
-    independent implementation: calibration.fit_mag_calibration) and fails no calibration by a wide margin."""
+    independent implementation: mag_calibration.fit_mag_calibration) and fails no calibration by a wide margin."""
     (case,) = get("03.real_magnet").cases(np.random.default_rng(0))
     bar = lab03.REAL_BAR_FACTOR * case.expected["off"]
-    h, S = calibration.fit_mag_calibration(case.args["mag"], case.args["field_norm"])
+    h, S = mag_calibration.fit_mag_calibration(case.args["mag"], case.args["field_norm"])
     fitted = lab03.true_tilt_heading_error(
-        calibration.apply_mag_calibration(case.args["mag"], h, S), case.expected["truth"]
+        mag_calibration.apply_mag_calibration(case.args["mag"], h, S), case.expected["truth"]
     )
     assert fitted < bar < case.expected["on"] / 2
-    assert run_checkpoint(get("03.real_magnet"), calibration.fit_mag_calibration).ok
+    assert run_checkpoint(get("03.real_magnet"), mag_calibration.fit_mag_calibration).ok
 
 
 def test_the_heading_error_helper_is_scipys_yaw_on_a_rotated_field():

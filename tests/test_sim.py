@@ -1,4 +1,5 @@
-"""kfkit.sim: simulated sensors against physics (scipy rotations) and noise statistics."""
+"""kfkit.sim and the motions it plays (kfkit.motions, attitude_motions, calibration_motions): simulated sensors
+against physics (scipy rotations) and noise statistics."""
 
 import dataclasses
 import math
@@ -7,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from kfkit import sensors
-from kfkit import sim as _sim
+from kfkit import attitude_motions, motions, sensors
 from kfkit.frames import accel_tilt
-from kfkit.sim import Motion, sample_times, simulate_imu, sine_roll, stationary
+from kfkit.motions import Motion, sample_times, sine_roll, stationary
+from kfkit.sim import simulate_imu
 
 g = 9.80665
 deg = math.pi / 180
@@ -330,9 +331,9 @@ def test_sample_times():
 # --- attitude motions (lab 04) --------------------------------------------------------------
 
 ATTITUDE_MOTIONS = {
-    "attitude_tour": lambda: _sim.attitude_tour(vibration_rms=0.1, seed=1),
-    "pitch_over": _sim.pitch_over,
-    "yaw_sweeps": _sim.yaw_sweeps,
+    "attitude_tour": lambda: attitude_motions.attitude_tour(vibration_rms=0.1, seed=1),
+    "pitch_over": attitude_motions.pitch_over,
+    "yaw_sweeps": attitude_motions.yaw_sweeps,
 }
 
 
@@ -381,7 +382,7 @@ def test_attitude_motion_truth_is_canonical_and_rests_are_still(name):
 
 
 def test_attitude_tour_phases_and_motions():
-    m = _sim.attitude_tour()
+    m = attitude_motions.attitude_tour()
     rec = simulate_imu(m, seed=0)
     assert {p["label"] for p in rec.phases} == {"stationary", "roll", "pitch", "yaw", "linear_acceleration", "tumble"}
     spans = {label: np.ptp(m.euler[rec.phase(label)], axis=0) for label in ("roll", "pitch")}
@@ -404,7 +405,7 @@ def test_attitude_tour_phases_and_motions():
 
 
 def test_pitch_over_goes_through_vertical():
-    m = _sim.pitch_over(peak=110 * deg, wobble=0.0, yaw0=30 * deg)
+    m = attitude_motions.pitch_over(peak=110 * deg, wobble=0.0, yaw0=30 * deg)
     nose = scipy_attitude(m.euler).apply([1.0, 0.0, 0.0])  # body x in NED
     assert nose[:, 2].min() < -np.cos(1 * deg) and nose[:, 2].max() > np.cos(1 * deg)  # straight up, straight down
     hold = (m.t > 9.2) & (m.t < 10.8)  # held at 110° nose up: past vertical, the nose points backwards
@@ -422,7 +423,7 @@ def test_mag_disturbance_field_and_its_effect():
     m = stationary(20.0, 104.0, 10 * deg, -5 * deg, 40 * deg)
     m.phases = [(5.0, 15.0, "mag_disturbance")]
     field = np.array([-4.0, 6.0, -3.0])
-    d = _sim.mag_disturbance(m, field=field)
+    d = attitude_motions.mag_disturbance(m, field=field)
     assert np.all(d[(m.t < 5.0) | (m.t >= 15.0)] == 0.0)
     middle = (m.t >= 6.0) & (m.t < 14.0)  # after the 1 s fade-in, before the fade-out
     np.testing.assert_allclose(d[middle], np.tile(field, (middle.sum(), 1)))
@@ -448,12 +449,12 @@ def test_bad_mag_disturbance_inputs_are_named():
     ):
         simulate_imu(m, mag_disturbance=np.ones(3))
     with pytest.raises(ValueError, match="no phase 'mag_disturbance'"):
-        _sim.mag_disturbance(m)
+        attitude_motions.mag_disturbance(m)
 
 
 def test_euler_moves_are_smooth_steps():
     t = sample_times(4.0, 1000.0)
-    euler, rate = _sim.euler_moves(t, [0.1, 0.0, 0.0], [(1.0, 3.0, 0, 0.5)])
+    euler, rate = motions.euler_moves(t, [0.1, 0.0, 0.0], [(1.0, 3.0, 0, 0.5)])
     assert euler[0, 0] == 0.1 and euler[-1, 0] == pytest.approx(0.6)
     assert euler[t == 2.0, 0] == pytest.approx(0.35)  # halfway in time is halfway in angle (symmetric step)
     np.testing.assert_allclose(rate[1:-1, 0], np.gradient(euler[:, 0], t)[1:-1], atol=1e-5)
@@ -464,8 +465,6 @@ def test_euler_moves_are_smooth_steps():
 
 
 def test_imperfections_default_to_nothing_and_are_recorded():
-    from kfkit.sim import simulate_imu, stationary
-
     plain = simulate_imu(stationary(2.0, 104.0), seed=5)
     same = simulate_imu(stationary(2.0, 104.0), seed=5, accel_scale=None, mag_hard_iron=None)
     assert plain.meta == same.meta and all(
@@ -488,8 +487,8 @@ def test_imperfections_default_to_nothing_and_are_recorded():
 
 
 def test_six_faces_labels_the_axis_that_reads_plus_g():
+    from kfkit.calibration_motions import six_faces
     from kfkit.frames import G
-    from kfkit.sim import simulate_imu, six_faces
 
     m = six_faces(seed=2)
     assert sorted(p[2] for p in m.phases) == sorted(["x_up", "x_down", "y_up", "y_down", "z_up", "z_down"])
@@ -505,7 +504,7 @@ def test_six_faces_labels_the_axis_that_reads_plus_g():
 def test_calibration_motions_rates_match_their_attitudes():
     from scipy.spatial.transform import Rotation
 
-    from kfkit.sim import axis_turns, heading_steps, mag_rotations, six_faces
+    from kfkit.calibration_motions import axis_turns, heading_steps, mag_rotations, six_faces
 
     for m in (six_faces(), mag_rotations(duration=30.0), axis_turns(), heading_steps()):
         R = Rotation.from_euler("ZYX", m.euler[:, ::-1])
@@ -516,7 +515,7 @@ def test_calibration_motions_rates_match_their_attitudes():
 def test_mag_rotations_cover_the_sphere_and_axis_turns_label_each_axis():
     from scipy.spatial.transform import Rotation
 
-    from kfkit.sim import axis_turns, mag_rotations
+    from kfkit.calibration_motions import axis_turns, mag_rotations
 
     m = mag_rotations()
     u = Rotation.from_euler("ZYX", m.euler[:, ::-1]).inv().apply([19.5, 0.3, 45.0])

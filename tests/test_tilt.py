@@ -7,7 +7,7 @@ import pytest
 from filterpy.kalman import KalmanFilter as FilterpyKF
 from scipy.linalg import solve_discrete_are
 
-from kfkit import datasets, metrics, sim
+from kfkit import datasets, metrics, motions, sim
 from kfkit.filters import (
     Step,
     TiltBiasKF,
@@ -147,7 +147,7 @@ def test_inflated_update_moves_less_than_a_full_one():
 
 def simulated_tilt(bias_b, seconds=40.0, seed=3):
     """A board at rest, tilted 20° in pitch, with a known constant gyro bias (body y, rad/s)."""
-    motion = sim.stationary(seconds, 100.0, pitch=20 * deg)
+    motion = motions.stationary(seconds, 100.0, pitch=20 * deg)
     # MPU6050 mounting flips y and z: body y bias b ↔ sensor y bias −b
     return sim.simulate_imu(
         motion, board="mpu6050", seed=seed, gyro_bias=[0.0, -bias_b, 0.0], accel_bias=[0.0, 0.0, 0.0], gyro_bias_rw=0.0
@@ -172,7 +172,7 @@ def test_bias_converges_to_the_simulated_bias(bias_deg):
 
 def test_skip_gate_rejects_a_linear_acceleration():
     """Sideways shove while level: the accel roll lies; the gated filter does not follow it."""
-    motion = sim.stationary(20.0, 100.0)
+    motion = motions.stationary(20.0, 100.0)
     inside = (motion.t >= 10.0) & (motion.t < 11.0)
     motion.acc_n[inside, 1] = 3.0  # m/s² east for one second
     rec = sim.simulate_imu(motion, board="mpu6050", seed=4, gyro_bias=[0.0, 0.0, 0.0], accel_bias=[0.0, 0.0, 0.0])
@@ -253,7 +253,7 @@ def test_bad_run_inputs_are_named():
 
 
 def test_tilt_protocol_phases_and_angles():
-    m = sim.tilt_protocol(axes=("pitch", "roll"), hold=2.0, move=1.5, rate_hz=100.0, seed=0)
+    m = motions.tilt_protocol(axes=("pitch", "roll"), hold=2.0, move=1.5, rate_hz=100.0, seed=0)
     assert len(m.t) == 1800 and m.t[1] == pytest.approx(0.01)
     assert [p[2] for p in m.phases] == ["pitch_0", "pitch_90", "pitch_0", "roll_0", "roll_90", "roll_0"]
     assert m.phases[1][:2] == (3.5, 5.5) and m.phases[4][:2] == (12.5, 14.5)
@@ -266,7 +266,7 @@ def test_tilt_protocol_phases_and_angles():
 
 
 def test_tilt_protocol_rates_integrate_to_the_angles():
-    m = sim.tilt_protocol(axes=("roll", "pitch"), rate_hz=1000.0)
+    m = motions.tilt_protocol(axes=("roll", "pitch"), rate_hz=1000.0)
     # single-axis turns from level: body rate = Euler rate of that axis (p = φ̇ at θ = 0; q = θ̇ at φ = 0)
     for col in (0, 1):
         integrated = np.concatenate([[0.0], np.cumsum(0.5 * (m.omega_b[1:, col] + m.omega_b[:-1, col]) / 1000.0)])
@@ -275,7 +275,7 @@ def test_tilt_protocol_rates_integrate_to_the_angles():
 
 def test_tilt_protocol_bad_axis():
     with pytest.raises(ValueError, match=r"axes must be 'roll' or 'pitch', got \['yaw'\]"):
-        sim.tilt_protocol(axes=("yaw",))
+        motions.tilt_protocol(axes=("yaw",))
 
 
 def test_bundled_tilt_recording_accel_agrees_with_the_labels():
@@ -417,10 +417,10 @@ def test_stationary_record_is_ten_seconds_at_rest_and_still_by_the_loggers_flag(
 
 
 def test_six_face_set_has_every_face():
-    from kfkit import calibration
+    from kfkit import rest_calibration
 
     rec = datasets.load("05_six_faces")
-    for face in calibration.FACES:
+    for face in rest_calibration.FACES:
         up = rec.body("acc")[rec.phase(face)].mean(axis=0)
         axis = "xyz".index(face[0])
         assert np.sign(up[axis]) == (1 if face.endswith("_up") else -1) and abs(up[axis]) > 0.9 * g

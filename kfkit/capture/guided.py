@@ -1,7 +1,7 @@
 """Guided capture protocols: what to do with the board, when, and the phase labels.
 
-Each protocol is a simulated motion from :mod:`kfkit.sim` whose ``phases`` are the labelled
-windows. The same motion serves twice: the virtual board plays it, and with a real board its
+Each protocol is a simulated motion (:mod:`kfkit.motions`, :mod:`kfkit.calibration_motions`) whose ``phases`` are
+the labelled windows. The same motion serves twice: the virtual board plays it, and with a real board its
 phase timeline drives the prompts ("rest the board with x up…"), so the recording carries the
 same labels either way (``meta["phases"]``, ``Recording.phase(label)``).
 
@@ -16,13 +16,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import sim
+from .. import calibration_motions, motions
 from ..sensors import board as get_board
 from .recorder import capture
 
 
 def _stationary(rate_hz, seed, duration):
-    m = sim.stationary(duration, rate_hz)
+    m = motions.stationary(duration, rate_hz)
     m.phases = [(0.0, float(duration), "stationary")]
     return m
 
@@ -63,7 +63,7 @@ _TILT_PROMPTS = {
     "roll_0": "hold the board level (roll 0°), still",
     "roll_90": "roll right to 90°, right edge down (printed Y arrow pointing up), and hold still",
 }
-# Lab 03's alignment check (sim.axis_turns): per axis, rest / turn 90° / rest / turn back / rest, one phase.
+# Lab 03's alignment check (axis_turns): per axis, rest / turn 90° / rest / turn back / rest, one phase.
 _TURN_PROMPTS = {
     "turn_x": [
         "lay the board flat and still, printed X arrow pointing away from you",
@@ -87,7 +87,7 @@ _TURN_PROMPTS = {
         "flat and still",
     ],
 }
-# Lab 03's heading test (sim.heading_steps): headings east of true north, flat, then tilted in reverse order.
+# Lab 03's heading test (heading_steps): headings east of true north, flat, then tilted in reverse order.
 HEADINGS_DEG = (0, 60, 120, 180, 240, 300)
 HEADING_TILT_DEG = (20, -15)  # (roll, pitch) of the tilted rests
 _POINTS = {
@@ -143,7 +143,7 @@ PROTOCOLS = {
             "Six faces: accelerometer bias and scale",
             _NUCLEO,
             {_NUCLEO: "02_six_faces", _MPU: "05_six_faces"},
-            lambda r, s, **kw: sim.six_faces(rate_hz=r, seed=s, **kw),
+            lambda r, s, **kw: calibration_motions.six_faces(rate_hz=r, seed=s, **kw),
             {"hold": 5.0, "move": 3.0},
             {"hold": 1.0, "move": 1.5},
             _FACE_PROMPTS,
@@ -153,7 +153,7 @@ PROTOCOLS = {
             "Tilt protocol: 0°, 90°, 0° per axis (lab 05)",
             _MPU,
             {_MPU: "05_tilt_protocol", _NUCLEO: "05_tilt_protocol"},
-            lambda r, s, **kw: sim.tilt_protocol(rate_hz=r, seed=s, **kw),
+            lambda r, s, **kw: motions.tilt_protocol(rate_hz=r, seed=s, **kw),
             {"hold": 2.0, "move": 1.5},
             {"hold": 0.6, "move": 1.0},
             _TILT_PROMPTS,
@@ -164,7 +164,7 @@ PROTOCOLS = {
             "Magnetometer rotations: figure-eights over the sphere",
             _NUCLEO,
             {_NUCLEO: "03_mag_rotations"},
-            lambda r, s, **kw: sim.mag_rotations(rate_hz=r, seed=s, **kw),
+            lambda r, s, **kw: calibration_motions.mag_rotations(rate_hz=r, seed=s, **kw),
             {"duration": 60.0},
             {"duration": 8.0},
             {
@@ -177,7 +177,7 @@ PROTOCOLS = {
             "Axis turns: 90° about x, y, z and back (lab 03)",
             _NUCLEO,
             {_NUCLEO: "03_axis_turns"},
-            lambda r, s, **kw: sim.axis_turns(rate_hz=r, **kw),
+            lambda r, s, **kw: calibration_motions.axis_turns(rate_hz=r, **kw),
             {"hold": 3.0, "move": 3.0},
             {"hold": 1.0, "move": 1.5},
             _TURN_PROMPTS,
@@ -188,7 +188,7 @@ PROTOCOLS = {
             "Headings: six flat, then six tilted (lab 03)",
             _NUCLEO,
             {_NUCLEO: "03_headings"},
-            lambda r, s, **kw: sim.heading_steps(
+            lambda r, s, **kw: calibration_motions.heading_steps(
                 np.radians(HEADINGS_DEG), np.radians(HEADING_TILT_DEG), rate_hz=r, **kw
             ),
             {"hold": 4.0, "move": 4.0},

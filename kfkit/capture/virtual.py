@@ -48,7 +48,7 @@ import tty
 
 import numpy as np
 
-from .. import sim
+from .. import motions, sim
 from ..filters.tilt import TiltAttitude
 from ..frames import G
 from ..sensors import BOARDS
@@ -100,7 +100,7 @@ class VirtualBoard:
     rate_hz      sample rate, Hz, 0 < rate_hz ≤ :data:`MAX_RATE_HZ` (default: the motion's, else the board's: 104
                  Nucleo, 100 MPU6050)
     board        "nucleo-iks02a1" or "mpu6050" (kfkit.sensors.BOARDS)
-    motion       a sim.Motion to play (looped when ``loop``), or None: at rest, level, forever
+    motion       a motions.Motion to play (looped when ``loop``), or None: at rest, level, forever
     unit         the sensor errors: "bundled" (default) the board's unit in :data:`VIRTUAL_UNITS`, the one its bundled
                  recordings and calibration come from; None an ideal sensor (no bias, walk, scale error or
                  iron: white noise and quantisation only); or a dict of ``sim.simulate_imu`` keywords
@@ -261,11 +261,11 @@ class VirtualBoard:
                     else min(int(round(self.chunk_s * rate)), total - start)
                 )
                 if self.motion is None:
-                    m = sim.stationary(n / rate, rate)
+                    m = motions.stationary(n / rate, rate)
                     m.t = (start + np.arange(n)) / rate
                 else:
                     s = slice(start, start + n)
-                    m = sim.Motion(
+                    m = motions.Motion(
                         self.motion.t[s], rate, self.motion.euler[s], self.motion.omega_b[s], self.motion.acc_n[s]
                     )
                 biases = {}

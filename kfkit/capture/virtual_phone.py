@@ -12,7 +12,7 @@ phyphox-android's ``RemoteServer`` does (docs: phyphox-docs ``docs/remote-interf
 - ``/meta`` device and sensor properties, ``/time`` the start/pause events
 
 One connection per request (HTTP/1.0, no keep-alive), as phyphox's server. The phone plays a
-:class:`kfkit.sim.Motion` (looped, fresh noise each time; default: lying flat and still) through
+:class:`kfkit.motions.Motion` (looped, fresh noise each time; default: lying flat and still) through
 :func:`kfkit.phone_sim.simulate_phone`, so its noise, rates and timestamp jitter are a phone's. The gyro's
 and accelerometer's bias random walks (:data:`kfkit.unit_errors.PHONE_UNIT`) run on across the loops, one path per
 sensor, as a real phone's biases do.
@@ -41,7 +41,7 @@ from urllib.parse import parse_qsl, urlsplit
 
 import numpy as np
 
-from .. import sim
+from .. import attitude_motions, motions
 from ..phone_sim import simulate_phone
 from ..sensors import DEFAULT_PHONE_MOUNT, PHONE_ACCEL, PHONE_GYRO, PHONE_LSB, PHONE_MAG, SENSORS
 from ..unit_errors import PHONE_UNIT
@@ -110,7 +110,7 @@ def _nudged(threshold: float) -> float:
 class VirtualPhone:
     """phyphox's remote access for a simulated phone on 127.0.0.1 (a context manager; ``.url``).
 
-    motion       a :class:`kfkit.sim.Motion` (sampled well above 100 Hz), looped; None: flat and still
+    motion       a :class:`kfkit.motions.Motion` (sampled well above 100 Hz), looped; None: flat and still
     experiment   a name in :data:`EXPERIMENTS` (what is open in phyphox)
     seed         seeds the phone's noise (loop k uses seed + k) and its bias walks
     speed        experiment seconds per wall-clock second while measuring (tests run faster)
@@ -136,7 +136,7 @@ class VirtualPhone:
         if experiment not in EXPERIMENTS:
             raise ValueError(f"unknown experiment {experiment!r}; known: {', '.join(EXPERIMENTS)}")
         self.title, self.inputs = EXPERIMENTS[experiment]
-        self.motion = motion if motion is not None else sim.stationary(30.0, 200.0, yaw=np.radians(30.0))
+        self.motion = motion if motion is not None else motions.stationary(30.0, 200.0, yaw=np.radians(30.0))
         self.seed, self.speed, self.rates, self.drop, self.mount = seed, float(speed), rates, drop, mount
         if step_s is not None and not step_s > 0:
             raise ValueError(f"step_s must be a positive number of seconds (or None), got {step_s!r}")
@@ -449,7 +449,7 @@ def main(argv=None) -> int:
     parser.add_argument("--speed", type=float, default=1.0, help="experiment seconds per second (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    motion = sim.attitude_tour(rate_hz=400.0) if args.motion == "attitude-tour" else None
+    motion = attitude_motions.attitude_tour(rate_hz=400.0) if args.motion == "attitude-tour" else None
     with VirtualPhone(motion, args.experiment, args.seed, args.speed) as vp:
         print(
             f"virtual phone serving; record with:  kfkit capture --port {vp.url} --seconds 30 --out phone.csv",

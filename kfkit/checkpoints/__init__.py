@@ -7,7 +7,9 @@
 
 A :class:`Checkpoint` separates the three steps a grader must keep apart: drawing cases
 (with the reference answer) in the checker's process, calling the student's function, and
-judging the raw output. Each lab registers its checkpoints in its own module (``lab01``, …).
+judging the raw output. Each lab registers its checkpoints in its own module (``lab01``, …); a lab with many
+checkpoints may keep them in modules of their own that its ``labNN`` imports (``lab04``: ``ekf_attitude_core``,
+``ekf_attitude_optional``).
 
 The hint matches the kind of failure (:func:`failure_hint`): a checkpoint's own hint, about its idea, only
 for wrong numbers; an exception gets the hint of its kind (:data:`EXCEPTION_KINDS`: a function that cannot
@@ -95,7 +97,8 @@ class CheckResult:
         """check() has already printed the line; show nothing more in a notebook."""
 
 
-#: one module per lab, ``labNN.py`` beside this file; each registers its checkpoints on import
+#: one module per lab, ``labNN.py`` beside this file; importing it registers the lab's checkpoints (those of the modules
+#: it imports too), in the lab's order
 LABS = tuple(sorted(m.name for m in pkgutil.iter_modules(__path__) if m.name.startswith("lab")))
 REGISTRY: dict[str, Checkpoint] = {}
 MESSAGE_WIDTH = 100  # characters per printed line of a check

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import calibration, datasets
+from .. import allan, calibration, datasets, rest_calibration
 from ..discrete import angle_bias_process_noise
 from ..frames import G
 from ..labs.lab02 import NOISE_CHECK_S, gyro_bias_truth, noise_truth, six_face_truth
@@ -21,7 +21,7 @@ def _gyro_bias_cases(rng):
     cases = []
     for _ in range(8):
         gyr = _rest(rng, int(rng.integers(5, 400)), rng.normal(0, 0.02, 3), 10 ** rng.uniform(-4, -2))
-        cases.append(Case({"gyr": gyr}, calibration.gyro_bias(gyr), f"a rest of {len(gyr)} samples"))
+        cases.append(Case({"gyr": gyr}, rest_calibration.gyro_bias(gyr), f"a rest of {len(gyr)} samples"))
     return cases
 
 
@@ -43,7 +43,7 @@ def _noise_cases(rng):
     cases = []
     for _ in range(8):
         x = _rest(rng, int(rng.integers(5, 400)), rng.normal(0, 1, 3), 10 ** rng.uniform(-4, -1))
-        cases.append(Case({"x": x}, calibration.noise_std(x), f"a rest of {len(x)} samples"))
+        cases.append(Case({"x": x}, rest_calibration.noise_std(x), f"a rest of {len(x)} samples"))
     return cases
 
 
@@ -65,7 +65,7 @@ def _accel_bias_cases(rng):
         cases.append(
             Case(
                 {"acc": acc, "expected": expected},
-                calibration.accel_bias(acc, expected),
+                rest_calibration.accel_bias(acc, expected),
                 f"a rest of {len(acc)} samples with expected specific force {np.round(expected, 3).tolist()}",
             )
         )
@@ -98,7 +98,7 @@ def _six_face_cases(rng):
     cases = []
     for _ in range(6):
         faces = random_faces(rng, rng.normal(0, 0.1, 3), 1 + rng.normal(0, 0.01, 3), n=int(rng.integers(10, 100)))
-        cases.append(Case({"faces": faces}, calibration.accel_six_face(faces), "six random faces"))
+        cases.append(Case({"faces": faces}, rest_calibration.accel_six_face(faces), "six random faces"))
     return cases
 
 
@@ -111,7 +111,7 @@ def _allan_cases(rng):
         cases.append(
             Case(
                 {"x": x, "rate_hz": rate, "taus": taus},
-                calibration.allan_deviation(x, rate, taus)[1],
+                allan.allan_deviation(x, rate, taus)[1],
                 f"{n} samples at {rate:g} Hz, {len(taus)} values of τ",
             )
         )
@@ -330,7 +330,7 @@ def _noise_recording_cases(rng):
 
 def _six_face_recording_cases(rng):
     rec = datasets.load("02_six_faces")
-    faces = {f: rec.body("acc")[rec.phase(f)] for f in calibration.FACES}
+    faces = {f: rec.body("acc")[rec.phase(f)] for f in rest_calibration.FACES}
     return [Case({"faces": faces}, six_face_truth(rec), "the bundled recording 02_six_faces")]
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import calibration, datasets
+from .. import calibration, datasets, mag_calibration
 from ..frames import (
     MAG_FIELD_LONDON,
     accel_tilt,
@@ -232,7 +232,7 @@ def heading_errors(hard_iron, soft_iron):
         rec.meta["board"], path=datasets.data_dir() / f"calibration_{rec.meta['board']}.json"
     )
     _, acc, _ = ref.apply(rec)
-    mag = calibration.apply_mag_calibration(rec.body("mag"), hard_iron, soft_iron)
+    mag = mag_calibration.apply_mag_calibration(rec.body("mag"), hard_iron, soft_iron)
     rest = (rec.phase("heading_flat") | rec.phase("heading_tilted")) & np.isfinite(mag[:, 0])
     roll, pitch = accel_tilt(acc[rest])
     psi = tilt_compensated_heading(mag[rest], roll, pitch, declination())
@@ -299,7 +299,7 @@ def _judge_real_magnet(case, got):
     if h is None:
         return S
     budget = case.expected
-    after = true_tilt_heading_error(calibration.apply_mag_calibration(case.args["mag"], h, S), budget["truth"])
+    after = true_tilt_heading_error(mag_calibration.apply_mag_calibration(case.args["mag"], h, S), budget["truth"])
     allowed = REAL_BAR_FACTOR * budget["off"]
     if after <= allowed:
         return None

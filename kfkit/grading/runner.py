@@ -15,7 +15,8 @@ crash), the kernel is restarted and the notebook replayed without that cell.
 Outputs of student cells are counted and dropped (only an error's name and message, cut short, are
 kept), so a huge print costs nothing but its transfer; a cell that prints more than
 ``Limits.max_cell_output`` is stopped the same way (its kernel restarted, as a thread may go on printing), and no single
-message above ``Limits.max_message`` is even received (ZeroMQ's MAXMSGSIZE on the grader's sockets).
+message above ``Limits.max_message`` is even received (ZeroMQ's MAXMSGSIZE on the grader's sockets): the kernel's
+start and the client that hears it are in :mod:`kfkit.grading.kernel_client`.
 Memory and CPU time are limited per submission, all its processes together
 (:mod:`kfkit.grading.resources`): over either, the submission is stopped (:class:`StoppedByLimit`).
 
@@ -33,72 +34,31 @@ from __future__ import annotations
 import ast
 import asyncio
 import contextlib
-import ctypes
-import json
-import logging
 import math
 import os
 import re
 import shutil
-import signal
-import sys
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import nbformat
-import zmq
-import zmq.asyncio
-from jupyter_client.manager import AsyncKernelManager
-from nbclient import NotebookClient
 from nbclient.exceptions import CellTimeoutError, DeadKernelError
 
 from ..exercise_guard import assigned_names
 from . import CELL_TIMEOUT, TOTAL_TIMEOUT, WALL_FACTOR, resources, wire
 from . import sandbox as sb
+from .kernel_client import PING_TIMEOUT, WARM_UP, WARM_UP_TIMEOUT, _Client, _die_with_grader, _SandboxKernelManager
 
 MAX_RESTARTS = 3
-WARM_UP_TIMEOUT = 120.0  # s for the kernel's first imports, not charged to the student's first cell
-WARM_UP_MODULES = (
-    "numpy",
-    "scipy.linalg",
-    "matplotlib.pyplot",
-    "ipywidgets",
-    "kfkit.datasets",
-    "kfkit.filters",
-    "kfkit.frames",
-    "kfkit.metrics",
-    "kfkit.plots",
-    "kfkit.widgets",
-    "kfkit.checkpoints",
-    "kfkit.exercise_guard",  # every lab's first cell loads it; it reads make-labs' stubs through nbformat (3 s of CPU)
-)
-_WARM_UP_CODE = f"""
-import importlib, pkgutil
-for name in {WARM_UP_MODULES!r}:
-    try:
-        importlib.import_module(name)
-    except Exception:  # a missing optional module: the student's own import will say so
-        pass
-import kfkit.labs
-for lab in pkgutil.iter_modules(kfkit.labs.__path__):  # each lab's support: a lab's first cell imports it
-    try:
-        importlib.import_module("kfkit.labs." + lab.name)
-    except Exception:
-        pass
-"""
-WARM_UP = f"exec({_WARM_UP_CODE!r}, {{}})"  # the labs' heavy imports, outside the student's namespace
 SHORT_TMP = 48  # characters of temporary folder that leave room for box/ipc-N in an AF_UNIX path (≤ 107)
-PING_TIMEOUT = 5.0  # s a kernel gets to answer after the wall-clock backstop's interrupt before it is restarted
 INTERRUPT_GRACE_CPU = (
     5.0  # s of CPU a cell interrupted for its CPU budget may still use: more, it ignored the interrupt
 )
 CPU_POLL = 0.1  # s between two looks at the watchdog's CPU count while a student's cell runs
 GRADER_CELL_TIMEOUT = 60.0  # s for the grader's own short cells (stopping, restoring functions): a hang guard
 IOPUB_TIMEOUT = 10  # s from a cell's reply to its last output; longer means the kernel's output has died
-_LOG = logging.getLogger("kfkit.grading.nbclient")
-_LOG.setLevel(logging.CRITICAL)
 
 
 @dataclass
@@ -111,11 +71,6 @@ class Limits:
     max_message: int = 256 << 20  # bytes of one message from the kernel beyond which it is not even read
     memory: int = 4 << 30  # bytes all the submission's processes may hold at once
     cpu_time: float = TOTAL_TIMEOUT  # s of CPU time after which the watchdog kills all the submission's processes
-
-
-def _die_with_grader():
-    """In the kernel's launcher, before exec: SIGKILL it if this grading process dies first."""
-    ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
 
 
 @dataclass
@@ -148,98 +103,6 @@ class StoppedByLimit(OutOfTime):
     def __init__(self, over: resources.OverLimit):
         super().__init__(str(over))
         self.over = over
-
-
-class _SandboxKernelManager(AsyncKernelManager):
-    """Starts ``python -m ipykernel_launcher`` through the sandbox, whatever the notebook asks for."""
-
-    wrap = None  # callable(argv) → argv, set by KernelRun
-    max_message = None  # bytes: a bigger message from the kernel drops its connection, unread
-
-    def format_kernel_cmd(self, extra_arguments=None):
-        argv = [
-            sys.executable,
-            "-m",
-            "ipykernel_launcher",
-            "-f",
-            self.connection_file,
-            "--HistoryManager.enabled=False",
-            "--IPKernelApp.log_level=CRITICAL",
-        ]
-        return self.wrap(argv)
-
-    def client(self, **kwargs):
-        context = zmq.asyncio.Context()
-        context.setsockopt(zmq.MAXMSGSIZE, self.max_message)  # the default of every socket it makes
-        kc = super().client(context=context, **kwargs)
-        kc._created_context = True  # the client destroys it when it goes
-        return kc
-
-
-def _output_size(kind: str, content: dict) -> int:
-    """Characters of one output message (stream text, error value, or display data)."""
-    if kind == "stream":
-        return len(content.get("text", ""))
-    if kind == "error":
-        return len(str(content.get("evalue", "")))
-    data = content.get("data", {})
-    return (
-        sum(len(v) if isinstance(v, str) else len(json.dumps(v)) for v in data.values())
-        if isinstance(data, dict)
-        else 0
-    )
-
-
-class _Client(NotebookClient):
-    """nbclient with outputs counted and dropped, errors kept short, and no widget state; its timeout (wall
-    time) is the backstop, and ``judge``, when set, runs beside each cell until its reply (the CPU budget)."""
-
-    def __init__(self, nb, km, max_output, **kw):
-        super().__init__(nb, km=km, log=_LOG, **kw)
-        self.comm_open_handlers = {}
-        self.timed_out = self.flooded = self.backstop = False  # backstop: the wall-clock timeout stopped the cell
-        self.cell_bytes = 0
-        self.max_output = max_output
-        self.capture = None  # a list collecting stdout text for the grader's own cells
-        self.judge = None  # a coroutine function run while a student's cell runs (KernelRun._judge_cpu)
-
-    async def _async_handle_timeout(self, timeout, cell=None):
-        self.backstop = not self.timed_out  # not already interrupted for its CPU budget
-        self.timed_out = True
-        self.iopub_timeout = int(PING_TIMEOUT)  # an interrupted cell's last output comes at once, or never
-        return await super()._async_handle_timeout(timeout, cell)
-
-    async def _async_poll_for_reply(self, *args, **kwargs):
-        judge = asyncio.ensure_future(self.judge()) if self.judge is not None else None
-        try:
-            return await super()._async_poll_for_reply(*args, **kwargs)
-        finally:
-            if judge is not None:
-                judge.cancel()
-
-    def handle_comm_msg(self, outs, msg, cell_index):
-        return None
-
-    def output(self, outs, msg, display_id, cell_index):
-        kind, content = msg["msg_type"], msg["content"]
-        size = _output_size(kind, content)
-        if kind == "stream" and self.capture is not None and content.get("name") == "stdout":
-            if sum(map(len, self.capture)) + size <= wire.MAX_PAYLOAD + 200:
-                self.capture.append(content["text"])
-        elif kind == "error":
-            outs.append(
-                nbformat.NotebookNode(
-                    output_type="error",
-                    ename=str(content.get("ename", ""))[:100],
-                    evalue=str(content.get("evalue", ""))[:600],
-                    traceback=[],
-                )
-            )
-        self.cell_bytes += size
-        if self.cell_bytes > self.max_output and not self.flooded:
-            self.flooded = True  # stop the cell now rather than read on until it times out
-            asyncio.ensure_future(self.km.interrupt_kernel())
-        return None
 
 
 class KernelRun:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import matplotlib.pyplot as plt
 import numpy as np
 
-from .. import calibration, datasets, filters, metrics
+from .. import allan, calibration, datasets, filters, metrics
 from ..frames import G, accel_tilt
 from ..paths import bundled_calibration_path
 from ..plots import COLORS, STYLES
@@ -62,8 +62,8 @@ def roll_gyro_density(rec) -> tuple[float, str]:
     rate)."""
     if rec.meta.get("board") == REAL_BOARD:
         rest = datasets.load(REAL_REST)
-        taus, adev = calibration.allan_deviation(rest.body("gyr")[:, 0], rest.rate_hz)
-        return float(calibration.angle_random_walk(taus, adev)), f"lab 02, section 8: the Allan curve of {REAL_REST}"
+        taus, adev = allan.allan_deviation(rest.body("gyr")[:, 0], rest.rate_hz)
+        return float(allan.angle_random_walk(taus, adev)), f"lab 02, section 8: the Allan curve of {REAL_REST}"
     cal = calibration.calibration_for(rec)
     bundled = cal == calibration.Calibration.load(bundled_calibration_path(cal.board))
     return float(cal.gyro_density[0]), (

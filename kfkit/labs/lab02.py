@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import calibration, datasets, phone_sim, readers
+from .. import datasets, phone_sim, readers, rest_calibration
 from ..frames import G, euler_to_dcm, mount_matrix
 from ..sensors import board as get_board
 
@@ -32,7 +32,7 @@ def load(path, bundled, mount="flat"):
     if path == "real":
         return datasets.load("02_broad_rest")
     rec = readers.load_any(path, mount=mount)
-    return rec if rec.phases else calibration.label_rests(rec)
+    return rec if rec.phases else rest_calibration.label_rests(rec)
 
 
 def at_rest(rec):
@@ -123,8 +123,8 @@ def six_face_truth(rec):
         np.array([f_true[rec.phase(f"{a}_{w}"), i].mean() for i, a in enumerate("xyz")]) for w in ("up", "down")
     )
     acc = rec.body("acc")
-    n = min(int(rec.phase(f).sum()) for f in calibration.FACES)
-    sigma = np.mean([acc[rec.phase(f)].std(axis=0, ddof=1) for f in calibration.FACES], axis=0)
+    n = min(int(rec.phase(f).sum()) for f in rest_calibration.FACES)
+    sigma = np.mean([acc[rec.phase(f)].std(axis=0, ddof=1) for f in rest_calibration.FACES], axis=0)
     T = len(rec) / rec.rate_hz
     walk = sim.get("accel_bias_rw", 0.0) * np.sqrt(T / 3)
     u_bias = np.sqrt(sigma**2 / (2 * n) + walk**2)

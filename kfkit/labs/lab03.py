@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import median_filter, uniform_filter1d
 
-from .. import calibration, datasets, frames, phone_sim, sim
+from .. import calibration, calibration_motions, datasets, frames, phone_sim
 from ..capture.guided import HEADINGS_DEG
 from ..io import Recording
 from ..plots import COLORS, windows_where
@@ -184,9 +184,10 @@ def magnet_window(rec):
 
 
 def simulated_phone_tumbling(seed=31) -> Recording:
-    """A simulated phone tumbled for a minute in London's field (``sim.mag_rotations`` at 200 Hz), exported as
-    phyphox writes a simple experiment and read back with ``readers.load_phyphox``: what a student's phone gives."""
-    samples = phone_sim.simulate_phone(sim.mag_rotations(rate_hz=200.0, seed=seed), seed=seed + 1)
+    """A simulated phone tumbled for a minute in London's field (``calibration_motions.mag_rotations`` at 200 Hz),
+    exported as phyphox writes a simple experiment and read back with ``readers.load_phyphox``: what a student's phone
+    gives."""
+    samples = phone_sim.simulate_phone(calibration_motions.mag_rotations(rate_hz=200.0, seed=seed), seed=seed + 1)
     with tempfile.TemporaryDirectory() as folder:
         export = phone_sim.write_export(phone_sim.simple_experiment_files(samples), Path(folder) / "phone_tumbling")
         return load_phyphox(export, require=("acc", "gyr", "mag"))

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import datasets, filters, metrics, sim
-from ..calibration import Calibration, calibration_for, gyro_bias
+from .. import datasets, filters, metrics, motions
+from ..calibration import Calibration, calibration_for
 from ..filters.attitude_run import learn_field, tilt_heading
 from ..filters.euler_ekf import (
     EulerAttitudeEKFSettings,
@@ -35,6 +35,7 @@ from ..frames import (
     quat_to_dcm,
     wrap_angle,
 )
+from ..rest_calibration import gyro_bias
 
 # --- the gyro sample and the step ------------------------------------------------------------------------------
 
@@ -405,7 +406,7 @@ def ablation(trials=REAL_TRIALS, variants=ABLATION, settings=EulerAttitudeEKFSet
     return table
 
 
-# --- the graded runs' inputs (kfkit.checkpoints.lab04 judges run_ekf on them) -----------------------------------
+# --- the graded runs' inputs (lab 04's checkpoints judge run_ekf on them) ----------------------------------------
 
 #: noise_free_turns' number of one-second turns
 TURNS = 5
@@ -462,7 +463,7 @@ def noise_free_turns(rng, rate_hz=104.0, field_n=MAG_FIELD_LONDON):
                 rng.uniform(60.0, 120.0) if axis == 0 else rng.uniform(90.0, 180.0)
             )
         moves.append((1.0 + 2 * i, 2.0 + 2 * i, axis, delta))
-    euler, euler_dot = sim.euler_moves(t, start, moves)
+    euler, euler_dot = motions.euler_moves(t, start, moves)
     R_bn = np.swapaxes(euler_to_dcm(euler), 1, 2)
     mag = R_bn @ np.asarray(field_n, dtype=float)
     mag[1::2] = np.nan

@@ -16,7 +16,6 @@ from __future__ import annotations
 import numpy as np
 
 from .. import datasets
-from ..calibration import gyro_bias
 from ..filters.attitude_run import learn_field, tilt_heading
 from ..frames import (
     G,
@@ -30,6 +29,7 @@ from ..frames import (
     rotvec_to_quat,
 )
 from ..metrics import attitude_rmse
+from ..rest_calibration import gyro_bias
 
 #: the specific force an accelerometer at rest reads, in NED (m/s²): the reaction to gravity, "up"
 UP_N = np.array([0.0, 0.0, -G])

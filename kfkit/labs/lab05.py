@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from .. import calibration, datasets, sensors
+from .. import calibration, datasets, rest_calibration, sensors
 from ..discrete import angle_bias_process_noise
 from ..filters import TiltBiasKF, accel_static_ok, protocol_angles, tilt_kf_predict, tilt_kf_update
 from ..frames import G, accel_tilt, body_rates_to_euler_rates, mount_matrix, wrap_angle
@@ -140,7 +140,9 @@ def pipeline_inputs(tilt=None, still=None, faces=None):
     q0."""
     if tilt is None:
         tilt, still, faces = bundled()
-    bias, scale = calibration.accel_six_face({f: faces.body("acc")[faces.phase(f)] for f in calibration.FACES})
+    bias, scale = rest_calibration.accel_six_face(
+        {f: faces.body("acc")[faces.phase(f)] for f in rest_calibration.FACES}
+    )
     f = (tilt.body("acc") - bias) / scale
     roll, pitch = accel_tilt(f)
     ok = accel_static_ok(f)
