@@ -57,7 +57,7 @@ from timing import best_of
 
 from kfkit import datasets
 from kfkit.filters import EulerAttitudeEKF, MultiplicativeEKF, estimate_attitude
-from kfkit.filters.attitude_run import learn_field, tilt_heading
+from kfkit.filters.attitude_run import hold_last_sample, learn_field, tilt_heading
 from kfkit.filters.euler_ekf import (
     EulerAttitudeEKFSettings,
     attitude_jacobian,
@@ -71,7 +71,6 @@ from kfkit.frames import (
     G,
     body_rates_to_euler_rates,
     declination,
-    enu_to_ned_quat,
     euler_to_quat,
     quat_conjugate,
     quat_multiply,
@@ -79,6 +78,7 @@ from kfkit.frames import (
     quat_to_dcm,
     wrap_angle,
 )
+from kfkit.labs.lab04b import vqf_quat
 from kfkit.metrics import attitude_rmse
 from kfkit.readers import load_broad
 from kfkit.real_data import resample, shared_dir, slerp_at
@@ -104,14 +104,14 @@ def run_ahrs_ekf(gyr, acc, mag, rate):
 
     field = learn_field(acc, mag)
     dip = math.degrees(math.atan2(field[2], field[0]))
-    mag = _fill_mag(mag)
+    mag = hold_last_sample(mag)
     return EKF(gyr=gyr, acc=-acc, mag=mag, frequency=rate, frame="NED", magnetic_ref=dip).Q
 
 
 def run_ahrs_madgwick(gyr, acc, mag, rate):
     from ahrs.filters import Madgwick
 
-    return quat_multiply(Q_NED_NWU, Madgwick(gyr=gyr, acc=acc, mag=_fill_mag(mag), frequency=rate).Q)
+    return quat_multiply(Q_NED_NWU, Madgwick(gyr=gyr, acc=acc, mag=hold_last_sample(mag), frequency=rate).Q)
 
 
 def run_imufusion(gyr, acc, mag, rate):
@@ -123,28 +123,12 @@ def run_imufusion(gyr, acc, mag, rate):
     s.acceleration_rejection, s.magnetic_rejection = 10.0, 10.0
     s.sample_rate, s.rejection_timeout = rate, 5.0 * rate
     ahrs.set_settings(s)
-    gyr_dps, acc_g, mag = np.degrees(gyr), acc / G, _fill_mag(mag)
+    gyr_dps, acc_g, mag = np.degrees(gyr), acc / G, hold_last_sample(mag)
     out = np.empty((len(gyr), 4))
     for k in range(len(gyr)):
         ahrs.update(gyr_dps[k], acc_g[k], mag[k])
         out[k] = ahrs.get_quaternion()
     return out
-
-
-def run_vqf(gyr, acc, mag, rate):
-    from vqf import VQF
-
-    c = np.ascontiguousarray
-    return enu_to_ned_quat(VQF(1.0 / rate).updateBatch(c(gyr), c(acc), c(_fill_mag(mag)))["quat9D"])
-
-
-def _fill_mag(mag):
-    """Peers want a magnetometer value every sample: hold the last one (kfkit uses NaN = no sample)."""
-    mag = np.array(mag, dtype=float)
-    for k in range(1, len(mag)):
-        if np.isnan(mag[k, 0]):
-            mag[k] = mag[k - 1]
-    return mag
 
 
 def run_mekf(gyr, acc, mag, rate, kind=MultiplicativeEKF, **settings):
@@ -168,7 +152,7 @@ FILTERS = {  # picklable: the accuracy runs send them to worker processes
     "ahrs EKF": run_ahrs_ekf,
     "ahrs Madgwick": run_ahrs_madgwick,
     "imufusion": run_imufusion,
-    "VQF": run_vqf,
+    "VQF": vqf_quat,  # kfkit.labs.lab04b: what lab 04b compares with
 }
 
 

@@ -20,7 +20,7 @@ from kfkit.filters import (
     euler_ekf_update,
     euler_process_noise,
 )
-from kfkit.filters.attitude_run import learn_field, tilt_heading
+from kfkit.filters.attitude_run import hold_last_sample, learn_field, tilt_heading
 from kfkit.filters.euler_ekf import EulerAttitudeEKFSettings, euler_kinematics_jacobian, euler_rate_matrix
 from kfkit.filters.mag_gate import MagGate
 from kfkit.frames import (
@@ -961,3 +961,15 @@ def test_mekf_learns_the_bias_at_rest_and_freezes_it_in_motion():
     always = estimate_attitude(gyr, acc, mag, rate, method="mekf", field_n=FIELD, rest_gyro=None)
     assert np.degrees(np.abs(always.bias[moving] - bias).max()) > 0.05
     assert np.degrees(np.abs(res.bias[moving] - bias).max()) < 0.01
+
+
+def test_hold_last_sample_fills_each_gap_with_the_sample_before_it():
+    # oracle: a loop that carries the last sample forward
+    rng = np.random.default_rng(5)
+    mag = rng.normal(size=(40, 3))
+    mag[[0, 1, 7, 8, 9, 20, 39]] = np.nan
+    want = mag.copy()
+    for k in range(1, len(want)):
+        if np.isnan(want[k, 0]):
+            want[k] = want[k - 1]
+    np.testing.assert_array_equal(hold_last_sample(mag), want)  # rows 0-1, before any sample, stay NaN

@@ -2,6 +2,7 @@
 
 check_inputs   gyr (rad/s), acc (m/s²), mag (µT, NaN rows = no new sample), (N, 3) each, checked
 first_mag_row  the first magnetometer row that is a sample
+hold_last_sample  the magnetometer with each NaN row holding the last sample (for filters that want every row)
 tilt_heading   the first attitude [φ, θ, ψ] from one accelerometer and magnetometer sample
 learn_field    the reference field m_n from the first magnetometer samples
 AttitudeRun    the :class:`FilterRun` of an attitude filter, with quat, euler, bias and the attitude covariance
@@ -156,6 +157,14 @@ def first_mag_row(mag):
         return None
     rows = np.flatnonzero(~np.isnan(mag).any(axis=1))
     return int(rows[0]) if rows.size else None
+
+
+def hold_last_sample(mag):
+    """mag (N, 3) µT with each NaN row (no new sample) replaced by the last sample before it, for filters that want
+    a value every row (VQF, ahrs, imufusion); rows before the first sample stay NaN."""
+    mag = np.asarray(mag, dtype=float)
+    fresh = ~np.isnan(mag).any(axis=1)
+    return mag[np.maximum.accumulate(np.where(fresh, np.arange(len(mag)), 0))]
 
 
 def tilt_heading(acc, mag, field_n=MAG_FIELD_LONDON):

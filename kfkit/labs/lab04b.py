@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import datasets
-from ..filters.attitude_run import learn_field, tilt_heading
+from ..filters.attitude_run import hold_last_sample, learn_field, tilt_heading
 from ..frames import (
     G,
     cross_matrix,
@@ -143,14 +143,14 @@ def noise_matrix(acc, accel_noise, mag_noise, accel_gate=ACCEL_GATE):
 
 
 def vqf_quat(gyr, acc, mag, rate_hz):
-    """VQF 2.1.2 (Laidig and Seel 2023, causal, its defaults) on the same samples, quaternions body → NED; None when
-    the vqf package is not installed (environment.txt pins it)."""
+    """VQF 2.1.2 (Laidig and Seel 2023, causal, its defaults) on the same samples (the magnetometer's NaN rows holding
+    the last sample), quaternions body → NED; None when the vqf package is not installed (environment.txt pins it)."""
     try:
         from vqf import VQF
     except ImportError:
         return None
     c = np.ascontiguousarray
-    return enu_to_ned_quat(VQF(1.0 / rate_hz).updateBatch(c(gyr), c(acc), c(mag))["quat9D"])
+    return enu_to_ned_quat(VQF(1.0 / rate_hz).updateBatch(c(gyr), c(acc), c(hold_last_sample(mag)))["quat9D"])
 
 
 def errors_text(q, q_true, moving):
