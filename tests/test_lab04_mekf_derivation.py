@@ -62,9 +62,12 @@ def test_the_kit_mekf_propagates_with_the_derived_F():
     rate, bias, w = 100.0, np.array([0.01, -0.02, 0.015]), np.array([1.0, -2.0, 0.5])
     ekf = MultiplicativeEKF(rate_hz=rate, field_n=np.array([20.0, 0.0, 45.0]), x0=np.r_[1.0, 0.0, 0.0, 0.0, bias])
     ekf._begin(np.array([w]), np.array([[0.0, 0.0, -G]]), None)
+    P = ekf.state.P
     ekf._predict(w.tolist())
     dt = 1.0 / rate
     R = exp_so3((w - bias) * dt)  # the nominal attitude turned by ω̂Δt in the body frame: R ← R·Exp(ω̂Δt)
     np.testing.assert_allclose(quat_to_dcm(np.array(ekf.state.q)), R, atol=1e-12)
     F = np.block([[np.eye(3), -dt * R], [np.zeros((3, 3)), np.eye(3)]])
-    np.testing.assert_allclose(ekf._F, F, atol=1e-12)
+    st = ekf.settings  # Q = diag(σ_g² Δt² I, σ_bw² Δt I), σ_g = gyro_density·√rate
+    Q = np.diag([st.gyro_density**2 * rate * dt**2] * 3 + [st.gyro_bias_rw**2 * dt] * 3)
+    np.testing.assert_allclose(ekf.state.P, F @ P @ F.T + Q, rtol=1e-12, atol=1e-15)

@@ -24,8 +24,16 @@ from ..frames import (
 )
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, learn_field, tilt_heading
 from .contract import Step, check_settings, configure, sample_period, shaped
+from .error_covariance import (
+    NOTHING_KEPT,
+    as_matrices,
+    consider,
+    diagonal_S,
+    propagate,
+    scalar_update,
+    times_attitude_row,
+)
 from .mag_gate import MagGate
-from .scalar_update import consider, diagonal_S, scalar_update
 
 
 @dataclass(frozen=True)
@@ -144,7 +152,8 @@ class MultiplicativeEKFCoefficients:
     """What the settings, the rate and the reference field give once, at the start (VQF's "coefficients").
 
     field_n    the reference field in NED, µT (the constructor's, or learned from the first samples)
-    Q          6×6 process noise per step, diag(σ_g² dt² I, σ_bw² dt I)
+    q_angle    process noise of the attitude per step, σ_g² dt², rad²  (Q = diag(q_angle I, q_bias I))
+    q_bias     process noise of the bias per step, σ_bw² dt, (rad/s)²
     r_gyro     variance of one gyro sample, (rad/s)²: the zero-rate update's R
     r_accel    variance of one accelerometer sample at rest, m²/s⁴
     inv_dyn2   1 / accel_dynamic², s⁴/m² (0: a fixed variance)
@@ -157,7 +166,8 @@ class MultiplicativeEKFCoefficients:
     """
 
     field_n: np.ndarray
-    Q: np.ndarray
+    q_angle: float
+    q_bias: float
     r_gyro: float
     r_accel: float
     inv_dyn2: float
@@ -175,7 +185,8 @@ class MultiplicativeEKFState:
 
     q          nominal quaternion (w, x, y, z), body → NED (None: from the first samples)
     bias       gyro bias (x, y, z), rad/s
-    P          6×6 covariance of the error state [δθ (NED, rad), δb (body, rad/s)]
+    cov        covariance of the error state [δθ (NED, rad), δb (body, rad/s)], its 36 floats row by row
+               (:mod:`~kfkit.filters.error_covariance`); ``P`` is the same as a 6×6 array
     k          samples filtered since the start
     strapdown  gyro-only attitude (w, x, y, z), body → I, of the accelerometer low-pass
     f_I        low-passed specific force in I, m/s²
@@ -190,7 +201,7 @@ class MultiplicativeEKFState:
 
     q: tuple | None
     bias: tuple
-    P: np.ndarray
+    cov: tuple
     k: int = 0
     strapdown: tuple = (1.0, 0.0, 0.0, 0.0)
     f_I: tuple | None = None
@@ -201,6 +212,11 @@ class MultiplicativeEKFState:
     rested: bool = False
     t_mag: float | None = None
     mag_gate: MagGate | None = None
+
+    @property
+    def P(self):
+        """The 6×6 error covariance (a new array)."""
+        return np.array(self.cov).reshape(6, 6)
 
 
 #: in motion the bias; in the heading update the tilt, or the tilt and the bias
@@ -309,7 +325,7 @@ class MultiplicativeEKF:
             if self._x0 is None
             else (tuple(self._x0[:4].tolist()), tuple(self._x0[4:].tolist()))
         )
-        self.state = MultiplicativeEKFState(q=q, bias=b, P=self._P0.copy())
+        self.state = MultiplicativeEKFState(q=q, bias=b, cov=tuple(self._P0.ravel().tolist()))
         self.coefficients: MultiplicativeEKFCoefficients | None = None  # from the first samples
 
     # ---- the start ---------------------------------------------------------------------------
@@ -325,7 +341,8 @@ class MultiplicativeEKF:
         sa = st.accel_density * math.sqrt(rate) if st.accel_noise is None else st.accel_noise
         self.coefficients = MultiplicativeEKFCoefficients(
             field_n=field_n,
-            Q=np.diag([sg * sg * dt * dt] * 3 + [st.gyro_bias_rw**2 * dt] * 3),
+            q_angle=sg * sg * dt * dt,
+            q_bias=st.gyro_bias_rw**2 * dt,
             r_gyro=sg * sg,
             r_accel=sa * sa,
             inv_dyn2=1.0 / st.accel_dynamic**2 if st.accel_dynamic else 0.0,
@@ -342,8 +359,6 @@ class MultiplicativeEKF:
         s.f_I = tuple(acc[0].tolist())
         s.rest_lp = tuple(gyr[0].tolist()) + tuple(acc[0].tolist())
         s.mag_gate = self.mag_gate_class(field_n, st)
-        self._F = np.eye(6)  # the prediction's F, its block −R dt filled in place
-        self._F_bias = self._F[:3, 3:]
 
     # ---- one sample, as named steps ------------------------------------------------------------
     def step(self, gyr, acc, mag=None) -> Step:
@@ -360,11 +375,11 @@ class MultiplicativeEKF:
         st = self.state
         return Step(
             _positive(st.q + st.bias),
-            st.P.copy(),
+            st.P,
             np.array(y),
             diagonal_S(np.array([s]))[0],
             _positive(x_prior),
-            P_prior.copy(),
+            np.array(P_prior).reshape(6, 6),
         )
 
     def _sample(self, w, f, m, y, s):
@@ -374,13 +389,13 @@ class MultiplicativeEKF:
         innovations and their variances into y and s (lists of 6); returns the prior (x⁻ = q⁻ + b, a 7-tuple; P⁻)
         and the flags (at rest, accelerometer variance raised, magnetometer used, magnetometer rejected)."""
         self._predict(w)
-        x_prior, P_prior = self.state.q + self.state.bias, self.state.P  # the prediction leaves b as it is
-        dx = np.zeros(6)
+        x_prior, P_prior = self.state.q + self.state.bias, self.state.cov  # the prediction leaves b as it is
+        dx = [0.0] * 6
         rest = self._at_rest(w, f)
         if rest:
             self.state.rested = True
             self._zero_rate_update(self.state.rest_samples[0], dx, y, s)
-        frozen = BIAS if self.freeze_bias_in_motion and self.state.rested and not rest else None
+        frozen = BIAS if self.freeze_bias_in_motion and self.state.rested and not rest else NOTHING_KEPT
         pushed = self._accel_update(self._stabilised_accel(f), dx, frozen, y, s)
         used = rejected = False
         if m is not None and m[0] == m[0]:  # a new magnetometer sample
@@ -398,9 +413,8 @@ class MultiplicativeEKF:
         s.q = quat_multiply_f(s.q, turn)
         s.strapdown = quat_multiply_f(s.strapdown, turn)
         self._R = R = quat_to_dcm_f(s.q)  # the accelerometer and heading updates' too
-        self._F_bias.flat = [-dt * r for r in R]
-        F = self._F
-        s.P = F.dot(s.P).dot(F.T) + self.coefficients.Q  # F P Fᵀ + Q (ndarray.dot: @ costs twice as much on 6×6)
+        c = self.coefficients
+        s.cov = propagate(s.cov, R, dt, c.q_angle, c.q_bias)
 
     def _turn(self, w):
         """The body's turn over the step: exp(ω̂ dt), ω̂ = ω − b, the sample held over the step it ends."""
@@ -442,8 +456,8 @@ class MultiplicativeEKF:
         s, r = self.state, self.coefficients.r_gyro
         for i in range(3):
             y[3 + i] = w[i] - s.bias[i]
-            a = s.P[:, 3 + i]
-            s_out[3 + i] = self._update(a, a[3 + i], y[3 + i] - dx[3 + i], r, dx, None)
+            j = 3 + i  # P Hᵀ is P's column j, its row j
+            s.cov, s_out[j] = scalar_update(s.cov, dx, s.cov[6 * j : 6 * j + 6], s.cov[7 * j], y[j] - dx[j], r)
 
     def _stabilised_accel(self, f):
         """f̄_b: f_I = R(q_I) f_b low-passed in I (where rotation does not move gravity), back to the body
@@ -478,11 +492,12 @@ class MultiplicativeEKF:
         y[0] = scale * (r00 * fx + r01 * fy + r02 * fz)
         y[1] = scale * (r10 * fx + r11 * fy + r12 * fz)
         pushed = a_lin2 * c.inv_dyn2
-        r = c.r_accel * (1.0 + pushed)
-        a = G * s.P[:, 1]  # north row: H = g·e_E
-        s_out[0] = self._update(a, G * a[1], y[0] - G * dx[1], r, dx, frozen)
-        a = -G * s.P[:, 0]  # east row: H = −g·e_N
-        s_out[1] = self._update(a, -G * a[0], y[1] + G * dx[0], r, dx, frozen)
+        r = c.r_accel * (1.0 + pushed) / (G * G)
+        # H = g·e_E (north) and −g·e_N (east): each is y/(±g) = δθ_E or −δθ_N with variance R/g², an update of
+        # one component (P Hᵀ is P's column 1, then 0); S = g² × that measurement's
+        s.cov, S_north = scalar_update(s.cov, dx, s.cov[6:12], s.cov[7], y[0] / G - dx[1], r, frozen)
+        s.cov, S_east = scalar_update(s.cov, dx, s.cov[0:6], s.cov[0], -y[1] / G - dx[0], r, frozen)
+        s_out[0], s_out[1] = G * G * S_north, G * G * S_east
         return pushed > 1.0
 
     def _heading_update(self, m, dx, frozen, y, s_out):
@@ -499,33 +514,25 @@ class MultiplicativeEKF:
         s.t_mag = t
         (h0, h1, h2), kept_off = self._heading_row(m_n, m_e, m_d, frozen)
         innov = wrap_angle_f(c.psi_ref - math.atan2(m_e, m_n)) - (h0 * dx[0] + h1 * dx[1] + h2 * dx[2])
-        a = s.P.dot((h0, h1, h2, 0.0, 0.0, 0.0))  # P Hᵀ
-        a0, a1, a2 = a[:3].tolist()
-        var_h = h0 * a0 + h1 * a1 + h2 * a2  # H P Hᵀ
+        a = times_attitude_row(s.cov, h0, h1, h2)  # P Hᵀ
+        var_h = h0 * a[0] + h1 * a[1] + h2 * a[2]  # H P Hᵀ
         if not s.mag_gate.use(t, math.hypot(m_h, m_d), math.atan2(m_d, m_h), innov, var_h, r):
             return False
         y[2] = innov
-        s_out[2] = self._update(a, var_h, innov, r, dx, kept_off)
+        s.cov, s_out[2] = scalar_update(s.cov, dx, a, var_h, innov, r, kept_off)
         return True
 
     def _heading_row(self, m_n, m_e, m_d, frozen):
         """The heading's H (its attitude part, 3 values) for the tilt-compensated field m = [m_n, m_e, m_d] (µT),
         and what the update leaves alone: the tilt, and the bias when ``frozen``."""
         h2 = m_n * m_n + m_e * m_e
-        return (-m_d * m_n / h2, -m_d * m_e / h2, 1.0), TILT if frozen is None else TILT_AND_BIAS
-
-    def _update(self, a, hph, innov, r, dx, kept_off):
-        """One scalar measurement (:func:`~kfkit.filters.scalar_update.scalar_update`): a = P Hᵀ, H P Hᵀ, the
-        innovation already corrected for the δx before it, its variance r; ``kept_off`` a
-        :class:`~kfkit.filters.scalar_update.Consider` or None. Adds to δx, updates P; returns S."""
-        self.state.P, S = scalar_update(self.state.P, dx, a, hph, innov, r, kept_off)
-        return S
+        return (-m_d * m_n / h2, -m_d * m_e / h2, 1.0), TILT if frozen is NOTHING_KEPT else TILT_AND_BIAS
 
     def _reset(self, dx):
         """Fold the error estimate δx = [δθ, δb] into the nominal state: q ← exp(δθ) ⊗ q (normalised),
         b ← b + δb."""
         s = self.state
-        ex, ey, ez, dbx, dby, dbz = dx.tolist()
+        ex, ey, ez, dbx, dby, dbz = dx
         s.q = quat_normalise_f(quat_multiply_f((1.0, 0.5 * ex, 0.5 * ey, 0.5 * ez), s.q))
         bx, by, bz = s.bias
         s.bias = (bx + dbx, by + dby, bz + dbz)
@@ -550,7 +557,7 @@ class MultiplicativeEKF:
             x_prior, P_prior, flag = sample(w, f, m, yk, sk)
             xs.append(s.q + s.bias)
             priors.append(x_prior)
-            Ps.append(s.P)  # every step makes new arrays: no copies needed
+            Ps.append(s.cov)
             P_priors.append(P_prior)
             ys.append(yk)
             Ss.append(sk)
@@ -559,11 +566,11 @@ class MultiplicativeEKF:
         y, S, flags = np.array(ys).reshape(N, 6), np.array(Ss).reshape(N, 6), np.array(flags, dtype=bool).reshape(N, 4)
         return AttitudeRun(
             x,
-            np.array(Ps).reshape(N, 6, 6),
+            as_matrices(Ps),
             y,
             diagonal_S(S),
             x_prior,
-            np.array(P_priors).reshape(N, 6, 6),
+            as_matrices(P_priors),
             nis=np.nansum(y * y / S, axis=1),
             accel_gated=flags[:, 1],
             mag_used=flags[:, 2],
