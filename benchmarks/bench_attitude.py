@@ -53,7 +53,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from timing import best_of
+from timing import best_of_each
 
 from kfkit import datasets
 from kfkit.filters import EulerAttitudeEKF, MultiplicativeEKF, estimate_attitude
@@ -498,6 +498,11 @@ def filterpy_euler_ekf(gyr, acc, mag, rate):
     return out
 
 
+#: issue 29's speed goal for the MEKF, and the ahrs EKF's speed in the quiet run of this benchmark the issue quotes
+#: (the MEKF of that time: 32,993 steps/s): the goal is their ratio, which holds across machines
+GOAL_STEPS_PER_S, GOAL_AHRS_STEPS_PER_S = 50_000, 9_165
+
+
 def speed():
     from kfkit.calibration import Calibration, bundled_calibration_path
 
@@ -512,11 +517,10 @@ def speed():
         "filterpy EKF (same Euler model)": lambda: filterpy_euler_ekf(gyr, acc, mag, rate),
         "ahrs EKF": lambda: run_ahrs_ekf(gyr, acc, mag, rate),
     }
-    times = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        for name, fn in contenders.items():  # CPU time of this process: other processes on the machine do not count
-            times[name] = best_of(fn, repeats=3, clock=time.process_time)
+        # CPU time of this process (other processes on the machine do not count), the contenders in turns
+        times = best_of_each(contenders, repeats=5, clock=time.process_time)
         same = np.abs(
             wrap_angle(filterpy_euler_ekf(gyr, acc, mag, rate) - estimate_attitude(gyr, acc, mag, rate).euler)
         )
@@ -524,13 +528,19 @@ def speed():
         raise SystemExit(f"filterpy's EKF and kfkit's euler-ekf differ by {same.max():.2e} rad: not the same model")
     base, ahrs = times["kfkit euler-ekf"], times["ahrs EKF"]
     print(
-        f"\nSpeed on 04_attitude_tour ({n} samples, {n / rate:.0f} s at {rate:g} Hz), best of 3 (process CPU time); "
-        f"filterpy's estimates equal kfkit euler-ekf's to {same.max():.0e} rad\n"
+        f"\nSpeed on 04_attitude_tour ({n} samples, {n / rate:.0f} s at {rate:g} Hz), best of 5 rounds taken in turns "
+        f"(process CPU time); filterpy's estimates equal kfkit euler-ekf's to {same.max():.0e} rad\n"
     )
     print("| filter | steps/s | time for 60 s at 100 Hz (ms) | time vs kfkit euler-ekf | speed vs ahrs EKF |")
     print("|---|---:|---:|---:|---:|")
     for name, t in times.items():
         print(f"| {name} | {n / t:,.0f} | {6000 * t / n * 1e3:.0f} | {t / base:.1f}× | {ahrs / t:.1f}× |")
+    goal = GOAL_STEPS_PER_S / GOAL_AHRS_STEPS_PER_S
+    print(
+        f"\nIssue 29's goal, {GOAL_STEPS_PER_S:,} steps/s, was set where the ahrs EKF ran "
+        f"{GOAL_AHRS_STEPS_PER_S:,}: {goal:.2f}× the ahrs EKF. kfkit mekf here: "
+        f"{ahrs / times['kfkit mekf']:.1f}× ({'met' if ahrs / times['kfkit mekf'] >= goal else 'not met'})."
+    )
 
 
 # ---- main ------------------------------------------------------------------------------------

@@ -21,6 +21,7 @@ from kfkit.filters import (
     euler_process_noise,
 )
 from kfkit.filters.attitude_run import hold_last_sample, learn_field, tilt_heading
+from kfkit.filters.error_covariance import NOTHING_KEPT
 from kfkit.filters.euler_ekf import EulerAttitudeEKFSettings, euler_kinematics_jacobian, euler_rate_matrix
 from kfkit.filters.mag_gate import MagGate
 from kfkit.frames import (
@@ -826,7 +827,7 @@ def test_mekf_heading_jacobian_against_finite_differences(seed):
         return heading_innovation(R_est, R_true.T @ field, field)
 
     fd = finite_difference(lambda d: np.atleast_1d(innovation(d)), np.zeros(3))[0]
-    h, _ = f._heading_row(*m_n, None)
+    h, _ = f._heading_row(*m_n, NOTHING_KEPT)
     np.testing.assert_allclose(h, fd, rtol=1e-6, atol=1e-8)
     tan_dip = field[2] / np.hypot(field[0], field[1])
     np.testing.assert_allclose(np.hypot(h[0], h[1]), abs(tan_dip), rtol=1e-9)
@@ -836,7 +837,7 @@ def test_mekf_heading_jacobian_in_the_body_frame_is_the_issues_finite_difference
     # Issue 25's case: φ = 0.3, θ = −0.2, ψ = 1.0 rad in London's field. A body-frame error δθ_b is the NED error
     # R δθ_b, so H_b = H R; finite differences give [−1.05, 2.20, 0.61], where e_zᵀR (the old H) is [0.20, 0.29, 0.94].
     R = scipy_rotation([0.3, -0.2, 1.0]).as_matrix()
-    h, _ = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD)._heading_row(*FIELD, None)
+    h, _ = MultiplicativeEKF(rate_hz=100.0, field_n=FIELD)._heading_row(*FIELD, NOTHING_KEPT)
 
     def innovation(d):
         return np.atleast_1d(heading_innovation(R, (R @ Rotation.from_rotvec(d).as_matrix()).T @ FIELD, FIELD))

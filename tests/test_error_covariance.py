@@ -8,8 +8,10 @@ from filterpy.kalman import KalmanFilter
 from scipy.spatial.transform import Rotation
 
 from kfkit.filters.error_covariance import (
+    BIAS,
+    TILT,
+    TILT_AND_BIAS,
     as_matrices,
-    consider,
     diagonal_S,
     propagate,
     scalar_update,
@@ -67,16 +69,16 @@ def test_an_ordinary_scalar_update_is_filterpys(seed):
     np.testing.assert_allclose(S, kf.S[0, 0], rtol=1e-12)
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_a_consider_update_leaves_its_components_and_is_the_joseph_form_of_its_gain(seed):
+@pytest.mark.parametrize("kept, left", [(TILT, [0, 1]), (BIAS, [3, 4, 5]), (TILT_AND_BIAS, [0, 1, 3, 4, 5])])
+@pytest.mark.parametrize("seed", range(3))
+def test_a_consider_update_leaves_its_components_and_is_the_joseph_form_of_its_gain(seed, kept, left):
     P, H, x, z, r = random_case(seed)
-    left = [0, 1, 4]
-    kept = consider(*left)
     dx = [0.0] * 6
     a = P @ H[0]
     P_new, S = scalar_update(packed(P), dx, tuple(a), float(H[0] @ a), float(z - H[0] @ x), r, kept)
     dx, P_new = np.array(dx), matrix(P_new)
-    assert np.all(dx[left] == 0.0) and np.all(dx[[2, 3, 5]] != 0.0)
+    updated = [i for i in range(6) if i not in left]
+    assert np.all(dx[left] == 0.0) and np.all(dx[updated] != 0.0)
     gain_mask = np.ones(6)
     gain_mask[left] = 0.0
     K = (gain_mask * a / S)[:, None]  # the gain actually applied
@@ -84,6 +86,7 @@ def test_a_consider_update_leaves_its_components_and_is_the_joseph_form_of_its_g
     joseph = I_KH @ P @ I_KH.T + r * K @ K.T
     np.testing.assert_allclose(P_new, joseph, atol=1e-10)
     np.testing.assert_array_equal(P_new[np.ix_(left, left)], P[np.ix_(left, left)])
+    np.testing.assert_array_equal(P_new, P_new.T)
 
 
 def test_as_matrices_stacks_the_tuples_row_by_row():

@@ -27,7 +27,8 @@ The contract (x-io Fusion's and VQF's shape: settings with units and defaults, t
     euler_ekf_fast  FastEulerAttitudeEKF: the same filter unrolled on floats, held equal by a test
     mekf            MultiplicativeEKF + MultiplicativeEKFSettings, its MultiplicativeEKFState and named steps
     mag_gate        MagGate, the MEKF's magnetic-disturbance gate
-    scalar_update   sequential scalar updates with consider (Schmidt) components, the MEKF's
+    error_covariance   the MEKF's 6×6 covariance as 36 floats: its prediction and sequential scalar updates
+                       with consider (Schmidt) blocks, the arithmetic written out
 
 The names in ``__all__`` below are importable from ``kfkit.filters``; the helpers (``tilt_heading``,
 ``learn_field``, ``jacobian_rows``, ``MagGate``, …) from their own modules.

@@ -4,8 +4,8 @@ costs as much as the whole product in floats, and the filter makes a dozen of th
 
     propagate            P ← F P Fᵀ + Q,  F = [[I, −M], [0, I]],  Q = diag(q_θ I, q_b I)
     times_attitude_row   P Hᵀ for H = [h₀, h₁, h₂, 0, 0, 0]
-    scalar_update        one scalar measurement given a = P Hᵀ: S, δx += K·innovation, P ← P − K aᵀ (masked)
-    Consider, consider   the masks of the components an update leaves alone (a Schmidt "consider" update)
+    scalar_update        one scalar measurement given a = P Hᵀ: S, δx += K·innovation, P ← P − K aᵀ
+    Consider             the blocks (tilt, bias) an update leaves alone (a Schmidt "consider" update)
     as_matrices          the tuples of a run → an (N, 6, 6) array
     diagonal_S           (N, m) innovation variances → (N, m, m) diagonal S, NaN where no update was made
 
@@ -21,26 +21,16 @@ import numpy as np
 
 
 class Consider(NamedTuple):
-    """Which error-state components a "consider" (Schmidt) update leaves alone: keep_x (6 floats) is 0 on them and
-    1 elsewhere (the gain's mask); keep_P (21 floats, P's upper triangle row by row) is 0 where both the row and
-    the column are left alone (the covariance update's mask: their covariance stays, their correlations with the
-    rest are updated)."""
+    """Which blocks of the error state a "consider" (Schmidt) update leaves alone: the tilt (δθ_N, δθ_E, components 0
+    and 1) and the gyro bias (δb, components 3–5). Their gain is zero, their covariance stays, and their correlations
+    with the rest are updated."""
 
-    keep_x: tuple
-    keep_P: tuple
-
-
-def consider(*components):
-    """The :class:`Consider` masks that leave ``components`` (indices 0–5 of the error state) alone."""
-    left = [i in components for i in range(6)]
-    return Consider(
-        tuple(0.0 if out else 1.0 for out in left),
-        tuple(0.0 if left[i] and left[j] else 1.0 for i in range(6) for j in range(i, 6)),
-    )
+    tilt: bool = False
+    bias: bool = False
 
 
-#: an ordinary update: every component corrected
-NOTHING_KEPT = consider()
+#: an ordinary update, one that leaves the bias alone, one that leaves the tilt alone, and one that leaves both
+NOTHING_KEPT, BIAS, TILT, TILT_AND_BIAS = Consider(), Consider(bias=True), Consider(tilt=True), Consider(True, True)
 
 
 def propagate(P, R, dt, q_angle, q_bias):
@@ -101,40 +91,52 @@ def times_attitude_row(P, h0, h1, h2):
 
 def scalar_update(P, dx, a, hph, innov, r, kept_off=NOTHING_KEPT):
     """One scalar measurement, given a = P Hᵀ (6 floats) and H P Hᵀ: S = H P Hᵀ + r, K = a/S, δx += K·innov (dx a
-    list, in place), P ← P − K aᵀ. The components ``kept_off`` marks (a :class:`Consider`) are left alone: K is zero
-    there, and P's entries whose row and column are both kept off stay (a Schmidt update: their covariance stays,
-    their correlations with the rest are kept right). ``innov`` must already be corrected for the δx of the updates
+    list, in place), P ← P − K aᵀ. The blocks ``kept_off`` marks (a :class:`Consider`) are left alone: K is zero
+    there and their own covariance stays (a Schmidt update: P ← P − (a aᵀ − a_c a_cᵀ)/S, a_c = a on those blocks,
+    keeps their correlations with the rest right). ``innov`` must already be corrected for the δx of the updates
     before it in the same sample. Returns (the new P, S)."""
     S = hph + r
     s = 1.0 / S
     a0, a1, a2, a3, a4, a5 = a
     k0, k1, k2, k3, k4, k5 = a0 * s, a1 * s, a2 * s, a3 * s, a4 * s, a5 * s
-    x0, x1, x2, x3, x4, x5 = kept_off.keep_x
-    dx[0] += k0 * x0 * innov
-    dx[1] += k1 * x1 * innov
-    dx[2] += k2 * x2 * innov
-    dx[3] += k3 * x3 * innov
-    dx[4] += k4 * x4 * innov
-    dx[5] += k5 * x5 * innov
     (p00, p01, p02, p03, p04, p05,
      _, p11, p12, p13, p14, p15,
      _, _, p22, p23, p24, p25,
      _, _, _, p33, p34, p35,
      _, _, _, _, p44, p45,
      _, _, _, _, _, p55) = P  # fmt: skip
-    (m00, m01, m02, m03, m04, m05,
-     m11, m12, m13, m14, m15,
-     m22, m23, m24, m25,
-     m33, m34, m35,
-     m44, m45,
-     m55) = kept_off.keep_P  # fmt: skip
-    n00, n01, n02 = p00 - k0 * a0 * m00, p01 - k0 * a1 * m01, p02 - k0 * a2 * m02
-    n03, n04, n05 = p03 - k0 * a3 * m03, p04 - k0 * a4 * m04, p05 - k0 * a5 * m05
-    n11, n12, n13 = p11 - k1 * a1 * m11, p12 - k1 * a2 * m12, p13 - k1 * a3 * m13
-    n14, n15 = p14 - k1 * a4 * m14, p15 - k1 * a5 * m15
-    n22, n23, n24, n25 = p22 - k2 * a2 * m22, p23 - k2 * a3 * m23, p24 - k2 * a4 * m24, p25 - k2 * a5 * m25
-    n33, n34, n35 = p33 - k3 * a3 * m33, p34 - k3 * a4 * m34, p35 - k3 * a5 * m35
-    n44, n45, n55 = p44 - k4 * a4 * m44, p45 - k4 * a5 * m45, p55 - k5 * a5 * m55
+    n00, n01, n02, n03, n04, n05 = (
+        p00 - k0 * a0,
+        p01 - k0 * a1,
+        p02 - k0 * a2,
+        p03 - k0 * a3,
+        p04 - k0 * a4,
+        p05 - k0 * a5,
+    )
+    n11, n12, n13, n14, n15 = p11 - k1 * a1, p12 - k1 * a2, p13 - k1 * a3, p14 - k1 * a4, p15 - k1 * a5
+    n22, n23, n24, n25 = p22 - k2 * a2, p23 - k2 * a3, p24 - k2 * a4, p25 - k2 * a5
+    n33, n34, n35, n44, n45, n55 = (
+        p33 - k3 * a3,
+        p34 - k3 * a4,
+        p35 - k3 * a5,
+        p44 - k4 * a4,
+        p45 - k4 * a5,
+        p55 - k5 * a5,
+    )
+    if kept_off.tilt:
+        n00, n01, n11 = p00, p01, p11
+        k0 = k1 = 0.0
+    if kept_off.bias:
+        n33, n34, n35, n44, n45, n55 = p33, p34, p35, p44, p45, p55
+        k3 = k4 = k5 = 0.0
+        if kept_off.tilt:  # and their correlations: both blocks left alone
+            n03, n04, n05, n13, n14, n15 = p03, p04, p05, p13, p14, p15
+    dx[0] += k0 * innov
+    dx[1] += k1 * innov
+    dx[2] += k2 * innov
+    dx[3] += k3 * innov
+    dx[4] += k4 * innov
+    dx[5] += k5 * innov
     return (n00, n01, n02, n03, n04, n05,
             n01, n11, n12, n13, n14, n15,
             n02, n12, n22, n23, n24, n25,

@@ -25,9 +25,11 @@ from ..frames import (
 from .attitude_run import AttitudeRun, check_inputs, first_mag_row, learn_field, tilt_heading
 from .contract import Step, check_settings, configure, sample_period, shaped
 from .error_covariance import (
+    BIAS,
     NOTHING_KEPT,
+    TILT,
+    TILT_AND_BIAS,
     as_matrices,
-    consider,
     diagonal_S,
     propagate,
     scalar_update,
@@ -217,10 +219,6 @@ class MultiplicativeEKFState:
     def P(self):
         """The 6×6 error covariance (a new array)."""
         return np.array(self.cov).reshape(6, 6)
-
-
-#: in motion the bias; in the heading update the tilt, or the tilt and the bias
-BIAS, TILT, TILT_AND_BIAS = consider(3, 4, 5), consider(0, 1), consider(0, 1, 3, 4, 5)
 
 
 class MultiplicativeEKF:
@@ -526,7 +524,7 @@ class MultiplicativeEKF:
         """The heading's H (its attitude part, 3 values) for the tilt-compensated field m = [m_n, m_e, m_d] (µT),
         and what the update leaves alone: the tilt, and the bias when ``frozen``."""
         h2 = m_n * m_n + m_e * m_e
-        return (-m_d * m_n / h2, -m_d * m_e / h2, 1.0), TILT if frozen is NOTHING_KEPT else TILT_AND_BIAS
+        return (-m_d * m_n / h2, -m_d * m_e / h2, 1.0), TILT_AND_BIAS if frozen.bias else TILT
 
     def _reset(self, dx):
         """Fold the error estimate δx = [δθ, δb] into the nominal state: q ← exp(δθ) ⊗ q (normalised),
