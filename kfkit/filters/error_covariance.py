@@ -1,6 +1,6 @@
 """The MEKF's 6×6 error covariance P of [δθ (attitude, rad), δb (gyro bias, rad/s)], kept as a tuple of its 36
 floats, row by row (``P[6*i + j]``), and worked on with the arithmetic written out: on a 6×6 matrix one numpy call
-costs as much as the whole product in floats, and the filter makes a dozen of them a sample.
+costs about as much as a whole scalar update written in floats, and the filter would make a dozen of them a sample.
 
     propagate            P ← F P Fᵀ + Q,  F = [[I, −M], [0, I]],  Q = diag(q_θ I, q_b I)
     times_attitude_row   P Hᵀ for H = [h₀, h₁, h₂, 0, 0, 0]
@@ -105,24 +105,14 @@ def scalar_update(P, dx, a, hph, innov, r, kept_off=NOTHING_KEPT):
      _, _, _, p33, p34, p35,
      _, _, _, _, p44, p45,
      _, _, _, _, _, p55) = P  # fmt: skip
-    n00, n01, n02, n03, n04, n05 = (
-        p00 - k0 * a0,
-        p01 - k0 * a1,
-        p02 - k0 * a2,
-        p03 - k0 * a3,
-        p04 - k0 * a4,
-        p05 - k0 * a5,
-    )
-    n11, n12, n13, n14, n15 = p11 - k1 * a1, p12 - k1 * a2, p13 - k1 * a3, p14 - k1 * a4, p15 - k1 * a5
+    # P ← P − K aᵀ, the upper triangle row by row
+    n00, n01, n02 = p00 - k0 * a0, p01 - k0 * a1, p02 - k0 * a2
+    n03, n04, n05 = p03 - k0 * a3, p04 - k0 * a4, p05 - k0 * a5
+    n11, n12, n13 = p11 - k1 * a1, p12 - k1 * a2, p13 - k1 * a3
+    n14, n15 = p14 - k1 * a4, p15 - k1 * a5
     n22, n23, n24, n25 = p22 - k2 * a2, p23 - k2 * a3, p24 - k2 * a4, p25 - k2 * a5
-    n33, n34, n35, n44, n45, n55 = (
-        p33 - k3 * a3,
-        p34 - k3 * a4,
-        p35 - k3 * a5,
-        p44 - k4 * a4,
-        p45 - k4 * a5,
-        p55 - k5 * a5,
-    )
+    n33, n34, n35 = p33 - k3 * a3, p34 - k3 * a4, p35 - k3 * a5
+    n44, n45, n55 = p44 - k4 * a4, p45 - k4 * a5, p55 - k5 * a5
     if kept_off.tilt:
         n00, n01, n11 = p00, p01, p11
         k0 = k1 = 0.0
