@@ -11,7 +11,6 @@ from kfkit.filters.error_covariance import (
     BIAS,
     TILT,
     TILT_AND_BIAS,
-    as_matrices,
     diagonal_S,
     propagate,
     scalar_update,
@@ -87,12 +86,6 @@ def test_a_consider_update_leaves_its_components_and_is_the_joseph_form_of_its_g
     np.testing.assert_allclose(P_new, joseph, atol=1e-10)
     np.testing.assert_array_equal(P_new[np.ix_(left, left)], P[np.ix_(left, left)])
     np.testing.assert_array_equal(P_new, P_new.T)
-
-
-def test_as_matrices_stacks_the_tuples_row_by_row():
-    Ps = [tuple(float(36 * k + i) for i in range(36)) for k in range(3)]
-    got = as_matrices(Ps)
-    assert got.shape == (3, 6, 6) and got[2, 1, 4] == 2 * 36 + 6 + 4
 
 
 def test_diagonal_S_marks_the_updates_not_made():

@@ -6,7 +6,6 @@ costs about as much as a whole scalar update written in floats, and the filter w
     times_attitude_row   P Hᵀ for H = [h₀, h₁, h₂, 0, 0, 0]
     scalar_update        one scalar measurement given a = P Hᵀ: S, δx += K·innovation, P ← P − K aᵀ
     Consider             the blocks (tilt, bias) an update leaves alone (a Schmidt "consider" update)
-    as_matrices          the tuples of a run → an (N, 6, 6) array
     diagonal_S           (N, m) innovation variances → (N, m, m) diagonal S, NaN where no update was made
 
 P stays symmetric: each function computes the upper triangle (21 values) and mirrors it.
@@ -14,7 +13,6 @@ P stays symmetric: each function computes the upper triangle (21 values) and mir
 
 from __future__ import annotations
 
-from itertools import chain
 from typing import NamedTuple
 
 import numpy as np
@@ -133,11 +131,6 @@ def scalar_update(P, dx, a, hph, innov, r, kept_off=NOTHING_KEPT):
             n03, n13, n23, n33, n34, n35,
             n04, n14, n24, n34, n44, n45,
             n05, n15, n25, n35, n45, n55), S  # fmt: skip
-
-
-def as_matrices(Ps):
-    """A list of N covariance tuples (36 floats each) → an (N, 6, 6) array."""
-    return np.fromiter(chain.from_iterable(Ps), float, 36 * len(Ps)).reshape(len(Ps), 6, 6)
 
 
 def diagonal_S(variances):

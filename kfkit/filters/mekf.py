@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from itertools import chain
 
 import numpy as np
 
@@ -29,7 +30,6 @@ from .error_covariance import (
     NOTHING_KEPT,
     TILT,
     TILT_AND_BIAS,
-    as_matrices,
     diagonal_S,
     propagate,
     scalar_update,
@@ -560,15 +560,15 @@ class MultiplicativeEKF:
             ys.append(yk)
             Ss.append(sk)
             flags.append(flag)
-        x, x_prior = _positive(np.array(xs).reshape(N, 7)), _positive(np.array(priors).reshape(N, 7))
-        y, S, flags = np.array(ys).reshape(N, 6), np.array(Ss).reshape(N, 6), np.array(flags, dtype=bool).reshape(N, 4)
+        x, x_prior = _positive(_stacked(xs, 7)), _positive(_stacked(priors, 7))
+        y, S, flags = _stacked(ys, 6), _stacked(Ss, 6), np.array(flags, dtype=bool).reshape(N, 4)
         return AttitudeRun(
             x,
-            as_matrices(Ps),
+            _stacked(Ps, 6, 6),
             y,
             diagonal_S(S),
             x_prior,
-            as_matrices(P_priors),
+            _stacked(P_priors, 6, 6),
             nis=np.nansum(y * y / S, axis=1),
             accel_gated=flags[:, 1],
             mag_used=flags[:, 2],
@@ -576,6 +576,12 @@ class MultiplicativeEKF:
             at_rest=flags[:, 0],
             method=self.method,
         )
+
+
+def _stacked(rows, *shape):
+    """N sequences of floats (tuples, lists), each ``shape`` row by row → an (N, *shape) array; np.fromiter over
+    them costs half of what np.array does."""
+    return np.fromiter(chain.from_iterable(rows), float, math.prod(shape) * len(rows)).reshape(len(rows), *shape)
 
 
 def _positive(x):
